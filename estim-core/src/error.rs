@@ -1,0 +1,56 @@
+//! The crate's error type.
+
+/// Everything that can go wrong in `estim-core`.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum Error {
+    /// An input (state, covariance, measurement, ...) holds NaN or infinity.
+    #[error("non-finite value in {what}")]
+    NonFinite {
+        /// Which quantity held the non-finite value.
+        what: &'static str,
+    },
+    /// The innovation covariance S = H P H' + H M + M' H' + R could not be inverted
+    /// (Cholesky failed): it is not positive definite.
+    #[error("innovation covariance is not positive definite")]
+    InnovationNotPositiveDefinite,
+    /// The joint covariance [[Q_acc, M], [M', R]] is not positive semidefinite:
+    /// the cross-covariance M is not a possible covariance of (G w, v).
+    #[error("joint covariance [[Q_acc, M], [M', R]] is not positive semidefinite (smallest eigenvalue {min_eigenvalue:e})")]
+    InvalidJointCovariance {
+        /// Smallest eigenvalue of the joint covariance (negative beyond tolerance).
+        min_eigenvalue: f64,
+    },
+    /// A covariance matrix that must be positive (semi)definite is not.
+    #[error("{what} is not a valid covariance: {reason}")]
+    InvalidCovariance {
+        /// Which covariance.
+        what: &'static str,
+        /// Why it was rejected.
+        reason: String,
+    },
+    /// Sizes that the type system cannot check disagree.
+    #[error("dimension mismatch in {what}: expected {expected}, got {got}")]
+    Dimension {
+        /// Which quantity.
+        what: &'static str,
+        /// Expected size.
+        expected: usize,
+        /// Size given.
+        got: usize,
+    },
+    /// A parameter is outside its valid range.
+    #[error("invalid parameter {name}: {reason}")]
+    InvalidParameter {
+        /// The parameter.
+        name: &'static str,
+        /// Why it was rejected.
+        reason: String,
+    },
+    /// A model (process, measurement or learned) failed to evaluate.
+    #[error("model evaluation failed: {0}")]
+    Model(String),
+}
+
+/// `Result` with this crate's [`Error`].
+pub type Result<T> = std::result::Result<T, Error>;

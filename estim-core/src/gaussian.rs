@@ -1,0 +1,86 @@
+//! A state estimate and its covariance, travelling together.
+
+use nalgebra::{SMatrix, SVector};
+
+use crate::{Error, Result, Scalar};
+
+/// Mean and covariance of a Gaussian state estimate of size `N`.
+///
+/// Fields are private so the pair stays consistent: the constructor checks that
+/// every value is finite and the covariance is symmetric (to a relative 1e-9).
+#[derive(Debug, Clone, PartialEq)]
+pub struct StateAndCovariance<T: Scalar, const N: usize> {
+    state: SVector<T, N>,
+    covariance: SMatrix<T, N, N>,
+}
+
+impl<T: Scalar, const N: usize> StateAndCovariance<T, N> {
+    /// Build an estimate, checking finiteness and symmetry of the covariance.
+    pub fn new(state: SVector<T, N>, covariance: SMatrix<T, N, N>) -> Result<Self> {
+        check_finite(state.as_slice(), "state")?;
+        check_finite(covariance.as_slice(), "state covariance")?;
+        check_symmetric(&covariance, "state covariance")?;
+        Ok(Self { state, covariance })
+    }
+
+    /// Build without checks; for runners that produced the values themselves.
+    pub(crate) fn new_unchecked(state: SVector<T, N>, covariance: SMatrix<T, N, N>) -> Self {
+        Self { state, covariance }
+    }
+
+    /// The mean.
+    pub fn state(&self) -> &SVector<T, N> {
+        &self.state
+    }
+
+    /// The covariance.
+    pub fn covariance(&self) -> &SMatrix<T, N, N> {
+        &self.covariance
+    }
+
+    /// Split into (mean, covariance).
+    pub fn into_parts(self) -> (SVector<T, N>, SMatrix<T, N, N>) {
+        (self.state, self.covariance)
+    }
+
+    /// Replace the mean, keeping the covariance (checked for finiteness).
+    pub fn with_state(self, state: SVector<T, N>) -> Result<Self> {
+        check_finite(state.as_slice(), "state")?;
+        Ok(Self { state, ..self })
+    }
+}
+
+/// Fail with [`Error::NonFinite`] if any value is NaN or infinite.
+pub fn check_finite<T: Scalar>(values: &[T], what: &'static str) -> Result<()> {
+    if values.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(Error::NonFinite { what })
+    }
+}
+
+/// Fail with [`Error::InvalidCovariance`] unless `m` is symmetric to a relative 1e-9.
+pub fn check_symmetric<T: Scalar, const N: usize>(
+    m: &SMatrix<T, N, N>,
+    what: &'static str,
+) -> Result<()> {
+    let scale = m.amax();
+    let tol = crate::scalar::lit::<T>(1e-9) * scale;
+    for i in 0..N {
+        for j in (i + 1)..N {
+            if (m[(i, j)] - m[(j, i)]).abs() > tol {
+                return Err(Error::InvalidCovariance {
+                    what,
+                    reason: format!("not symmetric at ({i}, {j})"),
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The symmetric part (A + A') / 2, used to remove round-off asymmetry.
+#[inline]
+pub fn symmetrize<T: Scalar, const N: usize>(m: &SMatrix<T, N, N>) -> SMatrix<T, N, N> {
+    (m + m.transpose()) * crate::scalar::lit::<T>(0.5)
+}

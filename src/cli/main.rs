@@ -1,0 +1,36 @@
+//! The `estim` command-line tool.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+mod reproduce;
+
+/// estim: state estimation with correlated process and measurement noise.
+#[derive(Debug, Parser)]
+#[command(name = "estim", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Reproduce the paper (INS/DVL + BeamsNet, M-aware vs M-neglected).
+    Reproduce(reproduce::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Reproduce(args) => reproduce::run(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            // One line, naming what was wrong; exit code 2 for bad input.
+            eprintln!("error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
+}

@@ -1,0 +1,22 @@
+//! # estim
+//!
+//! State estimation with correlated process and measurement noise. When a learned
+//! model turns raw sensor data into a measurement and the same sensors drive the
+//! process model, the two noises are correlated and a standard EKF is inconsistent;
+//! estim's update accounts for the cross-covariance M.
+//!
+//! This facade re-exports the member crates:
+//! - [`core`]: traits, the correlated update, KF/EKF/error-state EKF runners, consistency tools;
+//! - [`ins`]: strapdown INS, 15-state error model, IMU simulator;
+//! - [`dvl`]: DVL beams, least squares, DVL measurement model, calibration;
+//! - [`learned`]: ONNX learned measurements, BeamsNet, network-derived cross-covariance;
+//!
+//! and holds the A-KIT [`datasets`] loaders.
+#![warn(missing_docs)]
+
+pub mod datasets;
+
+pub use estim_core as core;
+pub use estim_dvl as dvl;
+pub use estim_ins as ins;
+pub use estim_learned as learned;
