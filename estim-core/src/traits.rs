@@ -35,6 +35,17 @@ pub trait ProcessModel<T: Scalar, const N: usize> {
         input: &Self::Input,
         dt: T,
     ) -> Result<SMatrix<T, N, N>>;
+
+    /// P_k = Phi P_{k-1} Phi' + Q. Override to exploit the structure of Phi
+    /// (e.g. its sparsity); the result must equal this default.
+    fn propagate_covariance(
+        &self,
+        covariance: &SMatrix<T, N, N>,
+        transition: &SMatrix<T, N, N>,
+        process_noise: &SMatrix<T, N, N>,
+    ) -> SMatrix<T, N, N> {
+        transition * covariance * transition.transpose() + process_noise
+    }
 }
 
 /// A process model whose filter estimates an error around a nominal state.
