@@ -1,8 +1,16 @@
 //! A-KIT CSV files: `GT_trajectoryN.csv` and `DVL_trajectoryN.csv`.
 
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use super::{DatasetError, Result};
+
+fn open(path: &Path) -> Result<std::fs::File> {
+    std::fs::File::open(path).map_err(|source| DatasetError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
 
 /// Header of `GT_trajectoryN.csv`.
 pub const GT_HEADER: [&str; 10] = [
@@ -49,7 +57,12 @@ pub struct DvlSample {
 
 /// Load and validate a ground-truth file.
 pub fn load_gt(path: &Path) -> Result<Vec<GtSample>> {
-    let rows = read_numeric_csv(path, &GT_HEADER, 2)?;
+    parse_gt(open(path)?, path)
+}
+
+/// Parse ground truth from any reader; `path` names the source in errors.
+pub fn parse_gt(reader: impl Read, path: &Path) -> Result<Vec<GtSample>> {
+    let rows = read_numeric_csv(reader, path, &GT_HEADER, 2)?;
     Ok(rows
         .into_iter()
         .map(|r| GtSample {
@@ -65,7 +78,12 @@ pub fn load_gt(path: &Path) -> Result<Vec<GtSample>> {
 
 /// Load and validate a DVL file.
 pub fn load_dvl(path: &Path) -> Result<Vec<DvlSample>> {
-    let rows = read_numeric_csv(path, &DVL_HEADER, 2)?;
+    parse_dvl(open(path)?, path)
+}
+
+/// Parse a DVL log from any reader; `path` names the source in errors.
+pub fn parse_dvl(reader: impl Read, path: &Path) -> Result<Vec<DvlSample>> {
+    let rows = read_numeric_csv(reader, path, &DVL_HEADER, 2)?;
     Ok(rows
         .into_iter()
         .map(|r| DvlSample {
@@ -78,17 +96,16 @@ pub fn load_dvl(path: &Path) -> Result<Vec<DvlSample>> {
 /// Read a CSV whose header must equal `header` (cells trimmed), every cell a finite
 /// number, the first column a strictly increasing time, at least `min_rows` rows.
 fn read_numeric_csv<const C: usize>(
+    input: impl Read,
     path: &Path,
     header: &[&str; C],
     min_rows: usize,
 ) -> Result<Vec<[f64; C]>> {
     let pb = || PathBuf::from(path);
-    let file =
-        std::fs::File::open(path).map_err(|source| DatasetError::Io { path: pb(), source })?;
     let mut reader = csv::ReaderBuilder::new()
         .has_headers(false)
         .flexible(true)
-        .from_reader(std::io::BufReader::new(file));
+        .from_reader(std::io::BufReader::new(input));
     let mut records = reader.records();
     let csv_err = |e: csv::Error| match e.kind() {
         csv::ErrorKind::Io(_) => DatasetError::Io {

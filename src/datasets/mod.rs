@@ -7,7 +7,9 @@
 mod akit;
 mod locate;
 
-pub use akit::{load_dvl, load_gt, DvlSample, GtSample, DVL_HEADER, GT_HEADER};
+pub use akit::{
+    load_dvl, load_gt, parse_dvl, parse_gt, DvlSample, GtSample, DVL_HEADER, GT_HEADER,
+};
 pub use locate::{akit_dir, data_root, trajectory_files, TrajectoryFiles, DATA_DIR_ENV};
 
 use std::path::PathBuf;

@@ -1,0 +1,212 @@
+//! Fuzzing on stable Rust: proptest-driven arbitrary bytes and structure-aware
+//! mutations of valid inputs for every parser a user feeds.
+//!
+//! Property: no panic; either a typed error or a parse whose rows satisfy the
+//! parser's own validation rules (finite values, strictly increasing time).
+//!
+//! CI runs `ESTIM_FUZZ_CASES` (default 2,000) cases per property. The long run:
+//!
+//! ```sh
+//! ESTIM_FUZZ_CASES=1000000 cargo test --release --test fuzz_parsers
+//! ```
+
+use std::path::Path;
+
+use estim::datasets::{parse_dvl, parse_gt, DVL_HEADER, GT_HEADER};
+use proptest::prelude::*;
+use proptest::test_runner::Config;
+
+fn cases() -> u32 {
+    std::env::var("ESTIM_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(2_000)
+}
+
+fn config() -> Config {
+    Config {
+        cases: cases(),
+        failure_persistence: None,
+        ..Config::default()
+    }
+}
+
+/// A valid file with `rows` rows after `header` (time first, then pseudo-random values).
+fn valid_csv(header: &[&str], rows: usize, seed: u64) -> String {
+    let mut s = header.join(",");
+    s.push('\n');
+    let mut x = seed;
+    for r in 0..rows {
+        let mut cells = vec![format!("{}", r as f64 * 1.0025)];
+        for _ in 1..header.len() {
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            cells.push(format!(
+                "{}",
+                ((x >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 40.0
+            ));
+        }
+        s.push_str(&cells.join(","));
+        s.push('\n');
+    }
+    s
+}
+
+/// One structure-aware mutation of a text file.
+#[derive(Debug, Clone)]
+enum Mutation {
+    DeleteRange(usize, usize),
+    InsertBytes(usize, Vec<u8>),
+    Truncate(usize),
+    ReplaceCell(usize, usize, &'static str),
+    DuplicateLine(usize),
+    SwapLines(usize, usize),
+}
+
+const TOKENS: [&str; 14] = [
+    "",
+    "nan",
+    "NaN",
+    "inf",
+    "-inf",
+    "1e309",
+    "-",
+    "0x10",
+    "\"",
+    "\"a,b\"",
+    ",,,",
+    "1.5.2",
+    "\u{feff}",
+    "9999999999999999999999",
+];
+
+fn mutation() -> impl Strategy<Value = Mutation> {
+    prop_oneof![
+        (any::<usize>(), 0usize..40).prop_map(|(a, n)| Mutation::DeleteRange(a, n)),
+        (any::<usize>(), proptest::collection::vec(any::<u8>(), 1..8))
+            .prop_map(|(a, b)| Mutation::InsertBytes(a, b)),
+        any::<usize>().prop_map(Mutation::Truncate),
+        (
+            any::<usize>(),
+            any::<usize>(),
+            proptest::sample::select(TOKENS.to_vec())
+        )
+            .prop_map(|(l, c, t)| Mutation::ReplaceCell(l, c, t)),
+        any::<usize>().prop_map(Mutation::DuplicateLine),
+        (any::<usize>(), any::<usize>()).prop_map(|(a, b)| Mutation::SwapLines(a, b)),
+    ]
+}
+
+/// Apply line-level edits on the text's lines.
+fn edit_lines(bytes: &[u8], edit: impl FnOnce(&mut Vec<String>)) -> Vec<u8> {
+    let text = String::from_utf8_lossy(bytes);
+    let mut lines: Vec<String> = text.split('\n').map(str::to_string).collect();
+    edit(&mut lines);
+    lines.join("\n").into_bytes()
+}
+
+fn apply(text: &str, mutations: &[Mutation]) -> Vec<u8> {
+    let mut bytes = text.as_bytes().to_vec();
+    for m in mutations {
+        match m {
+            Mutation::DeleteRange(a, n) => {
+                if !bytes.is_empty() {
+                    let a = a % bytes.len();
+                    let b = (a + n).min(bytes.len());
+                    bytes.drain(a..b);
+                }
+            }
+            Mutation::InsertBytes(a, ins) => {
+                let a = a % (bytes.len() + 1);
+                bytes.splice(a..a, ins.iter().copied());
+            }
+            Mutation::Truncate(a) => bytes.truncate(a % (bytes.len() + 1)),
+            Mutation::ReplaceCell(l, c, t) => {
+                bytes = edit_lines(&bytes, |lines| {
+                    let n = lines.len();
+                    let line = &mut lines[l % n];
+                    let mut cells: Vec<String> = line.split(',').map(str::to_string).collect();
+                    let k = c % cells.len();
+                    cells[k] = (*t).to_string();
+                    *line = cells.join(",");
+                })
+            }
+            Mutation::DuplicateLine(l) => {
+                bytes = edit_lines(&bytes, |lines| {
+                    let i = l % lines.len();
+                    let line = lines[i].clone();
+                    lines.insert(i, line);
+                })
+            }
+            Mutation::SwapLines(a, b) => {
+                bytes = edit_lines(&bytes, |lines| {
+                    let n = lines.len();
+                    lines.swap(a % n, b % n);
+                })
+            }
+        }
+    }
+    bytes
+}
+
+fn rows_valid(times: &[f64], mut values: impl Iterator<Item = f64>) -> bool {
+    times.len() >= 2 && times.windows(2).all(|w| w[1] > w[0]) && values.all(f64::is_finite)
+}
+
+fn check_gt(bytes: &[u8]) {
+    if let Ok(rows) = parse_gt(bytes, Path::new("fuzz/GT.csv")) {
+        let times: Vec<f64> = rows.iter().map(|r| r.time).collect();
+        let values = rows.iter().flat_map(|r| {
+            [r.longitude, r.latitude, r.altitude]
+                .into_iter()
+                .chain(r.velocity_ned)
+                .chain(r.roll_pitch_yaw)
+        });
+        assert!(rows_valid(&times, values), "accepted an invalid GT file");
+    }
+}
+
+fn check_dvl(bytes: &[u8]) {
+    if let Ok(rows) = parse_dvl(bytes, Path::new("fuzz/DVL.csv")) {
+        let times: Vec<f64> = rows.iter().map(|r| r.time).collect();
+        assert!(
+            rows_valid(&times, rows.iter().flat_map(|r| r.velocity_body)),
+            "accepted an invalid DVL file"
+        );
+    }
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    #[test]
+    fn gt_loader_survives_arbitrary_bytes(bytes in proptest::collection::vec(any::<u8>(), 0..600)) {
+        check_gt(&bytes);
+    }
+
+    #[test]
+    fn gt_loader_survives_mutations(seed in any::<u64>(), rows in 0usize..6,
+                                    muts in proptest::collection::vec(mutation(), 1..5)) {
+        check_gt(&apply(&valid_csv(&GT_HEADER, rows, seed), &muts));
+    }
+
+    #[test]
+    fn dvl_loader_survives_arbitrary_bytes(bytes in proptest::collection::vec(any::<u8>(), 0..600)) {
+        check_dvl(&bytes);
+    }
+
+    #[test]
+    fn dvl_loader_survives_mutations(seed in any::<u64>(), rows in 0usize..6,
+                                     muts in proptest::collection::vec(mutation(), 1..5)) {
+        check_dvl(&apply(&valid_csv(&DVL_HEADER, rows, seed), &muts));
+    }
+}
+
+#[test]
+fn unmutated_files_parse() {
+    let gt = parse_gt(valid_csv(&GT_HEADER, 5, 1).as_bytes(), Path::new("x"));
+    assert_eq!(gt.map(|r| r.len()).ok(), Some(5));
+    let dvl = parse_dvl(valid_csv(&DVL_HEADER, 3, 2).as_bytes(), Path::new("x"));
+    assert_eq!(dvl.map(|r| r.len()).ok(), Some(3));
+}
