@@ -4,9 +4,13 @@
 #![warn(missing_docs)]
 
 mod error;
+mod error_model;
 mod geometry;
+mod measurement;
 
 pub use error::{Error, Result};
+pub use error_model::{BeamsNetProtocol, BeamsNetScripts, DvlErrorModel, DvlErrorModelBuilder};
 pub use geometry::{BeamGeometry, BeamGeometryBuilder, BeamSolution};
+pub use measurement::{dvl_frame_velocity, DvlVelocityModel, DvlVelocityModelBuilder};
 
 pub use nalgebra;
