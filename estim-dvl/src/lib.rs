@@ -3,11 +3,16 @@
 //! See `README.md` of this crate for the equations and conventions.
 #![warn(missing_docs)]
 
+mod calibration;
 mod error;
 mod error_model;
 mod geometry;
 mod measurement;
 
+pub use calibration::{
+    Calibration, Calibrator, CalibratorBuilder, DvlMeasurement, Estimate, TrajectorySample,
+    CALIBRATION_PARAMETERS,
+};
 pub use error::{Error, Result};
 pub use error_model::{BeamsNetProtocol, BeamsNetScripts, DvlErrorModel, DvlErrorModelBuilder};
 pub use geometry::{BeamGeometry, BeamGeometryBuilder, BeamSolution};
