@@ -1,6 +1,4 @@
-//! # estim-dvl: beam-level DVL model, least squares, DVL measurement model, calibration.
-//!
-//! See `README.md` of this crate for the equations and conventions.
+#![doc = include_str!("../README.md")]
 #![warn(missing_docs)]
 
 mod calibration;
