@@ -4,6 +4,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod dvl;
 mod reproduce;
 
 /// estim: state estimation with correlated process and measurement noise.
@@ -18,12 +19,15 @@ struct Cli {
 enum Command {
     /// Reproduce the paper (INS/DVL + BeamsNet, M-aware vs M-neglected).
     Reproduce(reproduce::Args),
+    /// DVL beams: least squares, calibration.
+    Dvl(dvl::Args),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Reproduce(args) => reproduce::run(args),
+        Command::Dvl(args) => dvl::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
