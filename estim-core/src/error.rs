@@ -14,6 +14,17 @@ pub enum Error {
     /// (Cholesky failed): it is not positive definite.
     #[error("innovation covariance is not positive definite")]
     InnovationNotPositiveDefinite,
+    /// The innovation covariance S is positive definite in exact arithmetic but
+    /// numerically singular: its reciprocal condition estimate is below the
+    /// measurement size times machine epsilon, so the gain would be round-off.
+    #[error("innovation covariance is numerically singular (reciprocal condition estimate {reciprocal_condition:e})")]
+    InnovationIllConditioned {
+        /// (min L_ii / max L_ii)^2 of the Cholesky factor L of S.
+        reciprocal_condition: f64,
+    },
+    /// An observer failed (e.g. could not write its output).
+    #[error("observer failed: {0}")]
+    Observer(String),
     /// The joint covariance [[Q_acc, M], [M', R]] is not positive semidefinite:
     /// the cross-covariance M is not a possible covariance of (G w, v).
     #[error("joint covariance [[Q_acc, M], [M', R]] is not positive semidefinite (smallest eigenvalue {min_eigenvalue:e})")]

@@ -15,12 +15,21 @@
 //! ```
 #![warn(missing_docs)]
 
+mod config;
+mod consistency;
 mod cross;
 mod error;
 mod gaussian;
+mod observer;
+mod runner;
 mod scalar;
 mod traits;
 mod update;
+
+pub use config::{FilterConfig, FilterConfigBuilder, Gate, JointCheck};
+pub use consistency::{average_over_runs, chi_square_band, monte_carlo, nees, nis, ChiSquareBand};
+pub use observer::{NisRecorder, NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
+pub use runner::{ErrorStateKalmanFilter, ExtendedKalmanFilter, KalmanFilter, UpdateReport};
 
 pub use cross::{
     check_joint_covariance, joint_covariance, joint_min_eigenvalue, largest_valid_scale, Fixed,

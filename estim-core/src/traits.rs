@@ -10,6 +10,36 @@ use crate::{Result, Scalar};
 /// For a plain (extended) Kalman filter `State` is `SVector<T, N>`; for an
 /// error-state filter it is the nominal state and `N` is the size of the error state
 /// (see [`ErrorStateModel`]).
+///
+/// ```
+/// use estim_core::nalgebra::{Matrix2, Vector2};
+/// use estim_core::{ExtendedKalmanFilter, ProcessModel, Result, StateAndCovariance};
+///
+/// /// Position and velocity on a line, velocity a random walk of PSD `q`.
+/// struct ConstantVelocity { q: f64 }
+///
+/// impl ProcessModel<f64, 2> for ConstantVelocity {
+///     type State = Vector2<f64>;
+///     type Input = ();
+///     fn propagate(&self, x: &Vector2<f64>, _: &(), dt: f64) -> Result<Vector2<f64>> {
+///         Ok(Vector2::new(x[0] + dt * x[1], x[1]))
+///     }
+///     fn transition(&self, _: &Vector2<f64>, _: &(), dt: f64) -> Result<Matrix2<f64>> {
+///         Ok(Matrix2::new(1.0, dt, 0.0, 1.0))
+///     }
+///     fn process_noise(&self, _: &Vector2<f64>, _: &(), dt: f64) -> Result<Matrix2<f64>> {
+///         // Discretised white-noise acceleration (Bar-Shalom et al. 2001, eq. 6.2.3-8).
+///         let (d2, d3) = (dt * dt, dt * dt * dt);
+///         Ok(Matrix2::new(d3 / 3.0, d2 / 2.0, d2 / 2.0, dt) * self.q)
+///     }
+/// }
+///
+/// let initial = StateAndCovariance::new(Vector2::new(0.0, 1.0), Matrix2::identity())?;
+/// let mut ekf = ExtendedKalmanFilter::new(ConstantVelocity { q: 0.1 }, initial);
+/// ekf.predict(&(), 0.5)?;
+/// assert_eq!(ekf.estimate().state()[0], 0.5);
+/// # Ok::<(), estim_core::Error>(())
+/// ```
 pub trait ProcessModel<T: Scalar, const N: usize> {
     /// The (nominal) state propagated by [`ProcessModel::propagate`].
     type State: Clone;
@@ -49,6 +79,36 @@ pub trait ProcessModel<T: Scalar, const N: usize> {
 }
 
 /// A process model whose filter estimates an error around a nominal state.
+///
+/// ```
+/// use estim_core::nalgebra::{Matrix1, Vector1};
+/// use estim_core::{ErrorStateKalmanFilter, ErrorStateModel, ProcessModel, Result};
+///
+/// /// A heading (rad) integrated from a gyro rate, wrapped to (-pi, pi];
+/// /// convention: true = nominal + error.
+/// struct Heading { gyro_noise_psd: f64 }
+///
+/// fn wrap(a: f64) -> f64 { (a + std::f64::consts::PI).rem_euclid(2.0 * std::f64::consts::PI) - std::f64::consts::PI }
+///
+/// impl ProcessModel<f64, 1> for Heading {
+///     type State = f64;
+///     type Input = f64; // measured rate
+///     fn propagate(&self, h: &f64, rate: &f64, dt: f64) -> Result<f64> { Ok(wrap(h + rate * dt)) }
+///     fn transition(&self, _: &f64, _: &f64, _: f64) -> Result<Matrix1<f64>> { Ok(Matrix1::identity()) }
+///     fn process_noise(&self, _: &f64, _: &f64, dt: f64) -> Result<Matrix1<f64>> {
+///         Ok(Matrix1::new(self.gyro_noise_psd * dt))
+///     }
+/// }
+///
+/// impl ErrorStateModel<f64, 1> for Heading {
+///     fn inject(&self, h: &f64, error: &Vector1<f64>) -> Result<f64> { Ok(wrap(h + error[0])) }
+/// }
+///
+/// let mut eskf = ErrorStateKalmanFilter::new(Heading { gyro_noise_psd: 1e-4 }, 3.1, Matrix1::new(0.01))?;
+/// eskf.predict(&0.1, 1.0)?; // crosses +pi, wraps
+/// assert!(*eskf.nominal() < 0.0);
+/// # Ok::<(), estim_core::Error>(())
+/// ```
 pub trait ErrorStateModel<T: Scalar, const N: usize>: ProcessModel<T, N> {
     /// Fold an estimated error into the nominal state (the convention, e.g.
     /// true = nominal + error, is the implementor's and must be documented).
@@ -62,6 +122,34 @@ pub trait ErrorStateModel<T: Scalar, const N: usize>: ProcessModel<T, N> {
 }
 
 /// Predicts a measurement of size `M` from a state with `N` (error) states.
+///
+/// ```
+/// use estim_core::nalgebra::{Matrix1, Matrix1x2, Vector1, Vector2};
+/// use estim_core::{MeasurementModel, Result};
+///
+/// /// Range to a point at the origin from a 2-D position.
+/// struct Range { sigma: f64 }
+///
+/// impl MeasurementModel<f64, 2, 1> for Range {
+///     type State = Vector2<f64>;
+///     fn predict(&self, x: &Vector2<f64>) -> Result<Vector1<f64>> { Ok(Vector1::new(x.norm())) }
+///     fn jacobian(&self, x: &Vector2<f64>) -> Result<Matrix1x2<f64>> {
+///         let r = x.norm();
+///         if r == 0.0 {
+///             return Err(estim_core::Error::Model("range jacobian undefined at the origin".into()));
+///         }
+///         Ok(x.transpose() / r)
+///     }
+///     fn noise_covariance(&self, _: &Vector2<f64>) -> Result<Matrix1<f64>> {
+///         Ok(Matrix1::new(self.sigma * self.sigma))
+///     }
+/// }
+///
+/// let range = Range { sigma: 0.1 };
+/// assert_eq!(range.predict(&Vector2::new(3.0, 4.0))?[0], 5.0);
+/// assert!(range.jacobian(&Vector2::zeros()).is_err());
+/// # Ok::<(), estim_core::Error>(())
+/// ```
 pub trait MeasurementModel<T: Scalar, const N: usize, const M: usize> {
     /// The state the prediction is made from (full or nominal state).
     type State;
@@ -99,6 +187,26 @@ pub struct CrossCovarianceContext<'a, T: Scalar, S, const N: usize, const M: usi
 }
 
 /// Produces the cross-covariance M_k = Cov(G w_{k-1}, v_k) (N x M) for one update.
+///
+/// ```
+/// use estim_core::nalgebra::SMatrix;
+/// use estim_core::{CrossCovariance, CrossCovarianceContext, Result};
+///
+/// /// The measurement noise contains `gain` times the process noise accumulated
+/// /// since the last update, seen through H: v = gain * H (G w) + independent, so
+/// /// M = Cov(G w, v) = gain * Q_acc H'.
+/// struct SharedNoise { gain: f64 }
+///
+/// impl<S, const N: usize, const M: usize> CrossCovariance<f64, S, N, M> for SharedNoise {
+///     fn cross_covariance(
+///         &self,
+///         context: &CrossCovarianceContext<'_, f64, S, N, M>,
+///     ) -> Result<SMatrix<f64, N, M>> {
+///         Ok(context.accumulated_process_noise * context.jacobian.transpose() * self.gain)
+///     }
+/// }
+/// # let _ = SharedNoise { gain: 0.5 };
+/// ```
 pub trait CrossCovariance<T: Scalar, S, const N: usize, const M: usize> {
     /// M_k for the update described by `context`.
     fn cross_covariance(
@@ -126,6 +234,37 @@ pub struct InputSpec {
 ///
 /// Inputs are one `channels x window` matrix per [`InputSpec`], in the order of
 /// [`LearnedMeasurement::input_specs`].
+///
+/// ```
+/// use estim_core::nalgebra::{DMatrix, Matrix1, Vector1};
+/// use estim_core::{Error, InputSpec, LearnedMeasurement, Result};
+///
+/// /// A "model" that averages a 10-sample window of one speed sensor.
+/// struct WindowMean { specs: Vec<InputSpec> }
+///
+/// impl LearnedMeasurement<f64, 1> for WindowMean {
+///     fn input_specs(&self) -> &[InputSpec] { &self.specs }
+///     fn measure(&self, inputs: &[DMatrix<f64>]) -> Result<Vector1<f64>> {
+///         let w = inputs.first().ok_or(Error::Dimension { what: "inputs", expected: 1, got: 0 })?;
+///         if w.shape() != (1, 10) {
+///             return Err(Error::Dimension { what: "speed window", expected: 10, got: w.len() });
+///         }
+///         Ok(Vector1::new(w.mean()))
+///     }
+///     fn noise_covariance(&self) -> Matrix1<f64> { Matrix1::new(0.01 / 10.0) }
+///     fn sensitivity(&self, _: &[DMatrix<f64>], directions: &[Vec<DMatrix<f64>>]) -> Result<Option<Vec<Vector1<f64>>>> {
+///         // Linear model: d(mean) along a direction is the mean of the direction.
+///         Ok(Some(directions.iter().map(|d| Vector1::new(d[0].mean())).collect()))
+///     }
+/// }
+///
+/// let model = WindowMean {
+///     specs: vec![InputSpec { name: "speed".into(), channels: 1, window: 10, sample_rate_hz: 10.0 }],
+/// };
+/// let y = model.measure(&[DMatrix::from_element(1, 10, 2.0)])?;
+/// assert_eq!(y[0], 2.0);
+/// # Ok::<(), estim_core::Error>(())
+/// ```
 pub trait LearnedMeasurement<T: Scalar, const M: usize> {
     /// The input streams, in the order `measure` expects them.
     fn input_specs(&self) -> &[InputSpec];

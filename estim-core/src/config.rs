@@ -1,0 +1,224 @@
+//! Runner configuration: covariance form, innovation gate, joint-covariance policy.
+
+use statrs::distribution::{ChiSquared, ContinuousCDF};
+
+use crate::{CovarianceUpdate, Error, Result};
+
+/// Innovation gate: reject a measurement whose normalised innovation squared (NIS)
+/// is implausibly large for its size.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[non_exhaustive]
+pub enum Gate {
+    /// Accept every measurement (default).
+    #[default]
+    None,
+    /// Reject when NIS exceeds the chi-square quantile of `probability` for the
+    /// measurement size M (e.g. 0.999 rejects 0.1 % of consistent measurements).
+    Nis {
+        /// Probability in (0, 1) of the chi-square(M) quantile used as threshold.
+        probability: f64,
+    },
+    /// Reject when NIS exceeds this fixed threshold (any measurement size).
+    NisThreshold(f64),
+}
+
+/// Measurement sizes whose gate threshold is precomputed by [`FilterConfig::build`].
+const CACHED_SIZES: usize = 16;
+
+impl Gate {
+    /// The NIS threshold for a measurement of size `m`; `None` when the gate is off.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for a probability outside (0, 1), a non-positive
+    /// threshold or `m = 0`.
+    pub fn threshold(&self, m: usize) -> Result<Option<f64>> {
+        match *self {
+            Gate::None => Ok(None),
+            Gate::Nis { probability } => {
+                if !(probability > 0.0 && probability < 1.0) {
+                    return Err(Error::InvalidParameter {
+                        name: "gate probability",
+                        reason: format!("{probability} is not in (0, 1)"),
+                    });
+                }
+                let chi2 = ChiSquared::new(m as f64).map_err(|e| Error::InvalidParameter {
+                    name: "measurement size",
+                    reason: format!("chi-square with {m} degrees of freedom: {e}"),
+                })?;
+                Ok(Some(chi2.inverse_cdf(probability)))
+            }
+            Gate::NisThreshold(t) => {
+                if t.is_finite() && t > 0.0 {
+                    Ok(Some(t))
+                } else {
+                    Err(Error::InvalidParameter {
+                        name: "gate threshold",
+                        reason: format!("{t} is not a positive finite number"),
+                    })
+                }
+            }
+        }
+    }
+}
+
+/// What a runner does with the joint covariance [[Q_acc, M], [M', R]] at each update.
+///
+/// Computing its smallest eigenvalue allocates (a dynamic (N+M)-square eigen
+/// decomposition); `Skip` avoids that cost and reports `None`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub enum JointCheck {
+    /// Do not compute it; the update report says `None` (not checked).
+    Skip,
+    /// Compute the smallest eigenvalue and put it in the update report (default).
+    #[default]
+    Report,
+    /// Compute it and fail with [`Error::InvalidJointCovariance`] when the joint
+    /// covariance is not positive semidefinite (tolerance of
+    /// [`crate::check_joint_covariance`]); the state is left untouched.
+    Reject,
+}
+
+/// Checked configuration shared by the runners. Build with [`FilterConfig::builder`];
+/// [`FilterConfig::default`] is Joseph-like form, no gate, joint covariance reported.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FilterConfig {
+    form: CovarianceUpdate,
+    gate: Gate,
+    joint_check: JointCheck,
+    /// Gate threshold for M = 1..=CACHED_SIZES (index M-1), so the per-update gate
+    /// costs no quantile computation.
+    thresholds: [Option<f64>; CACHED_SIZES],
+}
+
+impl Default for FilterConfig {
+    fn default() -> Self {
+        Self {
+            form: CovarianceUpdate::default(),
+            gate: Gate::None,
+            joint_check: JointCheck::default(),
+            thresholds: [None; CACHED_SIZES],
+        }
+    }
+}
+
+impl FilterConfig {
+    /// Start a configuration from the defaults.
+    pub fn builder() -> FilterConfigBuilder {
+        FilterConfigBuilder {
+            form: CovarianceUpdate::default(),
+            gate: Gate::None,
+            joint_check: JointCheck::default(),
+        }
+    }
+
+    /// The covariance update form.
+    pub fn covariance_update(&self) -> CovarianceUpdate {
+        self.form
+    }
+
+    /// The innovation gate.
+    pub fn gate(&self) -> Gate {
+        self.gate
+    }
+
+    /// The joint-covariance policy.
+    pub fn joint_check(&self) -> JointCheck {
+        self.joint_check
+    }
+
+    /// NIS threshold for a measurement of size `m` (cached for small sizes).
+    pub fn gate_threshold(&self, m: usize) -> Result<Option<f64>> {
+        match m {
+            1..=CACHED_SIZES => Ok(self.thresholds[m - 1]),
+            _ => self.gate.threshold(m),
+        }
+    }
+}
+
+/// Builder of [`FilterConfig`] (consuming setters, validated by [`FilterConfigBuilder::build`]).
+#[derive(Debug, Clone, PartialEq)]
+#[must_use]
+pub struct FilterConfigBuilder {
+    form: CovarianceUpdate,
+    gate: Gate,
+    joint_check: JointCheck,
+}
+
+impl FilterConfigBuilder {
+    /// Posterior covariance form (Joseph-like by default).
+    pub fn covariance_update(self, form: CovarianceUpdate) -> Self {
+        Self { form, ..self }
+    }
+
+    /// Innovation gate (none by default).
+    pub fn gate(self, gate: Gate) -> Self {
+        Self { gate, ..self }
+    }
+
+    /// Joint-covariance policy (report by default).
+    pub fn joint_check(self, joint_check: JointCheck) -> Self {
+        Self {
+            joint_check,
+            ..self
+        }
+    }
+
+    /// Validate and precompute the gate thresholds.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for an invalid gate.
+    pub fn build(self) -> Result<FilterConfig> {
+        let mut thresholds = [None; CACHED_SIZES];
+        for (i, t) in thresholds.iter_mut().enumerate() {
+            *t = self.gate.threshold(i + 1)?;
+        }
+        Ok(FilterConfig {
+            form: self.form,
+            gate: self.gate,
+            joint_check: self.joint_check,
+            thresholds,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gate_thresholds_match_published_chi_square_quantiles() {
+        // Published 95 % and 99 % quantiles (e.g. NIST/SEMATECH e-Handbook table 1.3.6.7.4).
+        let g = FilterConfig::builder()
+            .gate(Gate::Nis { probability: 0.95 })
+            .build()
+            .unwrap();
+        for (m, q) in [(1, 3.841), (2, 5.991), (3, 7.815), (4, 9.488), (6, 12.592)] {
+            let t = g.gate_threshold(m).unwrap().unwrap();
+            assert!((t - q).abs() < 1e-3, "m={m}: {t} vs {q}");
+        }
+        let t99 = Gate::Nis { probability: 0.99 }
+            .threshold(20)
+            .unwrap()
+            .unwrap();
+        assert!((t99 - 37.566).abs() < 1e-3);
+    }
+
+    #[test]
+    fn invalid_gates_are_typed_errors() {
+        for gate in [
+            Gate::Nis { probability: 0.0 },
+            Gate::Nis { probability: 1.0 },
+            Gate::Nis {
+                probability: f64::NAN,
+            },
+            Gate::NisThreshold(-1.0),
+            Gate::NisThreshold(f64::INFINITY),
+        ] {
+            assert!(matches!(
+                FilterConfig::builder().gate(gate).build(),
+                Err(Error::InvalidParameter { .. })
+            ));
+        }
+    }
+}

@@ -1,0 +1,209 @@
+//! Consistency tools: NEES, NIS, chi-square bounds for Monte Carlo averages, and a
+//! seeded parallel Monte Carlo helper.
+//!
+//! For a consistent filter the NEES e' P^-1 e of an N-state estimate error e is
+//! chi-square(N); the average over R independent runs, times R, is chi-square(N R).
+//! Bar-Shalom, Li & Kirubarajan, *Estimation with Applications to Tracking and
+//! Navigation*, 2001, sec. 5.4.2.
+
+use nalgebra::{SMatrix, SVector};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use statrs::distribution::{ChiSquared, ContinuousCDF};
+
+use crate::gaussian::check_finite;
+use crate::scalar::to_f64;
+use crate::{Error, Result, Scalar};
+
+/// Normalised estimation error squared e' P^-1 e, e = truth - estimate.
+///
+/// # Errors
+/// [`Error::NonFinite`] for non-finite input, [`Error::InvalidCovariance`] if P is
+/// not positive definite.
+pub fn nees<T: Scalar, const N: usize>(
+    error: &SVector<T, N>,
+    covariance: &SMatrix<T, N, N>,
+) -> Result<T> {
+    quadratic_form(error, covariance, "state covariance")
+}
+
+/// Normalised innovation squared nu' S^-1 nu.
+///
+/// # Errors
+/// As [`nees`].
+pub fn nis<T: Scalar, const M: usize>(
+    innovation: &SVector<T, M>,
+    innovation_covariance: &SMatrix<T, M, M>,
+) -> Result<T> {
+    quadratic_form(innovation, innovation_covariance, "innovation covariance")
+}
+
+fn quadratic_form<T: Scalar, const N: usize>(
+    v: &SVector<T, N>,
+    c: &SMatrix<T, N, N>,
+    what: &'static str,
+) -> Result<T> {
+    check_finite(v.as_slice(), "error vector")?;
+    check_finite(c.as_slice(), what)?;
+    let chol = c.cholesky().ok_or_else(|| Error::InvalidCovariance {
+        what,
+        reason: "not positive definite".into(),
+    })?;
+    Ok(v.dot(&chol.solve(v)))
+}
+
+/// Two-sided probability interval of an average of chi-square variables.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ChiSquareBand {
+    /// Lower bound.
+    pub lower: f64,
+    /// Upper bound.
+    pub upper: f64,
+    /// Probability mass inside [lower, upper].
+    pub probability: f64,
+}
+
+impl ChiSquareBand {
+    /// Whether `value` lies inside the band (bounds included).
+    pub fn contains(&self, value: f64) -> bool {
+        value >= self.lower && value <= self.upper
+    }
+}
+
+/// Two-sided band of probability `probability` for the average of `runs` independent
+/// chi-square(`dof`) values: [chi2_{dof runs}((1-p)/2), chi2_{dof runs}((1+p)/2)] / runs.
+///
+/// `chi_square_band(2, 200, 0.95)` is the 95 % band of the average NEES of a 2-state
+/// filter over 200 Monte Carlo runs.
+///
+/// # Errors
+/// [`Error::InvalidParameter`] for `dof` or `runs` zero or `probability` outside (0, 1).
+pub fn chi_square_band(dof: usize, runs: usize, probability: f64) -> Result<ChiSquareBand> {
+    if dof == 0 || runs == 0 {
+        return Err(Error::InvalidParameter {
+            name: "dof, runs",
+            reason: format!("both must be positive (dof {dof}, runs {runs})"),
+        });
+    }
+    if !(probability > 0.0 && probability < 1.0) {
+        return Err(Error::InvalidParameter {
+            name: "probability",
+            reason: format!("{probability} is not in (0, 1)"),
+        });
+    }
+    let total = (dof * runs) as f64;
+    let chi2 = ChiSquared::new(total).map_err(|e| Error::InvalidParameter {
+        name: "dof",
+        reason: e.to_string(),
+    })?;
+    let tail = (1.0 - probability) / 2.0;
+    Ok(ChiSquareBand {
+        lower: chi2.inverse_cdf(tail) / runs as f64,
+        upper: chi2.inverse_cdf(1.0 - tail) / runs as f64,
+        probability,
+    })
+}
+
+/// Run `run(index, rng)` for index 0..runs in parallel (rayon), each with its own
+/// `ChaCha8Rng::seed_from_u64(index)`; results in index order, identical whatever
+/// the number of threads.
+pub fn monte_carlo<R, F>(runs: usize, run: F) -> Vec<R>
+where
+    R: Send,
+    F: Fn(usize, &mut ChaCha8Rng) -> R + Sync,
+{
+    (0..runs)
+        .into_par_iter()
+        .map(|i| {
+            let mut rng = ChaCha8Rng::seed_from_u64(i as u64);
+            run(i, &mut rng)
+        })
+        .collect()
+}
+
+/// Average per time step of equally long per-run series (e.g. NEES of each run):
+/// `series[run][step]` -> `mean[step]`.
+///
+/// # Errors
+/// [`Error::Dimension`] if the runs differ in length, [`Error::InvalidParameter`] if
+/// there are none, [`Error::NonFinite`] if a value is not finite.
+pub fn average_over_runs<T: Scalar>(series: &[Vec<T>]) -> Result<Vec<f64>> {
+    let first = series.first().ok_or_else(|| Error::InvalidParameter {
+        name: "series",
+        reason: "no runs".into(),
+    })?;
+    let steps = first.len();
+    let mut mean = vec![0.0; steps];
+    for run in series {
+        if run.len() != steps {
+            return Err(Error::Dimension {
+                what: "Monte Carlo run length",
+                expected: steps,
+                got: run.len(),
+            });
+        }
+        check_finite(run, "Monte Carlo series")?;
+        for (m, v) in mean.iter_mut().zip(run) {
+            *m += to_f64(*v);
+        }
+    }
+    let n = series.len() as f64;
+    mean.iter_mut().for_each(|m| *m /= n);
+    Ok(mean)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Matrix2, Vector2};
+    use rand::RngExt;
+
+    #[test]
+    fn band_matches_published_quantiles() {
+        // One run of dof 2: the 2.5 % and 97.5 % quantiles of chi-square(2) are
+        // -2 ln(0.975) and -2 ln(0.025) (closed form for 2 dof).
+        let b = chi_square_band(2, 1, 0.95).unwrap();
+        assert!((b.lower - (-2.0 * 0.975f64.ln())).abs() < 1e-9);
+        assert!((b.upper - (-2.0 * 0.025f64.ln())).abs() < 1e-9);
+        // Bar-Shalom et al. 2001, example of sec. 5.4.2: N = 50 runs, n = 2 states,
+        // 95 % band of the average NEES is [1.5, 2.6].
+        let b = chi_square_band(2, 50, 0.95).unwrap();
+        assert!(
+            (b.lower - 1.5).abs() < 0.02 && (b.upper - 2.6).abs() < 0.02,
+            "{b:?}"
+        );
+        assert!(chi_square_band(0, 5, 0.95).is_err());
+        assert!(chi_square_band(2, 5, 1.0).is_err());
+    }
+
+    #[test]
+    fn nees_matches_explicit_inverse() {
+        let p = Matrix2::<f64>::new(2.0, 0.5, 0.5, 1.0);
+        let e = Vector2::new(0.3, -1.2);
+        let expected = (e.transpose() * p.try_inverse().unwrap() * e)[0];
+        assert!((nees(&e, &p).unwrap() - expected).abs() < 1e-12);
+        assert!(nees(&e, &Matrix2::new(1.0, 2.0, 2.0, 1.0)).is_err());
+        assert!(nis(&Vector2::new(f64::NAN, 0.0), &p).is_err());
+    }
+
+    #[test]
+    fn monte_carlo_is_deterministic_and_ordered() {
+        let a = monte_carlo(64, |i, rng| (i, rng.random::<u64>()));
+        let b = monte_carlo(64, |i, rng| (i, rng.random::<u64>()));
+        assert_eq!(a, b);
+        for (k, (i, v)) in a.iter().enumerate() {
+            assert_eq!(k, *i);
+            let mut rng = ChaCha8Rng::seed_from_u64(k as u64);
+            assert_eq!(*v, rng.random::<u64>());
+        }
+    }
+
+    #[test]
+    fn average_over_runs_checks_lengths() {
+        let m = average_over_runs(&[vec![1.0, 2.0], vec![3.0, 4.0]]).unwrap();
+        assert_eq!(m, vec![2.0, 3.0]);
+        assert!(average_over_runs(&[vec![1.0], vec![1.0, 2.0]]).is_err());
+        assert!(average_over_runs::<f64>(&[]).is_err());
+    }
+}

@@ -1,0 +1,161 @@
+//! Observers: what a runner reports at each step (argmin's executor pattern), so
+//! CSV writers, progress bars and plots stay out of the numerical code.
+
+use nalgebra::SMatrix;
+
+use crate::{Result, Scalar};
+
+/// Reported after each prediction.
+#[derive(Debug, Clone, Copy)]
+pub struct PredictEvent<'a, T: Scalar, S, const N: usize> {
+    /// Time step (`None` for the linear [`crate::KalmanFilter`], which has no dt).
+    pub dt: Option<T>,
+    /// The (nominal) state after the prediction.
+    pub state: &'a S,
+    /// The covariance after the prediction.
+    pub covariance: &'a SMatrix<T, N, N>,
+    /// Propagations since the last measurement (including this one).
+    pub propagations_since_update: usize,
+}
+
+/// Whether an update was applied.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum UpdateStatus {
+    /// The posterior replaced the prior.
+    Accepted,
+    /// The innovation gate rejected the measurement; the state is untouched.
+    RejectedByGate,
+}
+
+/// Reported after each update attempt (accepted or rejected).
+#[derive(Debug, Clone, Copy)]
+pub struct UpdateEvent<'a, T: Scalar, S, const N: usize> {
+    /// The (nominal) state after the update (unchanged if rejected).
+    pub state: &'a S,
+    /// The covariance after the update (unchanged if rejected).
+    pub covariance: &'a SMatrix<T, N, N>,
+    /// The innovation y - h(x), `measurement_size` values.
+    pub innovation: &'a [T],
+    /// Size M of the measurement.
+    pub measurement_size: usize,
+    /// Normalised innovation squared.
+    pub nis: T,
+    /// The gate threshold, if a gate is configured.
+    pub gate_threshold: Option<T>,
+    /// Smallest eigenvalue of [[Q_acc, M], [M', R]], if the configuration computes it.
+    pub joint_min_eigenvalue: Option<T>,
+    /// Accepted or rejected.
+    pub status: UpdateStatus,
+}
+
+/// Receives a runner's events. Every method has a default that does nothing.
+///
+/// Implemented for `()` / [`NoObserver`] (nothing), `&mut O` (observe while keeping
+/// ownership), `(A, B)` (both) and [`NisRecorder`].
+///
+/// ```
+/// use estim_core::{Observer, UpdateEvent, Result};
+///
+/// /// Counts gate rejections.
+/// #[derive(Default)]
+/// struct Rejections(usize);
+///
+/// impl<S, const N: usize> Observer<f64, S, N> for Rejections {
+///     fn on_rejected(&mut self, _event: &UpdateEvent<'_, f64, S, N>) -> Result<()> {
+///         self.0 += 1;
+///         Ok(())
+///     }
+/// }
+/// # let _ = Rejections::default();
+/// ```
+pub trait Observer<T: Scalar, S, const N: usize> {
+    /// After each prediction.
+    fn on_predict(&mut self, _event: &PredictEvent<'_, T, S, N>) -> Result<()> {
+        Ok(())
+    }
+
+    /// After each accepted update.
+    fn on_update(&mut self, _event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
+        Ok(())
+    }
+
+    /// After each update rejected by the innovation gate.
+    fn on_rejected(&mut self, _event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
+        Ok(())
+    }
+}
+
+/// The observer that does nothing (the runners' default).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct NoObserver;
+
+impl<T: Scalar, S, const N: usize> Observer<T, S, N> for NoObserver {}
+impl<T: Scalar, S, const N: usize> Observer<T, S, N> for () {}
+
+impl<T: Scalar, S, const N: usize, O: Observer<T, S, N> + ?Sized> Observer<T, S, N> for &mut O {
+    fn on_predict(&mut self, event: &PredictEvent<'_, T, S, N>) -> Result<()> {
+        (**self).on_predict(event)
+    }
+    fn on_update(&mut self, event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
+        (**self).on_update(event)
+    }
+    fn on_rejected(&mut self, event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
+        (**self).on_rejected(event)
+    }
+}
+
+impl<T: Scalar, S, const N: usize, A: Observer<T, S, N>, B: Observer<T, S, N>> Observer<T, S, N>
+    for (A, B)
+{
+    fn on_predict(&mut self, event: &PredictEvent<'_, T, S, N>) -> Result<()> {
+        self.0.on_predict(event)?;
+        self.1.on_predict(event)
+    }
+    fn on_update(&mut self, event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
+        self.0.on_update(event)?;
+        self.1.on_update(event)
+    }
+    fn on_rejected(&mut self, event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
+        self.0.on_rejected(event)?;
+        self.1.on_rejected(event)
+    }
+}
+
+/// Records the NIS of every update attempt and counts rejections.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct NisRecorder<T> {
+    /// (NIS, measurement size, status) of each update attempt, in order.
+    pub records: Vec<(T, usize, UpdateStatus)>,
+}
+
+impl<T: Scalar> NisRecorder<T> {
+    /// Number of accepted updates.
+    pub fn accepted(&self) -> usize {
+        self.records
+            .iter()
+            .filter(|r| r.2 == UpdateStatus::Accepted)
+            .count()
+    }
+
+    /// Number of updates rejected by the gate.
+    pub fn rejected(&self) -> usize {
+        self.records
+            .iter()
+            .filter(|r| r.2 == UpdateStatus::RejectedByGate)
+            .count()
+    }
+}
+
+impl<T: Scalar, S, const N: usize> Observer<T, S, N> for NisRecorder<T> {
+    fn on_update(&mut self, event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
+        self.records
+            .push((event.nis, event.measurement_size, event.status));
+        Ok(())
+    }
+    fn on_rejected(&mut self, event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
+        self.records
+            .push((event.nis, event.measurement_size, event.status));
+        Ok(())
+    }
+}
