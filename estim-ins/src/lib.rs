@@ -13,9 +13,13 @@
 
 pub mod earth;
 mod error;
+mod error_model;
+mod imu_spec;
 mod mechanization;
 mod state;
 
 pub use error::{Error, Result};
+pub use error_model::{inject, ErrorMatrix, InsErrorModel, NoiseInput};
+pub use imu_spec::{ImuSpec, ImuSpecBuilder, SensorSpec};
 pub use mechanization::{navigation_rates, ImuSample, Mechanization, NavigationRates};
 pub use state::{InsState, ACC_BIAS, ATT, ERROR_STATES, GYRO_BIAS, POS, VEL};
