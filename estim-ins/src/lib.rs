@@ -1,6 +1,25 @@
 //! # estim-ins: strapdown INS (NED), the 15-state error model, IMU error models and simulator.
+//!
+//! - [`earth`]: WGS-84 radii of curvature, normal gravity, Earth and transport rates;
+//! - [`Mechanization`]: second-order strapdown navigation in NED at any IMU rate;
+//! - [`InsErrorModel`]: the 15-state error model as an estim-core
+//!   [`ProcessModel`](estim_core::ProcessModel) + [`ErrorStateModel`](estim_core::ErrorStateModel);
+//! - [`ImuSpec`]: checked IMU error specifications and presets;
+//! - [`TrajectoryImuSimulator`], [`Mission`]: IMU from a trajectory, synthetic AUV missions.
+//!
+//! Conventions are pinned in [`InsState`]'s module docs: NED, body x forward y right z
+//! down, `true = nominal + error`, misalignment ψ in NED with C_true = (I + [ψ×]) C_nominal.
 #![warn(missing_docs)]
 
+pub mod earth;
+mod error;
+mod error_model;
+mod imu_spec;
+mod mechanization;
 mod state;
 
+pub use error::{Error, Result};
+pub use error_model::{inject, ErrorMatrix, InsErrorModel, NoiseInput};
+pub use imu_spec::{ImuSpec, ImuSpecBuilder, SensorSpec};
+pub use mechanization::{navigation_rates, ImuSample, Mechanization, NavigationRates};
 pub use state::{InsState, ACC_BIAS, ATT, ERROR_STATES, GYRO_BIAS, POS, VEL};

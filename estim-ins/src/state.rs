@@ -51,3 +51,34 @@ pub struct InsState {
     /// lever-arm terms of aiding measurements.
     pub angular_rate: Vector3<f64>,
 }
+
+impl InsState {
+    /// A state with zero bias estimates and zero angular rate.
+    #[must_use]
+    pub fn new(
+        time: f64,
+        latitude: f64,
+        longitude: f64,
+        height: f64,
+        velocity_ned: Vector3<f64>,
+        attitude: UnitQuaternion<f64>,
+    ) -> Self {
+        Self {
+            time,
+            latitude,
+            longitude,
+            height,
+            velocity_ned,
+            attitude,
+            acc_bias: Vector3::zeros(),
+            gyro_bias: Vector3::zeros(),
+            angular_rate: Vector3::zeros(),
+        }
+    }
+
+    /// Attitude as (roll, pitch, yaw) [rad], ZYX Euler angles of C_b^n.
+    #[must_use]
+    pub fn roll_pitch_yaw(&self) -> (f64, f64, f64) {
+        self.attitude.euler_angles()
+    }
+}
