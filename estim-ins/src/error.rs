@@ -39,3 +39,15 @@ impl From<Error> for estim_core::Error {
         }
     }
 }
+
+/// `Err(InvalidParameter)` unless `value` is finite and strictly positive.
+pub(crate) fn positive(name: &'static str, value: f64) -> Result<f64> {
+    if value.is_finite() && value > 0.0 {
+        Ok(value)
+    } else {
+        Err(Error::InvalidParameter {
+            name,
+            reason: format!("must be finite and > 0, got {value}"),
+        })
+    }
+}

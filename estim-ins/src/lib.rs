@@ -5,7 +5,7 @@
 //! - [`InsErrorModel`]: the 15-state error model as an estim-core
 //!   [`ProcessModel`](estim_core::ProcessModel) + [`ErrorStateModel`](estim_core::ErrorStateModel);
 //! - [`ImuSpec`]: checked IMU error specifications and presets;
-//! - [`TrajectoryImuSimulator`], [`Mission`]: IMU from a trajectory, synthetic AUV missions.
+//! - [`Trajectory`], [`ImuErrorGenerator`], [`Mission`]: IMU from a trajectory, synthetic AUV missions.
 //!
 //! Conventions are pinned in [`InsState`]'s module docs: NED, body x forward y right z
 //! down, `true = nominal + error`, misalignment ψ in NED with C_true = (I + [ψ×]) C_nominal.
@@ -16,10 +16,14 @@ mod error;
 mod error_model;
 mod imu_spec;
 mod mechanization;
+mod mission;
+mod simulator;
 mod state;
 
 pub use error::{Error, Result};
 pub use error_model::{inject, ErrorMatrix, InsErrorModel, NoiseInput};
 pub use imu_spec::{ImuSpec, ImuSpecBuilder, SensorSpec};
 pub use mechanization::{navigation_rates, ImuSample, Mechanization, NavigationRates};
+pub use mission::{Mission, MissionConfig, MissionConfigBuilder, SimulatedMission};
+pub use simulator::{ImuErrorGenerator, Kinematics, Trajectory, TrajectorySample};
 pub use state::{InsState, ACC_BIAS, ATT, ERROR_STATES, GYRO_BIAS, POS, VEL};
