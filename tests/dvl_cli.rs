@@ -199,6 +199,21 @@ fn solve_rejects_bad_geometry_empty_file_and_missing_file() {
 }
 
 #[test]
+fn solve_binary_garbage_is_an_error_not_a_panic() {
+    let mut f = tempfile::NamedTempFile::new().unwrap();
+    f.write_all(b"beam1,beam2,beam3,beam4\n1,2,3,4\n\xff\xfe,\x80,1,2\n")
+        .unwrap();
+    let out = estim(&[
+        "dvl",
+        "solve",
+        "--beam-angle",
+        "20",
+        f.path().to_str().unwrap(),
+    ]);
+    assert_bad_input(&out, ":3:");
+}
+
+#[test]
 fn calibrate_bad_file_names_file_and_line() {
     let gt = write("t,x\n0,1\n");
     let dvl = write("Time [s],DVL X [m/s],DVL Y [m/s],DVL Z [m/s]\n0,1,0,0\n1,1,0,0\n");

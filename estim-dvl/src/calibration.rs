@@ -75,6 +75,16 @@ pub struct Calibration {
 }
 
 impl Calibration {
+    /// The lever-arm estimate as a vector [m].
+    pub fn lever_arm_vector(&self) -> Vector3<f64> {
+        Vector3::from_fn(|i, _| self.lever_arm[i].value)
+    }
+
+    /// The mounting-misalignment estimate as a vector [rad].
+    pub fn mounting_misalignment_vector(&self) -> Vector3<f64> {
+        Vector3::from_fn(|i, _| self.mounting_misalignment[i].value)
+    }
+
     /// The parameters as a vector (l, k, mu, tau).
     pub fn parameters(&self) -> SVector<f64, CALIBRATION_PARAMETERS> {
         let mut p = SVector::zeros();

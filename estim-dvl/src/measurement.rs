@@ -4,6 +4,7 @@ use estim_core::MeasurementModel;
 use estim_ins::{InsState, ATT, ERROR_STATES, GYRO_BIAS, VEL};
 use nalgebra::{Matrix3, Rotation3, SMatrix, Vector3};
 
+use crate::calibration::Calibration;
 use crate::error::{finite, Error, Result};
 
 /// Largest mounting misalignment accepted (rad): the model is meant for small angles.
@@ -115,6 +116,15 @@ impl DvlVelocityModelBuilder {
     pub fn mounting_misalignment(mut self, mu: Vector3<f64>) -> Self {
         self.mounting_misalignment = mu;
         self
+    }
+
+    /// Lever arm, scale-factor error and mounting misalignment from a [`Calibration`].
+    /// Its time offset is not part of this model: shift the DVL time stamps by
+    /// `-time_offset` before the updates.
+    pub fn calibration(self, calibration: &Calibration) -> Self {
+        self.lever_arm(calibration.lever_arm_vector())
+            .scale_factor_error(calibration.scale_factor_error.value)
+            .mounting_misalignment(calibration.mounting_misalignment_vector())
     }
 
     /// R = diag(std^2) with the same standard deviation on each axis [m/s].

@@ -193,3 +193,55 @@ fn bad_input_is_a_typed_error() {
     assert!(Calibrator::builder().max_time_offset(-1.0).build().is_err());
     assert!(Calibrator::builder().max_iterations(0).build().is_err());
 }
+
+#[test]
+fn unexcited_parameters_are_a_numerical_error() {
+    // Straight line at constant velocity, no rotation: the lever arm and the time
+    // offset leave no trace in the data, the normal equations are singular.
+    let gt: Vec<TrajectorySample> = (0..100)
+        .map(|i| TrajectorySample {
+            time: i as f64,
+            velocity_ned: Vector3::new(2.0, 0.0, 0.0),
+            roll_pitch_yaw: Vector3::zeros(),
+        })
+        .collect();
+    let dvl: Vec<DvlMeasurement> = gt
+        .iter()
+        .map(|s| DvlMeasurement {
+            time: s.time,
+            velocity: Vector3::new(2.0, 0.0, 0.0),
+        })
+        .collect();
+    let e = Calibrator::builder()
+        .build()
+        .unwrap()
+        .calibrate(&gt, &dvl)
+        .unwrap_err();
+    assert!(matches!(e, estim_dvl::Error::Numerical { .. }), "{e}");
+}
+
+#[test]
+fn measurement_model_takes_the_calibration() {
+    let truth = Truth {
+        lever_arm: Vector3::new(-1.8, 0.05, 0.2),
+        scale_factor_error: 0.003,
+        misalignment: Vector3::new(0.0, -0.001, 0.004),
+        time_offset: 0.0,
+    };
+    let (gt, dvl) = simulate(&truth, 0.005, 9);
+    let c = Calibrator::builder()
+        .estimate_time_offset(false)
+        .build()
+        .unwrap()
+        .calibrate(&gt, &dvl)
+        .unwrap();
+    assert_eq!(c.time_offset.standard_error, 0.0);
+    let model = estim_dvl::DvlVelocityModel::builder()
+        .calibration(&c)
+        .noise_std(0.005)
+        .build()
+        .unwrap();
+    assert_eq!(*model.lever_arm(), c.lever_arm_vector());
+    assert_eq!(model.scale_factor_error(), c.scale_factor_error.value);
+    assert!((model.lever_arm() - truth.lever_arm).amax() < 0.05);
+}
