@@ -1,78 +1,130 @@
-//! `estim reproduce`.
+//! `estim reproduce`: the paper end to end.
 
-use estim_core::nalgebra::{Matrix1, Matrix1x2, Matrix2, Matrix2x1, Vector1, Vector2};
-use estim_core::{correlated_update, CovarianceUpdate, StateAndCovariance};
-use rand::SeedableRng;
-use rand_distr::{Distribution, StandardNormal};
+use std::path::PathBuf;
+
+use anyhow::Context;
+use estim::datasets::data_root;
+use estim::pipeline::{analyse, Config, Scenario, TrajectoryReport};
 
 /// Arguments of `estim reproduce`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Seed of the simulated mission.
-    #[arg(long, default_value_t = 7)]
-    seed: u64,
+    /// Folder holding A-KIT `TrajectoryN/` (or a data root holding `a-kit/`).
+    /// Without it, the embedded simulated mission is used.
+    #[arg(long, value_name = "DIR")]
+    data: Option<PathBuf>,
+    /// A-KIT trajectories to run (repeatable); default 4 and 13.
+    #[arg(long = "trajectory", value_name = "N")]
+    trajectories: Vec<u32>,
+    /// TOML configuration (see --print-config for every key and default).
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// Print the configuration in effect as TOML and exit.
+    #[arg(long)]
+    print_config: bool,
+    /// Machine-readable JSON on stdout instead of tables.
+    #[arg(long)]
+    json: bool,
+    /// Write CSV time series and plots (PNG, SVG) into this folder.
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
 }
 
-/// Placeholder main job until the INS/DVL pipeline lands: a seeded constant-velocity
-/// tracker whose position measurement shares noise with the process, filtered with
-/// M neglected and with the true M; prints the average NEES of each (expected 2).
+/// Run it.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let dt = 1.0;
-    let f = Matrix2::new(1.0, dt, 0.0, 1.0);
-    let h = Matrix1x2::new(1.0, 0.0);
-    // w ~ N(0, q) on velocity; v = c * w_prev + independent part.
-    let q: f64 = 0.04;
-    let c = 2.0;
-    let r_ind: f64 = 0.01;
-    let g = Matrix2x1::new(0.5 * dt, 1.0);
-    let qd = g * g.transpose() * q;
-    let r = Matrix1::new(c * c * q + r_ind);
-    let m = g * (c * q); // Cov(G w_{k-1}, v_k)
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(args.seed);
-    let steps = 2000;
-    let mut truth = Vector2::new(0.0, 1.0);
-    let p0 = Matrix2::identity();
-    let mut aware = StateAndCovariance::new(truth, p0)?;
-    let mut neglect = aware.clone();
-    let (mut nees_aware, mut nees_neglect) = (0.0, 0.0);
-    for _ in 0..steps {
-        let w: f64 = StandardNormal.sample(&mut rng);
-        let w = w * q.sqrt();
-        let e: f64 = StandardNormal.sample(&mut rng);
-        truth = f * truth + g * w;
-        let y = h * truth + Vector1::new(c * w + r_ind.sqrt() * e);
-        for (est, mk, nees) in [
-            (&mut aware, m, &mut nees_aware),
-            (&mut neglect, Matrix2x1::zeros(), &mut nees_neglect),
-        ] {
-            let prior = StateAndCovariance::new(
-                f * est.state(),
-                f * est.covariance() * f.transpose() + qd,
-            )?;
-            let innovation = y - h * prior.state();
-            let out = correlated_update(
-                &prior,
-                &innovation,
-                &h,
-                &r,
-                &mk,
-                CovarianceUpdate::JosephLike,
-            )?;
-            let err = truth - out.posterior.state();
-            let inv = out
-                .posterior
-                .covariance()
-                .try_inverse()
-                .ok_or_else(|| anyhow::anyhow!("singular P"))?;
-            *nees += (err.transpose() * inv * err)[0] / steps as f64;
-            *est = out.posterior;
+    let config = match &args.config {
+        Some(path) => Config::from_file(path)?,
+        None => Config::default(),
+    };
+    if args.print_config {
+        print!("{}", config.to_toml());
+        return Ok(());
+    }
+    let scenarios: Vec<Scenario> = match &args.data {
+        Some(dir) => {
+            let dir = data_root(Some(dir)).context("no data folder")?;
+            let list = if args.trajectories.is_empty() {
+                vec![4, 13]
+            } else {
+                args.trajectories.clone()
+            };
+            list.iter()
+                .map(|n| Scenario::akit(&dir, *n, &config, config.seed))
+                .collect::<Result<_, _>>()?
+        }
+        None => vec![Scenario::simulated(&config, config.seed)?],
+    };
+    let reports: Vec<TrajectoryReport> = scenarios
+        .iter()
+        .map(|s| analyse(s, &config, None, config.seed))
+        .collect::<Result<_, _>>()?;
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({ "trajectories": reports }))?
+        );
+    } else {
+        for r in &reports {
+            print_report(r);
         }
     }
-    println!(
-        "linear tracker with correlated noise, {steps} steps, seed {}",
-        args.seed
-    );
-    println!("average NEES (expected 2): M-aware {nees_aware:.3}, M-neglected {nees_neglect:.3}");
-    println!("INS/DVL + BeamsNet pipeline: not yet available in this build");
     Ok(())
+}
+
+fn print_report(r: &TrajectoryReport) {
+    println!(
+        "== {} ({:.0} s, {} DVL epochs)",
+        r.name, r.duration_s, r.dvl_epochs
+    );
+    println!("velocity norm vs DVL reference (paper Tables I/II):");
+    println!(
+        "  {:<10} {:>10} {:>10} {:>10} {:>10}",
+        "method", "RMSE", "MAE", "R^2", "VAF [%]"
+    );
+    for (name, m) in &r.velocity {
+        println!(
+            "  {:<10} {:>10.6} {:>10.6} {:>10.6} {:>10.4}",
+            name, m.rmse, m.mae, m.r2, m.vaf
+        );
+    }
+    println!("filters (std = time average / final, summed over axes; errors RMSE / final):");
+    for f in &r.filters {
+        println!("  {}", f.name);
+        for (g, s) in &f.std {
+            println!(
+                "    std {:<13} {:>12.4e} / {:>12.4e}",
+                g, s.time_average, s.final_value
+            );
+        }
+        println!(
+            "    error position {:.3} / {:.3} m, velocity {:.4} / {:.4} m/s, attitude {:.4} / {:.4} deg",
+            f.position_error_m.rmse,
+            f.position_error_m.final_value,
+            f.velocity_error_mps.rmse,
+            f.velocity_error_mps.final_value,
+            f.attitude_error_deg.rmse,
+            f.attitude_error_deg.final_value
+        );
+        println!(
+            "    NEES {:.2} (95% band {:.2}-{:.2}), NIS {:.2} (band {:.2}-{:.2}), updates {} accepted / {} gated",
+            f.nees_average, f.nees_band[0], f.nees_band[1], f.nis_average, f.nis_band[0], f.nis_band[1],
+            f.updates_accepted, f.updates_rejected
+        );
+        println!(
+            "    joint covariance: min eigenvalue {:.3e}, invalid updates {}, largest valid rho (median) {:.3}",
+            f.joint_min_eigenvalue, f.joint_invalid_updates, f.largest_valid_rho
+        );
+    }
+    for imp in &r.improvements {
+        println!(
+            "  improvement of {} over M neglected (time average / final):",
+            imp.variant
+        );
+        for (g, v) in &imp.groups {
+            println!(
+                "    {:<13} {:>7.2} % / {:>7.2} %",
+                g, v.time_average_percent, v.final_percent
+            );
+        }
+    }
 }

@@ -1,3 +1,54 @@
-//! The INS/DVL + BeamsNet pipeline behind `estim reproduce` and `estim montecarlo`.
+//! The INS/DVL + BeamsNet pipeline behind `estim reproduce` and `estim montecarlo`:
+//! scenarios (simulated or A-KIT), filter variants, and their summaries.
 
+mod config;
+mod report;
+mod run;
+mod scenario;
 pub mod stats;
+
+pub use config::{Config, DvlSection, FilterSection, ImuSection, MissionSection, SensorSection};
+pub use report::{
+    analyse, least_squares_velocities, summarise, velocity_metrics, FilterSummary, Improvement,
+    ImprovementValues, LearnedInputs, TrajectoryReport, VelocityMetrics, BEAMSNET_NEGLECTED,
+    BEAMSNET_SCALED, BEAMSNET_SENSITIVITY, LS,
+};
+pub use run::{
+    error_state, initial_covariance, initial_nominal, run_filter, CrossMatrix, CrossSource,
+    FilterRun, MeasurementSet,
+};
+pub use scenario::{DvlEpoch, Scenario};
+
+use std::path::PathBuf;
+
+/// Errors of the pipeline; each names what was wrong.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum PipelineError {
+    /// A dataset file or folder.
+    #[error(transparent)]
+    Dataset(#[from] crate::datasets::DatasetError),
+    /// The configuration file.
+    #[error("{}: {message}", path.display())]
+    Config {
+        /// The file.
+        path: PathBuf,
+        /// What was wrong (with the line where known).
+        message: String,
+    },
+    /// An invalid setting or input.
+    #[error("{0}")]
+    Invalid(String),
+    /// The filter core.
+    #[error(transparent)]
+    Core(#[from] estim_core::Error),
+    /// The INS crate.
+    #[error(transparent)]
+    Ins(#[from] estim_ins::Error),
+    /// The DVL crate.
+    #[error(transparent)]
+    Dvl(#[from] estim_dvl::Error),
+}
+
+/// `Result` of the pipeline.
+pub type Result<T> = std::result::Result<T, PipelineError>;
