@@ -5,6 +5,8 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod dvl;
+mod output;
+mod plots;
 mod reproduce;
 
 /// estim: state estimation with correlated process and measurement noise.

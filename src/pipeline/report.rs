@@ -121,6 +121,9 @@ pub struct TrajectoryReport {
     /// The raw time series (not serialised; for CSV and plots).
     #[serde(skip)]
     pub runs: Vec<FilterRun>,
+    /// Truth north/east relative to the start at the DVL epochs [m] (for plots).
+    #[serde(skip)]
+    pub truth_north_east: Vec<[f64; 2]>,
 }
 
 /// Velocity-norm metrics computed here (the learned crate has its own; tests compare).
@@ -299,7 +302,25 @@ pub fn analyse(
         (Some(a), Some(b)) => b.time - a.time,
         _ => 0.0,
     };
+    let truth_north_east = match scenario.truth.first() {
+        Some(t0) => {
+            let (rn, re) = estim_ins::earth::radii_of_curvature(t0.latitude);
+            scenario
+                .dvl
+                .iter()
+                .filter_map(|d| scenario.truth.get(d.imu_index))
+                .map(|t| {
+                    [
+                        (t.latitude - t0.latitude) * (rn + t0.height),
+                        (t.longitude - t0.longitude) * (re + t0.height) * t0.latitude.cos(),
+                    ]
+                })
+                .collect()
+        }
+        None => Vec::new(),
+    };
     Ok(TrajectoryReport {
+        truth_north_east,
         name: scenario.name.clone(),
         trajectory: scenario.trajectory,
         duration_s,

@@ -53,9 +53,7 @@ fn protocol(config: &Config) -> BeamsNetProtocol {
 }
 
 fn imu_spec(config: &Config) -> Result<ImuSpec> {
-    config
-        .imu_spec()
-        .map_err(PipelineError::Invalid)
+    config.imu_spec().map_err(PipelineError::Invalid)
 }
 
 impl Scenario {
