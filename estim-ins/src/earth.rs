@@ -25,7 +25,7 @@ pub const GRAVITY_EQUATOR: f64 = 9.780_325_335_9;
 pub const GRAVITY_POLE: f64 = 9.832_184_937_8;
 
 /// Somigliana's constant k = b g_p / (a g_e) - 1, as published (TR8350.2 eq. 4-2).
-const SOMIGLIANA_K: f64 = 0.001_931_852_652_41;
+pub(crate) const SOMIGLIANA_K: f64 = 0.001_931_852_652_41;
 /// m = ω² a² b / GM (Groves eq. 2.139).
 const GRAVITY_M: f64 =
     EARTH_RATE * EARTH_RATE * SEMI_MAJOR_AXIS * SEMI_MAJOR_AXIS * SEMI_MINOR_AXIS
@@ -64,7 +64,7 @@ fn surface_gravity(sin_lat: f64) -> f64 {
 
 /// Height factor of Groves eq. 2.139: g(L, h) = g_0(L) [1 - 2/a (1 + f + m) h + 3 h^2 / a^2].
 #[inline]
-fn height_factor(height: f64) -> f64 {
+pub(crate) fn height_factor(height: f64) -> f64 {
     1.0 - 2.0 / SEMI_MAJOR_AXIS * (1.0 + FLATTENING + GRAVITY_M) * height
         + 3.0 * height * height / (SEMI_MAJOR_AXIS * SEMI_MAJOR_AXIS)
 }
