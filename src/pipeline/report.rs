@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::stats::{
-    error_summary, improvement_percent, std_summary, ErrorSummary, StdSummary, GROUPS,
+    error_summary, finite_mean, improvement_percent, std_summary, ErrorSummary, StdSummary, GROUPS,
 };
 use super::{
     run_filter, Config, CrossMatrix, CrossSource, FilterRun, MeasurementSet, Result, Scenario,
@@ -60,8 +60,11 @@ pub struct FilterSummary {
     pub velocity_error_mps: ErrorSummary,
     /// |attitude error| against truth [deg].
     pub attitude_error_deg: ErrorSummary,
-    /// Time-averaged NEES (15 states) against truth.
+    /// Time-averaged NEES (15 states) against truth, over the epochs where P was
+    /// positive definite.
     pub nees_average: f64,
+    /// Epochs at which P was not positive definite.
+    pub covariance_not_positive_definite_epochs: usize,
     /// 95 % band of a time average of independent chi-square(15) values over the
     /// epochs (successive NEES are correlated in time, so this band is a guide).
     pub nees_band: [f64; 2],
@@ -168,7 +171,6 @@ pub fn summarise(run: &FilterRun) -> Result<FilterSummary> {
         .iter()
         .map(|(g, i)| (g.to_string(), std_summary(&run.covariance_diagonal, *i)))
         .collect();
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     // Scale of the joint covariance for the PSD tolerance: none here, the core's
     // check reported the eigenvalue; count clearly negative ones.
     let invalid = run
@@ -182,9 +184,10 @@ pub fn summarise(run: &FilterRun) -> Result<FilterSummary> {
         position_error_m: error_summary(&run.position_error),
         velocity_error_mps: error_summary(&run.velocity_error),
         attitude_error_deg: error_summary(&run.attitude_error_deg),
-        nees_average: mean(&run.nees),
+        nees_average: finite_mean(&run.nees),
+        covariance_not_positive_definite_epochs: run.covariance_not_positive_definite,
         nees_band: band(15, run.nees.len())?,
-        nis_average: mean(&run.nis),
+        nis_average: finite_mean(&run.nis),
         nis_band: band(3, run.nis.len())?,
         updates_accepted: run.accepted,
         updates_rejected: run.rejected,

@@ -36,6 +36,8 @@ pub struct Scenario {
     pub truth: Vec<InsState>,
     /// The IMU the filter integrates (N samples; sample k covers [t_k, t_k+1]).
     pub imu: Vec<ImuSample>,
+    /// The error-free IMU (N samples), for oracle measurements and noise analysis.
+    pub clean_imu: Vec<ImuSample>,
     /// IMU period [s].
     pub imu_dt: f64,
     /// The IMU error model the samples were corrupted with (also the filter's model).
@@ -97,6 +99,7 @@ impl Scenario {
             trajectory: None,
             truth: mission.truth,
             imu: mission.imu,
+            clean_imu: mission.clean_imu,
             imu_dt: mission.imu_dt,
             imu_spec: spec,
             dvl,
@@ -163,6 +166,7 @@ impl Scenario {
             trajectory: Some(n),
             truth,
             imu,
+            clean_imu: clean,
             imu_dt: dt,
             imu_spec: spec,
             dvl,
