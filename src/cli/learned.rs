@@ -2,12 +2,12 @@
 
 use std::path::Path;
 
-use estim::pipeline::{Config, LearnedInputs, Scenario};
-
-/// A function producing the learned measurements of a scenario.
-pub type LearnedFn = dyn Fn(&Scenario) -> estim::pipeline::Result<LearnedInputs> + Sync;
+use estim::pipeline::{Config, LearnedSource};
 
 /// The BeamsNet sensor, if available in this build. (Wired when estim-learned lands.)
-pub fn sensor(_config: &Config, _model: Option<&Path>) -> anyhow::Result<Option<Box<LearnedFn>>> {
+pub fn sensor(
+    _config: &Config,
+    _model: Option<&Path>,
+) -> anyhow::Result<Option<Box<LearnedSource>>> {
     Ok(None)
 }

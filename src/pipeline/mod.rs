@@ -11,8 +11,8 @@ pub mod stats;
 
 pub use config::{Config, DvlSection, FilterSection, ImuSection, MissionSection, SensorSection};
 pub use montecarlo::{
-    monte_carlo, MonteCarloReport, VariantConsistency, ORACLE_NEGLECTED, ORACLE_SCALED,
-    ORACLE_TRUE_M,
+    monte_carlo, LearnedSource, MonteCarloReport, VariantConsistency, ORACLE_NEGLECTED,
+    ORACLE_SCALED, ORACLE_TRUE_M,
 };
 pub use oracle::{oracle_measurements, OracleSensor};
 pub use report::{

@@ -18,6 +18,9 @@ use super::{
 };
 use estim_core::nalgebra::Matrix3;
 
+/// Produces a learned sensor's measurements (and optionally M) for a scenario.
+pub type LearnedSource = dyn Fn(&Scenario) -> Result<LearnedInputs> + Sync;
+
 /// Oracle sensor, M neglected.
 pub const ORACLE_NEGLECTED: &str = "oracle, M neglected";
 /// Oracle sensor, true M.
@@ -63,7 +66,7 @@ pub struct MonteCarloReport {
 fn one_mission(
     config: &Config,
     seed: u64,
-    learned: Option<&(dyn Fn(&Scenario) -> Result<LearnedInputs> + Sync)>,
+    learned: Option<&LearnedSource>,
 ) -> Result<Vec<FilterRun>> {
     let scenario = Scenario::simulated(config, seed)?;
     let ls = MeasurementSet {
@@ -107,7 +110,7 @@ pub fn monte_carlo(
     config: &Config,
     runs: usize,
     first_seed: u64,
-    learned: Option<&(dyn Fn(&Scenario) -> Result<LearnedInputs> + Sync)>,
+    learned: Option<&LearnedSource>,
     tick: &(dyn Fn() + Sync),
 ) -> Result<MonteCarloReport> {
     let all: Vec<Vec<FilterRun>> = (0..runs)
