@@ -202,3 +202,34 @@ fn imu_error_generator_has_the_specified_statistics() {
     // Variance estimate of a Gaussian: relative standard error √(2/runs) = 2.2 %; 5 of them.
     assert!((var / 0.0004 - 1.0).abs() < 0.11, "{var}");
 }
+
+/// Halving the step divides the round-trip error by about four: the mechanization (with
+/// the IMU samples as interval means) is second order.
+#[test]
+fn mechanization_error_shrinks_as_dt_squared() {
+    let cfg = MissionConfig::builder()
+        .duration(120.0)
+        .max_turn_rate(8f64.to_radians())
+        .build()
+        .unwrap();
+    let m = Mission::generate(&cfg, 5).unwrap();
+    let mech = Mechanization::new();
+    let final_error = |rate: f64| {
+        let (truth, imu) = m.trajectory.simulate(rate).unwrap();
+        let mut s = truth[0];
+        for sample in &imu {
+            s = mech.step(&s, sample, 1.0 / rate).unwrap();
+        }
+        let (p, v, a) = errors(&s, truth.last().unwrap());
+        println!("{rate} Hz: {p:.3e} m, {v:.3e} m/s, {a:.3e} deg");
+        (p, v)
+    };
+    let coarse = final_error(5.0);
+    let fine = final_error(10.0);
+    let ratio = (coarse.0 / fine.0, coarse.1 / fine.1);
+    println!(
+        "error ratio for dt/2: position {:.2}, velocity {:.2}",
+        ratio.0, ratio.1
+    );
+    assert!(ratio.0 > 3.0 && ratio.1 > 3.0, "{ratio:?}");
+}
