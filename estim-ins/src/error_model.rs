@@ -3,9 +3,9 @@
 //!
 //! # Formulation
 //!
-//! Error state δx = [δp (NED m), δv^n, ψ (NED rad), δb_a, δb_g] with the pinned
+//! Error state δx = \[δp (NED m), δv^n, ψ (NED rad), δb_a, δb_g\] with the pinned
 //! convention `true = nominal + error` (see [`InsState`](crate::InsState)). The
-//! continuous error dynamics δẋ = F δx + G w, w = [w_a, w_g, w_ba, w_bg], are those of
+//! continuous error dynamics δẋ = F δx + G w, w = \[w_a, w_g, w_ba, w_bg\], are those of
 //! Groves (2013) sec. 14.2.3-14.2.4 (local-navigation-frame error equations 14.63-14.71,
 //! with the gravity-gradient and transport-rate terms kept) and Farrell (2008) sec. 11.4,
 //! rewritten for (i) position error in metres N, E, D instead of δL, δλ, δh and (ii)
@@ -19,7 +19,7 @@
 //! δḃ_a = -δb_a / τ_a + w_ba,    δḃ_g = -δb_g / τ_g + w_bg
 //! ```
 //!
-//! with F_vp = [v×](2 W_ie + W_en) + ∂g/∂p, F_vv = [v×] ∂ω_en/∂v - [(2ω_ie + ω_en)×],
+//! with F_vp = [v×](2 W_ie + W_en) + ∂g/∂p, F_vv = \[v×\] ∂ω_en/∂v - \[(2ω_ie + ω_en)×\],
 //! F_ψp = -(W_ie + W_en), F_ψv = -∂ω_en/∂v, W = ∂ω/∂δp (Groves eqs. 14.64-14.69).
 //! Noise PSD Σ = diag(VRW² I, ARW² I, 2σ_a²/τ_a I, 2σ_g²/τ_g I) ([`ImuSpec`]).
 //!
@@ -192,7 +192,7 @@ impl InsErrorModel {
         dense(&self.system_blocks(state, imu))
     }
 
-    /// Noise-input matrix G (15 x 12) for w = [w_a, w_g, w_ba, w_bg]: -C_b^n into the
+    /// Noise-input matrix G (15 x 12) for w = \[w_a, w_g, w_ba, w_bg\]: -C_b^n into the
     /// velocity and misalignment rows, I into the bias rows.
     #[must_use]
     pub fn noise_input(&self, state: &InsState) -> NoiseInput {
@@ -232,7 +232,7 @@ impl InsErrorModel {
         (transition_from_blocks(&a), self.noise_from_blocks(&a, dt))
     }
 
-    /// Q_d = dt [Q_1 + (A Q_1 + Q_1 A')/2 + A Q_1 A'/3], A = F dt, over the nonzero
+    /// Q_d = dt \[Q_1 + (A Q_1 + Q_1 A')/2 + A Q_1 A'/3\], A = F dt, over the nonzero
     /// blocks of A's velocity, misalignment and bias columns (symmetric fill).
     fn noise_from_blocks(&self, a: &Blocks, dt: f64) -> ErrorMatrix {
         let psd = self.spec.continuous_noise_psd();
@@ -293,7 +293,7 @@ impl InsErrorModel {
 
     /// Exact discretisation by Van Loan's method (Van Loan 1978, "Computing integrals
     /// involving the matrix exponential"; Groves eq. 14.80 context): exponentiates the
-    /// 30 x 30 matrix [[-F, G Σ G'], [0, F']] dt. Returns (Phi = e^{F dt}, Q_d). For tests
+    /// 30 x 30 matrix [\[-F, G Σ G'\], \[0, F'\]] dt. Returns (Phi = e^{F dt}, Q_d). For tests
     /// and low-rate use: about 100 times slower than [`InsErrorModel::transition_and_noise`].
     #[must_use]
     pub fn van_loan(
@@ -437,7 +437,7 @@ impl ProcessModel<f64, ERROR_STATES> for InsErrorModel {
         Ok(self.transition_and_noise(state, input, dt).1)
     }
 
-    /// P' = Phi P Phi' + Q exploiting Phi's diagonal bias rows, Phi = [[N (9x15)], [0 D]]
+    /// P' = Phi P Phi' + Q exploiting Phi's diagonal bias rows, Phi = [\[N (9x15)\], \[0 D\]]
     /// with D 6x6 diagonal: two products 9x15x15 and 9x15x9 (3240 multiply-adds instead of
     /// 6750); falls back to the dense product when Phi lacks that structure. Equal to the
     /// default up to rounding (tested).
@@ -486,7 +486,7 @@ fn check_dt(dt: f64) -> estim_core::Result<()> {
 
 impl ErrorStateModel<f64, ERROR_STATES> for InsErrorModel {
     /// true = nominal + error: position through the radii at the nominal latitude and
-    /// height, attitude C_true = exp([ψ×]) C_nominal (= (I + [ψ×]) C to first order).
+    /// height, attitude C_true = exp(\[ψ×\]) C_nominal (= (I + \[ψ×\]) C to first order).
     fn inject(
         &self,
         nominal: &InsState,
@@ -501,7 +501,7 @@ impl ErrorStateModel<f64, ERROR_STATES> for InsErrorModel {
     }
 
     /// Only the misalignment block differs from I: re-centring ψ on the corrected attitude
-    /// gives ψ' = J_l(ψ̂)(ψ - ψ̂) ≈ (I + [ψ̂×]/2)(ψ - ψ̂) (Solà 2017, "Quaternion kinematics for
+    /// gives ψ' = J_l(ψ̂)(ψ - ψ̂) ≈ (I + \[ψ̂×\]/2)(ψ - ψ̂) (Solà 2017, "Quaternion kinematics for
     /// the error-state Kalman filter", eq. 287 for global-frame errors). The position
     /// radii change by O(δp/R) < 1e-6 and are left as identity.
     fn reset_jacobian(

@@ -8,7 +8,7 @@
 //! - [`Trajectory`], [`ImuErrorGenerator`], [`Mission`]: IMU from a trajectory, synthetic AUV missions.
 //!
 //! Conventions are pinned in [`InsState`]'s module docs: NED, body x forward y right z
-//! down, `true = nominal + error`, misalignment ψ in NED with C_true = (I + [ψ×]) C_nominal.
+//! down, `true = nominal + error`, misalignment ψ in NED with C_true = (I + \[ψ×\]) C_nominal.
 //!
 //! ```
 //! use estim_core::ProcessModel;

@@ -14,7 +14,7 @@
 //!
 //! # Inverse mechanization (Groves eqs. 5.46, 5.53 solved for the IMU outputs)
 //!
-//! f^b = C_n^b [v̇^n + (2 ω_ie^n + ω_en^n) × v^n - g^n],  ω_ib^b = ω_nb^b + C_n^b (ω_ie^n + ω_en^n).
+//! f^b = C_n^b \[v̇^n + (2 ω_ie^n + ω_en^n) × v^n - g^n\],  ω_ib^b = ω_nb^b + C_n^b (ω_ie^n + ω_en^n).
 //!
 //! An [`ImuSample`] is the mean of these over its interval (3-point Gauss-Legendre on
 //! each piece between sample times, so the acceleration kinks are integrated exactly),
@@ -37,15 +37,15 @@ use crate::InsState;
 /// One time-stamped trajectory sample (e.g. a row of A-KIT ground truth).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TrajectorySample {
-    /// Time [s].
+    /// Time \[s\].
     pub time: f64,
-    /// Geodetic latitude [rad].
+    /// Geodetic latitude \[rad\].
     pub latitude: f64,
-    /// Geodetic longitude [rad].
+    /// Geodetic longitude \[rad\].
     pub longitude: f64,
-    /// Height above the ellipsoid [m] (negative under water).
+    /// Height above the ellipsoid \[m\] (negative under water).
     pub height: f64,
-    /// Velocity NED [m/s].
+    /// Velocity NED \[m/s\].
     pub velocity_ned: Vector3<f64>,
     /// Attitude C_b^n.
     pub attitude: UnitQuaternion<f64>,
@@ -56,11 +56,11 @@ pub struct TrajectorySample {
 pub struct Kinematics {
     /// Position, velocity, attitude; zero biases; `angular_rate` = ω_ib^b.
     pub state: InsState,
-    /// v̇^n [m/s^2].
+    /// v̇^n \[m/s^2\].
     pub acceleration_ned: Vector3<f64>,
-    /// Error-free specific force f^b [m/s^2].
+    /// Error-free specific force f^b \[m/s^2\].
     pub specific_force: Vector3<f64>,
-    /// Error-free angular rate ω_ib^b [rad/s].
+    /// Error-free angular rate ω_ib^b \[rad/s\].
     pub angular_rate: Vector3<f64>,
 }
 
@@ -203,13 +203,13 @@ impl Trajectory {
         })
     }
 
-    /// Time of the first sample [s].
+    /// Time of the first sample \[s\].
     #[must_use]
     pub fn start_time(&self) -> f64 {
         self.times[0]
     }
 
-    /// Time of the last sample [s].
+    /// Time of the last sample \[s\].
     #[must_use]
     pub fn end_time(&self) -> f64 {
         self.times[self.times.len() - 1]
@@ -229,7 +229,7 @@ impl Trajectory {
     /// Kinematics and error-free IMU outputs at time `t`.
     ///
     /// # Errors
-    /// [`Error::InvalidParameter`] if `t` is outside [start, end] (or not finite).
+    /// [`Error::InvalidParameter`] if `t` is outside \[start, end\] (or not finite).
     pub fn evaluate(&self, t: f64) -> Result<Kinematics> {
         if !(t >= self.start_time() && t <= self.end_time()) {
             return Err(Error::InvalidParameter {
@@ -307,7 +307,7 @@ impl Trajectory {
         }
     }
 
-    /// The error-free IMU sample over [t, t + dt]: mean specific force and angular rate.
+    /// The error-free IMU sample over \[t, t + dt\]: mean specific force and angular rate.
     ///
     /// # Errors
     /// [`Error::InvalidParameter`] if the interval leaves the trajectory or dt <= 0.
@@ -432,13 +432,13 @@ impl ImuErrorGenerator {
         }
     }
 
-    /// Current total accelerometer bias (turn-on + drift) [m/s^2].
+    /// Current total accelerometer bias (turn-on + drift) \[m/s^2\].
     #[must_use]
     pub fn acc_bias(&self) -> Vector3<f64> {
         self.acc_turn_on + self.acc_drift
     }
 
-    /// Current total gyroscope bias (turn-on + drift) [rad/s].
+    /// Current total gyroscope bias (turn-on + drift) \[rad/s\].
     #[must_use]
     pub fn gyro_bias(&self) -> Vector3<f64> {
         self.gyro_turn_on + self.gyro_drift
