@@ -233,3 +233,31 @@ fn mechanization_error_shrinks_as_dt_squared() {
     );
     assert!(ratio.0 > 3.0 && ratio.1 > 3.0, "{ratio:?}");
 }
+
+/// On consistent samples the velocity-driven fit integrates back to the sampled positions
+/// and passes through the sampled velocities; its specific force has no jumps.
+#[test]
+fn velocity_driven_fit_integrates_back_to_consistent_positions() {
+    let cfg = MissionConfig::builder().duration(60.0).build().unwrap();
+    let m = Mission::generate(&cfg, 2).unwrap();
+    let samples = m.trajectory.samples().to_vec();
+    let traj = Trajectory::velocity_driven(samples.clone()).unwrap();
+    let mut worst: f64 = 0.0;
+    for s in samples.iter().skip(1).take(120) {
+        let k = traj.evaluate(s.time).unwrap().state;
+        let mut reference = k;
+        reference.latitude = s.latitude;
+        reference.longitude = s.longitude;
+        reference.height = s.height;
+        worst = worst.max(errors(&k, &reference).0);
+        assert!((k.velocity_ned - s.velocity_ned).amax() < 1e-12);
+    }
+    println!("velocity-driven position vs samples over 60 s: {worst:.2e} m");
+    assert!(worst < 1e-3, "{worst}");
+    let (_, imu) = traj.simulate(100.0).unwrap();
+    let jump = imu
+        .windows(2)
+        .map(|w| (w[1].specific_force - w[0].specific_force).norm())
+        .fold(0.0, f64::max);
+    assert!(jump < 0.01, "{jump}");
+}
