@@ -27,7 +27,7 @@ fn require_data(reason: &str) {
     eprintln!("skipping: {reason}");
 }
 
-fn trajectory(n: u32) -> Option<Trajectory> {
+fn trajectory(n: u32, velocity_driven: bool) -> Option<Trajectory> {
     let Some(root) = data_dir() else {
         require_data("no data folder (set ESTIM_DATA_DIR)");
         return None;
@@ -55,7 +55,11 @@ fn trajectory(n: u32) -> Option<Trajectory> {
             ),
         })
         .collect();
-    Some(Trajectory::new(samples).unwrap())
+    Some(if velocity_driven {
+        Trajectory::velocity_driven(samples).unwrap()
+    } else {
+        Trajectory::new(samples).unwrap()
+    })
 }
 
 /// (horizontal+vertical position error [m], velocity error [m/s], attitude error [deg]).
@@ -73,9 +77,33 @@ fn errors(a: &InsState, b: &InsState) -> (f64, f64, f64) {
     )
 }
 
-fn round_trip(n: u32) {
-    let Some(traj) = trajectory(n) else { return };
+fn round_trip(n: u32, velocity_driven: bool) {
+    let Some(traj) = trajectory(n, velocity_driven) else {
+        return;
+    };
+    let fit = if velocity_driven {
+        "velocity spline"
+    } else {
+        "Hermite"
+    };
     let (truth, imu) = traj.simulate(100.0).unwrap();
+    // Realism of the simulated IMU (reported, not asserted): horizontal specific force and
+    // its jump between consecutive samples (the Hermite fit's acceleration kinks).
+    let rms = |f: &dyn Fn(&estim_ins::ImuSample) -> f64| {
+        (imu.iter().map(|s| f(s).powi(2)).sum::<f64>() / imu.len() as f64).sqrt()
+    };
+    let max_jump = imu
+        .windows(2)
+        .map(|w| (w[1].specific_force - w[0].specific_force).norm())
+        .fold(0.0, f64::max);
+    println!(
+        "trajectory {n} ({fit}) simulated IMU: rms f_x {:.3} f_y {:.3} f_z {:.3} m/s^2, rms gyro z {:.4} rad/s, largest sample-to-sample jump of f {:.3} m/s^2",
+        rms(&|s| s.specific_force.x),
+        rms(&|s| s.specific_force.y),
+        rms(&|s| s.specific_force.z),
+        rms(&|s| s.angular_rate.z),
+        max_jump
+    );
     let mech = Mechanization::new();
     let mut s = truth[0];
     let mut worst = (0.0f64, 0.0f64, 0.0f64);
@@ -89,12 +117,23 @@ fn round_trip(n: u32) {
     // The interpolated truth passes through the GT samples: check that at the last one.
     let gt_last = traj.samples().last().unwrap();
     println!(
-        "trajectory {n}: {} steps over {:.1} s; final errors: position {p:.4} m, velocity {v:.2e} m/s, attitude {a:.2e} deg; max: {:.4} m, {:.2e} m/s, {:.2e} deg",
+        "trajectory {n} ({fit}): {} steps over {:.1} s; final errors: position {p:.4} m, velocity {v:.2e} m/s, attitude {a:.2e} deg; max: {:.4} m, {:.2e} m/s, {:.2e} deg",
         imu.len(),
         last.time - truth[0].time,
         worst.0,
         worst.1,
         worst.2
+    );
+    // How far the simulated truth is from the GT positions (0 for the Hermite fit at
+    // the samples; for the velocity spline it is the data's position/velocity mismatch).
+    let at_last_sample = traj.evaluate(gt_last.time).unwrap().state;
+    let mut gt_state = at_last_sample;
+    gt_state.latitude = gt_last.latitude;
+    gt_state.longitude = gt_last.longitude;
+    gt_state.height = gt_last.height;
+    println!(
+        "trajectory {n} ({fit}): simulated truth vs GT position at the last sample {:.3} m",
+        errors(&at_last_sample, &gt_state).0
     );
     assert!(last.time - truth[0].time > 390.0);
     assert!(gt_last.time - last.time < 0.01 + 1e-9);
@@ -105,10 +144,20 @@ fn round_trip(n: u32) {
 
 #[test]
 fn akit_trajectory_4_round_trip() {
-    round_trip(4);
+    round_trip(4, false);
 }
 
 #[test]
 fn akit_trajectory_13_round_trip() {
-    round_trip(13);
+    round_trip(13, false);
+}
+
+#[test]
+fn akit_trajectory_4_round_trip_velocity_spline() {
+    round_trip(4, true);
+}
+
+#[test]
+fn akit_trajectory_13_round_trip_velocity_spline() {
+    round_trip(13, true);
 }

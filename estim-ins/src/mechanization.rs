@@ -2,7 +2,7 @@
 //!
 //! # Equations (Groves 2013, sec. 5.4 "Local-navigation-frame navigation equations")
 //!
-//! - attitude: Ċ_b^n = C_b^n [ω_ib^b ×] - [ω_in^n ×] C_b^n, ω_in^n = ω_ie^n + ω_en^n (eq. 5.46);
+//! - attitude: Ċ_b^n = C_b^n \[ω_ib^b ×\] - \[ω_in^n ×\] C_b^n, ω_in^n = ω_ie^n + ω_en^n (eq. 5.46);
 //! - velocity: v̇^n = C_b^n f^b + g^n - (2 ω_ie^n + ω_en^n) × v^n (eq. 5.53);
 //! - position: L̇ = v_N/(R_N+h), λ̇ = v_E/((R_E+h) cos L), ḣ = -v_D (eq. 5.56).
 //!
@@ -42,11 +42,11 @@ use crate::InsState;
 /// interval [`time`, `time` + dt], body frame (x forward, y right, z down).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ImuSample {
-    /// Start of the interval the sample covers [s].
+    /// Start of the interval the sample covers \[s\].
     pub time: f64,
-    /// Specific force f^b [m/s^2] (about [0, 0, -9.8] when level and still).
+    /// Specific force f^b \[m/s^2\] (about \[0, 0, -9.8\] when level and still).
     pub specific_force: Vector3<f64>,
-    /// Angular rate ω_ib^b [rad/s].
+    /// Angular rate ω_ib^b \[rad/s\].
     pub angular_rate: Vector3<f64>,
 }
 
@@ -65,19 +65,19 @@ impl ImuSample {
 /// Continuous-time rates of the navigation equations at one state (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NavigationRates {
-    /// L̇ [rad/s].
+    /// L̇ \[rad/s\].
     pub latitude_rate: f64,
-    /// λ̇ [rad/s].
+    /// λ̇ \[rad/s\].
     pub longitude_rate: f64,
-    /// ḣ [m/s].
+    /// ḣ \[m/s\].
     pub height_rate: f64,
-    /// v̇^n [m/s^2].
+    /// v̇^n \[m/s^2\].
     pub velocity_rate: Vector3<f64>,
-    /// Bias-corrected body rate ω_ib^b [rad/s].
+    /// Bias-corrected body rate ω_ib^b \[rad/s\].
     pub body_rate: Vector3<f64>,
-    /// Navigation-frame rate ω_in^n = ω_ie^n + ω_en^n [rad/s].
+    /// Navigation-frame rate ω_in^n = ω_ie^n + ω_en^n \[rad/s\].
     pub navigation_frame_rate: Vector3<f64>,
-    /// Bias-corrected specific force resolved in NED, C_b^n f^b [m/s^2].
+    /// Bias-corrected specific force resolved in NED, C_b^n f^b \[m/s^2\].
     pub specific_force_ned: Vector3<f64>,
 }
 
@@ -114,7 +114,7 @@ impl Mechanization {
         Self
     }
 
-    /// Propagate `state` over `dt` [s] with the raw IMU sample `imu`. The result keeps
+    /// Propagate `state` over `dt` \[s\] with the raw IMU sample `imu`. The result keeps
     /// the bias estimates, has `time + dt`, and stores the bias-corrected rate in
     /// [`InsState::angular_rate`].
     ///
