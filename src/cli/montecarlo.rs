@@ -52,12 +52,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         report.first_seed + report.runs as u64 - 1
     );
     println!(
-        "{:<28} {:>9} {:>17} {:>9} {:>8} {:>17} {:>9} {:>7} {:>9}",
-        "variant", "NEES", "band", "in band", "NIS", "band", "in band", "gated", "pos RMSE"
+        "{:<28} {:>9} {:>17} {:>9} {:>8} {:>17} {:>9} {:>7} {:>9} {:>8}",
+        "variant",
+        "NEES",
+        "band",
+        "in band",
+        "NIS",
+        "band",
+        "in band",
+        "gated",
+        "pos RMSE",
+        "P not PD"
     );
+    println!("(\"in band\": share of epochs whose run-averaged value lies in the band; \"P not PD\": run-epochs whose covariance lost positive definiteness, excluded from the averages)");
     for (name, v) in &report.variants {
         println!(
-            "{:<28} {:>9.2} {:>8.2}-{:<8.2} {:>8.1}% {:>8.2} {:>8.2}-{:<8.2} {:>8.1}% {:>7} {:>8.2}m",
+            "{:<28} {:>9.2} {:>8.2}-{:<8.2} {:>8.1}% {:>8.2} {:>8.2}-{:<8.2} {:>8.1}% {:>7} {:>8.2}m {:>8}",
             name,
             v.nees_average,
             v.nees_band[0],
@@ -68,7 +78,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             v.nis_band[1],
             v.nis_epochs_in_band_percent,
             v.updates_rejected,
-            v.position_rmse_m
+            v.position_rmse_m,
+            v.covariance_not_positive_definite
         );
     }
     Ok(())

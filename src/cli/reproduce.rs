@@ -116,8 +116,8 @@ fn print_report(r: &TrajectoryReport) {
             f.updates_accepted, f.updates_rejected
         );
         println!(
-            "    joint covariance: min eigenvalue {:.3e}, invalid updates {}, largest valid rho (median) {:.3}",
-            f.joint_min_eigenvalue, f.joint_invalid_updates, f.largest_valid_rho
+            "    joint covariance: min eigenvalue {:.3e}, invalid updates {}, largest valid rho (median) {:.3}; P not positive definite at {} epochs",
+            f.joint_min_eigenvalue, f.joint_invalid_updates, f.largest_valid_rho, f.covariance_not_positive_definite_epochs
         );
     }
     for imp in &r.improvements {

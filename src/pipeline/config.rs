@@ -45,8 +45,10 @@ pub struct ImuSection {
     /// `akit_observed` (default), `tactical_mems`, `navigation_grade_fog`, `consumer_mems`.
     pub preset: String,
     /// Accelerometer overrides (SI units, see estim_ins::SensorSpec).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub accelerometer: Option<SensorSection>,
     /// Gyroscope overrides.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub gyroscope: Option<SensorSection>,
     /// Keep the preset's scale-factor errors in the simulated IMU (default false).
     /// The 15-state filter does not estimate scale factors: with the tactical

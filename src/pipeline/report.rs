@@ -110,6 +110,7 @@ pub struct TrajectoryReport {
     /// Scenario name.
     pub name: String,
     /// A-KIT trajectory number, if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub trajectory: Option<u32>,
     /// Duration [s].
     pub duration_s: f64,
