@@ -2,20 +2,22 @@
 //! scenarios (simulated or A-KIT), filter variants, and their summaries.
 
 mod config;
+mod faults;
 mod report;
 mod run;
 mod scenario;
 pub mod stats;
 
 pub use config::{Config, DvlSection, FilterSection, ImuSection, MissionSection, SensorSection};
+pub use faults::{apply_faults, DvlOutage, FaultConfig, FaultLog, ImuGap};
 pub use report::{
     analyse, least_squares_velocities, summarise, velocity_metrics, FilterSummary, Improvement,
     ImprovementValues, LearnedInputs, TrajectoryReport, VelocityMetrics, BEAMSNET_NEGLECTED,
     BEAMSNET_SCALED, BEAMSNET_SENSITIVITY, LS,
 };
 pub use run::{
-    error_state, initial_covariance, initial_nominal, run_filter, CrossMatrix, CrossSource,
-    FilterRun, MeasurementSet,
+    error_state, initial_covariance, initial_nominal, run_filter, run_filter_with_observer,
+    CrossMatrix, CrossSource, FilterRun, MeasurementSet,
 };
 pub use scenario::{DvlEpoch, Scenario};
 
