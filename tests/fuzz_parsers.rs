@@ -9,10 +9,19 @@
 //! ```sh
 //! ESTIM_FUZZ_CASES=1000000 cargo test --release --test fuzz_parsers
 //! ```
+//!
+//! or one parser at a time by test-name filter (`gt_`, `dvl_`, `beams_`, `config_`,
+//! `faults_`), e.g. `ESTIM_FUZZ_CASES=1000000 cargo test --release --test fuzz_parsers beams_`.
+//!
+//! Parsers covered: the A-KIT GT and DVL loaders, the `estim dvl solve` beam file
+//! (`estim::datasets::parse_beams`), the TOML configuration
+//! (`estim::pipeline::Config::from_toml`) and the fault configuration
+//! (`estim::pipeline::FaultConfig::from_toml`).
 
 use std::path::Path;
 
-use estim::datasets::{parse_dvl, parse_gt, DVL_HEADER, GT_HEADER};
+use estim::datasets::{parse_beams, parse_dvl, parse_gt, DVL_HEADER, GT_HEADER};
+use estim::pipeline::{Config as PipelineConfig, FaultConfig};
 use proptest::prelude::*;
 use proptest::test_runner::Config;
 
@@ -177,6 +186,152 @@ fn check_dvl(bytes: &[u8]) {
     }
 }
 
+fn check_beams(bytes: &[u8]) {
+    if let Ok(rows) = parse_beams(bytes, Path::new("fuzz/beams.csv")) {
+        // At most one row per data line; every present beam finite.
+        let lines = bytes.split(|&c| c == b'\n' || c == b'\r').count();
+        assert!(rows.len() < lines.max(1), "more rows than lines");
+        assert!(
+            rows.iter().flatten().flatten().all(|x| x.is_finite()),
+            "accepted a non-finite beam"
+        );
+    }
+}
+
+/// A valid beam file: a time column, the four beams (some missing), a comment column.
+fn valid_beams(rows: usize, seed: u64) -> String {
+    let mut s = String::from("time,beam1,Beam 2,beam3,BEAM4,note\n");
+    let mut x = seed;
+    for r in 0..rows {
+        let mut cells = vec![format!("{r}")];
+        for _ in 0..4 {
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            cells.push(if x >> 60 == 0 {
+                String::new()
+            } else {
+                format!("{}", ((x >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 4.0)
+            });
+        }
+        cells.push("ok".into());
+        s.push_str(&cells.join(","));
+        s.push('\n');
+    }
+    s
+}
+
+/// Config: an accepted file must pass the validation again and survive a TOML round
+/// trip unchanged (the parse is a real configuration).
+fn check_config(bytes: &[u8]) {
+    let text = String::from_utf8_lossy(bytes);
+    if let Ok(c) = PipelineConfig::from_toml(&text, Path::new("fuzz/config.toml")) {
+        assert!(c.check().is_ok(), "accepted an invalid configuration");
+        let back = PipelineConfig::from_toml(&c.to_toml(), Path::new("round-trip.toml"))
+            .expect("an accepted configuration re-parses");
+        assert_eq!(back, c);
+    }
+}
+
+fn check_faults(bytes: &[u8]) {
+    let text = String::from_utf8_lossy(bytes);
+    if let Ok(c) = FaultConfig::from_toml(&text, Path::new("fuzz/faults.toml")) {
+        assert!(c.check().is_ok(), "accepted an invalid fault configuration");
+    }
+}
+
+/// TOML values that stress the parser and the validation.
+const TOML_VALUES: [&str; 18] = [
+    "nan",
+    "-inf",
+    "inf",
+    "1e400",
+    "-1",
+    "0",
+    "\"v3\"",
+    "\"\"",
+    "[",
+    "]]",
+    "{ a = 1 }",
+    "[1.0, 2.0]",
+    "true",
+    "1979-05-27T07:32:00Z",
+    "'''",
+    "0x7fffffffffffffff",
+    "18446744073709551616",
+    "\"\\u0000\"",
+];
+
+/// Replace the value of a `key = value` line (structure-aware TOML mutation).
+fn replace_toml_value(text: &str, line: usize, value: &str) -> String {
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    let candidates: Vec<usize> = (0..lines.len())
+        .filter(|&i| lines[i].contains('='))
+        .collect();
+    if let Some(&i) = candidates.get(line % candidates.len().max(1)) {
+        let key = lines[i].split('=').next().unwrap_or("").to_string();
+        lines[i] = format!("{key}= {value}");
+    }
+    lines.join("\n")
+}
+
+const VALID_FAULTS: &str = "beam_dropout_probability = 0.1
+beam_outlier_probability = 0.05
+beam_outlier_magnitude_mps = [0.5, 2.0]
+imu_gap_rate_per_s = 0.1
+imu_gap_samples = 10
+[[dvl_outages]]
+start_s = 100.0
+duration_s = 60.0
+[[imu_gaps]]
+start_s = 20.0
+samples = 5
+";
+
+proptest! {
+    #![proptest_config(config())]
+
+    #[test]
+    fn beams_parser_survives_arbitrary_bytes(bytes in proptest::collection::vec(any::<u8>(), 0..600)) {
+        check_beams(&bytes);
+    }
+
+    #[test]
+    fn beams_parser_survives_mutations(seed in any::<u64>(), rows in 0usize..6,
+                                       muts in proptest::collection::vec(mutation(), 1..5)) {
+        check_beams(&apply(&valid_beams(rows, seed), &muts));
+    }
+
+    #[test]
+    fn config_parser_survives_arbitrary_bytes(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
+        check_config(&bytes);
+    }
+
+    #[test]
+    fn config_parser_survives_mutations(
+        value_edits in proptest::collection::vec(
+            (any::<usize>(), proptest::sample::select(TOML_VALUES.to_vec())), 0..3),
+        muts in proptest::collection::vec(mutation(), 0..3)) {
+        let mut text = PipelineConfig::default().to_toml();
+        for (line, value) in &value_edits {
+            text = replace_toml_value(&text, *line, value);
+        }
+        check_config(&apply(&text, &muts));
+    }
+
+    #[test]
+    fn faults_parser_survives_mutations(
+        value_edits in proptest::collection::vec(
+            (any::<usize>(), proptest::sample::select(TOML_VALUES.to_vec())), 0..3),
+        muts in proptest::collection::vec(mutation(), 0..3)) {
+        let mut text = VALID_FAULTS.to_string();
+        for (line, value) in &value_edits {
+            text = replace_toml_value(&text, *line, value);
+        }
+        check_faults(&apply(&text, &muts));
+    }
+}
+
 proptest! {
     #![proptest_config(config())]
 
@@ -205,6 +360,11 @@ proptest! {
 
 #[test]
 fn unmutated_files_parse() {
+    let beams = parse_beams(valid_beams(4, 3).as_bytes(), Path::new("x"));
+    assert_eq!(beams.map(|r| r.len()).ok(), Some(4));
+    let c = PipelineConfig::from_toml(&PipelineConfig::default().to_toml(), Path::new("x"));
+    assert_eq!(c.ok(), Some(PipelineConfig::default()));
+    assert!(FaultConfig::from_toml(VALID_FAULTS, Path::new("x")).is_ok());
     let gt = parse_gt(valid_csv(&GT_HEADER, 5, 1).as_bytes(), Path::new("x"));
     assert_eq!(gt.map(|r| r.len()).ok(), Some(5));
     let dvl = parse_dvl(valid_csv(&DVL_HEADER, 3, 2).as_bytes(), Path::new("x"));

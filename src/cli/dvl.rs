@@ -2,10 +2,10 @@
 //! reference trajectory.
 
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use anyhow::{anyhow, bail, Context};
-use estim::datasets::{load_dvl, load_gt};
+use anyhow::Context;
+use estim::datasets::{load_beams, load_dvl, load_gt};
 use estim_dvl::nalgebra::Vector3;
 use estim_dvl::{BeamGeometry, Calibrator, DvlMeasurement, TrajectorySample};
 
@@ -82,7 +82,7 @@ fn solve(args: &SolveArgs) -> anyhow::Result<String> {
         .azimuth_offset(args.azimuth_offset)
         .build()
         .context("beam geometry")?;
-    let rows = read_beams(&args.input)?;
+    let rows = load_beams(&args.input)?;
     let mut out = String::from("vx,vy,vz,error_velocity,n_beams\n");
     for beams in rows {
         let solution = geometry.solve(&beams);
@@ -98,109 +98,6 @@ fn solve(args: &SolveArgs) -> anyhow::Result<String> {
         let _ = writeln!(out, ",{}", solution.beams_used());
     }
     Ok(out)
-}
-
-/// Column indices of beams 1..4 from a header row.
-fn beam_columns(path: &Path, header: &csv::StringRecord) -> anyhow::Result<[usize; 4]> {
-    let mut found: [Option<usize>; 4] = [None; 4];
-    for (index, name) in header.iter().enumerate() {
-        let key: String = name
-            .trim_start_matches('\u{feff}')
-            .chars()
-            .filter(|c| !c.is_whitespace())
-            .collect::<String>()
-            .to_ascii_lowercase();
-        let beam = match key.as_str() {
-            "beam1" => 0,
-            "beam2" => 1,
-            "beam3" => 2,
-            "beam4" => 3,
-            _ => continue,
-        };
-        if found[beam].is_some() {
-            bail!(
-                "{}:1: column for beam {} appears twice in the header",
-                path.display(),
-                beam + 1
-            );
-        }
-        found[beam] = Some(index);
-    }
-    let missing: Vec<String> = (0..4)
-        .filter(|&b| found[b].is_none())
-        .map(|b| format!("beam{}", b + 1))
-        .collect();
-    if !missing.is_empty() {
-        bail!(
-            "{}:1: missing beam column(s) {} (expected beam1..beam4 or \"beam 1\"..\"beam 4\")",
-            path.display(),
-            missing.join(", ")
-        );
-    }
-    Ok(found.map(|c| c.unwrap_or(0)))
-}
-
-/// Read the beams of every data row; a missing beam is `None`.
-fn read_beams(path: &Path) -> anyhow::Result<Vec<[Option<f64>; 4]>> {
-    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
-    // Line numbers from byte offsets (the csv crate's own line counter skips blank
-    // lines, and a record's offset may point at the blank lines before it).
-    let line_at = |byte: u64| {
-        let mut start = usize::try_from(byte).unwrap_or(usize::MAX).min(bytes.len());
-        while start < bytes.len() && matches!(bytes[start], b'\n' | b'\r') {
-            start += 1;
-        }
-        1 + bytes[..start].iter().filter(|&&c| c == b'\n').count()
-    };
-    let mut reader = csv::ReaderBuilder::new()
-        .has_headers(false)
-        .flexible(true)
-        .from_reader(&bytes[..]);
-    let csv_error = |e: csv::Error| {
-        let line = e.position().map_or(0, |p| line_at(p.byte()));
-        anyhow!("{}:{line}: malformed CSV: {e}", path.display())
-    };
-    let mut records = reader.records();
-    let header = match records.next() {
-        Some(r) => r.map_err(csv_error)?,
-        None => bail!("{}:1: empty file, a header row is required", path.display()),
-    };
-    let columns = beam_columns(path, &header)?;
-    let mut rows = Vec::new();
-    for record in records {
-        let record = record.map_err(csv_error)?;
-        let line = record.position().map_or(0, |p| line_at(p.byte()));
-        if record.iter().all(|c| c.trim().is_empty()) && record.len() <= 1 {
-            continue; // blank line
-        }
-        let mut beams = [None; 4];
-        for (b, &col) in columns.iter().enumerate() {
-            let Some(cell) = record.get(col) else {
-                bail!(
-                    "{}:{line}: {} fields, the beam{} column is field {}",
-                    path.display(),
-                    record.len(),
-                    b + 1,
-                    col + 1
-                );
-            };
-            let cell = cell.trim();
-            if cell.is_empty() || cell.eq_ignore_ascii_case("nan") {
-                continue;
-            }
-            match cell.parse::<f64>() {
-                Ok(x) if x.is_finite() => beams[b] = Some(x),
-                _ => bail!(
-                    "{}:{line}: column beam{}: `{}` is not a finite number",
-                    path.display(),
-                    b + 1,
-                    cell.chars().take(40).collect::<String>()
-                ),
-            }
-        }
-        rows.push(beams);
-    }
-    Ok(rows)
 }
 
 fn calibrate(args: &CalibrateArgs) -> anyhow::Result<String> {

@@ -5,11 +5,13 @@
 //! finite values; every error names the file and, where there is one, the line.
 
 mod akit;
+mod beams;
 mod locate;
 
 pub use akit::{
     load_dvl, load_gt, parse_dvl, parse_gt, DvlSample, GtSample, DVL_HEADER, GT_HEADER,
 };
+pub use beams::{load_beams, parse_beams, BeamRow};
 pub use locate::{akit_dir, data_root, trajectory_files, TrajectoryFiles, DATA_DIR_ENV};
 
 use std::path::PathBuf;

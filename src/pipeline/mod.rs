@@ -2,6 +2,7 @@
 //! scenarios (simulated or A-KIT), filter variants, and their summaries.
 
 mod config;
+mod faults;
 mod montecarlo;
 mod oracle;
 mod report;
@@ -10,6 +11,7 @@ mod scenario;
 pub mod stats;
 
 pub use config::{Config, DvlSection, FilterSection, ImuSection, MissionSection, SensorSection};
+pub use faults::{apply_faults, DvlOutage, FaultConfig, FaultLog, ImuGap};
 pub use montecarlo::{
     monte_carlo, LearnedSource, MonteCarloReport, VariantConsistency, ORACLE_NEGLECTED,
     ORACLE_SCALED, ORACLE_TRUE_M,
@@ -21,8 +23,8 @@ pub use report::{
     BEAMSNET_SCALED, BEAMSNET_SENSITIVITY, LS,
 };
 pub use run::{
-    error_state, filter_imu_spec, initial_covariance, initial_nominal, run_filter, CrossMatrix,
-    CrossSource, FilterRun, MeasurementSet,
+    error_state, filter_imu_spec, initial_covariance, initial_nominal, run_filter,
+    run_filter_with_observer, CrossMatrix, CrossSource, FilterRun, MeasurementSet,
 };
 pub use scenario::{DvlEpoch, Scenario};
 

@@ -3,8 +3,8 @@
 
 use estim_core::nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 use estim_core::{
-    nees, CrossCovariance, ErrorStateKalmanFilter, FilterConfig, Fixed, Gate, ScaledCorrelation,
-    Zero,
+    nees, CrossCovariance, ErrorStateKalmanFilter, FilterConfig, Fixed, Gate, NoObserver, Observer,
+    ScaledCorrelation, Zero,
 };
 use estim_dvl::DvlVelocityModel;
 use estim_ins::{
@@ -181,6 +181,8 @@ pub fn initial_nominal(
 }
 
 /// Run the error-state EKF over `scenario` with `measurements` and `cross`.
+///
+/// IMU timing: see [`run_filter_with_observer`].
 pub fn run_filter(
     name: &str,
     scenario: &Scenario,
@@ -189,6 +191,49 @@ pub fn run_filter(
     cross: &CrossSource,
     seed: u64,
 ) -> Result<FilterRun> {
+    run_filter_with_observer(
+        name,
+        scenario,
+        config,
+        measurements,
+        cross,
+        seed,
+        &mut NoObserver,
+    )
+}
+
+/// Largest relative difference between a timestamp difference and the nominal IMU
+/// period for which the nominal period is used as dt (timestamps are a fixed-rate
+/// clock written in floating point; this keeps a fault-free run independent of
+/// their rounding).
+pub const IMU_PERIOD_SNAP: f64 = 1e-6;
+
+/// [`run_filter`] reporting every predict and update to `observer`.
+///
+/// IMU timing: the filter's clock starts at the first truth sample; sample k is
+/// integrated from its own time `ImuSample::time` to the next sample's time (the last
+/// sample over one nominal period), cut at each DVL epoch, so dt comes from the
+/// timestamps (the nominal period when they differ from it by less than
+/// [`IMU_PERIOD_SNAP`] relative).
+/// - A gap (missing samples) is bridged by holding the last sample over the longer
+///   interval (zero-order hold); the process noise grows with that dt.
+/// - A duplicate, backward or non-finite IMU timestamp is a typed error
+///   ([`PipelineError::Invalid`] naming the sample index), never a zero or negative dt.
+/// - A DVL epoch beyond the end of the IMU (more than one period after the last
+///   sample) is an error too: the filter does not extrapolate.
+///
+/// # Errors
+/// As above; the filter core's errors; the observer's errors.
+pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
+    name: &str,
+    scenario: &Scenario,
+    config: &Config,
+    measurements: &MeasurementSet,
+    cross: &CrossSource,
+    seed: u64,
+    observer: &mut O,
+) -> Result<FilterRun> {
+    check_imu_timestamps(scenario)?;
     let truth0 = scenario
         .truth
         .first()
@@ -204,7 +249,9 @@ pub fn run_filter(
     };
     let filter_config = FilterConfig::builder().gate(gate).build()?;
     let process = InsErrorModel::new(filter_imu_spec(&scenario.imu_spec)?);
-    let mut filter = ErrorStateKalmanFilter::new(process, nominal0, p0)?.with_config(filter_config);
+    let mut filter = ErrorStateKalmanFilter::new(process, nominal0, p0)?
+        .with_config(filter_config)
+        .with_observer(observer);
     let r = measurements.noise_covariance;
     let model = DvlVelocityModel::builder()
         .lever_arm(Vector3::from(config.dvl.lever_arm_m))
@@ -228,11 +275,46 @@ pub fn run_filter(
         covariance_not_positive_definite: 0,
     };
     let (rn0, re0) = estim_ins::earth::radii_of_curvature(truth0.latitude);
-    let mut imu_k = 0;
+    let imu = &scenario.imu;
+    let period = scenario.imu_dt;
+    let tolerance = IMU_PERIOD_SNAP * period;
+    // Sample in effect and the filter's clock.
+    let mut k = 0;
+    let mut clock = truth0.time;
     for (epoch, dvl) in scenario.dvl.iter().enumerate() {
-        while imu_k < dvl.imu_index && imu_k < scenario.imu.len() {
-            filter.predict(&scenario.imu[imu_k], scenario.imu_dt)?;
-            imu_k += 1;
+        let truth = scenario.truth.get(dvl.imu_index).ok_or_else(|| {
+            PipelineError::Invalid(format!(
+                "DVL epoch {epoch}: truth index {} beyond the scenario ({} samples)",
+                dvl.imu_index,
+                scenario.truth.len()
+            ))
+        })?;
+        let target = truth.time;
+        if target < clock - tolerance {
+            return Err(PipelineError::Invalid(format!(
+                "DVL epoch {epoch} at t = {target} s is before the previous one ({clock} s)"
+            )));
+        }
+        while target - clock > tolerance {
+            while k + 1 < imu.len() && imu[k + 1].time <= clock + tolerance {
+                k += 1;
+            }
+            let sample = imu
+                .get(k)
+                .ok_or_else(|| PipelineError::Invalid("the scenario has no IMU samples".into()))?;
+            let next = imu.get(k + 1).map_or(sample.time + period, |s| s.time);
+            if next <= clock + tolerance {
+                return Err(PipelineError::Invalid(format!(
+                    "DVL epoch {epoch} at t = {target} s is after the end of the IMU ({next} s)"
+                )));
+            }
+            let end = next.min(target);
+            let mut dt = end - clock;
+            if (dt - period).abs() <= tolerance {
+                dt = period;
+            }
+            filter.predict(sample, dt)?;
+            clock = end;
         }
         if let Some(y) = measurements.velocities.get(epoch).copied().flatten() {
             run.largest_valid_rho
@@ -264,7 +346,6 @@ pub fn run_filter(
                 run.rejected += 1;
             }
         }
-        let truth = &scenario.truth[imu_k];
         let nominal = filter.nominal();
         let p = filter.covariance();
         let e = error_state(truth, nominal);
@@ -290,6 +371,29 @@ pub fn run_filter(
         ]);
     }
     Ok(run)
+}
+
+/// Reject duplicate, backward and non-finite IMU timestamps, naming the sample.
+fn check_imu_timestamps(scenario: &Scenario) -> Result<()> {
+    let mut previous: Option<f64> = None;
+    for (index, sample) in scenario.imu.iter().enumerate() {
+        let t = sample.time;
+        if !t.is_finite() {
+            return Err(PipelineError::Invalid(format!(
+                "IMU sample {index}: non-finite timestamp {t}"
+            )));
+        }
+        if let Some(p) = previous {
+            if t <= p {
+                let what = if t == p { "duplicate" } else { "backward" };
+                return Err(PipelineError::Invalid(format!(
+                    "IMU sample {index}: {what} timestamp {t} s (previous {p} s)"
+                )));
+            }
+        }
+        previous = Some(t);
+    }
+    Ok(())
 }
 
 #[cfg(test)]
