@@ -20,6 +20,11 @@ pub struct Args {
     /// JSON on stdout.
     #[arg(long)]
     json: bool,
+    /// Inject the standard fault scenario (beam dropouts and outliers, a 60 s DVL
+    /// outage, IMU gaps; see `FaultConfig::standard`) unless the configuration has its
+    /// own `[faults]` section.
+    #[arg(long)]
+    faults: bool,
 }
 
 /// Run it.
@@ -27,10 +32,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.runs == 0 {
         anyhow::bail!("--runs must be at least 1");
     }
-    let config = match &args.config {
+    let mut config = match &args.config {
         Some(path) => Config::from_file(path)?,
         None => Config::default(),
     };
+    if args.faults && config.faults == estim::pipeline::FaultConfig::default() {
+        config.faults = estim::pipeline::FaultConfig::standard();
+    }
     let bar = ProgressBar::with_draw_target(Some(args.runs as u64), ProgressDrawTarget::stderr());
     bar.set_style(
         ProgressStyle::with_template("{bar:40} {pos}/{len} missions ({elapsed})")

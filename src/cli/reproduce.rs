@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use estim::datasets::data_root;
-use estim::pipeline::{analyse, Config, Scenario, TrajectoryReport};
+use estim::pipeline::{analyse, apply_faults, Config, Scenario, TrajectoryReport};
 
 /// Arguments of `estim reproduce`.
 #[derive(Debug, clap::Args)]
@@ -54,6 +54,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         None => vec![Scenario::simulated(&config, config.seed)?],
     };
+    let mut scenarios = scenarios;
+    for s in &mut scenarios {
+        apply_faults(s, &config.faults, config.seed)?;
+    }
     let reports: Vec<TrajectoryReport> = scenarios
         .iter()
         .map(|s| analyse(s, &config, None, config.seed))

@@ -8,7 +8,7 @@ use std::path::Path;
 use estim_ins::{ImuSpec, SensorSpec};
 use serde::{Deserialize, Serialize};
 
-use super::{PipelineError, Result};
+use super::{FaultConfig, PipelineError, Result};
 
 /// The whole configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -24,6 +24,8 @@ pub struct Config {
     pub dvl: DvlSection,
     /// Filter settings.
     pub filter: FilterSection,
+    /// Sensor faults injected into every scenario (default: none).
+    pub faults: FaultConfig,
 }
 
 /// The embedded simulated mission.
@@ -116,6 +118,7 @@ impl Default for Config {
             imu: ImuSection::default(),
             dvl: DvlSection::default(),
             filter: FilterSection::default(),
+            faults: FaultConfig::default(),
         }
     }
 }
@@ -277,6 +280,7 @@ impl Config {
                 self.dvl.protocol
             ));
         }
+        self.faults.check().map_err(|e| e.to_string())?;
         self.imu_spec().map(|_| ())
     }
 

@@ -13,8 +13,8 @@ use super::report::{
 };
 use super::stats::finite_mean;
 use super::{
-    oracle_measurements, run_filter, Config, CrossSource, FilterRun, MeasurementSet, OracleSensor,
-    Result, Scenario,
+    apply_faults, oracle_measurements, run_filter, Config, CrossSource, FilterRun, MeasurementSet,
+    OracleSensor, Result, Scenario,
 };
 use estim_core::nalgebra::Matrix3;
 
@@ -68,7 +68,8 @@ fn one_mission(
     seed: u64,
     learned: Option<&LearnedSource>,
 ) -> Result<Vec<FilterRun>> {
-    let scenario = Scenario::simulated(config, seed)?;
+    let mut scenario = Scenario::simulated(config, seed)?;
+    apply_faults(&mut scenario, &config.faults, seed)?;
     let ls = MeasurementSet {
         velocities: least_squares_velocities(&scenario, config),
         noise_covariance: Matrix3::identity() * config.dvl.ls_noise_std.powi(2),
