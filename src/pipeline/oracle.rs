@@ -107,9 +107,11 @@ pub fn oracle_measurements(
             let n: f64 = StandardNormal.sample(&mut rng);
             n * sensor.independent_std
         });
-        velocities.push(Some(
-            truth_velocity + sensor.alpha * c_nb_k * integrated + independent,
-        ));
+        // The oracle shares the DVL's outages (an epoch with no beam gives no measurement).
+        let available = epoch.beams.iter().any(|b| b.is_finite());
+        velocities.push(
+            available.then(|| truth_velocity + sensor.alpha * c_nb_k * integrated + independent),
+        );
         cross.push(s);
     }
     let r = Matrix3::identity()
