@@ -32,8 +32,8 @@ pub use observer::{NisRecorder, NoObserver, Observer, PredictEvent, UpdateEvent,
 pub use runner::{ErrorStateKalmanFilter, ExtendedKalmanFilter, KalmanFilter, UpdateReport};
 
 pub use cross::{
-    check_joint_covariance, joint_covariance, joint_min_eigenvalue, largest_valid_scale, Fixed,
-    ScaledCorrelation, Zero,
+    check_joint_covariance, joint_covariance, joint_min_correlation_eigenvalue,
+    joint_min_eigenvalue, largest_valid_scale, Fixed, ScaledCorrelation, Zero,
 };
 pub use error::{Error, Result};
 pub use gaussian::{check_finite, check_symmetric, symmetrize, StateAndCovariance};
