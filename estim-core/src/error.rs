@@ -28,9 +28,10 @@ pub enum Error {
     Observer(String),
     /// The joint covariance [[Q_acc, M], [M', R]] is not positive semidefinite:
     /// the cross-covariance M is not a possible covariance of (G w, v).
-    #[error("joint covariance [[Q_acc, M], [M', R]] is not positive semidefinite (smallest eigenvalue {min_eigenvalue:e})")]
+    #[error("joint covariance [[Q_acc, M], [M', R]] is not positive semidefinite (smallest eigenvalue of its correlation matrix {min_eigenvalue:e})")]
     InvalidJointCovariance {
-        /// Smallest eigenvalue of the joint covariance (negative beyond tolerance).
+        /// Smallest eigenvalue of the joint correlation matrix
+        /// diag(J)^-1/2 J diag(J)^-1/2 (below -1e-9).
         min_eigenvalue: f64,
     },
     /// A covariance matrix that must be positive (semi)definite is not.

@@ -79,13 +79,67 @@ pub(crate) const RCOND_FLOOR: f64 = 1000.0;
 /// S factorised once: used for the NIS, the gate and the gain.
 pub(crate) struct FactoredInnovation<T: Scalar, const N: usize, const M: usize> {
     pub(crate) covariance: SMatrix<T, M, M>,
-    /// S^-1 (from the Cholesky factor).
+    /// S^-1 (from the Cholesky factor, exactly symmetric).
     pub(crate) inverse: SMatrix<T, M, M>,
     /// P H' + M.
     pub(crate) pht_m: SMatrix<T, N, M>,
     pub(crate) nis: T,
     /// Whether M is nonzero (skips the cross terms when it is zero).
     pub(crate) correlated: bool,
+}
+
+/// Inverse of a symmetric positive definite matrix through its Cholesky factor
+/// S = L L', S^-1 = L^-T L^-1 (Golub & Van Loan, *Matrix Computations*, 4th ed.,
+/// alg. 4.2.1); exactly symmetric. `None` if a pivot is not positive.
+///
+/// Written out for static sizes: for the small S of a measurement update it is
+/// several times faster than the generic `nalgebra` Cholesky + inverse.
+fn spd_inverse<T: Scalar, const M: usize>(s: &SMatrix<T, M, M>) -> Option<SMatrix<T, M, M>> {
+    let mut l = SMatrix::<T, M, M>::zeros();
+    for j in 0..M {
+        let mut d = s[(j, j)];
+        for k in 0..j {
+            d -= l[(j, k)] * l[(j, k)];
+        }
+        // `d` is finite (S was checked); also refuses NaN from round-off.
+        if d <= T::zero() || !d.is_finite() {
+            return None;
+        }
+        let ljj = d.sqrt();
+        l[(j, j)] = ljj;
+        for i in (j + 1)..M {
+            let mut v = s[(i, j)];
+            for k in 0..j {
+                v -= l[(i, k)] * l[(j, k)];
+            }
+            l[(i, j)] = v / ljj;
+        }
+    }
+    // W = L^-1 (lower triangular), by forward substitution.
+    let mut w = SMatrix::<T, M, M>::zeros();
+    for j in 0..M {
+        w[(j, j)] = T::one() / l[(j, j)];
+        for i in (j + 1)..M {
+            let mut v = T::zero();
+            for k in j..i {
+                v -= l[(i, k)] * w[(k, j)];
+            }
+            w[(i, j)] = v / l[(i, i)];
+        }
+    }
+    // S^-1 = W' W, upper triangle then mirrored.
+    let mut inv = SMatrix::<T, M, M>::zeros();
+    for j in 0..M {
+        for i in 0..=j {
+            let mut v = T::zero();
+            for k in j..M {
+                v += w[(k, i)] * w[(k, j)];
+            }
+            inv[(i, j)] = v;
+            inv[(j, i)] = v;
+        }
+    }
+    Some(inv)
 }
 
 /// Form and factorise S, compute the NIS. Checks finiteness of every input and the
@@ -97,11 +151,6 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
     measurement_noise: &SMatrix<T, M, M>,
     cross_covariance: &SMatrix<T, N, M>,
 ) -> Result<FactoredInnovation<T, N, M>> {
-    check_finite(innovation.as_slice(), "innovation")?;
-    check_finite(jacobian.as_slice(), "measurement jacobian")?;
-    check_finite(measurement_noise.as_slice(), "measurement noise covariance")?;
-    check_finite(cross_covariance.as_slice(), "cross-covariance")?;
-    check_finite(prior.covariance().as_slice(), "prior covariance")?;
     let p = prior.covariance();
     let correlated = cross_covariance.iter().any(|v| !v.is_zero());
     let pht = p * jacobian.transpose();
@@ -111,8 +160,20 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
         // M = 0: skip the zero products H M (same value as innovation_covariance).
         symmetrize(&(jacobian * pht + measurement_noise))
     };
-    let cholesky = s.cholesky().ok_or(Error::InnovationNotPositiveDefinite)?;
-    let inverse = symmetrize(&cholesky.inverse());
+    // A NaN or infinity in H, R, M or P always reaches S (IEEE: NaN * 0 = NaN,
+    // inf * 0 = NaN), so one check of S guards them all; the cold path names the
+    // culprit.
+    if !s.iter().all(|v| v.is_finite()) {
+        check_finite(jacobian.as_slice(), "measurement jacobian")?;
+        check_finite(measurement_noise.as_slice(), "measurement noise covariance")?;
+        check_finite(cross_covariance.as_slice(), "cross-covariance")?;
+        check_finite(p.as_slice(), "prior covariance")?;
+        return Err(Error::NonFinite {
+            what: "innovation covariance (overflow)",
+        });
+    }
+    check_finite(innovation.as_slice(), "innovation")?;
+    let inverse = spd_inverse(&s).ok_or(Error::InnovationNotPositiveDefinite)?;
     // Numerical singularity test, invariant to the units of each measurement
     // component: the reciprocal 1-norm condition number of the correlation matrix
     // C = D^-1/2 S D^-1/2 (D = diag S), from C^-1 = D^1/2 S^-1 D^1/2. A singular S
