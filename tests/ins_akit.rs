@@ -9,8 +9,8 @@ use std::path::PathBuf;
 
 use estim::datasets::{data_root, load_gt, trajectory_files};
 use estim_ins::earth::radii_of_curvature;
-use estim_ins::{InsState, Mechanization, Trajectory, TrajectorySample};
-use nalgebra::{UnitQuaternion, Vector3};
+use estim_ins::{InsState, Mechanization, Trajectory};
+use nalgebra::Vector3;
 
 fn data_dir() -> Option<PathBuf> {
     if let Some(p) = data_root(None).filter(|p| p.is_dir()) {
@@ -40,21 +40,7 @@ fn trajectory(n: u32, velocity_driven: bool) -> Option<Trajectory> {
         }
     };
     let gt = load_gt(&files.gt).unwrap();
-    let samples = gt
-        .iter()
-        .map(|g| TrajectorySample {
-            time: g.time,
-            latitude: g.latitude,
-            longitude: g.longitude,
-            height: g.altitude,
-            velocity_ned: Vector3::from(g.velocity_ned),
-            attitude: UnitQuaternion::from_euler_angles(
-                g.roll_pitch_yaw[0],
-                g.roll_pitch_yaw[1],
-                g.roll_pitch_yaw[2],
-            ),
-        })
-        .collect();
+    let samples = gt.iter().map(|g| g.trajectory_sample()).collect();
     Some(if velocity_driven {
         Trajectory::velocity_driven(samples).unwrap()
     } else {

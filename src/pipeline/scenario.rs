@@ -2,11 +2,10 @@
 
 use std::path::Path;
 
-use estim_core::nalgebra::{UnitQuaternion, Vector3, Vector4};
+use estim_core::nalgebra::{Vector3, Vector4};
 use estim_dvl::{dvl_frame_velocity, BeamsNetProtocol};
 use estim_ins::{
     ImuErrorGenerator, ImuSample, ImuSpec, InsState, Mission, MissionConfig, Trajectory,
-    TrajectorySample,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -113,21 +112,7 @@ impl Scenario {
         let files = trajectory_files(dir, n)?;
         let gt = load_gt(&files.gt)?;
         let dvl_log = load_dvl(&files.dvl)?;
-        let samples = gt
-            .iter()
-            .map(|g| TrajectorySample {
-                time: g.time,
-                latitude: g.latitude,
-                longitude: g.longitude,
-                height: g.altitude,
-                velocity_ned: Vector3::from(g.velocity_ned),
-                attitude: UnitQuaternion::from_euler_angles(
-                    g.roll_pitch_yaw[0],
-                    g.roll_pitch_yaw[1],
-                    g.roll_pitch_yaw[2],
-                ),
-            })
-            .collect();
+        let samples = gt.iter().map(|g| g.trajectory_sample()).collect();
         let trajectory = Trajectory::new(samples)?;
         let (mut truth, clean) = trajectory.simulate(config.mission.imu_rate_hz)?;
         let dt = 1.0 / config.mission.imu_rate_hz;
