@@ -144,6 +144,7 @@ fn spd_inverse<T: Scalar, const M: usize>(s: &SMatrix<T, M, M>) -> Option<SMatri
 
 /// Form and factorise S, compute the NIS. Checks finiteness of every input and the
 /// conditioning of S.
+#[inline(always)]
 pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
     prior: &StateAndCovariance<T, N>,
     innovation: &SVector<T, M>,
@@ -181,16 +182,17 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
     // RCOND_FLOOR eps, i.e. cond(C) above ~4e12 (the gain would have fewer than ~4
     // correct digits).
     let sd = s.diagonal().map(|v| v.sqrt());
+    let isd = sd.map(|v| T::one() / v);
     let mut norm_c = T::zero();
     let mut norm_c_inv = T::zero();
     for j in 0..M {
         let (mut col_c, mut col_c_inv) = (T::zero(), T::zero());
         for i in 0..M {
-            col_c += (s[(i, j)] / (sd[i] * sd[j])).abs();
-            col_c_inv += (inverse[(i, j)] * sd[i] * sd[j]).abs();
+            col_c += s[(i, j)].abs() * isd[i];
+            col_c_inv += inverse[(i, j)].abs() * sd[i];
         }
-        norm_c = norm_c.max(col_c);
-        norm_c_inv = norm_c_inv.max(col_c_inv);
+        norm_c = norm_c.max(col_c * isd[j]);
+        norm_c_inv = norm_c_inv.max(col_c_inv * sd[j]);
     }
     let rcond = T::one() / (norm_c * norm_c_inv);
     if !rcond.is_finite() || rcond <= T::default_epsilon() * lit::<T>(RCOND_FLOOR) {
@@ -219,6 +221,7 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
 }
 
 /// Gain, posterior mean and covariance from a factored S.
+#[inline(always)]
 pub(crate) fn finish_update<T: Scalar, const N: usize, const M: usize>(
     prior: &StateAndCovariance<T, N>,
     innovation: &SVector<T, M>,
