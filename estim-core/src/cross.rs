@@ -103,7 +103,8 @@ pub fn joint_covariance<T: Scalar, const N: usize, const M: usize>(
     j
 }
 
-/// Smallest eigenvalue of the (symmetrised) joint covariance.
+/// Smallest eigenvalue of the (symmetrised) joint covariance; NaN if an entry is not
+/// finite.
 pub fn joint_min_eigenvalue<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
@@ -114,6 +115,9 @@ pub fn joint_min_eigenvalue<T: Scalar, const N: usize, const M: usize>(
         cross_covariance,
         measurement_noise,
     );
+    if !j.iter().all(|v| v.is_finite()) {
+        return lit(f64::NAN);
+    }
     let j = (&j + j.transpose()) * lit::<T>(0.5);
     j.symmetric_eigenvalues().min()
 }
@@ -132,6 +136,7 @@ fn inverse_sqrt_or_one<T: Scalar>(d: T) -> T {
 ///
 /// Unlike [`joint_min_eigenvalue`] it does not depend on the units of the state and
 /// measurement components, so one tolerance serves every scale: PSD iff >= 0.
+/// NaN if an entry is not finite.
 pub fn joint_min_correlation_eigenvalue<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
@@ -142,6 +147,10 @@ pub fn joint_min_correlation_eigenvalue<T: Scalar, const N: usize, const M: usiz
         cross_covariance,
         measurement_noise,
     );
+    // The eigen solver on NaN would not converge: report NaN instead.
+    if !j.iter().all(|v| v.is_finite()) {
+        return lit(f64::NAN);
+    }
     let scale: Vec<T> = (0..N + M).map(|i| inverse_sqrt_or_one(j[(i, i)])).collect();
     let c = DMatrix::from_fn(N + M, N + M, |r, k| {
         (j[(r, k)] + j[(k, r)]) * lit::<T>(0.5) * scale[r] * scale[k]

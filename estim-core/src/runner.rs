@@ -109,6 +109,7 @@ fn check_dt<T: Scalar>(dt: T) -> Result<()> {
 
 /// The update attempt shared by all runners. Returns the report and, if accepted,
 /// the posterior. Touches nothing: the caller commits.
+#[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn attempt_update<T, S, C, const N: usize, const M: usize>(
     config: &FilterConfig,
@@ -125,8 +126,9 @@ where
     T: Scalar,
     C: CrossCovariance<T, S, N, M> + ?Sized,
 {
+    // H, R, M and P are checked by `factor_innovation` (any NaN reaches S); the
+    // measurement is checked here so the error names it.
     check_finite(measurement.as_slice(), "measurement")?;
-    check_finite(measurement_noise.as_slice(), "measurement noise covariance")?;
     let context = CrossCovarianceContext {
         accumulated_process_noise: &accumulated.noise,
         accumulated_transition: &accumulated.transition,
@@ -137,14 +139,17 @@ where
         covariance: prior.covariance(),
     };
     let cross_covariance = cross.cross_covariance(&context)?;
-    check_finite(cross_covariance.as_slice(), "cross-covariance")?;
     let joint_min_eigenvalue = match config.joint_check() {
         JointCheck::Skip => None,
-        JointCheck::Report => Some(joint_min_correlation_eigenvalue(
-            &accumulated.noise,
-            &cross_covariance,
-            measurement_noise,
-        )),
+        JointCheck::Report => {
+            check_finite(cross_covariance.as_slice(), "cross-covariance")?;
+            check_finite(measurement_noise.as_slice(), "measurement noise covariance")?;
+            Some(joint_min_correlation_eigenvalue(
+                &accumulated.noise,
+                &cross_covariance,
+                measurement_noise,
+            ))
+        }
         JointCheck::Reject => Some(check_joint_covariance(
             &accumulated.noise,
             &cross_covariance,
@@ -959,5 +964,58 @@ mod tests {
         }
         ekf.predict(&(), 0.5).unwrap();
         assert_eq!(ekf.estimate().covariance()[(0, 0)], 1.5);
+    }
+
+    /// Scalar error-state model with a non-identity reset (like the attitude reset of
+    /// Sola 2017, eq. 287: J = 1 - e/2), checked against scalar formulas.
+    struct ScalarNominal;
+    impl ProcessModel<f64, 1> for ScalarNominal {
+        type State = f64;
+        type Input = f64;
+        fn propagate(&self, x: &f64, u: &f64, dt: f64) -> Result<f64> {
+            Ok(x + u * dt)
+        }
+        fn transition(&self, _: &f64, _: &f64, _: f64) -> Result<SMatrix<f64, 1, 1>> {
+            Ok(SMatrix::identity())
+        }
+        fn process_noise(&self, _: &f64, _: &f64, dt: f64) -> Result<SMatrix<f64, 1, 1>> {
+            Ok(SMatrix::identity() * 0.1 * dt)
+        }
+    }
+    impl ErrorStateModel<f64, 1> for ScalarNominal {
+        fn inject(&self, nominal: &f64, error: &SVector<f64, 1>) -> Result<f64> {
+            Ok(nominal + error[0])
+        }
+        fn reset_jacobian(&self, _: &f64, error: &SVector<f64, 1>) -> SMatrix<f64, 1, 1> {
+            SMatrix::identity() * (1.0 - 0.5 * error[0])
+        }
+    }
+    struct Direct;
+    impl MeasurementModel<f64, 1, 1> for Direct {
+        type State = f64;
+        fn predict(&self, x: &f64) -> Result<SVector<f64, 1>> {
+            Ok(Vector1::new(*x))
+        }
+        fn jacobian(&self, _: &f64) -> Result<SMatrix<f64, 1, 1>> {
+            Ok(SMatrix::identity())
+        }
+        fn noise_covariance(&self, _: &f64) -> Result<SMatrix<f64, 1, 1>> {
+            Ok(SMatrix::identity() * 0.2)
+        }
+    }
+
+    #[test]
+    fn error_state_injects_and_resets() {
+        let mut eskf =
+            ErrorStateKalmanFilter::new(ScalarNominal, 1.0, nalgebra::Matrix1::new(0.3)).unwrap();
+        eskf.predict(&2.0, 0.5).unwrap(); // nominal 2.0, P = 0.3 + 0.05
+        let (p, r, y) = (0.35, 0.2, 2.4);
+        let report = eskf.update(&Direct, &Vector1::new(y), &Zero).unwrap();
+        let k = p / (p + r);
+        let e = k * (y - 2.0);
+        let j = 1.0 - 0.5 * e;
+        assert!((report.correction.unwrap()[0] - e).abs() < 1e-15);
+        assert!((eskf.nominal() - (2.0 + e)).abs() < 1e-15);
+        assert!((eskf.covariance()[(0, 0)] - j * (1.0 - k) * p * j).abs() < 1e-15);
     }
 }

@@ -63,13 +63,39 @@ pub fn joseph_covariance<T: Scalar, const N: usize, const M: usize>(
     cross_covariance: &SMatrix<T, N, M>,
     gain: &SMatrix<T, N, M>,
 ) -> SMatrix<T, N, N> {
-    let i_kh = SMatrix::<T, N, N>::identity() - gain * jacobian;
-    let cross = i_kh * cross_covariance * gain.transpose();
-    symmetrize(
-        &(i_kh * covariance * i_kh.transpose() + gain * measurement_noise * gain.transpose()
-            - cross
-            - cross.transpose()),
+    let pht = covariance * jacobian.transpose();
+    joseph_from_parts(
+        covariance,
+        &pht,
+        jacobian,
+        measurement_noise,
+        Some(cross_covariance),
+        gain,
     )
+}
+
+/// The Joseph-like form with X = I - K H, reassociated so that no N x N x N product
+/// is formed: X P = P - K (P H')', X P X' = X P - ((X P) H') K', X M = M - K (H M).
+/// Same value as (I-KH) P (I-KH)' + K R K' - (I-KH) M K' - K M' (I-KH)'; cost
+/// O(N^2 M) instead of O(N^3).
+#[inline(always)]
+fn joseph_from_parts<T: Scalar, const N: usize, const M: usize>(
+    covariance: &SMatrix<T, N, N>,
+    pht: &SMatrix<T, N, M>,
+    jacobian: &SMatrix<T, M, N>,
+    measurement_noise: &SMatrix<T, M, M>,
+    cross_covariance: Option<&SMatrix<T, N, M>>,
+    gain: &SMatrix<T, N, M>,
+) -> SMatrix<T, N, N> {
+    let xp = covariance - gain * pht.transpose();
+    let xpht = pht - gain * (jacobian * pht);
+    let mut sum = xp - xpht * gain.transpose() + gain * (measurement_noise * gain.transpose());
+    if let Some(m) = cross_covariance {
+        let xm = m - gain * (jacobian * m);
+        let cross = xm * gain.transpose();
+        sum -= cross + cross.transpose();
+    }
+    symmetrize(&sum)
 }
 
 /// Multiple of machine epsilon below which S counts as numerically singular (see
@@ -81,8 +107,8 @@ pub(crate) struct FactoredInnovation<T: Scalar, const N: usize, const M: usize> 
     pub(crate) covariance: SMatrix<T, M, M>,
     /// S^-1 (from the Cholesky factor, exactly symmetric).
     pub(crate) inverse: SMatrix<T, M, M>,
-    /// P H' + M.
-    pub(crate) pht_m: SMatrix<T, N, M>,
+    /// P H'.
+    pub(crate) pht: SMatrix<T, N, M>,
     pub(crate) nis: T,
     /// Whether M is nonzero (skips the cross terms when it is zero).
     pub(crate) correlated: bool,
@@ -144,6 +170,7 @@ fn spd_inverse<T: Scalar, const M: usize>(s: &SMatrix<T, M, M>) -> Option<SMatri
 
 /// Form and factorise S, compute the NIS. Checks finiteness of every input and the
 /// conditioning of S.
+#[inline(always)]
 pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
     prior: &StateAndCovariance<T, N>,
     innovation: &SVector<T, M>,
@@ -181,16 +208,17 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
     // RCOND_FLOOR eps, i.e. cond(C) above ~4e12 (the gain would have fewer than ~4
     // correct digits).
     let sd = s.diagonal().map(|v| v.sqrt());
+    let isd = sd.map(|v| T::one() / v);
     let mut norm_c = T::zero();
     let mut norm_c_inv = T::zero();
     for j in 0..M {
         let (mut col_c, mut col_c_inv) = (T::zero(), T::zero());
         for i in 0..M {
-            col_c += (s[(i, j)] / (sd[i] * sd[j])).abs();
-            col_c_inv += (inverse[(i, j)] * sd[i] * sd[j]).abs();
+            col_c += s[(i, j)].abs() * isd[i];
+            col_c_inv += inverse[(i, j)].abs() * sd[i];
         }
-        norm_c = norm_c.max(col_c);
-        norm_c_inv = norm_c_inv.max(col_c_inv);
+        norm_c = norm_c.max(col_c * isd[j]);
+        norm_c_inv = norm_c_inv.max(col_c_inv * sd[j]);
     }
     let rcond = T::one() / (norm_c * norm_c_inv);
     if !rcond.is_finite() || rcond <= T::default_epsilon() * lit::<T>(RCOND_FLOOR) {
@@ -204,21 +232,17 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
             what: "normalised innovation squared",
         });
     }
-    let pht_m = if correlated {
-        pht + cross_covariance
-    } else {
-        pht
-    };
     Ok(FactoredInnovation {
         covariance: s,
         inverse,
-        pht_m,
+        pht,
         nis,
         correlated,
     })
 }
 
 /// Gain, posterior mean and covariance from a factored S.
+#[inline(always)]
 pub(crate) fn finish_update<T: Scalar, const N: usize, const M: usize>(
     prior: &StateAndCovariance<T, N>,
     innovation: &SVector<T, M>,
@@ -230,18 +254,20 @@ pub(crate) fn finish_update<T: Scalar, const N: usize, const M: usize>(
 ) -> Result<UpdateOutcome<T, N, M>> {
     let p = prior.covariance();
     // K = (P H' + M) S^-1 (Simon 2006, eq. 7.13).
-    let gain = factored.pht_m * factored.inverse;
+    let pht = &factored.pht;
+    let pht_m = if factored.correlated {
+        pht + cross_covariance
+    } else {
+        *pht
+    };
+    let gain = pht_m * factored.inverse;
     let state = prior.state() + gain * innovation;
+    let cross = factored.correlated.then_some(cross_covariance);
     let covariance = match form {
-        CovarianceUpdate::JosephLike if factored.correlated => {
-            joseph_covariance(p, jacobian, measurement_noise, cross_covariance, &gain)
-        }
         CovarianceUpdate::JosephLike => {
-            // M = 0: the cross terms vanish (textbook Joseph form).
-            let i_kh = SMatrix::<T, N, N>::identity() - gain * jacobian;
-            symmetrize(&(i_kh * p * i_kh.transpose() + gain * measurement_noise * gain.transpose()))
+            joseph_from_parts(p, pht, jacobian, measurement_noise, cross, &gain)
         }
-        CovarianceUpdate::Short => symmetrize(&(p - gain * factored.pht_m.transpose())),
+        CovarianceUpdate::Short => symmetrize(&(p - gain * pht_m.transpose())),
     };
     check_finite(state.as_slice(), "posterior state")?;
     check_finite(covariance.as_slice(), "posterior covariance")?;
