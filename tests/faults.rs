@@ -390,3 +390,30 @@ fn injection_is_reproducible_from_the_seed() {
     }
     let _ = c;
 }
+
+#[test]
+fn non_finite_inputs_are_typed_errors() {
+    // Never a NaN passed on: a non-finite IMU sample or velocity measurement stops
+    // the run with a typed error. (Non-finite beams never get this far: the least
+    // squares treats them as missing beams.)
+    let config = Config::default();
+    let clean = Scenario::simulated(&config, SEED).unwrap();
+    let mut bad_imu = clean.clone();
+    bad_imu.imu[250].specific_force.x = f64::NAN;
+    let e = ls_run_err(&bad_imu, &config);
+    assert!(e.contains("non-finite"), "{e}");
+    for bad in [f64::NAN, f64::INFINITY] {
+        let mut set = ls_set(&clean, &config);
+        set.velocities[5] = Some(estim_core::nalgebra::Vector3::new(bad, 0.0, 0.0));
+        let e = run_filter("bad", &clean, &config, &set, &CrossSource::Zero, SEED)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("non-finite value in measurement"), "{e}");
+    }
+    let mut beams = clean.clone();
+    beams.dvl[5].beams[2] = f64::INFINITY;
+    let set = ls_set(&beams, &config);
+    assert!(set.velocities[5].is_some(), "3-beam solution expected");
+    let run = run_filter("inf beam", &beams, &config, &set, &CrossSource::Zero, SEED).unwrap();
+    assert_all_finite(&run);
+}
