@@ -9,8 +9,8 @@ use std::path::PathBuf;
 
 use estim::datasets::{data_root, load_gt, trajectory_files};
 use estim_ins::earth::radii_of_curvature;
-use estim_ins::{InsState, Mechanization, Trajectory, TrajectorySample};
-use nalgebra::{UnitQuaternion, Vector3};
+use estim_ins::{InsState, Mechanization, Trajectory};
+use nalgebra::Vector3;
 
 fn data_dir() -> Option<PathBuf> {
     if let Some(p) = data_root(None).filter(|p| p.is_dir()) {
@@ -27,7 +27,7 @@ fn require_data(reason: &str) {
     eprintln!("skipping: {reason}");
 }
 
-fn trajectory(n: u32) -> Option<Trajectory> {
+fn trajectory(n: u32, velocity_driven: bool) -> Option<Trajectory> {
     let Some(root) = data_dir() else {
         require_data("no data folder (set ESTIM_DATA_DIR)");
         return None;
@@ -40,22 +40,12 @@ fn trajectory(n: u32) -> Option<Trajectory> {
         }
     };
     let gt = load_gt(&files.gt).unwrap();
-    let samples = gt
-        .iter()
-        .map(|g| TrajectorySample {
-            time: g.time,
-            latitude: g.latitude,
-            longitude: g.longitude,
-            height: g.altitude,
-            velocity_ned: Vector3::from(g.velocity_ned),
-            attitude: UnitQuaternion::from_euler_angles(
-                g.roll_pitch_yaw[0],
-                g.roll_pitch_yaw[1],
-                g.roll_pitch_yaw[2],
-            ),
-        })
-        .collect();
-    Some(Trajectory::new(samples).unwrap())
+    let samples = gt.iter().map(|g| g.trajectory_sample()).collect();
+    Some(if velocity_driven {
+        Trajectory::velocity_driven(samples).unwrap()
+    } else {
+        Trajectory::new(samples).unwrap()
+    })
 }
 
 /// (horizontal+vertical position error [m], velocity error [m/s], attitude error [deg]).
@@ -73,9 +63,33 @@ fn errors(a: &InsState, b: &InsState) -> (f64, f64, f64) {
     )
 }
 
-fn round_trip(n: u32) {
-    let Some(traj) = trajectory(n) else { return };
+fn round_trip(n: u32, velocity_driven: bool) {
+    let Some(traj) = trajectory(n, velocity_driven) else {
+        return;
+    };
+    let fit = if velocity_driven {
+        "velocity spline"
+    } else {
+        "Hermite"
+    };
     let (truth, imu) = traj.simulate(100.0).unwrap();
+    // Realism of the simulated IMU (reported, not asserted): horizontal specific force and
+    // its jump between consecutive samples (the Hermite fit's acceleration kinks).
+    let rms = |f: &dyn Fn(&estim_ins::ImuSample) -> f64| {
+        (imu.iter().map(|s| f(s).powi(2)).sum::<f64>() / imu.len() as f64).sqrt()
+    };
+    let max_jump = imu
+        .windows(2)
+        .map(|w| (w[1].specific_force - w[0].specific_force).norm())
+        .fold(0.0, f64::max);
+    println!(
+        "trajectory {n} ({fit}) simulated IMU: rms f_x {:.3} f_y {:.3} f_z {:.3} m/s^2, rms gyro z {:.4} rad/s, largest sample-to-sample jump of f {:.3} m/s^2",
+        rms(&|s| s.specific_force.x),
+        rms(&|s| s.specific_force.y),
+        rms(&|s| s.specific_force.z),
+        rms(&|s| s.angular_rate.z),
+        max_jump
+    );
     let mech = Mechanization::new();
     let mut s = truth[0];
     let mut worst = (0.0f64, 0.0f64, 0.0f64);
@@ -89,12 +103,23 @@ fn round_trip(n: u32) {
     // The interpolated truth passes through the GT samples: check that at the last one.
     let gt_last = traj.samples().last().unwrap();
     println!(
-        "trajectory {n}: {} steps over {:.1} s; final errors: position {p:.4} m, velocity {v:.2e} m/s, attitude {a:.2e} deg; max: {:.4} m, {:.2e} m/s, {:.2e} deg",
+        "trajectory {n} ({fit}): {} steps over {:.1} s; final errors: position {p:.4} m, velocity {v:.2e} m/s, attitude {a:.2e} deg; max: {:.4} m, {:.2e} m/s, {:.2e} deg",
         imu.len(),
         last.time - truth[0].time,
         worst.0,
         worst.1,
         worst.2
+    );
+    // How far the simulated truth is from the GT positions (0 for the Hermite fit at
+    // the samples; for the velocity spline it is the data's position/velocity mismatch).
+    let at_last_sample = traj.evaluate(gt_last.time).unwrap().state;
+    let mut gt_state = at_last_sample;
+    gt_state.latitude = gt_last.latitude;
+    gt_state.longitude = gt_last.longitude;
+    gt_state.height = gt_last.height;
+    println!(
+        "trajectory {n} ({fit}): simulated truth vs GT position at the last sample {:.3} m",
+        errors(&at_last_sample, &gt_state).0
     );
     assert!(last.time - truth[0].time > 390.0);
     assert!(gt_last.time - last.time < 0.01 + 1e-9);
@@ -105,10 +130,20 @@ fn round_trip(n: u32) {
 
 #[test]
 fn akit_trajectory_4_round_trip() {
-    round_trip(4);
+    round_trip(4, false);
 }
 
 #[test]
 fn akit_trajectory_13_round_trip() {
-    round_trip(13);
+    round_trip(13, false);
+}
+
+#[test]
+fn akit_trajectory_4_round_trip_velocity_spline() {
+    round_trip(4, true);
+}
+
+#[test]
+fn akit_trajectory_13_round_trip_velocity_spline() {
+    round_trip(13, true);
 }

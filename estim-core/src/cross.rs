@@ -118,23 +118,65 @@ pub fn joint_min_eigenvalue<T: Scalar, const N: usize, const M: usize>(
     j.symmetric_eigenvalues().min()
 }
 
-/// Check that [[Q_acc, M], [M', R]] is positive semidefinite, with a tolerance of
-/// 1e-9 relative to its largest entry. Returns the smallest eigenvalue on success.
+/// 1/sqrt(d), or 1 where d <= 0 (a zero variance: its row must then be zero).
+fn inverse_sqrt_or_one<T: Scalar>(d: T) -> T {
+    if d > T::zero() {
+        T::one() / d.sqrt()
+    } else {
+        T::one()
+    }
+}
+
+/// Smallest eigenvalue of the joint *correlation* matrix D^-1/2 J D^-1/2,
+/// J = [[Q_acc, M], [M', R]], D = diag(J) (entries with zero variance left unscaled).
+///
+/// Unlike [`joint_min_eigenvalue`] it does not depend on the units of the state and
+/// measurement components, so one tolerance serves every scale: PSD iff >= 0.
+pub fn joint_min_correlation_eigenvalue<T: Scalar, const N: usize, const M: usize>(
+    accumulated_process_noise: &SMatrix<T, N, N>,
+    cross_covariance: &SMatrix<T, N, M>,
+    measurement_noise: &SMatrix<T, M, M>,
+) -> T {
+    let j = joint_covariance(
+        accumulated_process_noise,
+        cross_covariance,
+        measurement_noise,
+    );
+    let scale: Vec<T> = (0..N + M).map(|i| inverse_sqrt_or_one(j[(i, i)])).collect();
+    let c = DMatrix::from_fn(N + M, N + M, |r, k| {
+        (j[(r, k)] + j[(k, r)]) * lit::<T>(0.5) * scale[r] * scale[k]
+    });
+    c.symmetric_eigenvalues().min()
+}
+
+/// Tolerance on the smallest eigenvalue of the joint correlation matrix.
+const JOINT_TOLERANCE: f64 = 1e-9;
+
+/// Check that [[Q_acc, M], [M', R]] is positive semidefinite: the smallest
+/// eigenvalue of its correlation matrix ([`joint_min_correlation_eigenvalue`]) must be
+/// at least -1e-9 (scale invariant, so Q_acc and R may be in any units). Returns
+/// that eigenvalue on success.
+///
+/// # Errors
+/// [`Error::NonFinite`] for non-finite input, [`Error::InvalidJointCovariance`]
+/// otherwise.
 pub fn check_joint_covariance<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
 ) -> Result<T> {
     crate::gaussian::check_finite(cross_covariance.as_slice(), "cross-covariance")?;
-    let min = joint_min_eigenvalue(
+    crate::gaussian::check_finite(
+        accumulated_process_noise.as_slice(),
+        "accumulated process noise",
+    )?;
+    crate::gaussian::check_finite(measurement_noise.as_slice(), "measurement noise")?;
+    let min = joint_min_correlation_eigenvalue(
         accumulated_process_noise,
         cross_covariance,
         measurement_noise,
     );
-    let scale = accumulated_process_noise
-        .amax()
-        .max(measurement_noise.amax());
-    if min >= -lit::<T>(1e-9) * scale {
+    if min >= -lit::<T>(JOINT_TOLERANCE) {
         Ok(min)
     } else {
         Err(Error::InvalidJointCovariance {
@@ -152,6 +194,15 @@ pub fn largest_valid_scale<T: Scalar, const N: usize, const M: usize>(
     u: &SMatrix<T, N, M>,
     r: &SMatrix<T, M, M>,
 ) -> Result<T> {
+    // c is invariant under diagonal scaling (congruence keeps PSD-ness): work on
+    // D_q^-1/2 Q D_q^-1/2, D_q^-1/2 U D_r^-1/2, D_r^-1/2 R D_r^-1/2 so that mixed units
+    // (e.g. 1e-16 and 1e-2 variances in one Q) do not fall below the null-space
+    // tolerance.
+    let dq = q.diagonal().map(inverse_sqrt_or_one);
+    let dr = r.diagonal().map(inverse_sqrt_or_one);
+    let q = &SMatrix::<T, N, N>::from_fn(|i, j| q[(i, j)] * dq[i] * dq[j]);
+    let u = &SMatrix::<T, N, M>::from_fn(|i, j| u[(i, j)] * dq[i] * dr[j]);
+    let r = &SMatrix::<T, M, M>::from_fn(|i, j| r[(i, j)] * dr[i] * dr[j]);
     // Static-size symmetric eigen needs extra dimension bounds; go dynamic (cold path).
     let q_dyn = DMatrix::from_column_slice(N, N, crate::gaussian::symmetrize(q).as_slice());
     let eig = q_dyn.symmetric_eigen();

@@ -14,12 +14,13 @@ pub enum Error {
     /// (Cholesky failed): it is not positive definite.
     #[error("innovation covariance is not positive definite")]
     InnovationNotPositiveDefinite,
-    /// The innovation covariance S is positive definite in exact arithmetic but
-    /// numerically singular: its reciprocal condition estimate is below the
-    /// measurement size times machine epsilon, so the gain would be round-off.
+    /// The innovation covariance S factorises but is numerically singular: the
+    /// reciprocal 1-norm condition number of its correlation matrix
+    /// diag(S)^-1/2 S diag(S)^-1/2 is below 1000 machine epsilons, so the gain would
+    /// be mostly round-off.
     #[error("innovation covariance is numerically singular (reciprocal condition estimate {reciprocal_condition:e})")]
     InnovationIllConditioned {
-        /// (min L_ii / max L_ii)^2 of the Cholesky factor L of S.
+        /// 1 / (||C||_1 ||C^-1||_1), C the correlation matrix of S (1 for a diagonal S).
         reciprocal_condition: f64,
     },
     /// An observer failed (e.g. could not write its output).
@@ -27,9 +28,10 @@ pub enum Error {
     Observer(String),
     /// The joint covariance [[Q_acc, M], [M', R]] is not positive semidefinite:
     /// the cross-covariance M is not a possible covariance of (G w, v).
-    #[error("joint covariance [[Q_acc, M], [M', R]] is not positive semidefinite (smallest eigenvalue {min_eigenvalue:e})")]
+    #[error("joint covariance [[Q_acc, M], [M', R]] is not positive semidefinite (smallest eigenvalue of its correlation matrix {min_eigenvalue:e})")]
     InvalidJointCovariance {
-        /// Smallest eigenvalue of the joint covariance (negative beyond tolerance).
+        /// Smallest eigenvalue of the joint correlation matrix
+        /// diag(J)^-1/2 J diag(J)^-1/2 (below -1e-9).
         min_eigenvalue: f64,
     },
     /// A covariance matrix that must be positive (semi)definite is not.

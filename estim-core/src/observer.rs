@@ -43,7 +43,8 @@ pub struct UpdateEvent<'a, T: Scalar, S, const N: usize> {
     pub nis: T,
     /// The gate threshold, if a gate is configured.
     pub gate_threshold: Option<T>,
-    /// Smallest eigenvalue of [[Q_acc, M], [M', R]], if the configuration computes it.
+    /// Smallest eigenvalue of the correlation matrix of [[Q_acc, M], [M', R]], if the
+    /// configuration computes it (valid iff >= 0, tolerance 1e-9).
     pub joint_min_eigenvalue: Option<T>,
     /// Accepted or rejected.
     pub status: UpdateStatus,

@@ -5,7 +5,7 @@
 use nalgebra::{SMatrix, SVector};
 
 use crate::config::JointCheck;
-use crate::cross::{check_joint_covariance, joint_min_eigenvalue};
+use crate::cross::{check_joint_covariance, joint_min_correlation_eigenvalue};
 use crate::gaussian::{check_finite, check_symmetric, symmetrize};
 use crate::observer::{NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
 use crate::scalar::lit;
@@ -30,7 +30,9 @@ pub struct UpdateReport<T: Scalar, const N: usize, const M: usize> {
     pub gate_threshold: Option<T>,
     /// The cross-covariance M_k the [`CrossCovariance`] produced.
     pub cross_covariance: SMatrix<T, N, M>,
-    /// Smallest eigenvalue of [[Q_acc, M], [M', R]]; `None` with [`JointCheck::Skip`].
+    /// Smallest eigenvalue of the correlation matrix of [[Q_acc, M], [M', R]]
+    /// (dimensionless; the joint covariance is valid iff it is >= 0, tolerance 1e-9);
+    /// `None` with [`JointCheck::Skip`].
     pub joint_min_eigenvalue: Option<T>,
     /// The gain K (`None` if rejected).
     pub gain: Option<SMatrix<T, N, M>>,
@@ -138,7 +140,7 @@ where
     check_finite(cross_covariance.as_slice(), "cross-covariance")?;
     let joint_min_eigenvalue = match config.joint_check() {
         JointCheck::Skip => None,
-        JointCheck::Report => Some(joint_min_eigenvalue(
+        JointCheck::Report => Some(joint_min_correlation_eigenvalue(
             &accumulated.noise,
             &cross_covariance,
             measurement_noise,

@@ -10,7 +10,7 @@
 //!
 //! With M = 0 these are the textbook Kalman update.
 
-use nalgebra::{Cholesky, Const, SMatrix, SVector};
+use nalgebra::{SMatrix, SVector};
 
 use crate::gaussian::{check_finite, symmetrize};
 use crate::scalar::{lit, to_f64};
@@ -72,15 +72,74 @@ pub fn joseph_covariance<T: Scalar, const N: usize, const M: usize>(
     )
 }
 
+/// Multiple of machine epsilon below which S counts as numerically singular (see
+/// [`Error::InnovationIllConditioned`]).
+pub(crate) const RCOND_FLOOR: f64 = 1000.0;
+
 /// S factorised once: used for the NIS, the gate and the gain.
 pub(crate) struct FactoredInnovation<T: Scalar, const N: usize, const M: usize> {
     pub(crate) covariance: SMatrix<T, M, M>,
-    pub(crate) cholesky: Cholesky<T, Const<M>>,
+    /// S^-1 (from the Cholesky factor, exactly symmetric).
+    pub(crate) inverse: SMatrix<T, M, M>,
     /// P H' + M.
     pub(crate) pht_m: SMatrix<T, N, M>,
     pub(crate) nis: T,
     /// Whether M is nonzero (skips the cross terms when it is zero).
     pub(crate) correlated: bool,
+}
+
+/// Inverse of a symmetric positive definite matrix through its Cholesky factor
+/// S = L L', S^-1 = L^-T L^-1 (Golub & Van Loan, *Matrix Computations*, 4th ed.,
+/// alg. 4.2.1); exactly symmetric. `None` if a pivot is not positive.
+///
+/// Written out for static sizes: for the small S of a measurement update it is
+/// several times faster than the generic `nalgebra` Cholesky + inverse.
+fn spd_inverse<T: Scalar, const M: usize>(s: &SMatrix<T, M, M>) -> Option<SMatrix<T, M, M>> {
+    let mut l = SMatrix::<T, M, M>::zeros();
+    for j in 0..M {
+        let mut d = s[(j, j)];
+        for k in 0..j {
+            d -= l[(j, k)] * l[(j, k)];
+        }
+        // `d` is finite (S was checked); also refuses NaN from round-off.
+        if d <= T::zero() || !d.is_finite() {
+            return None;
+        }
+        let ljj = d.sqrt();
+        l[(j, j)] = ljj;
+        for i in (j + 1)..M {
+            let mut v = s[(i, j)];
+            for k in 0..j {
+                v -= l[(i, k)] * l[(j, k)];
+            }
+            l[(i, j)] = v / ljj;
+        }
+    }
+    // W = L^-1 (lower triangular), by forward substitution.
+    let mut w = SMatrix::<T, M, M>::zeros();
+    for j in 0..M {
+        w[(j, j)] = T::one() / l[(j, j)];
+        for i in (j + 1)..M {
+            let mut v = T::zero();
+            for k in j..i {
+                v -= l[(i, k)] * w[(k, j)];
+            }
+            w[(i, j)] = v / l[(i, i)];
+        }
+    }
+    // S^-1 = W' W, upper triangle then mirrored.
+    let mut inv = SMatrix::<T, M, M>::zeros();
+    for j in 0..M {
+        for i in 0..=j {
+            let mut v = T::zero();
+            for k in j..M {
+                v += w[(k, i)] * w[(k, j)];
+            }
+            inv[(i, j)] = v;
+            inv[(j, i)] = v;
+        }
+    }
+    Some(inv)
 }
 
 /// Form and factorise S, compute the NIS. Checks finiteness of every input and the
@@ -92,11 +151,6 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
     measurement_noise: &SMatrix<T, M, M>,
     cross_covariance: &SMatrix<T, N, M>,
 ) -> Result<FactoredInnovation<T, N, M>> {
-    check_finite(innovation.as_slice(), "innovation")?;
-    check_finite(jacobian.as_slice(), "measurement jacobian")?;
-    check_finite(measurement_noise.as_slice(), "measurement noise covariance")?;
-    check_finite(cross_covariance.as_slice(), "cross-covariance")?;
-    check_finite(prior.covariance().as_slice(), "prior covariance")?;
     let p = prior.covariance();
     let correlated = cross_covariance.iter().any(|v| !v.is_zero());
     let pht = p * jacobian.transpose();
@@ -106,27 +160,45 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
         // M = 0: skip the zero products H M (same value as innovation_covariance).
         symmetrize(&(jacobian * pht + measurement_noise))
     };
-    let cholesky = s.cholesky().ok_or(Error::InnovationNotPositiveDefinite)?;
-    // Reciprocal condition estimate of S from its Cholesky factor: cond(S) >=
-    // (max L_ii / min L_ii)^2. Below machine precision the gain is round-off.
-    let (mut lmin, mut lmax) = (T::max_value().unwrap_or_else(|| lit(f64::MAX)), T::zero());
-    for i in 0..M {
-        let d = cholesky.l_dirty()[(i, i)].abs();
-        lmin = lmin.min(d);
-        lmax = lmax.max(d);
+    // A NaN or infinity in H, R, M or P always reaches S (IEEE: NaN * 0 = NaN,
+    // inf * 0 = NaN), so one check of S guards them all; the cold path names the
+    // culprit.
+    if !s.iter().all(|v| v.is_finite()) {
+        check_finite(jacobian.as_slice(), "measurement jacobian")?;
+        check_finite(measurement_noise.as_slice(), "measurement noise covariance")?;
+        check_finite(cross_covariance.as_slice(), "cross-covariance")?;
+        check_finite(p.as_slice(), "prior covariance")?;
+        return Err(Error::NonFinite {
+            what: "innovation covariance (overflow)",
+        });
     }
-    let rcond = if lmax > T::zero() {
-        (lmin / lmax) * (lmin / lmax)
-    } else {
-        T::zero()
-    };
-    // rcond is NaN-free here (finite S); `<=` also catches rcond = 0.
-    if rcond <= T::default_epsilon() * lit::<T>(M as f64) || !rcond.is_finite() {
+    check_finite(innovation.as_slice(), "innovation")?;
+    let inverse = spd_inverse(&s).ok_or(Error::InnovationNotPositiveDefinite)?;
+    // Numerical singularity test, invariant to the units of each measurement
+    // component: the reciprocal 1-norm condition number of the correlation matrix
+    // C = D^-1/2 S D^-1/2 (D = diag S), from C^-1 = D^1/2 S^-1 D^1/2. A singular S
+    // computed in floating point has rcond of order M eps; reject anything below
+    // RCOND_FLOOR eps, i.e. cond(C) above ~4e12 (the gain would have fewer than ~4
+    // correct digits).
+    let sd = s.diagonal().map(|v| v.sqrt());
+    let mut norm_c = T::zero();
+    let mut norm_c_inv = T::zero();
+    for j in 0..M {
+        let (mut col_c, mut col_c_inv) = (T::zero(), T::zero());
+        for i in 0..M {
+            col_c += (s[(i, j)] / (sd[i] * sd[j])).abs();
+            col_c_inv += (inverse[(i, j)] * sd[i] * sd[j]).abs();
+        }
+        norm_c = norm_c.max(col_c);
+        norm_c_inv = norm_c_inv.max(col_c_inv);
+    }
+    let rcond = T::one() / (norm_c * norm_c_inv);
+    if !rcond.is_finite() || rcond <= T::default_epsilon() * lit::<T>(RCOND_FLOOR) {
         return Err(Error::InnovationIllConditioned {
             reciprocal_condition: to_f64(rcond),
         });
     }
-    let nis = innovation.dot(&cholesky.solve(innovation));
+    let nis = innovation.dot(&(inverse * innovation));
     if !nis.is_finite() {
         return Err(Error::NonFinite {
             what: "normalised innovation squared",
@@ -139,7 +211,7 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
     };
     Ok(FactoredInnovation {
         covariance: s,
-        cholesky,
+        inverse,
         pht_m,
         nis,
         correlated,
@@ -157,11 +229,8 @@ pub(crate) fn finish_update<T: Scalar, const N: usize, const M: usize>(
     factored: FactoredInnovation<T, N, M>,
 ) -> Result<UpdateOutcome<T, N, M>> {
     let p = prior.covariance();
-    // K = (P H' + M) S^-1, computed as (S^-1 (H P + M'))' since S is symmetric.
-    let gain = factored
-        .cholesky
-        .solve(&factored.pht_m.transpose())
-        .transpose();
+    // K = (P H' + M) S^-1 (Simon 2006, eq. 7.13).
+    let gain = factored.pht_m * factored.inverse;
     let state = prior.state() + gain * innovation;
     let covariance = match form {
         CovarianceUpdate::JosephLike if factored.correlated => {
@@ -192,8 +261,9 @@ pub(crate) fn finish_update<T: Scalar, const N: usize, const M: usize>(
 /// # Errors
 /// [`Error::NonFinite`] for NaN/inf inputs (or a non-finite result),
 /// [`Error::InnovationNotPositiveDefinite`] when S cannot be factorised,
-/// [`Error::InnovationIllConditioned`] when S is numerically singular (reciprocal
-/// condition estimate below M times machine epsilon).
+/// [`Error::InnovationIllConditioned`] when S is numerically singular: the reciprocal
+/// 1-norm condition number of its correlation matrix is below 1000 machine epsilons
+/// (scale invariant: the units of each component do not matter).
 pub fn correlated_update<T: Scalar, const N: usize, const M: usize>(
     prior: &StateAndCovariance<T, N>,
     innovation: &SVector<T, M>,

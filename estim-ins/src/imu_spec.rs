@@ -18,15 +18,15 @@ const DEG_PER_ROOT_HOUR: f64 = DEG / 60.0;
 /// Error parameters of one sensor triad (same values on the three axes).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SensorSpec {
-    /// White-noise density (VRW for accelerometers [m/s/√s], ARW for gyroscopes [rad/√s]).
+    /// White-noise density (VRW for accelerometers \[m/s/√s\], ARW for gyroscopes \[rad/√s\]).
     pub white_noise_density: f64,
     /// Steady-state standard deviation σ of the first-order Gauss-Markov bias drift
-    /// (bias instability) [m/s^2 or rad/s].
+    /// (bias instability) \[m/s^2 or rad/s\].
     pub bias_instability: f64,
-    /// Correlation time τ of the Gauss-Markov bias drift [s]; `f64::INFINITY` makes the
+    /// Correlation time τ of the Gauss-Markov bias drift \[s\]; `f64::INFINITY` makes the
     /// drift a random constant (driving noise 0).
     pub bias_time_constant: f64,
-    /// Standard deviation of the constant turn-on bias [m/s^2 or rad/s].
+    /// Standard deviation of the constant turn-on bias \[m/s^2 or rad/s\].
     pub turn_on_bias: f64,
     /// Standard deviation of the scale-factor error (dimensionless, 1e-6 = 1 ppm).
     pub scale_factor: f64,
@@ -45,7 +45,7 @@ impl SensorSpec {
         }
     }
 
-    /// Decay rate 1/τ of the Gauss-Markov bias [1/s] (0 for a random constant).
+    /// Decay rate 1/τ of the Gauss-Markov bias \[1/s\] (0 for a random constant).
     #[must_use]
     pub fn bias_decay_rate(&self) -> f64 {
         1.0 / self.bias_time_constant

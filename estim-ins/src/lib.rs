@@ -8,7 +8,27 @@
 //! - [`Trajectory`], [`ImuErrorGenerator`], [`Mission`]: IMU from a trajectory, synthetic AUV missions.
 //!
 //! Conventions are pinned in [`InsState`]'s module docs: NED, body x forward y right z
-//! down, `true = nominal + error`, misalignment ψ in NED with C_true = (I + [ψ×]) C_nominal.
+//! down, `true = nominal + error`, misalignment ψ in NED with C_true = (I + \[ψ×\]) C_nominal.
+//!
+//! ```
+//! use estim_core::ProcessModel;
+//! use estim_ins::{ErrorMatrix, InsErrorModel, Mechanization, Mission, MissionConfig};
+//!
+//! // A seeded 60 s AUV mission at 100 Hz (truth, corrupted and clean IMU).
+//! let config = MissionConfig::builder().duration(60.0).build()?;
+//! let mission = Mission::generate(&config, 7)?;
+//! let model = InsErrorModel::new(*config.imu_spec());
+//! let mut state = mission.truth[0];
+//! let mut covariance = ErrorMatrix::identity() * 1e-4;
+//! for imu in &mission.imu {
+//!     let (phi, q) = model.transition_and_noise(&state, imu, mission.imu_dt);
+//!     covariance = model.propagate_covariance(&covariance, &phi, &q);
+//!     state = Mechanization::new().step(&state, imu, mission.imu_dt)?;
+//! }
+//! assert!((state.time - 60.0).abs() < 1e-6);
+//! assert!(covariance[(0, 0)] > 1e-4); // unaided: position uncertainty grows
+//! # Ok::<(), estim_ins::Error>(())
+//! ```
 #![warn(missing_docs)]
 
 pub mod earth;

@@ -2,7 +2,7 @@
 //!
 //! # Equations (Groves 2013, sec. 5.4 "Local-navigation-frame navigation equations")
 //!
-//! - attitude: Ċ_b^n = C_b^n [ω_ib^b ×] - [ω_in^n ×] C_b^n, ω_in^n = ω_ie^n + ω_en^n (eq. 5.46);
+//! - attitude: Ċ_b^n = C_b^n \[ω_ib^b ×\] - \[ω_in^n ×\] C_b^n, ω_in^n = ω_ie^n + ω_en^n (eq. 5.46);
 //! - velocity: v̇^n = C_b^n f^b + g^n - (2 ω_ie^n + ω_en^n) × v^n (eq. 5.53);
 //! - position: L̇ = v_N/(R_N+h), λ̇ = v_E/((R_E+h) cos L), ḣ = -v_D (eq. 5.56).
 //!
@@ -29,9 +29,12 @@
 //! that one sample per step does not carry (their effect is O(dt^3) per step for smooth
 //! motion, see the round-trip tests for the measured figure).
 
-use nalgebra::{UnitQuaternion, Vector3};
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
-use crate::earth::{earth_rate_ned, gravity_ned, radii_of_curvature, transport_rate_ned};
+use crate::earth::{
+    earth_rate_ned, gravity_ned, height_factor, radii_of_curvature, transport_rate_ned, EARTH_RATE,
+    ECCENTRICITY_SQUARED, GRAVITY_EQUATOR, SEMI_MAJOR_AXIS, SOMIGLIANA_K,
+};
 use crate::error::{Error, Result};
 use crate::InsState;
 
@@ -39,11 +42,11 @@ use crate::InsState;
 /// interval [`time`, `time` + dt], body frame (x forward, y right, z down).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ImuSample {
-    /// Start of the interval the sample covers [s].
+    /// Start of the interval the sample covers \[s\].
     pub time: f64,
-    /// Specific force f^b [m/s^2] (about [0, 0, -9.8] when level and still).
+    /// Specific force f^b \[m/s^2\] (about \[0, 0, -9.8\] when level and still).
     pub specific_force: Vector3<f64>,
-    /// Angular rate ω_ib^b [rad/s].
+    /// Angular rate ω_ib^b \[rad/s\].
     pub angular_rate: Vector3<f64>,
 }
 
@@ -62,19 +65,19 @@ impl ImuSample {
 /// Continuous-time rates of the navigation equations at one state (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NavigationRates {
-    /// L̇ [rad/s].
+    /// L̇ \[rad/s\].
     pub latitude_rate: f64,
-    /// λ̇ [rad/s].
+    /// λ̇ \[rad/s\].
     pub longitude_rate: f64,
-    /// ḣ [m/s].
+    /// ḣ \[m/s\].
     pub height_rate: f64,
-    /// v̇^n [m/s^2].
+    /// v̇^n \[m/s^2\].
     pub velocity_rate: Vector3<f64>,
-    /// Bias-corrected body rate ω_ib^b [rad/s].
+    /// Bias-corrected body rate ω_ib^b \[rad/s\].
     pub body_rate: Vector3<f64>,
-    /// Navigation-frame rate ω_in^n = ω_ie^n + ω_en^n [rad/s].
+    /// Navigation-frame rate ω_in^n = ω_ie^n + ω_en^n \[rad/s\].
     pub navigation_frame_rate: Vector3<f64>,
-    /// Bias-corrected specific force resolved in NED, C_b^n f^b [m/s^2].
+    /// Bias-corrected specific force resolved in NED, C_b^n f^b \[m/s^2\].
     pub specific_force_ned: Vector3<f64>,
 }
 
@@ -111,7 +114,7 @@ impl Mechanization {
         Self
     }
 
-    /// Propagate `state` over `dt` [s] with the raw IMU sample `imu`. The result keeps
+    /// Propagate `state` over `dt` \[s\] with the raw IMU sample `imu`. The result keeps
     /// the bias estimates, has `time + dt`, and stores the bias-corrected rate in
     /// [`InsState::angular_rate`].
     ///
@@ -152,43 +155,46 @@ impl Mechanization {
     pub fn step_unchecked(&self, state: &InsState, imu: &ImuSample, dt: f64) -> InsState {
         let body_rate = imu.angular_rate - state.gyro_bias;
         let delta_v_body = (imu.specific_force - state.acc_bias) * dt;
-        let body_rotation = UnitQuaternion::from_scaled_axis(body_rate * dt);
-        let body_half = UnitQuaternion::from_scaled_axis(body_rate * (0.5 * dt));
+        let body_half = small_rotation(&(body_rate * (0.5 * dt)));
+        let body_rotation = body_half * body_half;
 
         let (lat0, h0, v0) = (state.latitude, state.height, state.velocity_ned);
-        let (rn0, re0) = radii_of_curvature(lat0);
-        let cos0 = lat0.cos();
+        let (sin0, cos0) = lat0.sin_cos();
+        let earth0 = LocalEarth::new(sin0, cos0);
         // Pass 1: mid-step = start; pass 2: mid-step = mean of start and predicted end.
-        let (mut lat_mid, mut h_mid, mut v_mid) = (lat0, h0, v0);
+        let (mut earth_mid, mut h_mid, mut v_mid) = (earth0, h0, v0);
         let mut out = *state;
         for _ in 0..2 {
-            let (rn, re) = radii_of_curvature(lat_mid);
-            let w_ie = earth_rate_ned(lat_mid);
+            let w_ie = Vector3::new(EARTH_RATE * earth_mid.cos, 0.0, -EARTH_RATE * earth_mid.sin);
+            let re = earth_mid.transverse + h_mid;
             let w_en = Vector3::new(
-                v_mid.y / (re + h_mid),
-                -v_mid.x / (rn + h_mid),
-                -v_mid.y * lat_mid.tan() / (re + h_mid),
+                v_mid.y / re,
+                -v_mid.x / (earth_mid.meridian + h_mid),
+                -v_mid.y * earth_mid.sin / (earth_mid.cos * re),
             );
             let w_in = w_ie + w_en;
-            let nav_half = UnitQuaternion::from_scaled_axis(w_in * (-0.5 * dt));
+            let nav_half = small_rotation(&(w_in * (-0.5 * dt)));
             let attitude_mid = nav_half * state.attitude * body_half;
+            let gravity = Vector3::new(0.0, 0.0, earth_mid.gravity(h_mid));
             let velocity = v0
                 + attitude_mid * delta_v_body
-                + (gravity_ned(lat_mid, h_mid) - (2.0 * w_ie + w_en).cross(&v_mid)) * dt;
+                + (gravity - (2.0 * w_ie + w_en).cross(&v_mid)) * dt;
             let height = h0 - 0.5 * (v0.z + velocity.z) * dt;
-            let latitude = lat0 + 0.5 * dt * (v0.x / (rn0 + h0) + velocity.x / (rn0 + height));
-            let (_, re1) = radii_of_curvature(latitude);
+            let delta_lat = 0.5
+                * dt
+                * (v0.x / (earth0.meridian + h0) + velocity.x / (earth0.meridian + height));
+            let earth1 = earth0.moved(delta_lat, lat0);
             let longitude = state.longitude
                 + 0.5
                     * dt
-                    * (v0.y / ((re0 + h0) * cos0) + velocity.y / ((re1 + height) * latitude.cos()));
-            let nav_rotation = nav_half * nav_half;
-            out.attitude = nav_rotation * state.attitude * body_rotation;
+                    * (v0.y / ((earth0.transverse + h0) * cos0)
+                        + velocity.y / ((earth1.transverse + height) * earth1.cos));
+            out.attitude = nav_half * nav_half * state.attitude * body_rotation;
             out.velocity_ned = velocity;
-            out.latitude = latitude;
+            out.latitude = lat0 + delta_lat;
             out.longitude = longitude;
             out.height = height;
-            lat_mid = 0.5 * (lat0 + latitude);
+            earth_mid = earth0.moved(0.5 * delta_lat, lat0);
             h_mid = 0.5 * (h0 + height);
             v_mid = 0.5 * (v0 + velocity);
         }
@@ -197,5 +203,68 @@ impl Mechanization {
         out.time = state.time + dt;
         out.angular_rate = body_rate;
         out
+    }
+}
+
+/// Rotation quaternion of a rotation vector; below 0.01 rad by the Taylor series of
+/// cos(θ/2) and sin(θ/2)/θ to θ⁴ (remainder < 3e-17), else the exact formula.
+#[inline]
+fn small_rotation(v: &Vector3<f64>) -> UnitQuaternion<f64> {
+    let t2 = v.norm_squared();
+    if t2 < 1e-4 {
+        let w = 1.0 - t2 / 8.0 + t2 * t2 / 384.0;
+        let s = 0.5 - t2 / 48.0 + t2 * t2 / 3840.0;
+        UnitQuaternion::new_unchecked(Quaternion::new(w, s * v.x, s * v.y, s * v.z))
+    } else {
+        UnitQuaternion::from_scaled_axis(*v)
+    }
+}
+
+/// Latitude-dependent Earth quantities from sin L and cos L (one square root).
+#[derive(Debug, Clone, Copy)]
+struct LocalEarth {
+    sin: f64,
+    cos: f64,
+    meridian: f64,
+    transverse: f64,
+    /// Somigliana normal gravity on the ellipsoid, g_0(L) (Groves eq. 2.134).
+    surface_gravity: f64,
+}
+
+impl LocalEarth {
+    #[inline]
+    fn new(sin: f64, cos: f64) -> Self {
+        let s2 = sin * sin;
+        let d = 1.0 - ECCENTRICITY_SQUARED * s2;
+        let root = d.sqrt();
+        let transverse = SEMI_MAJOR_AXIS / root;
+        Self {
+            sin,
+            cos,
+            meridian: transverse * (1.0 - ECCENTRICITY_SQUARED) / d,
+            transverse,
+            surface_gravity: GRAVITY_EQUATOR * (1.0 + SOMIGLIANA_K * s2) / root,
+        }
+    }
+
+    /// The quantities at latitude L + delta (series for |delta| < 1e-3 rad, remainder
+    /// below delta^5/120 < 1e-17; exact trigonometry beyond).
+    #[inline]
+    fn moved(&self, delta: f64, latitude: f64) -> Self {
+        if delta.abs() < 1e-3 {
+            let d2 = delta * delta;
+            let c = 1.0 - d2 / 2.0 + d2 * d2 / 24.0;
+            let s = delta * (1.0 - d2 / 6.0);
+            Self::new(self.sin * c + self.cos * s, self.cos * c - self.sin * s)
+        } else {
+            let (s, c) = (latitude + delta).sin_cos();
+            Self::new(s, c)
+        }
+    }
+
+    /// Normal gravity at `height` (Groves eq. 2.139).
+    #[inline]
+    fn gravity(&self, height: f64) -> f64 {
+        self.surface_gravity * height_factor(height)
     }
 }

@@ -50,25 +50,25 @@ macro_rules! setter {
 }
 
 impl MissionConfigBuilder {
-    setter!(/// Mission duration [s].
+    setter!(/// Mission duration \[s\].
         duration: f64);
-    setter!(/// IMU (and truth) rate [Hz].
+    setter!(/// IMU (and truth) rate \[Hz\].
         imu_rate_hz: f64);
-    setter!(/// Start latitude [rad].
+    setter!(/// Start latitude \[rad\].
         start_latitude: f64);
-    setter!(/// Start longitude [rad].
+    setter!(/// Start longitude \[rad\].
         start_longitude: f64);
-    setter!(/// Mean depth below the ellipsoid [m], positive down (height = -depth).
+    setter!(/// Mean depth below the ellipsoid \[m\], positive down (height = -depth).
         mean_depth: f64);
-    setter!(/// Largest depth change from the mean [m].
+    setter!(/// Largest depth change from the mean \[m\].
         depth_excursion: f64);
-    setter!(/// (min, max) forward speed [m/s].
+    setter!(/// (min, max) forward speed \[m/s\].
         speed_range: (f64, f64));
-    setter!(/// (min, max) duration of a straight leg [s].
+    setter!(/// (min, max) duration of a straight leg \[s\].
         leg_duration_range: (f64, f64));
-    setter!(/// Largest yaw rate in turns [rad/s].
+    setter!(/// Largest yaw rate in turns \[rad/s\].
         max_turn_rate: f64);
-    setter!(/// Largest climb or dive rate [m/s].
+    setter!(/// Largest climb or dive rate \[m/s\].
         max_vertical_speed: f64);
     setter!(/// IMU error specification.
         imu_spec: ImuSpec);
@@ -145,13 +145,13 @@ impl MissionConfig {
         }
     }
 
-    /// Mission duration [s].
+    /// Mission duration \[s\].
     #[must_use]
     pub fn duration(&self) -> f64 {
         self.duration
     }
 
-    /// IMU rate [Hz].
+    /// IMU rate \[Hz\].
     #[must_use]
     pub fn imu_rate_hz(&self) -> f64 {
         self.imu_rate_hz
@@ -170,11 +170,11 @@ pub struct SimulatedMission {
     /// Truth at t_k = k dt, k = 0..=N; `acc_bias`/`gyro_bias` hold the IMU's true total
     /// biases and `angular_rate` the true ω_ib^b.
     pub truth: Vec<InsState>,
-    /// Corrupted IMU samples (N), sample k covering [t_k, t_k+1].
+    /// Corrupted IMU samples (N), sample k covering \[t_k, t_k+1\].
     pub imu: Vec<ImuSample>,
     /// Error-free IMU samples (N).
     pub clean_imu: Vec<ImuSample>,
-    /// IMU period dt [s].
+    /// IMU period dt \[s\].
     pub imu_dt: f64,
     /// The smooth trajectory (2 Hz knots) the truth and IMU were simulated from.
     pub trajectory: Trajectory,

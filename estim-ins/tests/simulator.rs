@@ -202,3 +202,62 @@ fn imu_error_generator_has_the_specified_statistics() {
     // Variance estimate of a Gaussian: relative standard error √(2/runs) = 2.2 %; 5 of them.
     assert!((var / 0.0004 - 1.0).abs() < 0.11, "{var}");
 }
+
+/// Halving the step divides the round-trip error by about four: the mechanization (with
+/// the IMU samples as interval means) is second order.
+#[test]
+fn mechanization_error_shrinks_as_dt_squared() {
+    let cfg = MissionConfig::builder()
+        .duration(120.0)
+        .max_turn_rate(8f64.to_radians())
+        .build()
+        .unwrap();
+    let m = Mission::generate(&cfg, 5).unwrap();
+    let mech = Mechanization::new();
+    let final_error = |rate: f64| {
+        let (truth, imu) = m.trajectory.simulate(rate).unwrap();
+        let mut s = truth[0];
+        for sample in &imu {
+            s = mech.step(&s, sample, 1.0 / rate).unwrap();
+        }
+        let (p, v, a) = errors(&s, truth.last().unwrap());
+        println!("{rate} Hz: {p:.3e} m, {v:.3e} m/s, {a:.3e} deg");
+        (p, v)
+    };
+    let coarse = final_error(5.0);
+    let fine = final_error(10.0);
+    let ratio = (coarse.0 / fine.0, coarse.1 / fine.1);
+    println!(
+        "error ratio for dt/2: position {:.2}, velocity {:.2}",
+        ratio.0, ratio.1
+    );
+    assert!(ratio.0 > 3.0 && ratio.1 > 3.0, "{ratio:?}");
+}
+
+/// On consistent samples the velocity-driven fit integrates back to the sampled positions
+/// and passes through the sampled velocities; its specific force has no jumps.
+#[test]
+fn velocity_driven_fit_integrates_back_to_consistent_positions() {
+    let cfg = MissionConfig::builder().duration(60.0).build().unwrap();
+    let m = Mission::generate(&cfg, 2).unwrap();
+    let samples = m.trajectory.samples().to_vec();
+    let traj = Trajectory::velocity_driven(samples.clone()).unwrap();
+    let mut worst: f64 = 0.0;
+    for s in samples.iter().skip(1).take(120) {
+        let k = traj.evaluate(s.time).unwrap().state;
+        let mut reference = k;
+        reference.latitude = s.latitude;
+        reference.longitude = s.longitude;
+        reference.height = s.height;
+        worst = worst.max(errors(&k, &reference).0);
+        assert!((k.velocity_ned - s.velocity_ned).amax() < 1e-12);
+    }
+    println!("velocity-driven position vs samples over 60 s: {worst:.2e} m");
+    assert!(worst < 1e-3, "{worst}");
+    let (_, imu) = traj.simulate(100.0).unwrap();
+    let jump = imu
+        .windows(2)
+        .map(|w| (w[1].specific_force - w[0].specific_force).norm())
+        .fold(0.0, f64::max);
+    assert!(jump < 0.01, "{jump}");
+}

@@ -5,6 +5,10 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod dvl;
+mod learned;
+mod montecarlo;
+mod output;
+mod plots;
 mod reproduce;
 
 /// estim: state estimation with correlated process and measurement noise.
@@ -19,6 +23,8 @@ struct Cli {
 enum Command {
     /// Reproduce the paper (INS/DVL + BeamsNet, M-aware vs M-neglected).
     Reproduce(reproduce::Args),
+    /// Monte Carlo consistency (NEES / NIS) over seeded simulated missions.
+    Montecarlo(montecarlo::Args),
     /// DVL beams: least squares, calibration.
     Dvl(dvl::Args),
 }
@@ -27,6 +33,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Reproduce(args) => reproduce::run(args),
+        Command::Montecarlo(args) => montecarlo::run(args),
         Command::Dvl(args) => dvl::run(args),
     };
     match result {

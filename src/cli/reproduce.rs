@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use estim::datasets::data_root;
-use estim::pipeline::{analyse, Config, Scenario, TrajectoryReport};
+use estim::pipeline::{analyse, apply_faults, Config, Scenario, TrajectoryReport};
 
 /// Arguments of `estim reproduce`.
 #[derive(Debug, clap::Args)]
@@ -54,15 +54,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         None => vec![Scenario::simulated(&config, config.seed)?],
     };
+    let mut scenarios = scenarios;
+    for s in &mut scenarios {
+        apply_faults(s, &config.faults, config.seed)?;
+    }
     let reports: Vec<TrajectoryReport> = scenarios
         .iter()
         .map(|s| analyse(s, &config, None, config.seed))
         .collect::<Result<_, _>>()?;
+    let json = serde_json::to_string_pretty(&serde_json::json!({
+        "config": config,
+        "trajectories": reports,
+    }))?;
+    // Outputs first: on failure nothing is printed as if it had succeeded.
+    if let Some(dir) = &args.out {
+        write_outputs(dir, &reports, &json)?;
+    }
     if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&serde_json::json!({ "trajectories": reports }))?
-        );
+        println!("{json}");
     } else {
         for r in &reports {
             print_report(r);
@@ -111,8 +120,8 @@ fn print_report(r: &TrajectoryReport) {
             f.updates_accepted, f.updates_rejected
         );
         println!(
-            "    joint covariance: min eigenvalue {:.3e}, invalid updates {}, largest valid rho (median) {:.3}",
-            f.joint_min_eigenvalue, f.joint_invalid_updates, f.largest_valid_rho
+            "    joint covariance: min eigenvalue {:.3e}, invalid updates {}, largest valid rho (median) {:.3}; P not positive definite at {} epochs",
+            f.joint_min_eigenvalue, f.joint_invalid_updates, f.largest_valid_rho, f.covariance_not_positive_definite_epochs
         );
     }
     for imp in &r.improvements {
@@ -127,4 +136,183 @@ fn print_report(r: &TrajectoryReport) {
             );
         }
     }
+}
+
+/// File-name stem of a report ("simulated", "trajectory4").
+fn slug(r: &TrajectoryReport) -> String {
+    match r.trajectory {
+        Some(n) => format!("trajectory{n}"),
+        None => "simulated".to_string(),
+    }
+}
+
+/// CSV time series and plots of every report into a staged folder.
+fn write_outputs(
+    dir: &std::path::Path,
+    reports: &[TrajectoryReport],
+    json: &str,
+) -> anyhow::Result<()> {
+    use crate::output::StagedDir;
+    use crate::plots::{bar_chart, line_chart, LineChart, Series};
+    use estim::pipeline::stats::GROUPS;
+    use std::io::Write;
+
+    let staged = StagedDir::new(dir)?;
+    std::fs::write(staged.path("report.json"), json).context("cannot write report.json")?;
+    for r in reports {
+        let stem = slug(r);
+        // Time series, long format: one row per filter and epoch.
+        let path = staged.path(&format!("{stem}_timeseries.csv"));
+        let mut w = std::io::BufWriter::new(
+            std::fs::File::create(&path)
+                .with_context(|| format!("{}: cannot create", path.display()))?,
+        );
+        let mut header = vec!["filter".to_string(), "time_s".to_string()];
+        header.extend(GROUPS.iter().map(|(g, _)| format!("{g}_std_sum")));
+        header.extend(
+            [
+                "position_error_m",
+                "velocity_error_mps",
+                "attitude_error_deg",
+                "nees",
+                "north_m",
+                "east_m",
+            ]
+            .map(String::from),
+        );
+        writeln!(w, "{}", header.join(","))?;
+        for run in &r.runs {
+            for k in 0..run.time.len() {
+                let d = &run.covariance_diagonal[k];
+                let stds: Vec<String> = GROUPS
+                    .iter()
+                    .map(|(_, i)| {
+                        format!(
+                            "{:e}",
+                            (*i..*i + 3).map(|j| d[j].max(0.0).sqrt()).sum::<f64>()
+                        )
+                    })
+                    .collect();
+                writeln!(
+                    w,
+                    "\"{}\",{},{},{},{},{},{},{},{}",
+                    run.name,
+                    run.time[k],
+                    stds.join(","),
+                    run.position_error[k],
+                    run.velocity_error[k],
+                    run.attitude_error_deg[k],
+                    run.nees[k],
+                    run.north_east[k][0],
+                    run.north_east[k][1]
+                )?;
+            }
+        }
+        w.flush()?;
+        drop(w);
+        let plot_err = |e: Box<dyn std::error::Error>| anyhow::anyhow!("plot: {e}");
+        // Standard deviation over time per group (paper Figs. 3/4).
+        for (g, i) in GROUPS {
+            let ys: Vec<Vec<f64>> = r
+                .runs
+                .iter()
+                .map(|run| {
+                    run.covariance_diagonal
+                        .iter()
+                        .map(|d| (i..i + 3).map(|j| d[j].max(0.0).sqrt()).sum::<f64>())
+                        .collect()
+                })
+                .collect();
+            let chart = LineChart {
+                title: &format!("{}: {g} std (sum over axes)", r.name),
+                x_label: "time [s]",
+                y_label: "std",
+                series: r
+                    .runs
+                    .iter()
+                    .zip(&ys)
+                    .map(|(run, y)| Series {
+                        name: &run.name,
+                        x: &run.time,
+                        y,
+                    })
+                    .collect(),
+                hlines: vec![],
+                log_y: false,
+                equal_axes: false,
+            };
+            line_chart(&staged.path(&format!("{stem}_std_{g}")), &chart).map_err(plot_err)?;
+        }
+        // Improvement bars (paper Fig. 5).
+        if !r.improvements.is_empty() {
+            let groups: Vec<&str> = GROUPS.iter().skip(1).map(|(g, _)| *g).collect();
+            let variants: Vec<&str> = r.improvements.iter().map(|i| i.variant.as_str()).collect();
+            let values: Vec<Vec<f64>> = r
+                .improvements
+                .iter()
+                .map(|imp| {
+                    groups
+                        .iter()
+                        .map(|g| imp.groups[*g].time_average_percent)
+                        .collect()
+                })
+                .collect();
+            bar_chart(
+                &staged.path(&format!("{stem}_improvement")),
+                &format!("{}: time-averaged std improvement over M neglected", r.name),
+                "improvement [%]",
+                &groups,
+                &variants,
+                &values,
+            )
+            .map_err(plot_err)?;
+        }
+        // North-east track (paper Fig. 2).
+        let east: Vec<Vec<f64>> = std::iter::once(&r.truth_north_east)
+            .chain(r.runs.iter().map(|run| &run.north_east))
+            .map(|ne| ne.iter().map(|p| p[1]).collect())
+            .collect();
+        let north: Vec<Vec<f64>> = std::iter::once(&r.truth_north_east)
+            .chain(r.runs.iter().map(|run| &run.north_east))
+            .map(|ne| ne.iter().map(|p| p[0]).collect())
+            .collect();
+        let names: Vec<&str> = std::iter::once("truth")
+            .chain(r.runs.iter().map(|run| run.name.as_str()))
+            .collect();
+        let chart = LineChart {
+            title: &format!("{}: north-east track", r.name),
+            x_label: "east [m]",
+            y_label: "north [m]",
+            series: names
+                .iter()
+                .zip(east.iter().zip(&north))
+                .map(|(n, (x, y))| Series { name: n, x, y })
+                .collect(),
+            hlines: vec![],
+            log_y: false,
+            equal_axes: true,
+        };
+        line_chart(&staged.path(&format!("{stem}_track")), &chart).map_err(plot_err)?;
+        // NEES over time with the per-epoch 95 % band of chi-square(15).
+        let band = estim::core::chi_square_band(15, 1, 0.95)?;
+        let chart = LineChart {
+            title: &format!("{}: NEES (15 states) against truth", r.name),
+            x_label: "time [s]",
+            y_label: "NEES",
+            series: r
+                .runs
+                .iter()
+                .map(|run| Series {
+                    name: &run.name,
+                    x: &run.time,
+                    y: &run.nees,
+                })
+                .collect(),
+            hlines: vec![("95% lower", band.lower), ("95% upper", band.upper)],
+            log_y: true,
+            equal_axes: false,
+        };
+        line_chart(&staged.path(&format!("{stem}_nees")), &chart).map_err(plot_err)?;
+    }
+    staged.commit()
 }

@@ -46,6 +46,22 @@ pub struct GtSample {
     pub roll_pitch_yaw: [f64; 3],
 }
 
+impl GtSample {
+    /// The sample as an estim-ins trajectory knot (attitude from roll, pitch, yaw,
+    /// body -> NED, z-y-x order).
+    pub fn trajectory_sample(&self) -> estim_ins::TrajectorySample {
+        let [roll, pitch, yaw] = self.roll_pitch_yaw;
+        estim_ins::TrajectorySample {
+            time: self.time,
+            latitude: self.latitude,
+            longitude: self.longitude,
+            height: self.altitude,
+            velocity_ned: self.velocity_ned.into(),
+            attitude: nalgebra::UnitQuaternion::from_euler_angles(roll, pitch, yaw),
+        }
+    }
+}
+
 /// One DVL sample: body-frame velocity.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DvlSample {

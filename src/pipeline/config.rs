@@ -8,7 +8,7 @@ use std::path::Path;
 use estim_ins::{ImuSpec, SensorSpec};
 use serde::{Deserialize, Serialize};
 
-use super::{PipelineError, Result};
+use super::{FaultConfig, PipelineError, Result};
 
 /// The whole configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -24,6 +24,8 @@ pub struct Config {
     pub dvl: DvlSection,
     /// Filter settings.
     pub filter: FilterSection,
+    /// Sensor faults injected into every scenario (default: none).
+    pub faults: FaultConfig,
 }
 
 /// The embedded simulated mission.
@@ -45,8 +47,10 @@ pub struct ImuSection {
     /// `akit_observed` (default), `tactical_mems`, `navigation_grade_fog`, `consumer_mems`.
     pub preset: String,
     /// Accelerometer overrides (SI units, see estim_ins::SensorSpec).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub accelerometer: Option<SensorSection>,
     /// Gyroscope overrides.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub gyroscope: Option<SensorSection>,
     /// Keep the preset's scale-factor errors in the simulated IMU (default false).
     /// The 15-state filter does not estimate scale factors: with the tactical
@@ -114,6 +118,7 @@ impl Default for Config {
             imu: ImuSection::default(),
             dvl: DvlSection::default(),
             filter: FilterSection::default(),
+            faults: FaultConfig::default(),
         }
     }
 }
@@ -275,6 +280,7 @@ impl Config {
                 self.dvl.protocol
             ));
         }
+        self.faults.check().map_err(|e| e.to_string())?;
         self.imu_spec().map(|_| ())
     }
 

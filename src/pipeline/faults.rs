@@ -98,6 +98,25 @@ pub struct FaultLog {
 }
 
 impl FaultConfig {
+    /// The standard fault scenario of `estim montecarlo --faults`: 5 % beam dropouts,
+    /// 2 % beam outliers of 0.5-2 m/s, a 60 s DVL outage from t = 120 s, and one IMU gap
+    /// of 10 samples per 100 s on average.
+    #[must_use]
+    pub fn standard() -> Self {
+        Self {
+            beam_dropout_probability: 0.05,
+            dvl_outages: vec![DvlOutage {
+                start_s: 120.0,
+                duration_s: 60.0,
+            }],
+            beam_outlier_probability: 0.02,
+            beam_outlier_magnitude_mps: [0.5, 2.0],
+            imu_gap_rate_per_s: 0.01,
+            imu_gap_samples: 10,
+            imu_gaps: Vec::new(),
+        }
+    }
+
     /// Validate ranges; the message names the key.
     ///
     /// # Errors

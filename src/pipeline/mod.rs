@@ -3,6 +3,8 @@
 
 mod config;
 mod faults;
+mod montecarlo;
+mod oracle;
 mod report;
 mod run;
 mod scenario;
@@ -10,14 +12,19 @@ pub mod stats;
 
 pub use config::{Config, DvlSection, FilterSection, ImuSection, MissionSection, SensorSection};
 pub use faults::{apply_faults, DvlOutage, FaultConfig, FaultLog, ImuGap};
+pub use montecarlo::{
+    monte_carlo, LearnedSource, MonteCarloReport, VariantConsistency, ORACLE_NEGLECTED,
+    ORACLE_SCALED, ORACLE_TRUE_M,
+};
+pub use oracle::{oracle_measurements, OracleSensor};
 pub use report::{
     analyse, least_squares_velocities, summarise, velocity_metrics, FilterSummary, Improvement,
     ImprovementValues, LearnedInputs, TrajectoryReport, VelocityMetrics, BEAMSNET_NEGLECTED,
     BEAMSNET_SCALED, BEAMSNET_SENSITIVITY, LS,
 };
 pub use run::{
-    error_state, initial_covariance, initial_nominal, run_filter, run_filter_with_observer,
-    CrossMatrix, CrossSource, FilterRun, MeasurementSet,
+    error_state, filter_imu_spec, initial_covariance, initial_nominal, run_filter,
+    run_filter_with_observer, CrossMatrix, CrossSource, FilterRun, MeasurementSet,
 };
 pub use scenario::{DvlEpoch, Scenario};
 

@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::stats::{
-    error_summary, improvement_percent, std_summary, ErrorSummary, StdSummary, GROUPS,
+    error_summary, finite_mean, improvement_percent, std_summary, ErrorSummary, StdSummary, GROUPS,
 };
 use super::{
     run_filter, Config, CrossMatrix, CrossSource, FilterRun, MeasurementSet, Result, Scenario,
@@ -60,8 +60,11 @@ pub struct FilterSummary {
     pub velocity_error_mps: ErrorSummary,
     /// |attitude error| against truth [deg].
     pub attitude_error_deg: ErrorSummary,
-    /// Time-averaged NEES (15 states) against truth.
+    /// Time-averaged NEES (15 states) against truth, over the epochs where P was
+    /// positive definite.
     pub nees_average: f64,
+    /// Epochs at which P was not positive definite.
+    pub covariance_not_positive_definite_epochs: usize,
     /// 95 % band of a time average of independent chi-square(15) values over the
     /// epochs (successive NEES are correlated in time, so this band is a guide).
     pub nees_band: [f64; 2],
@@ -107,6 +110,7 @@ pub struct TrajectoryReport {
     /// Scenario name.
     pub name: String,
     /// A-KIT trajectory number, if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub trajectory: Option<u32>,
     /// Duration [s].
     pub duration_s: f64,
@@ -121,6 +125,9 @@ pub struct TrajectoryReport {
     /// The raw time series (not serialised; for CSV and plots).
     #[serde(skip)]
     pub runs: Vec<FilterRun>,
+    /// Truth north/east relative to the start at the DVL epochs [m] (for plots).
+    #[serde(skip)]
+    pub truth_north_east: Vec<[f64; 2]>,
 }
 
 /// Velocity-norm metrics computed here (the learned crate has its own; tests compare).
@@ -165,7 +172,6 @@ pub fn summarise(run: &FilterRun) -> Result<FilterSummary> {
         .iter()
         .map(|(g, i)| (g.to_string(), std_summary(&run.covariance_diagonal, *i)))
         .collect();
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     // Scale of the joint covariance for the PSD tolerance: none here, the core's
     // check reported the eigenvalue; count clearly negative ones.
     let invalid = run
@@ -179,9 +185,10 @@ pub fn summarise(run: &FilterRun) -> Result<FilterSummary> {
         position_error_m: error_summary(&run.position_error),
         velocity_error_mps: error_summary(&run.velocity_error),
         attitude_error_deg: error_summary(&run.attitude_error_deg),
-        nees_average: mean(&run.nees),
+        nees_average: finite_mean(&run.nees),
+        covariance_not_positive_definite_epochs: run.covariance_not_positive_definite,
         nees_band: band(15, run.nees.len())?,
-        nis_average: mean(&run.nis),
+        nis_average: finite_mean(&run.nis),
         nis_band: band(3, run.nis.len())?,
         updates_accepted: run.accepted,
         updates_rejected: run.rejected,
@@ -299,7 +306,25 @@ pub fn analyse(
         (Some(a), Some(b)) => b.time - a.time,
         _ => 0.0,
     };
+    let truth_north_east = match scenario.truth.first() {
+        Some(t0) => {
+            let (rn, re) = estim_ins::earth::radii_of_curvature(t0.latitude);
+            scenario
+                .dvl
+                .iter()
+                .filter_map(|d| scenario.truth.get(d.imu_index))
+                .map(|t| {
+                    [
+                        (t.latitude - t0.latitude) * (rn + t0.height),
+                        (t.longitude - t0.longitude) * (re + t0.height) * t0.latitude.cos(),
+                    ]
+                })
+                .collect()
+        }
+        None => Vec::new(),
+    };
     Ok(TrajectoryReport {
+        truth_north_east,
         name: scenario.name.clone(),
         trajectory: scenario.trajectory,
         duration_s,

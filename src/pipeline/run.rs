@@ -70,6 +70,8 @@ pub struct FilterRun {
     pub largest_valid_rho: Vec<f64>,
     /// North/east position of the estimate relative to the start [m].
     pub north_east: Vec<[f64; 2]>,
+    /// Epochs at which P was not positive definite (NEES recorded as NaN).
+    pub covariance_not_positive_definite: usize,
 }
 
 /// truth ⊖ nominal: the error state with true = nominal + error (estim-ins convention).
@@ -270,6 +272,7 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
         joint_min_eigenvalue: Vec::with_capacity(n),
         largest_valid_rho: Vec::with_capacity(n),
         north_east: Vec::with_capacity(n),
+        covariance_not_positive_definite: 0,
     };
     let (rn0, re0) = estim_ins::earth::radii_of_curvature(truth0.latitude);
     let imu = &scenario.imu;
@@ -353,7 +356,15 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
         run.velocity_error.push(e.fixed_rows::<3>(VEL).norm());
         run.attitude_error_deg
             .push(e.fixed_rows::<3>(ATT).norm().to_degrees());
-        run.nees.push(nees(&e, p)?);
+        // A covariance that lost positive definiteness (possible when M makes the joint
+        // covariance invalid) is a finding to report, not a reason to abort the run.
+        match nees(&e, p) {
+            Ok(v) => run.nees.push(v),
+            Err(_) => {
+                run.nees.push(f64::NAN);
+                run.covariance_not_positive_definite += 1;
+            }
+        }
         run.north_east.push([
             (nominal.latitude - truth0.latitude) * (rn0 + truth0.height),
             (nominal.longitude - truth0.longitude) * (re0 + truth0.height) * truth0.latitude.cos(),

@@ -2,11 +2,10 @@
 
 use std::path::Path;
 
-use estim_core::nalgebra::{UnitQuaternion, Vector3, Vector4};
+use estim_core::nalgebra::{Vector3, Vector4};
 use estim_dvl::{dvl_frame_velocity, BeamsNetProtocol};
 use estim_ins::{
     ImuErrorGenerator, ImuSample, ImuSpec, InsState, Mission, MissionConfig, Trajectory,
-    TrajectorySample,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -36,6 +35,8 @@ pub struct Scenario {
     pub truth: Vec<InsState>,
     /// The IMU the filter integrates (N samples; sample k covers [t_k, t_k+1]).
     pub imu: Vec<ImuSample>,
+    /// The error-free IMU (N samples), for oracle measurements and noise analysis.
+    pub clean_imu: Vec<ImuSample>,
     /// IMU period [s].
     pub imu_dt: f64,
     /// The IMU error model the samples were corrupted with (also the filter's model).
@@ -53,9 +54,7 @@ fn protocol(config: &Config) -> BeamsNetProtocol {
 }
 
 fn imu_spec(config: &Config) -> Result<ImuSpec> {
-    config
-        .imu_spec()
-        .map_err(PipelineError::Invalid)
+    config.imu_spec().map_err(PipelineError::Invalid)
 }
 
 impl Scenario {
@@ -99,6 +98,7 @@ impl Scenario {
             trajectory: None,
             truth: mission.truth,
             imu: mission.imu,
+            clean_imu: mission.clean_imu,
             imu_dt: mission.imu_dt,
             imu_spec: spec,
             dvl,
@@ -112,21 +112,7 @@ impl Scenario {
         let files = trajectory_files(dir, n)?;
         let gt = load_gt(&files.gt)?;
         let dvl_log = load_dvl(&files.dvl)?;
-        let samples = gt
-            .iter()
-            .map(|g| TrajectorySample {
-                time: g.time,
-                latitude: g.latitude,
-                longitude: g.longitude,
-                height: g.altitude,
-                velocity_ned: Vector3::from(g.velocity_ned),
-                attitude: UnitQuaternion::from_euler_angles(
-                    g.roll_pitch_yaw[0],
-                    g.roll_pitch_yaw[1],
-                    g.roll_pitch_yaw[2],
-                ),
-            })
-            .collect();
+        let samples = gt.iter().map(|g| g.trajectory_sample()).collect();
         let trajectory = Trajectory::new(samples)?;
         let (mut truth, clean) = trajectory.simulate(config.mission.imu_rate_hz)?;
         let dt = 1.0 / config.mission.imu_rate_hz;
@@ -165,6 +151,7 @@ impl Scenario {
             trajectory: Some(n),
             truth,
             imu,
+            clean_imu: clean,
             imu_dt: dt,
             imu_spec: spec,
             dvl,

@@ -40,6 +40,19 @@ pub fn improvement_percent(neglected: f64, aware: f64) -> f64 {
     100.0 * (neglected - aware) / neglected
 }
 
+/// Mean of the finite values (NaN if there are none).
+pub fn finite_mean(values: &[f64]) -> f64 {
+    let (sum, n) = values
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+    if n == 0 {
+        f64::NAN
+    } else {
+        sum / n as f64
+    }
+}
+
 /// Root mean square and final value of a series of error norms.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ErrorSummary {

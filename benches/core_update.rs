@@ -1,0 +1,257 @@
+//! Predict + update cost of estim's linear Kalman filter (static sizes, the one
+//! correlated update) for (states, measurements) = (4, 2), (15, 3), (30, 6), and the
+//! peer crate adskalman on the same (4, 2) model in the same run.
+//!
+//! Run: `cargo bench --bench core_update`. Both filters use the Joseph form; estim's
+//! runner is configured without the joint-covariance eigen check (adskalman has no
+//! such check) — a separate line measures it with the check reported.
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use adskalman::{
+    CovarianceUpdateMethod, KalmanFilterNoControl, ObservationModel,
+    StateAndCovariance as AdsEstimate, TransitionModelLinearNoControl,
+};
+use criterion::{criterion_group, criterion_main, Criterion};
+use estim_core::nalgebra::{Matrix2, Matrix2x4, Matrix4, Matrix4x2, SMatrix, SVector, U2, U4};
+use estim_core::{
+    correlated_update, CovarianceUpdate, CrossCovariance, FilterConfig, Fixed, JointCheck,
+    KalmanFilter, StateAndCovariance, Zero,
+};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// 2-D constant velocity, dt = 0.1, white-noise acceleration, position measured.
+fn constant_velocity() -> (Matrix4<f64>, Matrix4<f64>, Matrix2x4<f64>, Matrix2<f64>) {
+    let dt = 0.1;
+    let mut f = Matrix4::identity();
+    f[(0, 2)] = dt;
+    f[(1, 3)] = dt;
+    let q_psd = 0.5;
+    let (d2, d3) = (dt * dt, dt * dt * dt);
+    let mut q = Matrix4::zeros();
+    for i in 0..2 {
+        q[(i, i)] = d3 / 3.0 * q_psd;
+        q[(i, i + 2)] = d2 / 2.0 * q_psd;
+        q[(i + 2, i)] = d2 / 2.0 * q_psd;
+        q[(i + 2, i + 2)] = dt * q_psd;
+    }
+    let mut h = Matrix2x4::zeros();
+    h[(0, 0)] = 1.0;
+    h[(1, 1)] = 1.0;
+    (f, q, h, Matrix2::identity() * 0.01)
+}
+
+/// A random stable model of N states and M measurements (seeded).
+fn random_model<const N: usize, const M: usize>(
+    seed: u64,
+) -> (
+    SMatrix<f64, N, N>,
+    SMatrix<f64, N, N>,
+    SMatrix<f64, M, N>,
+    SMatrix<f64, M, M>,
+) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut draw = || rng.random_range(-1.0..1.0);
+    let f = SMatrix::<f64, N, N>::identity() + SMatrix::from_fn(|_, _| draw()) * (0.1 / N as f64);
+    let g = SMatrix::<f64, N, N>::from_fn(|_, _| draw()) * 0.1;
+    let q = g * g.transpose() + SMatrix::identity() * 1e-4;
+    let h = SMatrix::<f64, M, N>::from_fn(|_, _| draw());
+    let r = SMatrix::<f64, M, M>::identity() * 0.05;
+    (f, q, h, r)
+}
+
+fn estim_filter<const N: usize, const M: usize>(
+    model: (
+        SMatrix<f64, N, N>,
+        SMatrix<f64, N, N>,
+        SMatrix<f64, M, N>,
+        SMatrix<f64, M, M>,
+    ),
+    joint_check: JointCheck,
+) -> KalmanFilter<f64, N, M> {
+    let (f, q, h, r) = model;
+    let config = FilterConfig::builder()
+        .joint_check(joint_check)
+        .build()
+        .expect("config");
+    KalmanFilter::new(
+        f,
+        q,
+        h,
+        r,
+        StateAndCovariance::new(SVector::zeros(), SMatrix::identity()).expect("initial"),
+    )
+    .expect("filter")
+    .with_config(config)
+}
+
+fn bench_estim<const N: usize, const M: usize, C>(
+    c: &mut Criterion,
+    name: &str,
+    mut kf: KalmanFilter<f64, N, M>,
+    cross: C,
+) where
+    C: CrossCovariance<f64, SVector<f64, N>, N, M>,
+{
+    let y = SVector::<f64, M>::from_fn(|i, _| 0.1 * i as f64);
+    c.bench_function(name, |b| {
+        b.iter(|| {
+            kf.predict().expect("predict");
+            let report = kf.update(black_box(&y), &cross).expect("update");
+            black_box(report.nis)
+        })
+    });
+}
+
+struct AdsMotion {
+    f: Matrix4<f64>,
+    ft: Matrix4<f64>,
+    q: Matrix4<f64>,
+}
+
+impl TransitionModelLinearNoControl<f64, U4> for AdsMotion {
+    fn F(&self) -> &Matrix4<f64> {
+        &self.f
+    }
+    fn FT(&self) -> &Matrix4<f64> {
+        &self.ft
+    }
+    fn Q(&self) -> &Matrix4<f64> {
+        &self.q
+    }
+}
+
+struct AdsObservation {
+    h: Matrix2x4<f64>,
+    ht: Matrix4x2<f64>,
+    r: Matrix2<f64>,
+}
+
+impl ObservationModel<f64, U4, U2> for AdsObservation {
+    fn H(&self) -> &Matrix2x4<f64> {
+        &self.h
+    }
+    fn HT(&self) -> &Matrix4x2<f64> {
+        &self.ht
+    }
+    fn R(&self) -> &Matrix2<f64> {
+        &self.r
+    }
+}
+
+fn predict_update(c: &mut Criterion) {
+    let cv = constant_velocity();
+    bench_estim(
+        c,
+        "estim KalmanFilter (4,2) predict+update",
+        estim_filter(cv, JointCheck::Skip),
+        Zero,
+    );
+    bench_estim(
+        c,
+        "estim KalmanFilter (4,2) predict+update, joint check reported",
+        estim_filter(cv, JointCheck::Report),
+        Zero,
+    );
+    {
+        // The bare update function on a fixed prior (no runner, no prediction).
+        let (f, q, h, r) = cv;
+        let prior = StateAndCovariance::new(SVector::<f64, 4>::zeros(), f * f.transpose() + q)
+            .expect("prior");
+        let y = SVector::<f64, 2>::new(0.0, 0.1);
+        let m = SMatrix::<f64, 4, 2>::zeros();
+        c.bench_function("estim correlated_update (4,2) alone", |b| {
+            b.iter(|| {
+                let out = correlated_update(
+                    black_box(&prior),
+                    black_box(&y),
+                    &h,
+                    &r,
+                    &m,
+                    CovarianceUpdate::JosephLike,
+                )
+                .expect("update");
+                black_box(out.nis)
+            })
+        });
+    }
+    {
+        let (f, q, h, r) = cv;
+        let motion = AdsMotion {
+            f,
+            ft: f.transpose(),
+            q,
+        };
+        let observation = AdsObservation {
+            h,
+            ht: h.transpose(),
+            r,
+        };
+        let kf = KalmanFilterNoControl::new(&motion, &observation);
+        let mut estimate = AdsEstimate::new(SVector::<f64, 4>::zeros(), Matrix4::identity());
+        let y = SVector::<f64, 2>::new(0.0, 0.1);
+        c.bench_function(
+            "adskalman KalmanFilterNoControl (4,2) predict+update",
+            |b| {
+                b.iter(|| {
+                    estimate = kf
+                        .step_with_options(
+                            &estimate,
+                            black_box(&y),
+                            CovarianceUpdateMethod::JosephForm,
+                        )
+                        .expect("adskalman step");
+                    black_box(estimate.state()[0])
+                })
+            },
+        );
+    }
+    bench_estim(
+        c,
+        "estim KalmanFilter (15,3) predict+update",
+        estim_filter(random_model::<15, 3>(15), JointCheck::Skip),
+        Zero,
+    );
+    // The same with a nonzero M (the correlated path).
+    let model = random_model::<15, 3>(15);
+    // Valid: M' Q^-1 M <= 1e-6 / 1e-4 = 0.01 < R = 0.05.
+    let m = SMatrix::<f64, 15, 3>::from_fn(|i, j| if i == j { 1e-3 } else { 0.0 });
+    bench_estim(
+        c,
+        "estim KalmanFilter (15,3) predict+update, correlated (Fixed M)",
+        estim_filter(model, JointCheck::Skip),
+        Fixed(m),
+    );
+    bench_estim(
+        c,
+        "estim KalmanFilter (30,6) predict+update",
+        estim_filter(random_model::<30, 6>(30), JointCheck::Skip),
+        Zero,
+    );
+}
+
+/// The INS pattern: 100 propagations (with Q_acc / Phi_acc accumulation) per update.
+fn hundred_predictions_per_update(c: &mut Criterion) {
+    let mut kf = estim_filter(random_model::<15, 3>(15), JointCheck::Skip);
+    let y = SVector::<f64, 3>::zeros();
+    c.bench_function("estim KalmanFilter (15,3) 100 predicts + 1 update", |b| {
+        b.iter(|| {
+            for _ in 0..100 {
+                kf.predict().expect("predict");
+            }
+            black_box(kf.update(&y, &Zero).expect("update").nis)
+        })
+    });
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default()
+        .measurement_time(Duration::from_secs(2))
+        .warm_up_time(Duration::from_millis(500))
+        .sample_size(30);
+    targets = predict_update, hundred_predictions_per_update
+}
+criterion_main!(benches);
