@@ -229,9 +229,6 @@ fn assert_healthy(results: &[ModelResult], imu_steps: usize) {
     for r in results {
         let pd = &r.pd;
         assert_eq!(pd.non_finite, 0, "{}: non-finite P", r.name);
-        // The core symmetrises after each update; the predict keeps symmetry to
-        // rounding (measured below 1e-14).
-        assert!(pd.max_asymmetry < 1e-12, "{}: {}", r.name, pd.max_asymmetry);
         if r.name.starts_with("Scaled") {
             match &r.run {
                 Err(e) => {
@@ -262,6 +259,11 @@ fn assert_healthy(results: &[ModelResult], imu_steps: usize) {
                 Ok(_) => {}
             }
         }
+        // The core symmetrises after each update; the predict keeps symmetry to
+        // rounding (measured below 1.5e-14). Not asserted for an indefinite P above:
+        // its asymmetry relative to sqrt(P_ii P_jj) is not a rounding measure once
+        // the "correlations" reach 100 (measured 2.5e-12 with rho = 0.42, 10 hours).
+        assert!(pd.max_asymmetry < 1e-12, "{}: {}", r.name, pd.max_asymmetry);
         let run = r.run.as_ref().unwrap_or_else(|e| panic!("{}: {e}", r.name));
         assert!(
             pd.first_failure.is_none(),
