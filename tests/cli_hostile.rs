@@ -248,3 +248,33 @@ fn reproduce_hostile_config_leaves_out_empty() {
     assert_eq!(out.status.code(), Some(0));
     let _ = valid;
 }
+
+#[test]
+fn montecarlo_hostile_config() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |config: &Path| {
+        estim(&[
+            "montecarlo",
+            "--runs",
+            "1",
+            "--config",
+            config.to_str().unwrap(),
+        ])
+    };
+    let missing = dir.path().join("missing.toml");
+    assert_one_line_error(&run(&missing), &missing, None);
+    let cut = write(
+        dir.path(),
+        "truncated.toml",
+        b"[faults]\nbeam_dropout_probability =",
+    );
+    assert_one_line_error(&run(&cut), &cut, Some(2));
+    let garbage = write(dir.path(), "garbage.toml", GARBAGE);
+    assert_one_line_error(&run(&garbage), &garbage, None);
+    let bad = write(
+        dir.path(),
+        "bad_faults.toml",
+        b"[faults]\nbeam_outlier_probability = 1.5\n",
+    );
+    assert_one_line_error(&run(&bad), &bad, None);
+}

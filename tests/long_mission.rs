@@ -222,15 +222,13 @@ fn run_mission(hours: f64) -> Vec<ModelResult> {
 }
 
 /// Zero and the valid fixed M: P symmetric and positive definite at every step, no
-/// non-finite value. The paper's rho = 0.42 (an invalid joint covariance): either the
-/// same, or a typed error from the core before any non-finite P is passed on.
+/// non-finite value. The paper's rho = 0.42 (an invalid joint covariance at every
+/// update): P may lose positive definiteness; the pipeline must then report it
+/// (`FilterRun::covariance_not_positive_definite`) and produce no non-finite P.
 fn assert_healthy(results: &[ModelResult], imu_steps: usize) {
     for r in results {
         let pd = &r.pd;
         assert_eq!(pd.non_finite, 0, "{}: non-finite P", r.name);
-        // The core symmetrises after each update; the predict keeps symmetry to
-        // rounding (measured below 1e-14).
-        assert!(pd.max_asymmetry < 1e-12, "{}: {}", r.name, pd.max_asymmetry);
         if r.name.starts_with("Scaled") {
             match &r.run {
                 Err(e) => {
@@ -261,6 +259,11 @@ fn assert_healthy(results: &[ModelResult], imu_steps: usize) {
                 Ok(_) => {}
             }
         }
+        // The core symmetrises after each update; the predict keeps symmetry to
+        // rounding (measured below 1.5e-14). Not asserted for an indefinite P above:
+        // its asymmetry relative to sqrt(P_ii P_jj) is not a rounding measure once
+        // the "correlations" reach 100 (measured 2.5e-12 with rho = 0.42, 10 hours).
+        assert!(pd.max_asymmetry < 1e-12, "{}: {}", r.name, pd.max_asymmetry);
         let run = r.run.as_ref().unwrap_or_else(|e| panic!("{}: {e}", r.name));
         assert!(
             pd.first_failure.is_none(),
@@ -305,7 +308,7 @@ fn one_hour_mission_keeps_p_positive_definite() {
 }
 
 #[test]
-#[ignore = "10-hour mission, about a minute per model in release; run with --ignored"]
+#[ignore = "10-hour mission: about 75 s to generate and 25 s per model in release; run with --ignored"]
 fn ten_hour_mission_keeps_p_positive_definite() {
     let results = run_mission(10.0);
     assert_healthy(&results, 3_600_000);

@@ -30,7 +30,7 @@ use super::{PipelineError, Result, Scenario};
 pub struct DvlOutage {
     /// Start, in seconds since the scenario's first truth sample.
     pub start_s: f64,
-    /// Length [s].
+    /// Length \[s\].
     pub duration_s: f64,
 }
 
@@ -54,11 +54,11 @@ pub struct FaultConfig {
     pub dvl_outages: Vec<DvlOutage>,
     /// Probability that a DVL epoch has one beam (chosen uniformly) off by an outlier.
     pub beam_outlier_probability: f64,
-    /// Range of the outlier's magnitude [m/s]; the sign is random.
+    /// Range of the outlier's magnitude \[m/s\]; the sign is random.
     pub beam_outlier_magnitude_mps: [f64; 2],
-    /// Rate of random IMU gaps [gaps per second of mission].
+    /// Rate of random IMU gaps \[gaps per second of mission\].
     pub imu_gap_rate_per_s: f64,
-    /// Length of each random IMU gap [samples].
+    /// Length of each random IMU gap \[samples\].
     pub imu_gap_samples: usize,
     /// Deterministic IMU gaps.
     pub imu_gaps: Vec<ImuGap>,

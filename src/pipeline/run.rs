@@ -214,7 +214,7 @@ pub const IMU_PERIOD_SNAP: f64 = 1e-6;
 /// integrated from its own time `ImuSample::time` to the next sample's time (the last
 /// sample over one nominal period), cut at each DVL epoch, so dt comes from the
 /// timestamps (the nominal period when they differ from it by less than
-/// [`IMU_PERIOD_SNAP`] relative).
+/// `IMU_PERIOD_SNAP` relative).
 /// - A gap (missing samples) is bridged by holding the last sample over the longer
 ///   interval (zero-order hold); the process noise grows with that dt.
 /// - A duplicate, backward or non-finite IMU timestamp is a typed error
