@@ -149,6 +149,17 @@ fn predict_update(c: &mut Criterion) {
         estim_filter(cv, JointCheck::Skip),
         Zero,
     );
+    {
+        let mut kf = estim_filter(cv, JointCheck::Skip);
+        let y = SVector::<f64, 2>::new(0.0, 0.1);
+        kf.update(&y, &Zero).expect("update");
+        c.bench_function("estim KalmanFilter (4,2) predict only", |b| {
+            b.iter(|| {
+                kf.predict().expect("predict");
+                black_box(kf.estimate().state()[0])
+            })
+        });
+    }
     bench_estim(
         c,
         "estim KalmanFilter (4,2) predict+update, joint check reported",

@@ -52,10 +52,7 @@ impl<T: Scalar, const N: usize> StateAndCovariance<T, N> {
 
 /// Fail with [`Error::NonFinite`] if any value is NaN or infinite.
 pub fn check_finite<T: Scalar>(values: &[T], what: &'static str) -> Result<()> {
-    // Branch-free: v * 0 is 0 for finite v and NaN for NaN or +-inf, and a sum of
-    // zeros cannot overflow.
-    let probe = values.iter().fold(T::zero(), |acc, &v| acc + v * T::zero());
-    if probe == T::zero() {
+    if values.iter().all(|v| v.is_finite()) {
         Ok(())
     } else {
         Err(Error::NonFinite { what })
