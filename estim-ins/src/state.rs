@@ -31,23 +31,54 @@ pub const GYRO_BIAS: usize = 12;
 /// The INS nominal (whole) state.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InsState {
-    /// Time [s].
+    /// Time \[s\].
     pub time: f64,
-    /// Geodetic latitude [rad].
+    /// Geodetic latitude \[rad\].
     pub latitude: f64,
-    /// Geodetic longitude [rad].
+    /// Geodetic longitude \[rad\].
     pub longitude: f64,
-    /// Height above the WGS-84 ellipsoid [m]; negative under water, never abs()'d.
+    /// Height above the WGS-84 ellipsoid \[m\]; negative under water, never abs()'d.
     pub height: f64,
-    /// Velocity in NED [m/s].
+    /// Velocity in NED \[m/s\].
     pub velocity_ned: Vector3<f64>,
     /// Attitude, rotation body -> NED (C_b^n).
     pub attitude: UnitQuaternion<f64>,
     /// Estimated accelerometer bias [m/s^2].
     pub acc_bias: Vector3<f64>,
-    /// Estimated gyroscope bias [rad/s].
+    /// Estimated gyroscope bias \[rad/s\].
     pub gyro_bias: Vector3<f64>,
-    /// Latest bias-corrected angular rate ω_ib^b [rad/s], kept by the mechanization for
+    /// Latest bias-corrected angular rate ω_ib^b \[rad/s\], kept by the mechanization for
     /// lever-arm terms of aiding measurements.
     pub angular_rate: Vector3<f64>,
+}
+
+impl InsState {
+    /// A state with zero bias estimates and zero angular rate.
+    #[must_use]
+    pub fn new(
+        time: f64,
+        latitude: f64,
+        longitude: f64,
+        height: f64,
+        velocity_ned: Vector3<f64>,
+        attitude: UnitQuaternion<f64>,
+    ) -> Self {
+        Self {
+            time,
+            latitude,
+            longitude,
+            height,
+            velocity_ned,
+            attitude,
+            acc_bias: Vector3::zeros(),
+            gyro_bias: Vector3::zeros(),
+            angular_rate: Vector3::zeros(),
+        }
+    }
+
+    /// Attitude as (roll, pitch, yaw) \[rad\], ZYX Euler angles of C_b^n.
+    #[must_use]
+    pub fn roll_pitch_yaw(&self) -> (f64, f64, f64) {
+        self.attitude.euler_angles()
+    }
 }
