@@ -80,6 +80,18 @@ def main():
     tr = tensors(train)
     va = tensors(val)
     model = BeamsNetV1()
+    # Initialise the beam columns of the 6 -> 3 head at the least-squares solution
+    # (A'A)^-1 A' of the recorded beam geometry, and the two IMU-feature columns near 0:
+    # training then learns the corrections (scale factor, bias, IMU information) instead
+    # of rediscovering the geometry. Everything else keeps PyTorch's seeded default init.
+    geo = meta["beam_geometry"]
+    theta = np.deg2rad(geo["theta_deg"])
+    psi = np.deg2rad(np.asarray(geo["psi_deg"], dtype=float))
+    a = np.stack([np.cos(psi) * np.sin(theta), np.sin(psi) * np.sin(theta), np.full(4, np.cos(theta))], axis=1)
+    with torch.no_grad():
+        model.head.weight[:, 2:] = torch.tensor(np.linalg.pinv(a), dtype=torch.float32)
+        model.head.weight[:, :2] *= 0.01
+        model.head.bias.zero_()
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=args.epochs, eta_min=args.lr * 1e-2)
     loss_fn = nn.MSELoss()

@@ -12,18 +12,25 @@
 #![warn(missing_docs)]
 
 mod beamsnet;
-// mod dataset;
+mod dataset;
 mod error;
-// mod evaluation;
+mod evaluation;
 mod measurement;
 mod metadata;
 mod metrics;
 mod onnx;
+mod sensitivity;
 
 pub use beamsnet::{default_model_path, BeamsNet, BeamsNetInput, BEAMSNET_WINDOW};
+pub use dataset::{
+    dataset_row, synthesize, write_npy, BeamsNetSample, SynthesizedRun, DATASET_COLUMNS,
+    IMU_RATE_HZ,
+};
 pub use error::{Error, Result};
+pub use evaluation::{evaluate, Evaluation};
 pub use measurement::{OnnxMeasurement, DEFAULT_SENSITIVITY_STEP};
 pub use metadata::{
     BeamGeometryMetadata, InputMetadata, ModelMetadata, OutputMetadata, METADATA_FORMAT,
 };
 pub use metrics::{metrics, speed_metrics, Metrics};
+pub use sensitivity::{CrossMatrix, Empirical, EmpiricalEstimate, ImuWindow, NetworkSensitivity};

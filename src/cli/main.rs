@@ -4,6 +4,8 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod beamsnet;
+mod dataset;
 mod dvl;
 mod reproduce;
 
@@ -21,6 +23,10 @@ enum Command {
     Reproduce(reproduce::Args),
     /// DVL beams: least squares, calibration.
     Dvl(dvl::Args),
+    /// BeamsNet: evaluate LS vs BeamsNet.
+    Beamsnet(beamsnet::Args),
+    /// Write training datasets.
+    Dataset(dataset::Args),
 }
 
 fn main() -> ExitCode {
@@ -28,6 +34,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Reproduce(args) => reproduce::run(args),
         Command::Dvl(args) => dvl::run(args),
+        Command::Beamsnet(args) => beamsnet::run(args),
+        Command::Dataset(args) => dataset::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
