@@ -4,6 +4,8 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod beamsnet;
+mod dataset;
 mod dvl;
 mod learned;
 mod montecarlo;
@@ -27,6 +29,10 @@ enum Command {
     Montecarlo(montecarlo::Args),
     /// DVL beams: least squares, calibration.
     Dvl(dvl::Args),
+    /// BeamsNet: evaluate LS vs BeamsNet.
+    Beamsnet(beamsnet::Args),
+    /// Write training datasets.
+    Dataset(dataset::Args),
 }
 
 fn main() -> ExitCode {
@@ -35,6 +41,8 @@ fn main() -> ExitCode {
         Command::Reproduce(args) => reproduce::run(args),
         Command::Montecarlo(args) => montecarlo::run(args),
         Command::Dvl(args) => dvl::run(args),
+        Command::Beamsnet(args) => beamsnet::run(args),
+        Command::Dataset(args) => dataset::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

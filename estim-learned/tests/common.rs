@@ -1,0 +1,28 @@
+//! Shared test helpers (not a test by itself).
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+
+/// The committed model folder, `<workspace>/models`.
+pub fn models_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join("models")
+}
+
+/// Copy the committed BeamsNet model into a temp dir, applying `edit` to its metadata.
+pub fn model_copy(edit: impl FnOnce(&mut serde_json::Value)) -> (tempfile::TempDir, PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let src = models_dir();
+    std::fs::copy(src.join("beamsnet.onnx"), dir.path().join("beamsnet.onnx")).unwrap();
+    let text = std::fs::read_to_string(src.join("beamsnet.json")).unwrap();
+    let mut meta: serde_json::Value = serde_json::from_str(&text).unwrap();
+    edit(&mut meta);
+    std::fs::write(
+        dir.path().join("beamsnet.json"),
+        serde_json::to_string(&meta).unwrap(),
+    )
+    .unwrap();
+    let model = dir.path().join("beamsnet.onnx");
+    (dir, model)
+}

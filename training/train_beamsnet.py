@@ -1,0 +1,202 @@
+"""Train BeamsNetV1 on the dataset written by `estim dataset beamsnet` and export
+models/beamsnet.onnx, models/beamsnet.json (metadata) and models/beamsnet_parity.json.
+
+Deterministic: seeded torch / numpy, CPU only, deterministic algorithms, one thread
+count fixed. See training/README.md for the exact regeneration command.
+"""
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+
+import numpy as np
+import torch
+from torch import nn
+
+from beamsnet import WINDOW, BeamsNetV1
+
+ACC = slice(0, 300)
+GYRO = slice(300, 600)
+BEAMS = slice(600, 604)
+TARGET = slice(604, 607)
+TRAJ = 607
+
+
+def parse_args():
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--dataset", required=True, help="the .npy written by `estim dataset beamsnet` (its .json beside it)")
+    p.add_argument("--out-dir", default="models")
+    p.add_argument("--epochs", type=int, default=40)
+    p.add_argument("--batch-size", type=int, default=64)
+    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--seed", type=int, default=5)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--validation", default="3,10", help="trajectories held out for validation / R")
+    return p.parse_args()
+
+
+def main():
+    args = parse_args()
+    t0 = time.time()
+    torch.manual_seed(args.seed)
+    np.random.seed(args.seed)
+    torch.use_deterministic_algorithms(True)
+    torch.set_num_threads(args.threads)
+
+    data = np.load(args.dataset)
+    with open(os.path.splitext(args.dataset)[0] + ".json") as f:
+        meta = json.load(f)
+    if data.ndim != 2 or data.shape[1] != meta["columns"]:
+        sys.exit(f"{args.dataset}: shape {data.shape}, metadata says {meta['columns']} columns")
+    traj = data[:, TRAJ].astype(int)
+    for forbidden in (4, 13):
+        if np.any(traj == forbidden):
+            sys.exit(f"dataset holds trajectory {forbidden}: held-out test data, refusing to train")
+    val_set = [int(x) for x in args.validation.split(",") if x]
+    is_val = np.isin(traj, val_set)
+    train, val = data[~is_val], data[is_val]
+    print(f"samples: train {len(train)}, validation {len(val)} (trajectories {val_set})")
+
+    acc = lambda d: d[:, ACC].reshape(-1, 3, WINDOW)
+    gyro = lambda d: d[:, GYRO].reshape(-1, 3, WINDOW)
+    # Per-channel normalisation from the training split (IMU); beams stay in m/s so
+    # that the final 6 -> 3 layer can learn the (near-linear) beams -> velocity map.
+    acc_mean, acc_std = acc(train).mean(axis=(0, 2)), acc(train).std(axis=(0, 2))
+    gyro_mean, gyro_std = gyro(train).mean(axis=(0, 2)), gyro(train).std(axis=(0, 2))
+
+    def tensors(d):
+        a = (acc(d) - acc_mean[None, :, None]) / acc_std[None, :, None]
+        g = (gyro(d) - gyro_mean[None, :, None]) / gyro_std[None, :, None]
+        return (
+            torch.tensor(a, dtype=torch.float32),
+            torch.tensor(g, dtype=torch.float32),
+            torch.tensor(d[:, BEAMS], dtype=torch.float32),
+            torch.tensor(d[:, TARGET], dtype=torch.float32),
+        )
+
+    tr = tensors(train)
+    va = tensors(val)
+    model = BeamsNetV1()
+    # Initialise the beam columns of the 6 -> 3 head at the least-squares solution
+    # (A'A)^-1 A' of the recorded beam geometry, and the two IMU-feature columns near 0:
+    # training then learns the corrections (scale factor, bias, IMU information) instead
+    # of rediscovering the geometry. Everything else keeps PyTorch's seeded default init.
+    geo = meta["beam_geometry"]
+    theta = np.deg2rad(geo["theta_deg"])
+    psi = np.deg2rad(np.asarray(geo["psi_deg"], dtype=float))
+    a = np.stack([np.cos(psi) * np.sin(theta), np.sin(psi) * np.sin(theta), np.full(4, np.cos(theta))], axis=1)
+    with torch.no_grad():
+        model.head.weight[:, 2:] = torch.tensor(np.linalg.pinv(a), dtype=torch.float32)
+        model.head.weight[:, :2] *= 0.01
+        model.head.bias.zero_()
+    opt = torch.optim.Adam(model.parameters(), lr=args.lr)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=args.epochs, eta_min=args.lr * 1e-2)
+    loss_fn = nn.MSELoss()
+    gen = torch.Generator().manual_seed(args.seed)
+    best = (float("inf"), None, -1)
+    n = len(tr[0])
+    for epoch in range(args.epochs):
+        model.train()
+        perm = torch.randperm(n, generator=gen)
+        total = 0.0
+        for i in range(0, n, args.batch_size):
+            idx = perm[i : i + args.batch_size]
+            opt.zero_grad()
+            loss = loss_fn(model(tr[0][idx], tr[1][idx], tr[2][idx]), tr[3][idx])
+            loss.backward()
+            opt.step()
+            total += loss.item() * len(idx)
+        sched.step()
+        model.eval()
+        with torch.no_grad():
+            vpred = model(va[0], va[1], va[2])
+            vloss = loss_fn(vpred, va[3]).item()
+            vnorm = (vpred.norm(dim=1) - va[3].norm(dim=1)).pow(2).mean().sqrt().item()
+        if vloss < best[0]:
+            best = (vloss, {k: v.clone() for k, v in model.state_dict().items()}, epoch)
+        print(f"epoch {epoch:3d} train mse {total / n:.3e} val mse {vloss:.3e} val |v| rmse {vnorm:.5f}", flush=True)
+    model.load_state_dict(best[1])
+    model.eval()
+    print(f"best epoch {best[2]} (val mse {best[0]:.3e})")
+
+    with torch.no_grad():
+        res = (model(va[0], va[1], va[2]) - va[3]).double().numpy()
+    r = np.cov(res, rowvar=False)
+
+    os.makedirs(args.out_dir, exist_ok=True)
+    onnx_path = os.path.join(args.out_dir, "beamsnet.onnx")
+    dummy = (va[0][:2], va[1][:2], va[2][:2])
+    torch.onnx.export(
+        model,
+        dummy,
+        onnx_path,
+        input_names=["acc", "gyro", "beams"],
+        output_names=["velocity"],
+        dynamic_axes={"acc": {0: "batch"}, "gyro": {0: "batch"}, "beams": {0: "batch"}, "velocity": {0: "batch"}},
+        opset_version=13,
+        do_constant_folding=True,
+    )
+
+    meta_out = {
+        "format": "estim-learned-model/1",
+        "name": "BeamsNetV1",
+        "model": "beamsnet.onnx",
+        "inputs": [
+            {"name": "acc", "stream": "acc", "channels": 3, "window": WINDOW, "sample_rate_hz": 100.0,
+             "shape": [3, WINDOW], "mean": acc_mean.tolist(), "std": acc_std.tolist(),
+             "unit": "m/s^2", "description": "specific force, body frame, the 100 samples of the second before the DVL sample"},
+            {"name": "gyro", "stream": "gyro", "channels": 3, "window": WINDOW, "sample_rate_hz": 100.0,
+             "shape": [3, WINDOW], "mean": gyro_mean.tolist(), "std": gyro_std.tolist(),
+             "unit": "rad/s", "description": "angular rate, body frame, same window as acc"},
+            {"name": "beams", "stream": "beams", "channels": 4, "window": 1, "sample_rate_hz": meta.get("dvl_rate_hz", 1.0),
+             "shape": [4], "mean": [0.0] * 4, "std": [1.0] * 4,
+             "unit": "m/s", "description": "the 4 DVL beam velocities at the update time"},
+        ],
+        "output": {"name": "velocity", "size": 3, "unit": "m/s", "frame": "body (x forward, y right, z down)"},
+        "noise_covariance": r.tolist(),
+        "beam_geometry": meta["beam_geometry"],
+        "beam_protocol": meta["beam_protocol"],
+        "training": {
+            "dataset": os.path.basename(args.dataset),
+            "dataset_metadata": meta,
+            "train_trajectories": sorted(set(int(t) for t in np.unique(traj[~is_val]))),
+            "validation_trajectories": val_set,
+            "validation_samples": int(len(val)),
+            "train_samples": int(len(train)),
+            "best_epoch": best[2],
+            "epochs": args.epochs,
+            "batch_size": args.batch_size,
+            "lr": args.lr,
+            "seed": args.seed,
+            "command": " ".join(["python"] + sys.argv),
+            "torch": torch.__version__,
+            "python": platform.python_version(),
+            "duration_s": round(time.time() - t0, 1),
+        },
+    }
+    with open(os.path.join(args.out_dir, "beamsnet.json"), "w") as f:
+        json.dump(meta_out, f, indent=1)
+
+    # Parity vectors: model-level (normalised) inputs and the PyTorch outputs in eval mode.
+    k = min(4, len(va[0]))
+    rows = np.linspace(0, len(va[0]) - 1, k).astype(int)
+    with torch.no_grad():
+        out = model(va[0][rows], va[1][rows], va[2][rows])
+    parity = {
+        "description": "BeamsNetV1 inputs (already normalised, as fed to the ONNX graph) and PyTorch eval-mode outputs",
+        "cases": [
+            {"acc": va[0][i].tolist(), "gyro": va[1][i].tolist(), "beams": va[2][i].tolist(), "velocity": out[j].tolist()}
+            for j, i in enumerate(rows)
+        ],
+    }
+    with open(os.path.join(args.out_dir, "beamsnet_parity.json"), "w") as f:
+        json.dump(parity, f)
+    print(f"validation R diag sqrt: {np.sqrt(np.diag(r))}")
+    print(f"wrote {onnx_path}, beamsnet.json, beamsnet_parity.json in {time.time() - t0:.1f} s")
+
+
+if __name__ == "__main__":
+    main()
