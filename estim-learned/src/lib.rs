@@ -6,9 +6,30 @@
 //!   Jacobian-vector products);
 //! - [`BeamsNet`]: BeamsNetV1 (IMU windows + 4 beams -> body velocity);
 //! - [`synthesize`], [`dataset_row`], [`write_npy`]: BeamsNet training data;
-//! - [`metrics`](fn@metrics), [`speed_metrics`], [`evaluate`]: the paper's RMSE, MAE, R^2, VAF.
+//! - [`metrics`](fn@metrics), [`speed_metrics`], [`evaluate`]: the paper's RMSE, MAE, R^2, VAF;
+//! - [`NetworkSensitivity`], [`Empirical`]: the cross-covariance M between the INS
+//!   process noise and the network's output error, from the network's own sensitivity
+//!   (Jacobian-vector products in one batched inference) or by Monte Carlo.
 //!
 //! tract is used in one private module only.
+//!
+//! ```
+//! use estim_core::LearnedMeasurement;
+//! use estim_learned::{default_model_path, OnnxMeasurement};
+//! use nalgebra::DMatrix;
+//!
+//! // BeamsNet through the generic wrapper: inputs as declared by its metadata.
+//! let model = OnnxMeasurement::<3>::from_model_path(&default_model_path())?;
+//! let names: Vec<&str> = model.input_specs().iter().map(|s| s.name.as_str()).collect();
+//! assert_eq!(names, ["acc", "gyro", "beams"]);
+//! let mut acc = DMatrix::zeros(3, 100);
+//! acc.row_mut(2).fill(-9.8);
+//! let gyro = DMatrix::zeros(3, 100);
+//! let beams = DMatrix::from_column_slice(4, 1, &[0.75, 0.69, 0.69, 0.75]);
+//! let velocity = model.measure(&[acc, gyro, beams])?;
+//! assert!(velocity.x > 0.0);
+//! # Ok::<(), estim_learned::Error>(())
+//! ```
 #![warn(missing_docs)]
 
 mod beamsnet;
