@@ -528,8 +528,7 @@ where
     pub fn predict(&mut self, input: &P::Input, dt: T) -> Result<()> {
         check_dt(dt)?;
         let x = self.estimate.state();
-        let phi = self.process.transition(x, input, dt)?;
-        let qd = self.process.process_noise(x, input, dt)?;
+        let (phi, qd) = self.process.transition_and_noise(x, input, dt)?;
         check_finite(phi.as_slice(), "transition matrix")?;
         check_finite(qd.as_slice(), "process noise covariance")?;
         let state = self.process.propagate(x, input, dt)?;
@@ -746,8 +745,9 @@ where
     /// [`Error::NonFinite`] if the covariance is not finite; observer errors.
     pub fn predict(&mut self, input: &P::Input, dt: T) -> Result<()> {
         check_dt(dt)?;
-        let phi = self.process.transition(&self.nominal, input, dt)?;
-        let qd = self.process.process_noise(&self.nominal, input, dt)?;
+        let (phi, qd) = self
+            .process
+            .transition_and_noise(&self.nominal, input, dt)?;
         check_finite(phi.as_slice(), "transition matrix")?;
         check_finite(qd.as_slice(), "process noise covariance")?;
         let nominal = self.process.propagate(&self.nominal, input, dt)?;
@@ -964,6 +964,61 @@ mod tests {
         }
         ekf.predict(&(), 0.5).unwrap();
         assert_eq!(ekf.estimate().covariance()[(0, 0)], 1.5);
+    }
+
+    /// A model whose Phi and Q_d come only from `transition_and_noise` (the separate
+    /// methods fail): the runners must ask for both at once.
+    struct OnlyJoint;
+    impl ProcessModel<f64, 1> for OnlyJoint {
+        type State = SVector<f64, 1>;
+        type Input = ();
+        fn propagate(&self, s: &Self::State, _: &(), _: f64) -> Result<Self::State> {
+            Ok(*s)
+        }
+        fn transition(&self, _: &Self::State, _: &(), _: f64) -> Result<SMatrix<f64, 1, 1>> {
+            Err(Error::InvalidParameter {
+                name: "transition",
+                reason: "not to be called".into(),
+            })
+        }
+        fn process_noise(&self, _: &Self::State, _: &(), _: f64) -> Result<SMatrix<f64, 1, 1>> {
+            Err(Error::InvalidParameter {
+                name: "process_noise",
+                reason: "not to be called".into(),
+            })
+        }
+        fn transition_and_noise(
+            &self,
+            _: &Self::State,
+            _: &(),
+            dt: f64,
+        ) -> Result<(SMatrix<f64, 1, 1>, SMatrix<f64, 1, 1>)> {
+            Ok((SMatrix::identity() * 2.0, SMatrix::identity() * dt))
+        }
+    }
+    impl ErrorStateModel<f64, 1> for OnlyJoint {
+        fn inject(&self, nominal: &Self::State, error: &SVector<f64, 1>) -> Result<Self::State> {
+            Ok(nominal + error)
+        }
+    }
+
+    #[test]
+    fn runners_take_transition_and_noise_together() {
+        let initial = StateAndCovariance::new(Vector1::zeros(), nalgebra::Matrix1::new(0.5));
+        let mut ekf = ExtendedKalmanFilter::new(OnlyJoint, initial.unwrap());
+        ekf.predict(&(), 0.25).unwrap();
+        // 2 * 0.5 * 2 + 0.25
+        assert_eq!(ekf.estimate().covariance()[(0, 0)], 2.25);
+        let mut eskf =
+            ErrorStateKalmanFilter::new(OnlyJoint, Vector1::zeros(), nalgebra::Matrix1::new(0.5))
+                .unwrap();
+        eskf.predict(&(), 0.25).unwrap();
+        assert_eq!(eskf.covariance()[(0, 0)], 2.25);
+        // The default pairs the two separate methods.
+        assert!(matches!(
+            ScalarNominal.transition_and_noise(&1.0, &0.0, 0.5),
+            Ok((phi, qd)) if phi[(0, 0)] == 1.0 && qd[(0, 0)] == 0.05
+        ));
     }
 
     /// Scalar error-state model with a non-identity reset (like the attitude reset of
