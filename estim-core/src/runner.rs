@@ -9,7 +9,7 @@ use crate::cross::{check_joint_covariance, joint_min_correlation_eigenvalue};
 use crate::gaussian::{check_finite, check_symmetric, symmetrize};
 use crate::observer::{NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
 use crate::scalar::lit;
-use crate::update::{factor_innovation, finish_update};
+use crate::update::{factor_innovation, finish_update, mul_static};
 use crate::{
     CrossCovariance, CrossCovarianceContext, Error, ErrorStateModel, FilterConfig,
     MeasurementModel, ProcessModel, Result, Scalar, StateAndCovariance,
@@ -94,6 +94,32 @@ impl<T: Scalar, const N: usize> Accumulator<T, N> {
     fn reset(&mut self) {
         *self = Self::new();
     }
+}
+
+/// F P F' + Q for a symmetric P and Q: F P as plain loops, then only the upper
+/// triangle of (F P) F' + Q, mirrored (exactly symmetric; N(N+1)/2 instead of N^2
+/// inner products for the second factor; P and Q's triangles averaged as by
+/// `symmetrize`).
+#[inline(always)]
+fn propagate_symmetric<T: Scalar, const N: usize>(
+    transition: &SMatrix<T, N, N>,
+    covariance: &SMatrix<T, N, N>,
+    process_noise: &SMatrix<T, N, N>,
+) -> SMatrix<T, N, N> {
+    let fp = mul_static(transition, covariance);
+    let mut out = SMatrix::<T, N, N>::zeros();
+    let half = lit::<T>(0.5);
+    for j in 0..N {
+        for i in 0..=j {
+            let mut v = (process_noise[(i, j)] + process_noise[(j, i)]) * half;
+            for k in 0..N {
+                v += fp[(i, k)] * transition[(j, k)];
+            }
+            out[(i, j)] = v;
+            out[(j, i)] = v;
+        }
+    }
+    out
 }
 
 fn check_dt<T: Scalar>(dt: T) -> Result<()> {
@@ -184,8 +210,6 @@ where
     let outcome = finish_update(
         prior,
         &innovation,
-        jacobian,
-        measurement_noise,
         &cross_covariance,
         config.covariance_update(),
         factored,
@@ -346,13 +370,13 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
     /// [`Error::NonFinite`] if the prediction overflows; observer errors.
     pub fn predict(&mut self) -> Result<()> {
         let f = &self.transition;
-        let state = f * self.estimate.state();
-        let covariance = f * self.estimate.covariance() * f.transpose() + self.process_noise;
+        let state = mul_static(f, self.estimate.state());
+        let covariance = propagate_symmetric(f, self.estimate.covariance(), &self.process_noise);
         check_finite(state.as_slice(), "predicted state")?;
         check_finite(covariance.as_slice(), "predicted covariance")?;
         self.estimate = StateAndCovariance::new_unchecked(state, covariance);
         self.accumulated.push(f, &self.process_noise, |q, phi, qd| {
-            phi * q * phi.transpose() + qd
+            propagate_symmetric(phi, q, qd)
         });
         self.observer.on_predict(&PredictEvent {
             dt: None,
