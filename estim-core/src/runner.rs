@@ -96,10 +96,10 @@ impl<T: Scalar, const N: usize> Accumulator<T, N> {
     }
 }
 
-/// F P F' + Q for a symmetric P and Q: F P as plain loops, then only the upper
-/// triangle of (F P) F' + Q, mirrored (exactly symmetric; N(N+1)/2 instead of N^2
-/// inner products for the second factor; P and Q's triangles averaged as by
-/// `symmetrize`).
+/// F P F' + Q for a symmetric P and Q, as two static products in column (axpy)
+/// order, which vectorise and carry no long dependency chain; then the upper
+/// triangle, plus Q's triangles averaged (as by `symmetrize`), mirrored so the
+/// result is exactly symmetric.
 #[inline(always)]
 fn propagate_symmetric<T: Scalar, const N: usize>(
     transition: &SMatrix<T, N, N>,
@@ -107,14 +107,11 @@ fn propagate_symmetric<T: Scalar, const N: usize>(
     process_noise: &SMatrix<T, N, N>,
 ) -> SMatrix<T, N, N> {
     let fp = mul_static(transition, covariance);
-    let mut out = SMatrix::<T, N, N>::zeros();
+    let mut out = mul_static(&fp, &transition.transpose());
     let half = lit::<T>(0.5);
     for j in 0..N {
         for i in 0..=j {
-            let mut v = (process_noise[(i, j)] + process_noise[(j, i)]) * half;
-            for k in 0..N {
-                v += fp[(i, k)] * transition[(j, k)];
-            }
+            let v = out[(i, j)] + (process_noise[(i, j)] + process_noise[(j, i)]) * half;
             out[(i, j)] = v;
             out[(j, i)] = v;
         }
