@@ -9,7 +9,7 @@ use crate::cross::{check_joint_covariance, joint_min_correlation_eigenvalue};
 use crate::gaussian::{check_finite, check_symmetric, symmetrize};
 use crate::observer::{NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
 use crate::scalar::lit;
-use crate::update::{factor_innovation, finish_update};
+use crate::update::{factor_innovation, finish_update, mul_static};
 use crate::{
     CrossCovariance, CrossCovarianceContext, Error, ErrorStateModel, FilterConfig,
     MeasurementModel, ProcessModel, Result, Scalar, StateAndCovariance,
@@ -94,6 +94,29 @@ impl<T: Scalar, const N: usize> Accumulator<T, N> {
     fn reset(&mut self) {
         *self = Self::new();
     }
+}
+
+/// F P F' + Q for a symmetric P and Q, as two static products in column (axpy)
+/// order, which vectorise and carry no long dependency chain; then the upper
+/// triangle, plus Q's triangles averaged (as by `symmetrize`), mirrored so the
+/// result is exactly symmetric.
+#[inline(always)]
+fn propagate_symmetric<T: Scalar, const N: usize>(
+    transition: &SMatrix<T, N, N>,
+    covariance: &SMatrix<T, N, N>,
+    process_noise: &SMatrix<T, N, N>,
+) -> SMatrix<T, N, N> {
+    let fp = mul_static(transition, covariance);
+    let mut out = mul_static(&fp, &transition.transpose());
+    let half = lit::<T>(0.5);
+    for j in 0..N {
+        for i in 0..=j {
+            let v = out[(i, j)] + (process_noise[(i, j)] + process_noise[(j, i)]) * half;
+            out[(i, j)] = v;
+            out[(j, i)] = v;
+        }
+    }
+    out
 }
 
 fn check_dt<T: Scalar>(dt: T) -> Result<()> {
@@ -184,8 +207,6 @@ where
     let outcome = finish_update(
         prior,
         &innovation,
-        jacobian,
-        measurement_noise,
         &cross_covariance,
         config.covariance_update(),
         factored,
@@ -346,13 +367,13 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
     /// [`Error::NonFinite`] if the prediction overflows; observer errors.
     pub fn predict(&mut self) -> Result<()> {
         let f = &self.transition;
-        let state = f * self.estimate.state();
-        let covariance = f * self.estimate.covariance() * f.transpose() + self.process_noise;
+        let state = mul_static(f, self.estimate.state());
+        let covariance = propagate_symmetric(f, self.estimate.covariance(), &self.process_noise);
         check_finite(state.as_slice(), "predicted state")?;
         check_finite(covariance.as_slice(), "predicted covariance")?;
         self.estimate = StateAndCovariance::new_unchecked(state, covariance);
         self.accumulated.push(f, &self.process_noise, |q, phi, qd| {
-            phi * q * phi.transpose() + qd
+            propagate_symmetric(phi, q, qd)
         });
         self.observer.on_predict(&PredictEvent {
             dt: None,
@@ -528,8 +549,7 @@ where
     pub fn predict(&mut self, input: &P::Input, dt: T) -> Result<()> {
         check_dt(dt)?;
         let x = self.estimate.state();
-        let phi = self.process.transition(x, input, dt)?;
-        let qd = self.process.process_noise(x, input, dt)?;
+        let (phi, qd) = self.process.transition_and_noise(x, input, dt)?;
         check_finite(phi.as_slice(), "transition matrix")?;
         check_finite(qd.as_slice(), "process noise covariance")?;
         let state = self.process.propagate(x, input, dt)?;
@@ -746,8 +766,9 @@ where
     /// [`Error::NonFinite`] if the covariance is not finite; observer errors.
     pub fn predict(&mut self, input: &P::Input, dt: T) -> Result<()> {
         check_dt(dt)?;
-        let phi = self.process.transition(&self.nominal, input, dt)?;
-        let qd = self.process.process_noise(&self.nominal, input, dt)?;
+        let (phi, qd) = self
+            .process
+            .transition_and_noise(&self.nominal, input, dt)?;
         check_finite(phi.as_slice(), "transition matrix")?;
         check_finite(qd.as_slice(), "process noise covariance")?;
         let nominal = self.process.propagate(&self.nominal, input, dt)?;
@@ -964,6 +985,61 @@ mod tests {
         }
         ekf.predict(&(), 0.5).unwrap();
         assert_eq!(ekf.estimate().covariance()[(0, 0)], 1.5);
+    }
+
+    /// A model whose Phi and Q_d come only from `transition_and_noise` (the separate
+    /// methods fail): the runners must ask for both at once.
+    struct OnlyJoint;
+    impl ProcessModel<f64, 1> for OnlyJoint {
+        type State = SVector<f64, 1>;
+        type Input = ();
+        fn propagate(&self, s: &Self::State, _: &(), _: f64) -> Result<Self::State> {
+            Ok(*s)
+        }
+        fn transition(&self, _: &Self::State, _: &(), _: f64) -> Result<SMatrix<f64, 1, 1>> {
+            Err(Error::InvalidParameter {
+                name: "transition",
+                reason: "not to be called".into(),
+            })
+        }
+        fn process_noise(&self, _: &Self::State, _: &(), _: f64) -> Result<SMatrix<f64, 1, 1>> {
+            Err(Error::InvalidParameter {
+                name: "process_noise",
+                reason: "not to be called".into(),
+            })
+        }
+        fn transition_and_noise(
+            &self,
+            _: &Self::State,
+            _: &(),
+            dt: f64,
+        ) -> Result<(SMatrix<f64, 1, 1>, SMatrix<f64, 1, 1>)> {
+            Ok((SMatrix::identity() * 2.0, SMatrix::identity() * dt))
+        }
+    }
+    impl ErrorStateModel<f64, 1> for OnlyJoint {
+        fn inject(&self, nominal: &Self::State, error: &SVector<f64, 1>) -> Result<Self::State> {
+            Ok(nominal + error)
+        }
+    }
+
+    #[test]
+    fn runners_take_transition_and_noise_together() {
+        let initial = StateAndCovariance::new(Vector1::zeros(), nalgebra::Matrix1::new(0.5));
+        let mut ekf = ExtendedKalmanFilter::new(OnlyJoint, initial.unwrap());
+        ekf.predict(&(), 0.25).unwrap();
+        // 2 * 0.5 * 2 + 0.25
+        assert_eq!(ekf.estimate().covariance()[(0, 0)], 2.25);
+        let mut eskf =
+            ErrorStateKalmanFilter::new(OnlyJoint, Vector1::zeros(), nalgebra::Matrix1::new(0.5))
+                .unwrap();
+        eskf.predict(&(), 0.25).unwrap();
+        assert_eq!(eskf.covariance()[(0, 0)], 2.25);
+        // The default pairs the two separate methods.
+        assert!(matches!(
+            ScalarNominal.transition_and_noise(&1.0, &0.0, 0.5),
+            Ok((phi, qd)) if phi[(0, 0)] == 1.0 && qd[(0, 0)] == 0.05
+        ));
     }
 
     /// Scalar error-state model with a non-identity reset (like the attitude reset of

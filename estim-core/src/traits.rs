@@ -66,6 +66,22 @@ pub trait ProcessModel<T: Scalar, const N: usize> {
         dt: T,
     ) -> Result<SMatrix<T, N, N>>;
 
+    /// Phi and Q_d together, as the runners ask for them. The default calls
+    /// [`ProcessModel::transition`] then [`ProcessModel::process_noise`]; override it
+    /// when both share work (e.g. Q_d computed from the same discretised system
+    /// matrix as Phi). The result must equal the default's.
+    fn transition_and_noise(
+        &self,
+        state: &Self::State,
+        input: &Self::Input,
+        dt: T,
+    ) -> Result<(SMatrix<T, N, N>, SMatrix<T, N, N>)> {
+        Ok((
+            self.transition(state, input, dt)?,
+            self.process_noise(state, input, dt)?,
+        ))
+    }
+
     /// P_k = Phi P_{k-1} Phi' + Q. Override to exploit the structure of Phi
     /// (e.g. its sparsity); the result must equal this default.
     fn propagate_covariance(

@@ -63,39 +63,81 @@ pub fn joseph_covariance<T: Scalar, const N: usize, const M: usize>(
     cross_covariance: &SMatrix<T, N, M>,
     gain: &SMatrix<T, N, M>,
 ) -> SMatrix<T, N, N> {
-    let pht = covariance * jacobian.transpose();
-    joseph_from_parts(
-        covariance,
-        &pht,
-        jacobian,
-        measurement_noise,
-        Some(cross_covariance),
-        gain,
-    )
+    let pht_m = covariance * jacobian.transpose() + cross_covariance;
+    let s = innovation_covariance(covariance, jacobian, measurement_noise, cross_covariance);
+    joseph_from_parts(covariance, &pht_m, &s, gain)
 }
 
-/// The Joseph-like form with X = I - K H, reassociated so that no N x N x N product
-/// is formed: X P = P - K (P H')', X P X' = X P - ((X P) H') K', X M = M - K (H M).
-/// Same value as (I-KH) P (I-KH)' + K R K' - (I-KH) M K' - K M' (I-KH)'; cost
-/// O(N^2 M) instead of O(N^3).
+/// The Joseph-like form expanded: with A = P H' + M and S = H P H' + H M + M' H' + R,
+///
+/// (I-KH) P (I-KH)' + K R K' - (I-KH) M K' - K M' (I-KH)' = P - K A' - A K' + K S K'
+///
+/// exactly, for any gain K (multiply out the left side). Only the upper triangle is
+/// computed and mirrored, so the result is exactly symmetric; cost N(N+1)/2 (3M)
+/// + N M^2 multiply-adds instead of O(N^3).
 #[inline(always)]
 fn joseph_from_parts<T: Scalar, const N: usize, const M: usize>(
     covariance: &SMatrix<T, N, N>,
-    pht: &SMatrix<T, N, M>,
-    jacobian: &SMatrix<T, M, N>,
-    measurement_noise: &SMatrix<T, M, M>,
-    cross_covariance: Option<&SMatrix<T, N, M>>,
+    pht_m: &SMatrix<T, N, M>,
+    innovation_covariance: &SMatrix<T, M, M>,
     gain: &SMatrix<T, N, M>,
 ) -> SMatrix<T, N, N> {
-    let xp = covariance - gain * pht.transpose();
-    let xpht = pht - gain * (jacobian * pht);
-    let mut sum = xp - xpht * gain.transpose() + gain * (measurement_noise * gain.transpose());
-    if let Some(m) = cross_covariance {
-        let xm = m - gain * (jacobian * m);
-        let cross = xm * gain.transpose();
-        sum -= cross + cross.transpose();
+    let ks = mul_static(gain, innovation_covariance);
+    let mut out = *covariance;
+    for j in 0..N {
+        for i in 0..=j {
+            let mut v = T::zero();
+            for k in 0..M {
+                v += (ks[(i, k)] - pht_m[(i, k)]) * gain[(j, k)] - gain[(i, k)] * pht_m[(j, k)];
+            }
+            // P is symmetric to round-off: average its two triangles like `symmetrize`.
+            let p = if i == j {
+                covariance[(i, i)]
+            } else {
+                (covariance[(i, j)] + covariance[(j, i)]) * lit::<T>(0.5)
+            };
+            out[(i, j)] = p + v;
+            out[(j, i)] = p + v;
+        }
     }
-    symmetrize(&sum)
+    out
+}
+
+/// A B' for static sizes as plain loops (see [`mul_static`]).
+#[inline(always)]
+fn mul_transpose_static<T: Scalar, const R: usize, const K: usize, const C: usize>(
+    a: &SMatrix<T, R, K>,
+    b: &SMatrix<T, C, K>,
+) -> SMatrix<T, R, C> {
+    let mut out = SMatrix::<T, R, C>::zeros();
+    for j in 0..C {
+        for k in 0..K {
+            let bjk = b[(j, k)];
+            for i in 0..R {
+                out[(i, j)] += a[(i, k)] * bjk;
+            }
+        }
+    }
+    out
+}
+
+/// A B for static sizes as plain loops, inlined into the caller (nalgebra's product
+/// is an out-of-line call, which dominates at the sizes of a measurement update).
+#[inline(always)]
+pub(crate) fn mul_static<T: Scalar, const R: usize, const K: usize, const C: usize>(
+    a: &SMatrix<T, R, K>,
+    b: &SMatrix<T, K, C>,
+) -> SMatrix<T, R, C> {
+    let mut out = SMatrix::<T, R, C>::zeros();
+    for j in 0..C {
+        for k in 0..K {
+            let bkj = b[(k, j)];
+            for i in 0..R {
+                out[(i, j)] += a[(i, k)] * bkj;
+            }
+        }
+    }
+    out
 }
 
 /// Multiple of machine epsilon below which S counts as numerically singular (see
@@ -180,12 +222,24 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
 ) -> Result<FactoredInnovation<T, N, M>> {
     let p = prior.covariance();
     let correlated = cross_covariance.iter().any(|v| !v.is_zero());
-    let pht = p * jacobian.transpose();
+    let pht = mul_transpose_static(p, jacobian);
     let s = if correlated {
         innovation_covariance(p, jacobian, measurement_noise, cross_covariance)
     } else {
-        // M = 0: skip the zero products H M (same value as innovation_covariance).
-        symmetrize(&(jacobian * pht + measurement_noise))
+        // M = 0: skip the zero products H M; S = H (P H') + R, upper triangle mirrored
+        // (same value as innovation_covariance up to round-off).
+        let mut s = SMatrix::<T, M, M>::zeros();
+        for j in 0..M {
+            for i in 0..=j {
+                let mut v = (measurement_noise[(i, j)] + measurement_noise[(j, i)]) * lit::<T>(0.5);
+                for l in 0..N {
+                    v += jacobian[(i, l)] * pht[(l, j)];
+                }
+                s[(i, j)] = v;
+                s[(j, i)] = v;
+            }
+        }
+        s
     };
     // A NaN or infinity in H, R, M or P always reaches S (IEEE: NaN * 0 = NaN,
     // inf * 0 = NaN), so one check of S guards them all; the cold path names the
@@ -226,7 +280,7 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
             reciprocal_condition: to_f64(rcond),
         });
     }
-    let nis = innovation.dot(&(inverse * innovation));
+    let nis = innovation.dot(&mul_static(&inverse, innovation));
     if !nis.is_finite() {
         return Err(Error::NonFinite {
             what: "normalised innovation squared",
@@ -246,8 +300,6 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
 pub(crate) fn finish_update<T: Scalar, const N: usize, const M: usize>(
     prior: &StateAndCovariance<T, N>,
     innovation: &SVector<T, M>,
-    jacobian: &SMatrix<T, M, N>,
-    measurement_noise: &SMatrix<T, M, M>,
     cross_covariance: &SMatrix<T, N, M>,
     form: CovarianceUpdate,
     factored: FactoredInnovation<T, N, M>,
@@ -260,13 +312,10 @@ pub(crate) fn finish_update<T: Scalar, const N: usize, const M: usize>(
     } else {
         *pht
     };
-    let gain = pht_m * factored.inverse;
-    let state = prior.state() + gain * innovation;
-    let cross = factored.correlated.then_some(cross_covariance);
+    let gain = mul_static(&pht_m, &factored.inverse);
+    let state = prior.state() + mul_static(&gain, innovation);
     let covariance = match form {
-        CovarianceUpdate::JosephLike => {
-            joseph_from_parts(p, pht, jacobian, measurement_noise, cross, &gain)
-        }
+        CovarianceUpdate::JosephLike => joseph_from_parts(p, &pht_m, &factored.covariance, &gain),
         CovarianceUpdate::Short => symmetrize(&(p - gain * pht_m.transpose())),
     };
     check_finite(state.as_slice(), "posterior state")?;
@@ -305,13 +354,5 @@ pub fn correlated_update<T: Scalar, const N: usize, const M: usize>(
         measurement_noise,
         cross_covariance,
     )?;
-    finish_update(
-        prior,
-        innovation,
-        jacobian,
-        measurement_noise,
-        cross_covariance,
-        form,
-        factored,
-    )
+    finish_update(prior, innovation, cross_covariance, form, factored)
 }

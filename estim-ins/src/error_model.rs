@@ -434,7 +434,19 @@ impl ProcessModel<f64, ERROR_STATES> for InsErrorModel {
         dt: f64,
     ) -> estim_core::Result<ErrorMatrix> {
         check_dt(dt)?;
-        Ok(self.transition_and_noise(state, input, dt).1)
+        Ok(InsErrorModel::transition_and_noise(self, state, input, dt).1)
+    }
+
+    /// Both from one evaluation of the system blocks (the default would build them
+    /// twice, once in `transition` and once in `process_noise`).
+    fn transition_and_noise(
+        &self,
+        state: &InsState,
+        input: &ImuSample,
+        dt: f64,
+    ) -> estim_core::Result<(ErrorMatrix, ErrorMatrix)> {
+        check_dt(dt)?;
+        Ok(InsErrorModel::transition_and_noise(self, state, input, dt))
     }
 
     /// P' = Phi P Phi' + Q exploiting Phi's diagonal bias rows, Phi = [\[N (9x15)\], \[0 D\]]

@@ -187,6 +187,14 @@ fn transition_and_noise_match_the_van_loan_exponential_at_imu_rate() {
         // The trait methods return the same matrices.
         assert_eq!(model.transition(&s, &imu, dt).unwrap(), phi);
         assert_eq!(model.process_noise(&s, &imu, dt).unwrap(), q);
+        // The trait's one-pass override (used by the runners) equals both.
+        let (phi_trait, q_trait) =
+            ProcessModel::transition_and_noise(&model, &s, &imu, dt).unwrap();
+        assert_eq!((phi_trait, q_trait), (phi, q));
+        assert!(matches!(
+            ProcessModel::transition_and_noise(&model, &s, &imu, -dt),
+            Err(estim_core::Error::InvalidParameter { name: "dt", .. })
+        ));
     }
 }
 
