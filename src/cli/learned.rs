@@ -2,12 +2,25 @@
 
 use std::path::Path;
 
-use estim::pipeline::{Config, LearnedSource};
+use anyhow::Context;
+use estim::learned::BeamsNet;
+use estim::pipeline::{beamsnet_inputs, Config, LearnedSource};
 
-/// The BeamsNet sensor, if available in this build. (Wired when estim-learned lands.)
-pub fn sensor(
-    _config: &Config,
-    _model: Option<&Path>,
-) -> anyhow::Result<Option<Box<LearnedSource>>> {
-    Ok(None)
+/// The BeamsNet sensor: the committed model, or `model` (metadata JSON beside it),
+/// with M from the network's sensitivity.
+pub fn sensor(config: &Config, model: Option<&Path>) -> anyhow::Result<Option<Box<LearnedSource>>> {
+    let net = match model {
+        Some(path) => BeamsNet::load(path)
+            .with_context(|| format!("{}: cannot load model", path.display()))?,
+        None => BeamsNet::load_default().context("the committed BeamsNet model")?,
+    };
+    let protocol = if config.dvl.protocol == "v2" {
+        estim::dvl::BeamsNetProtocol::v2()
+    } else {
+        estim::dvl::BeamsNetProtocol::v1()
+    };
+    let geometry = protocol.geometry().clone();
+    Ok(Some(Box::new(move |scenario| {
+        beamsnet_inputs(&net, scenario, &geometry, true)
+    })))
 }

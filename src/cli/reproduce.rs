@@ -25,6 +25,9 @@ pub struct Args {
     /// Machine-readable JSON on stdout instead of tables.
     #[arg(long)]
     json: bool,
+    /// BeamsNet ONNX model to use instead of the committed one (metadata JSON beside it).
+    #[arg(long, value_name = "FILE")]
+    model: Option<PathBuf>,
     /// Write CSV time series and plots (PNG, SVG) into this folder.
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
@@ -58,9 +61,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for s in &mut scenarios {
         apply_faults(s, &config.faults, config.seed)?;
     }
+    let learned = crate::learned::sensor(&config, args.model.as_deref())?;
     let reports: Vec<TrajectoryReport> = scenarios
         .iter()
-        .map(|s| analyse(s, &config, None, config.seed))
+        .map(|s| -> anyhow::Result<TrajectoryReport> {
+            let inputs = match &learned {
+                Some(make) => Some(make(s)?),
+                None => None,
+            };
+            Ok(analyse(s, &config, inputs.as_ref(), config.seed)?)
+        })
         .collect::<Result<_, _>>()?;
     let json = serde_json::to_string_pretty(&serde_json::json!({
         "config": config,

@@ -3,6 +3,7 @@
 
 mod config;
 mod faults;
+mod learned;
 mod montecarlo;
 mod oracle;
 mod report;
@@ -12,6 +13,7 @@ pub mod stats;
 
 pub use config::{Config, DvlSection, FilterSection, ImuSection, MissionSection, SensorSection};
 pub use faults::{apply_faults, DvlOutage, FaultConfig, FaultLog, ImuGap};
+pub use learned::{beamsnet_inputs, complete_beams};
 pub use montecarlo::{
     monte_carlo, LearnedSource, MonteCarloReport, VariantConsistency, ORACLE_NEGLECTED,
     ORACLE_SCALED, ORACLE_TRUE_M,
@@ -57,6 +59,9 @@ pub enum PipelineError {
     /// The DVL crate.
     #[error(transparent)]
     Dvl(#[from] estim_dvl::Error),
+    /// The learned-measurement crate (model files, inference).
+    #[error(transparent)]
+    Learned(#[from] estim_learned::Error),
 }
 
 /// `Result` of the pipeline.

@@ -1,0 +1,97 @@
+//! BeamsNet as the pipeline's learned sensor: network velocities per DVL epoch and,
+//! optionally, M_k from the network's sensitivity.
+
+use estim_core::nalgebra::{Vector3, Vector4};
+use estim_dvl::BeamGeometry;
+use estim_ins::InsErrorModel;
+use estim_learned::{BeamsNet, BeamsNetInput, ImuWindow, NetworkSensitivity, BEAMSNET_WINDOW};
+
+use super::run::filter_imu_spec;
+use super::{LearnedInputs, Result, Scenario};
+
+/// Beams for the network: a missing beam is replaced by its value predicted from the
+/// 3-beam least-squares velocity (A v); fewer than 3 beams give `None`.
+///
+/// BeamsNet was trained on 4 beams; this fallback keeps the network usable through
+/// single-beam dropouts (the LS path uses the 3-beam solution directly).
+pub fn complete_beams(geometry: &BeamGeometry, beams: &Vector4<f64>) -> Option<Vector4<f64>> {
+    if beams.iter().all(|b| b.is_finite()) {
+        return Some(*beams);
+    }
+    let velocity = geometry.solve_nan(beams).velocity()?;
+    let predicted = geometry.beams(&velocity);
+    Some(Vector4::from_fn(|i, _| {
+        if beams[i].is_finite() {
+            beams[i]
+        } else {
+            predicted[i]
+        }
+    }))
+}
+
+/// The network's velocity per DVL epoch (one batched inference) and, if
+/// `with_sensitivity`, M_k per epoch from [`NetworkSensitivity`].
+///
+/// The window of epoch k is the [`BEAMSNET_WINDOW`] IMU samples before the update (the
+/// samples integrated since the previous update at 1 Hz). M_k is linearised along the
+/// scenario's truth states over the window (the filter's nominal differs by its error,
+/// a second-order effect on M). Epochs with less than a full window or fewer than 3
+/// beams get no measurement.
+pub fn beamsnet_inputs(
+    net: &BeamsNet,
+    scenario: &Scenario,
+    geometry: &BeamGeometry,
+    with_sensitivity: bool,
+) -> Result<LearnedInputs> {
+    let n = BEAMSNET_WINDOW;
+    let sensitivity = with_sensitivity.then(|| {
+        NetworkSensitivity::new(
+            net.clone(),
+            InsErrorModel::new(filter_imu_spec(&scenario.imu_spec).unwrap_or(scenario.imu_spec)),
+        )
+    });
+    let mut inputs = Vec::new();
+    let mut slots = Vec::with_capacity(scenario.dvl.len());
+    let mut cross = Vec::with_capacity(scenario.dvl.len());
+    for epoch in &scenario.dvl {
+        let end = epoch.imu_index.min(scenario.imu.len());
+        let beams = if end >= n {
+            complete_beams(geometry, &epoch.beams)
+        } else {
+            None
+        };
+        let Some(beams) = beams else {
+            slots.push(None);
+            cross.push(super::CrossMatrix::zeros());
+            continue;
+        };
+        let window = &scenario.imu[end - n..end];
+        let force: Vec<Vector3<f64>> = window.iter().map(|s| s.specific_force).collect();
+        let rate: Vec<Vector3<f64>> = window.iter().map(|s| s.angular_rate).collect();
+        slots.push(Some(inputs.len()));
+        inputs.push(BeamsNetInput::from_samples(&force, &rate, beams));
+        if let Some(s) = &sensitivity {
+            let imu_window = ImuWindow {
+                states: scenario.truth[end - n..end].to_vec(),
+                imu: window.to_vec(),
+                beams,
+                dt: scenario.imu_dt,
+            };
+            cross.push(s.compute(&imu_window)?);
+        }
+    }
+    let outputs = if inputs.is_empty() {
+        Vec::new()
+    } else {
+        net.velocities(&inputs)?
+    };
+    let velocities = slots
+        .iter()
+        .map(|s| s.and_then(|i| outputs.get(i).copied()))
+        .collect();
+    Ok(LearnedInputs {
+        velocities,
+        noise_covariance: net.noise_covariance(),
+        sensitivity: with_sensitivity.then_some(cross),
+    })
+}
