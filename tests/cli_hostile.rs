@@ -278,3 +278,38 @@ fn montecarlo_hostile_config() {
     );
     assert_one_line_error(&run(&bad), &bad, None);
 }
+
+#[test]
+fn wrong_model_file_is_one_line_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let meta =
+        std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("models/beamsnet.json")).unwrap();
+    let cases: [(&str, &[u8]); 3] = [
+        ("empty", b""),
+        ("garbage", &[0xde, 0xad, 0xbe, 0xef, 0, 1, 2, 3]),
+        ("text", b"not an onnx model\n"),
+    ];
+    for (name, bytes) in cases {
+        let sub = dir.path().join(name);
+        std::fs::create_dir_all(&sub).unwrap();
+        write(&sub, "beamsnet.json", &meta);
+        let model = write(&sub, "beamsnet.onnx", bytes);
+        let out_dir = sub.join("out");
+        let m = model.to_str().unwrap();
+        let o = out_dir.to_str().unwrap();
+        assert_one_line_error(
+            &estim(&["reproduce", "--model", m, "--out", o]),
+            &model,
+            None,
+        );
+        assert_nothing_in(&out_dir);
+        assert_one_line_error(&estim(&["beamsnet", "eval", "--model", m]), &model, None);
+    }
+    // A missing model file.
+    let missing = dir.path().join("nowhere/beamsnet.onnx");
+    assert_one_line_error(
+        &estim(&["reproduce", "--model", missing.to_str().unwrap()]),
+        &missing,
+        None,
+    );
+}
