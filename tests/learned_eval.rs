@@ -7,9 +7,9 @@
 use std::path::{Path, PathBuf};
 
 use estim::datasets::{load_dvl, load_gt, trajectory_files};
-use estim_core::nalgebra::{UnitQuaternion, Vector3};
+use estim_core::nalgebra::Vector3;
 use estim_dvl::BeamsNetProtocol;
-use estim_ins::{ImuSpec, Trajectory, TrajectorySample};
+use estim_ins::{ImuSpec, Trajectory};
 use estim_learned::{evaluate, synthesize, BeamsNet};
 
 fn data_root() -> Option<PathBuf> {
@@ -37,18 +37,7 @@ fn load(root: &Path, n: u32) -> (Trajectory, Vec<(f64, Vector3<f64>)>) {
     let samples = load_gt(&files.gt)
         .unwrap()
         .iter()
-        .map(|g| TrajectorySample {
-            time: g.time,
-            latitude: g.latitude,
-            longitude: g.longitude,
-            height: g.altitude,
-            velocity_ned: Vector3::from(g.velocity_ned),
-            attitude: UnitQuaternion::from_euler_angles(
-                g.roll_pitch_yaw[0],
-                g.roll_pitch_yaw[1],
-                g.roll_pitch_yaw[2],
-            ),
-        })
+        .map(|g| g.trajectory_sample())
         .collect();
     let trajectory = Trajectory::new(samples).unwrap();
     let dvl = load_dvl(&files.dvl)

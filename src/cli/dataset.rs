@@ -4,9 +4,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use estim::datasets::{data_root, load_dvl, load_gt, trajectory_files};
-use estim_core::nalgebra::{UnitQuaternion, Vector3};
+use estim_core::nalgebra::Vector3;
 use estim_dvl::BeamsNetProtocol;
-use estim_ins::{ImuSpec, Trajectory, TrajectorySample};
+use estim_ins::{ImuSpec, Trajectory};
 use estim_learned::{dataset_row, synthesize, write_npy, DATASET_COLUMNS, IMU_RATE_HZ};
 
 /// Trajectories BeamsNet is trained on: A-KIT 1-3 and 5-12 (4 and 13 are held out).
@@ -57,22 +57,7 @@ pub fn load_akit(dir: &Path, n: u32) -> anyhow::Result<(Trajectory, DvlVelocitie
     let files = trajectory_files(dir, n)?;
     let gt = load_gt(&files.gt)?;
     let dvl = load_dvl(&files.dvl)?;
-    let samples = gt
-        .iter()
-        .map(|g| TrajectorySample {
-            time: g.time,
-            latitude: g.latitude,
-            longitude: g.longitude,
-            height: g.altitude,
-            velocity_ned: Vector3::from(g.velocity_ned),
-            // ZYX Euler angles: C_b^n = Rz(yaw) Ry(pitch) Rx(roll).
-            attitude: UnitQuaternion::from_euler_angles(
-                g.roll_pitch_yaw[0],
-                g.roll_pitch_yaw[1],
-                g.roll_pitch_yaw[2],
-            ),
-        })
-        .collect();
+    let samples = gt.iter().map(|g| g.trajectory_sample()).collect();
     let trajectory = Trajectory::new(samples)
         .with_context(|| format!("{}: not a usable trajectory", files.gt.display()))?;
     let dvl = dvl
