@@ -4,33 +4,14 @@
 //! Data rule: if the data is absent the tests print why and return, unless
 //! `ESTIM_REQUIRE_DATA=1`. Run with `--nocapture` to see the figures.
 
-use std::path::PathBuf;
-
 use estim::datasets::{load_dvl, load_gt, trajectory_files};
 use estim_dvl::nalgebra::Vector3;
 use estim_dvl::{BeamsNetProtocol, Calibrator, DvlMeasurement, TrajectorySample};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-fn data_root() -> Option<PathBuf> {
-    let required = std::env::var("ESTIM_REQUIRE_DATA").is_ok_and(|v| v == "1");
-    let found = std::env::var_os("ESTIM_DATA_DIR")
-        .map(PathBuf::from)
-        .into_iter()
-        .chain([
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"),
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data"),
-        ])
-        .find(|p| trajectory_files(p, 4).is_ok());
-    if found.is_none() {
-        assert!(
-            !required,
-            "ESTIM_REQUIRE_DATA=1 but the A-KIT data was not found"
-        );
-        eprintln!("skipped: A-KIT data not found (set ESTIM_DATA_DIR)");
-    }
-    found
-}
+mod common;
+use common::data_root;
 
 fn load(root: &std::path::Path, n: u32) -> (Vec<TrajectorySample>, Vec<DvlMeasurement>) {
     let files = trajectory_files(root, n).unwrap();

@@ -4,7 +4,7 @@
 //! Data rule: if the data is absent the tests print why and return, unless
 //! `ESTIM_REQUIRE_DATA=1`. Run with `--nocapture` to see the table.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use estim::datasets::{load_dvl, load_gt, trajectory_files};
 use estim_core::nalgebra::Vector3;
@@ -12,25 +12,8 @@ use estim_dvl::BeamsNetProtocol;
 use estim_ins::{ImuSpec, Trajectory};
 use estim_learned::{evaluate, synthesize, BeamsNet};
 
-fn data_root() -> Option<PathBuf> {
-    let required = std::env::var("ESTIM_REQUIRE_DATA").is_ok_and(|v| v == "1");
-    let found = std::env::var_os("ESTIM_DATA_DIR")
-        .map(PathBuf::from)
-        .into_iter()
-        .chain([
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"),
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data"),
-        ])
-        .find(|p| trajectory_files(p, 4).is_ok());
-    if found.is_none() {
-        assert!(
-            !required,
-            "ESTIM_REQUIRE_DATA=1 but the A-KIT data was not found"
-        );
-        eprintln!("skipped: A-KIT data not found (set ESTIM_DATA_DIR)");
-    }
-    found
-}
+mod common;
+use common::data_root;
 
 fn load(root: &Path, n: u32) -> (Trajectory, Vec<(f64, Vector3<f64>)>) {
     let files = trajectory_files(root, n).unwrap();

@@ -1,29 +1,14 @@
 //! End-to-end: `estim reproduce --json` on the embedded default and on A-KIT, and the
 //! Monte Carlo consistency of the filter fed the true cross-covariance.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 use estim::pipeline::{monte_carlo, Config, ORACLE_NEGLECTED, ORACLE_TRUE_M};
 use serde_json::Value;
 
-fn data_dir() -> Option<PathBuf> {
-    let candidates = [
-        std::env::var_os("ESTIM_DATA_DIR").map(PathBuf::from),
-        Some(Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data")),
-    ];
-    let found = candidates
-        .into_iter()
-        .flatten()
-        .find(|p| p.join("a-kit").is_dir());
-    if found.is_none() {
-        if std::env::var("ESTIM_REQUIRE_DATA").as_deref() == Ok("1") {
-            panic!("ESTIM_REQUIRE_DATA=1 but no A-KIT data (set ESTIM_DATA_DIR or place ../shared/data)");
-        }
-        eprintln!("skipping: A-KIT data not found (set ESTIM_DATA_DIR)");
-    }
-    found
-}
+mod common;
+use common::data_root as data_dir;
 
 fn reproduce_json(extra: &[&str]) -> Value {
     let out = Command::new(env!("CARGO_BIN_EXE_estim"))
