@@ -6,6 +6,8 @@
 //!   Jacobian-vector products);
 //! - [`BeamsNet`]: BeamsNetV1 (IMU windows + 4 beams -> body velocity);
 //! - [`synthesize`], [`dataset_row`], [`write_npy`]: BeamsNet training data;
+//! - [`RowOverlaps`]: rows shared between recorded trajectories (keeps windows that
+//!   touch a held-out trajectory out of training and validation);
 //! - [`metrics`](fn@metrics), [`speed_metrics`], [`evaluate`]: the paper's RMSE, MAE, R^2, VAF;
 //! - [`NetworkSensitivity`], [`Empirical`]: the cross-covariance M between the INS
 //!   process noise and the network's output error, from the network's own sensitivity
@@ -40,6 +42,7 @@ mod measurement;
 mod metadata;
 mod metrics;
 mod onnx;
+mod overlap;
 mod sensitivity;
 
 pub use beamsnet::{default_model_path, BeamsNet, BeamsNetInput, BEAMSNET_WINDOW};
@@ -54,4 +57,5 @@ pub use metadata::{
     BeamGeometryMetadata, InputMetadata, ModelMetadata, OutputMetadata, METADATA_FORMAT,
 };
 pub use metrics::{metrics, speed_metrics, Metrics};
+pub use overlap::{row_key, row_span, RowKey, RowOverlaps};
 pub use sensitivity::{CrossMatrix, Empirical, EmpiricalEstimate, ImuWindow, NetworkSensitivity};

@@ -7,12 +7,14 @@
 mod akit;
 mod beams;
 mod locate;
+mod overlaps;
 
 pub use akit::{
     load_dvl, load_gt, parse_dvl, parse_gt, DvlSample, GtSample, DVL_HEADER, GT_HEADER,
 };
 pub use beams::{load_beams, parse_beams, BeamRow};
 pub use locate::{akit_dir, data_root, trajectory_files, TrajectoryFiles, DATA_DIR_ENV};
+pub use overlaps::{akit_overlaps, akit_row_keys, touches_held_out, WINDOW_MARGIN_ROWS};
 
 use std::path::PathBuf;
 
