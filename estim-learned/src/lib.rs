@@ -6,6 +6,8 @@
 //!   Jacobian-vector products);
 //! - [`BeamsNet`]: BeamsNetV1 (IMU windows + 4 beams -> body velocity);
 //! - [`synthesize`], [`dataset_row`], [`write_npy`]: BeamsNet training data;
+//! - [`TwoBeamsNet`]: IMU window + two beams -> body velocity; [`ImuNetworkSensitivity`],
+//!   [`ImuNetworkEmpirical`]: M for any IMU-window network;
 //! - [`RowOverlaps`]: rows shared between recorded trajectories (keeps windows that
 //!   touch a held-out trajectory out of training and validation);
 //! - [`metrics`](fn@metrics), [`speed_metrics`], [`evaluate`]: the paper's RMSE, MAE, R^2, VAF;
@@ -38,12 +40,14 @@ mod beamsnet;
 mod dataset;
 mod error;
 mod evaluation;
+mod imu_network;
 mod measurement;
 mod metadata;
 mod metrics;
 mod onnx;
 mod overlap;
 mod sensitivity;
+mod two_beams;
 
 pub use beamsnet::{default_model_path, BeamsNet, BeamsNetInput, BEAMSNET_WINDOW};
 pub use dataset::{
@@ -52,6 +56,7 @@ pub use dataset::{
 };
 pub use error::{Error, Result};
 pub use evaluation::{evaluate, Evaluation};
+pub use imu_network::{ImuNetworkEmpirical, ImuNetworkSensitivity, ImuNetworkWindow};
 pub use measurement::{OnnxMeasurement, DEFAULT_SENSITIVITY_STEP};
 pub use metadata::{
     BeamGeometryMetadata, InputMetadata, ModelMetadata, OutputMetadata, METADATA_FORMAT,
@@ -59,3 +64,4 @@ pub use metadata::{
 pub use metrics::{metrics, speed_metrics, Metrics};
 pub use overlap::{row_key, row_span, RowKey, RowOverlaps};
 pub use sensitivity::{CrossMatrix, Empirical, EmpiricalEstimate, ImuWindow, NetworkSensitivity};
+pub use two_beams::{default_two_beams_model_path, TwoBeamsNet};

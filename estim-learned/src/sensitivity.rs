@@ -81,7 +81,7 @@ impl ImuWindow {
 }
 
 /// Per-sample white-noise variances (accelerometer, gyroscope) of the error model.
-fn per_sample_variances(model: &InsErrorModel, dt: f64) -> (f64, f64) {
+pub(crate) fn per_sample_variances(model: &InsErrorModel, dt: f64) -> (f64, f64) {
     let psd = model.noise_psd();
     (psd[0] / dt, psd[3] / dt)
 }
@@ -186,7 +186,10 @@ impl CrossCovariance<f64, InsState, ERROR_STATES, 3> for NetworkSensitivity {
 }
 
 /// Error state `reference - nominal` (true = nominal + error) between two INS states.
-fn error_state(reference: &InsState, nominal: &InsState) -> SMatrix<f64, ERROR_STATES, 1> {
+pub(crate) fn error_state(
+    reference: &InsState,
+    nominal: &InsState,
+) -> SMatrix<f64, ERROR_STATES, 1> {
     let (rn, re) = radii_of_curvature(nominal.latitude);
     let h = nominal.height;
     let mut e = SMatrix::<f64, ERROR_STATES, 1>::zeros();

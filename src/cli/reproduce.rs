@@ -31,6 +31,10 @@ pub struct Args {
     /// Write CSV time series and plots (PNG, SVG) into this folder.
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
+    /// Scenario: `paper` (default), `two-beams` (beams 1-2 only for 120 s, the
+    /// two-beams network), `outage` (not built yet).
+    #[arg(long, value_enum, default_value = "paper")]
+    scenario: crate::learned_scenarios::ScenarioKind,
 }
 
 /// Run it.
@@ -60,6 +64,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut scenarios = scenarios;
     for s in &mut scenarios {
         apply_faults(s, &config.faults, config.seed)?;
+    }
+    match args.scenario {
+        crate::learned_scenarios::ScenarioKind::Paper => {}
+        crate::learned_scenarios::ScenarioKind::TwoBeams => {
+            let studies = crate::learned_scenarios::reproduce_two_beams(&scenarios, &config)?;
+            if args.json {
+                println!("{}", serde_json::to_string_pretty(&studies)?);
+            } else {
+                studies
+                    .iter()
+                    .for_each(crate::learned_scenarios::print_study);
+            }
+            return Ok(());
+        }
+        crate::learned_scenarios::ScenarioKind::Outage => {
+            anyhow::bail!("--scenario outage is not built yet (estim issue 12, step 4)")
+        }
     }
     let learned = crate::learned::sensor(&config, args.model.as_deref())?;
     let reports: Vec<TrajectoryReport> = scenarios

@@ -4,6 +4,7 @@
 mod config;
 mod faults;
 mod learned;
+mod learned_scenarios;
 mod montecarlo;
 mod oracle;
 mod report;
@@ -14,6 +15,12 @@ pub mod stats;
 pub use config::{Config, DvlSection, FilterSection, ImuSection, MissionSection, SensorSection};
 pub use faults::{apply_faults, DvlOutage, FaultConfig, FaultLog, ImuGap};
 pub use learned::{beamsnet_inputs, complete_beams};
+pub use learned_scenarios::{
+    max_correlation, two_beams_measurements, two_beams_monte_carlo, two_beams_study,
+    LearnedMonteCarlo, LearnedVariant, LossWindowSummary, MeanInterval, TwoBeamsMeasurements,
+    TwoBeamsStudy, INS_ONLY_DURING_LOSS, TWO_BEAMS_EMPIRICAL, TWO_BEAMS_NEGLECTED,
+    TWO_BEAMS_NETWORK, TWO_BEAMS_SCALED,
+};
 pub use montecarlo::{
     monte_carlo, LearnedSource, MonteCarloReport, VariantConsistency, ORACLE_NEGLECTED,
     ORACLE_SCALED, ORACLE_TRUE_M,
@@ -26,9 +33,10 @@ pub use report::{
 };
 pub use run::{
     error_state, filter_imu_spec, initial_covariance, initial_nominal, run_filter,
-    run_filter_with_observer, CrossMatrix, CrossSource, FilterRun, MeasurementSet,
+    run_filter_per_epoch_noise, run_filter_with_observer, CrossMatrix, CrossSource, FilterRun,
+    MeasurementSet,
 };
-pub use scenario::{DvlEpoch, Scenario};
+pub use scenario::{BeamLoss, DvlEpoch, Scenario};
 
 use std::path::PathBuf;
 

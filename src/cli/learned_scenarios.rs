@@ -1,0 +1,154 @@
+//! `estim reproduce --scenario two-beams` and `estim montecarlo --learned two-beams`:
+//! learned sensors that must use the IMU.
+
+use estim::learned::{BeamsNet, TwoBeamsNet};
+use estim::pipeline::{
+    two_beams_monte_carlo, two_beams_study, BeamLoss, Config, LearnedMonteCarlo, Scenario,
+    TwoBeamsStudy,
+};
+
+use anyhow::Context;
+
+/// The `--scenario` of `estim reproduce`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ScenarioKind {
+    /// The paper: BeamsNet with four beams throughout.
+    Paper,
+    /// Beams 1 and 2 only for 120 s: the two-beams network (IMU window + 2 beams).
+    TwoBeams,
+    /// A 60 s full DVL outage (not built yet: reported as an error).
+    Outage,
+}
+
+/// The `--learned` of `estim montecarlo`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LearnedKind {
+    /// BeamsNet, four beams (the standard Monte Carlo table).
+    Beamsnet,
+    /// The two-beams scenario.
+    TwoBeams,
+    /// A 60 s full DVL outage (not built yet: reported as an error).
+    Outage,
+}
+
+/// Realizations of the empirical M per update in `estim reproduce --scenario two-beams`.
+pub const EMPIRICAL_REALIZATIONS: usize = 400;
+
+fn models() -> anyhow::Result<(BeamsNet, TwoBeamsNet)> {
+    Ok((
+        BeamsNet::load_default().context("the committed BeamsNet model")?,
+        TwoBeamsNet::load_default().context("the committed two-beams model")?,
+    ))
+}
+
+/// The two-beams study on each scenario.
+pub fn reproduce_two_beams(
+    scenarios: &[Scenario],
+    config: &Config,
+) -> anyhow::Result<Vec<TwoBeamsStudy>> {
+    let (beamsnet, net) = models()?;
+    scenarios
+        .iter()
+        .map(|s| {
+            Ok(two_beams_study(
+                s,
+                config,
+                &beamsnet,
+                &net,
+                &BeamLoss::two_beams(),
+                EMPIRICAL_REALIZATIONS,
+                config.seed,
+            )?)
+        })
+        .collect()
+}
+
+/// Print a study as a table.
+pub fn print_study(s: &TwoBeamsStudy) {
+    println!(
+        "== {}: beams 1-2 only for 120 s ({} two-beams updates); paper rho used {:.3}",
+        s.scenario, s.loss_epochs, s.paper_rho
+    );
+    println!(
+        "   correlation network output error / IMU-driven INS error (mean over the loss of the largest |rho_ij|): {:.3e}",
+        s.output_imu_correlation
+    );
+    if let Some(d) = s.network_vs_empirical_relative {
+        println!("   max |M_network - M_empirical| / max |M_empirical|: {d:.3}");
+    }
+    println!(
+        "   {:<32} {:>10} {:>10} {:>10} {:>10} | {:>9} {:>9} {:>9}",
+        "variant (loss window | whole run)",
+        "NEES",
+        "NIS",
+        "pos RMSE",
+        "vel RMSE",
+        "NEES",
+        "pos RMSE",
+        "vel RMSE"
+    );
+    for (f, l) in s.filters.iter().zip(&s.loss_window) {
+        println!(
+            "   {:<32} {:>10.2} {:>10.2} {:>9.3}m {:>8.4}m/s | {:>9.2} {:>8.3}m {:>7.4}m/s",
+            f.name,
+            l.nees_mean,
+            l.nis_mean,
+            l.position_rmse_m,
+            l.velocity_rmse_mps,
+            f.nees_average,
+            f.position_error_m.rmse,
+            f.velocity_error_mps.rmse
+        );
+    }
+}
+
+/// `estim montecarlo --learned two-beams`.
+pub fn monte_carlo_two_beams(
+    config: &Config,
+    runs: usize,
+    seed: u64,
+    tick: &(dyn Fn() + Sync),
+) -> anyhow::Result<LearnedMonteCarlo> {
+    let (beamsnet, net) = models()?;
+    Ok(two_beams_monte_carlo(
+        config, &beamsnet, &net, runs, seed, tick,
+    )?)
+}
+
+/// Print a learned Monte Carlo as a table.
+pub fn print_monte_carlo(r: &LearnedMonteCarlo) {
+    println!(
+        "Monte Carlo ({}): {} runs from seed {}",
+        r.scenario, r.runs, r.first_seed
+    );
+    println!("({})", r.note);
+    println!(
+        "{:<32} {:>8} {:>15} {:>8} {:>8} {:>26} {:>28} {:>10}",
+        "variant",
+        "NEES",
+        "band",
+        "in band",
+        "NIS",
+        "pos RMSE mean [lo, hi] m",
+        "vel RMSE mean [lo, hi] m/s",
+        "corr"
+    );
+    for (name, v) in &r.variants {
+        println!(
+            "{:<32} {:>8.2} {:>7.2}-{:<7.2} {:>7.1}% {:>8.2} {:>8.3} [{:.3}, {:.3}] {:>9.4} [{:.4}, {:.4}] {:>10.2e}",
+            name,
+            v.nees_mean,
+            v.nees_band[0],
+            v.nees_band[1],
+            100.0 * v.nees_in_band_fraction,
+            v.nis_mean,
+            v.position_rmse.mean,
+            v.position_rmse.lo,
+            v.position_rmse.hi,
+            v.velocity_rmse.mean,
+            v.velocity_rmse.lo,
+            v.velocity_rmse.hi,
+            v.output_imu_correlation
+        );
+    }
+}

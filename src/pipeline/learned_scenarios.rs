@@ -1,0 +1,550 @@
+//! Learned sensors that must use the IMU: the two-beams scenario (a scripted loss of two
+//! of the four DVL beams, during which a network maps the IMU window plus the two
+//! remaining beams to the velocity), its filter variants, and their Monte Carlo.
+//!
+//! Outside the loss the filter is aided by BeamsNet (4 beams, M neglected: its
+//! network-derived M is about 1e-8, see README). During the loss the variants differ
+//! only in the two-beams network's M: from the network's sensitivity, empirical (Monte
+//! Carlo over IMU noise), neglected, or the paper's rho-heuristic at its largest valid
+//! rho; a fifth variant receives no update during the loss (INS only; least squares
+//! needs three beams).
+
+use estim_core::chi_square_band;
+use estim_core::nalgebra::{Matrix3, SMatrix, Vector3};
+use estim_dvl::BeamGeometry;
+use estim_ins::{InsErrorModel, ERROR_STATES};
+use estim_learned::{
+    BeamsNet, ImuNetworkEmpirical, ImuNetworkSensitivity, ImuNetworkWindow, TwoBeamsNet,
+    BEAMSNET_WINDOW,
+};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::run::filter_imu_spec;
+use super::stats::finite_mean;
+use super::{
+    beamsnet_inputs, run_filter_per_epoch_noise, summarise, BeamLoss, Config, CrossMatrix,
+    CrossSource, FilterRun, FilterSummary, MeasurementSet, PipelineError, Result, Scenario,
+};
+
+/// Two-beams network, M from its sensitivity.
+pub const TWO_BEAMS_NETWORK: &str = "two beams, M from network";
+/// Two-beams network, M by Monte Carlo over the IMU noise.
+pub const TWO_BEAMS_EMPIRICAL: &str = "two beams, M empirical";
+/// Two-beams network, M neglected.
+pub const TWO_BEAMS_NEGLECTED: &str = "two beams, M neglected";
+/// Two-beams network, the paper's M = rho sqrt(diag Q) sqrt(diag R)' at its largest
+/// valid rho.
+pub const TWO_BEAMS_SCALED: &str = "two beams, M = rho max (paper)";
+/// No update during the loss.
+pub const INS_ONLY_DURING_LOSS: &str = "INS only during the loss";
+
+/// The two-beams network's measurements over a scenario's beam-loss epochs.
+#[derive(Debug, Clone)]
+pub struct TwoBeamsMeasurements {
+    /// Velocity per DVL epoch (`None` outside the loss or without a full window).
+    pub velocities: Vec<Option<Vector3<f64>>>,
+    /// M per DVL epoch from the network's sensitivity (zero where no measurement).
+    pub network_m: Vec<CrossMatrix>,
+    /// M per DVL epoch by Monte Carlo, if asked for.
+    pub empirical_m: Option<Vec<CrossMatrix>>,
+    /// Per measured epoch: the largest |correlation| between a velocity or attitude
+    /// component of the IMU-driven INS error over the window and a component of the
+    /// network's output error, M_ij / sqrt(Q_w,ii R_jj).
+    pub output_imu_correlation: Vec<f64>,
+    /// The network's R.
+    pub noise_covariance: Matrix3<f64>,
+}
+
+/// The two-beams network's outputs and M over the epochs `epochs` of `scenario`.
+///
+/// Linearised along the scenario's truth over each window, as
+/// [`beamsnet_inputs`]. `empirical_realizations` = 0 skips the Monte Carlo M.
+pub fn two_beams_measurements(
+    net: &TwoBeamsNet,
+    scenario: &Scenario,
+    epochs: &[usize],
+    empirical_realizations: usize,
+    seed: u64,
+) -> Result<TwoBeamsMeasurements> {
+    let n = BEAMSNET_WINDOW;
+    let error_model =
+        InsErrorModel::new(filter_imu_spec(&scenario.imu_spec).unwrap_or(scenario.imu_spec));
+    let sensitivity = ImuNetworkSensitivity::new(net.measurement().clone(), error_model.clone());
+    let empirical = (empirical_realizations > 0).then(|| {
+        ImuNetworkEmpirical::new(
+            net.measurement().clone(),
+            error_model,
+            empirical_realizations,
+            seed,
+        )
+    });
+    let r = estim_core::LearnedMeasurement::noise_covariance(net.measurement());
+    let [a, b] = net.beams_used();
+    let len = scenario.dvl.len();
+    let mut velocities = vec![None; len];
+    let mut network_m = vec![CrossMatrix::zeros(); len];
+    let mut empirical_m = empirical.as_ref().map(|_| vec![CrossMatrix::zeros(); len]);
+    let mut correlation = Vec::new();
+    let mut windows = Vec::new();
+    for &k in epochs {
+        let Some(epoch) = scenario.dvl.get(k) else {
+            return Err(PipelineError::Invalid(format!(
+                "beam-loss epoch {k} beyond the scenario's {len} DVL epochs"
+            )));
+        };
+        let end = epoch.imu_index.min(scenario.imu.len());
+        let beams = [epoch.beams[a], epoch.beams[b]];
+        if end < n || beams.iter().any(|v| !v.is_finite()) {
+            continue;
+        }
+        windows.push((
+            k,
+            ImuNetworkWindow {
+                states: scenario.truth[end - n..end].to_vec(),
+                imu: scenario.imu[end - n..end].to_vec(),
+                others: vec![estim_core::nalgebra::DMatrix::from_column_slice(
+                    2, 1, &beams,
+                )],
+                dt: scenario.imu_dt,
+            },
+        ));
+    }
+    let batch: Vec<_> = windows.iter().map(|(_, w)| w.inputs_with(None)).collect();
+    let outputs = if batch.is_empty() {
+        Vec::new()
+    } else {
+        net.measurement().measure_batch(&batch)?
+    };
+    for ((k, window), y) in windows.iter().zip(outputs) {
+        velocities[*k] = Some(y);
+        let (m, q_w) = sensitivity.compute_with_window_noise(window)?;
+        network_m[*k] = m;
+        correlation.push(max_correlation(&m, &q_w, &r));
+        if let (Some(e), Some(out)) = (&empirical, empirical_m.as_mut()) {
+            out[*k] = e.estimate(window)?.cross_covariance;
+        }
+    }
+    Ok(TwoBeamsMeasurements {
+        velocities,
+        network_m,
+        empirical_m,
+        output_imu_correlation: correlation,
+        noise_covariance: r,
+    })
+}
+
+/// max over velocity and attitude rows i and outputs j of |M_ij| / sqrt(Q_ii R_jj).
+pub fn max_correlation(
+    m: &CrossMatrix,
+    q: &SMatrix<f64, ERROR_STATES, ERROR_STATES>,
+    r: &Matrix3<f64>,
+) -> f64 {
+    let mut best = 0.0_f64;
+    for i in 3..9 {
+        for j in 0..3 {
+            let d = (q[(i, i)] * r[(j, j)]).sqrt();
+            if d > 0.0 {
+                best = best.max((m[(i, j)] / d).abs());
+            }
+        }
+    }
+    best
+}
+
+/// Summary of one variant over the loss window.
+#[derive(Debug, Clone, Serialize)]
+pub struct LossWindowSummary {
+    /// Mean NEES over the DVL epochs of the loss (NaN epochs skipped).
+    pub nees_mean: f64,
+    /// Position error RMSE over the loss epochs [m].
+    pub position_rmse_m: f64,
+    /// Velocity error RMSE over the loss epochs [m/s].
+    pub velocity_rmse_mps: f64,
+    /// Mean NIS of the updates during the loss.
+    pub nis_mean: f64,
+}
+
+/// Everything reported for one scenario of the two-beams study.
+#[derive(Debug, Clone, Serialize)]
+pub struct TwoBeamsStudy {
+    /// Scenario name.
+    pub scenario: String,
+    /// DVL epochs of the loss with a two-beams measurement.
+    pub loss_epochs: usize,
+    /// rho used by the paper's variant (largest valid over the run, times 0.99).
+    pub paper_rho: f64,
+    /// Mean over the loss epochs of the largest |correlation| between the network's
+    /// output error and the IMU-driven INS error (velocity and attitude components).
+    pub output_imu_correlation: f64,
+    /// max |M_network - M_empirical| / max |M_empirical| over the loss epochs (if the
+    /// empirical M was computed).
+    pub network_vs_empirical_relative: Option<f64>,
+    /// Per variant, the whole run.
+    pub filters: Vec<FilterSummary>,
+    /// Per variant, the loss window only (same order as `filters`).
+    pub loss_window: Vec<LossWindowSummary>,
+    /// Raw runs (not serialised).
+    #[serde(skip)]
+    pub runs: Vec<FilterRun>,
+}
+
+/// Run the two-beams study on `scenario` (the loss is applied here).
+pub fn two_beams_study(
+    scenario: &Scenario,
+    config: &Config,
+    beamsnet: &BeamsNet,
+    net: &TwoBeamsNet,
+    loss: &BeamLoss,
+    empirical_realizations: usize,
+    seed: u64,
+) -> Result<TwoBeamsStudy> {
+    let mut scenario = scenario.clone();
+    let epochs = scenario.lose_beams(loss)?;
+    let geometry: BeamGeometry = if config.dvl.protocol == "v2" {
+        estim_dvl::BeamsNetProtocol::v2().geometry().clone()
+    } else {
+        estim_dvl::BeamsNetProtocol::v1().geometry().clone()
+    };
+    // BeamsNet outside the loss (fewer than 3 beams give no BeamsNet measurement).
+    let four = beamsnet_inputs(beamsnet, &scenario, &geometry, false)?;
+    let two = two_beams_measurements(net, &scenario, &epochs, empirical_realizations, seed)?;
+    let mismatch = if scenario.trajectory.is_some() {
+        Matrix3::identity() * config.dvl.akit_reference_mismatch_std.powi(2)
+    } else {
+        Matrix3::zeros()
+    };
+    let r_four = four.noise_covariance + mismatch;
+    let r_two = two.noise_covariance + mismatch;
+    let mut velocities = four.velocities.clone();
+    let mut noise = vec![None; scenario.dvl.len()];
+    for (k, v) in two.velocities.iter().enumerate() {
+        if let Some(v) = v {
+            velocities[k] = Some(*v);
+            noise[k] = Some(r_two);
+        }
+    }
+    let set = MeasurementSet {
+        velocities,
+        noise_covariance: r_four,
+    };
+    let ins_only = MeasurementSet {
+        velocities: four.velocities.clone(),
+        noise_covariance: r_four,
+    };
+    let neglected = run_filter_per_epoch_noise(
+        TWO_BEAMS_NEGLECTED,
+        &scenario,
+        config,
+        &set,
+        &noise,
+        &CrossSource::Zero,
+        seed,
+    )?;
+    // The paper's heuristic at the largest rho valid at every update of this run.
+    let paper_rho = 0.99
+        * neglected
+            .largest_valid_rho
+            .iter()
+            .copied()
+            .filter(|r| r.is_finite())
+            .fold(1.0_f64, f64::min);
+    let mut jobs: Vec<(&str, &MeasurementSet, CrossSource)> = vec![
+        (
+            TWO_BEAMS_NETWORK,
+            &set,
+            CrossSource::PerEpoch(two.network_m.clone()),
+        ),
+        (TWO_BEAMS_SCALED, &set, CrossSource::Scaled(paper_rho)),
+        (INS_ONLY_DURING_LOSS, &ins_only, CrossSource::Zero),
+    ];
+    if let Some(m) = &two.empirical_m {
+        jobs.insert(
+            1,
+            (TWO_BEAMS_EMPIRICAL, &set, CrossSource::PerEpoch(m.clone())),
+        );
+    }
+    let mut runs: Vec<FilterRun> = jobs
+        .par_iter()
+        .map(|(name, s, cross)| {
+            run_filter_per_epoch_noise(name, &scenario, config, s, &noise, cross, seed)
+        })
+        .collect::<Result<_>>()?;
+    // Order: network, empirical (if any), neglected, paper, INS only.
+    let at = if two.empirical_m.is_some() { 2 } else { 1 };
+    runs.insert(at, neglected);
+    let filters = runs.iter().map(summarise).collect::<Result<Vec<_>>>()?;
+    let in_loss: Vec<usize> = epochs
+        .iter()
+        .copied()
+        .filter(|&k| two.velocities.get(k).is_some_and(Option::is_some))
+        .collect();
+    let loss_window = runs
+        .iter()
+        .map(|run| loss_summary(run, &epochs, &set))
+        .collect();
+    let network_vs_empirical_relative = two.empirical_m.as_ref().map(|emp| {
+        let (mut diff, mut scale) = (0.0_f64, 0.0_f64);
+        for &k in &in_loss {
+            diff = diff.max((two.network_m[k] - emp[k]).amax());
+            scale = scale.max(emp[k].amax());
+        }
+        diff / scale
+    });
+    Ok(TwoBeamsStudy {
+        scenario: scenario.name.clone(),
+        loss_epochs: in_loss.len(),
+        paper_rho,
+        output_imu_correlation: finite_mean(&two.output_imu_correlation),
+        network_vs_empirical_relative,
+        filters,
+        loss_window,
+        runs,
+    })
+}
+
+/// NEES, errors and NIS of `run` over the DVL epochs `epochs`.
+fn loss_summary(run: &FilterRun, epochs: &[usize], set: &MeasurementSet) -> LossWindowSummary {
+    let pick =
+        |xs: &[f64]| -> Vec<f64> { epochs.iter().filter_map(|&k| xs.get(k).copied()).collect() };
+    let rms = |xs: Vec<f64>| finite_mean(&xs.iter().map(|x| x * x).collect::<Vec<_>>()).sqrt();
+    // NIS is recorded per attempted update: map epochs to update indices.
+    let mut update_index = Vec::with_capacity(set.velocities.len());
+    let mut u = 0;
+    for v in &set.velocities {
+        update_index.push(v.map(|_| {
+            u += 1;
+            u - 1
+        }));
+    }
+    let nis: Vec<f64> = epochs
+        .iter()
+        .filter_map(|&k| update_index.get(k).copied().flatten())
+        .filter_map(|i| run.nis.get(i).copied())
+        .collect();
+    LossWindowSummary {
+        nees_mean: finite_mean(&pick(&run.nees)),
+        position_rmse_m: rms(pick(&run.position_error)),
+        velocity_rmse_mps: rms(pick(&run.velocity_error)),
+        nis_mean: if run.name == INS_ONLY_DURING_LOSS {
+            f64::NAN
+        } else {
+            finite_mean(&nis)
+        },
+    }
+}
+
+/// Mean and 95 % interval (2.5th and 97.5th percentiles over the runs).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct MeanInterval {
+    /// Mean over the runs.
+    pub mean: f64,
+    /// 2.5th percentile.
+    pub lo: f64,
+    /// 97.5th percentile.
+    pub hi: f64,
+}
+
+impl MeanInterval {
+    /// Of the finite values of `xs` (NaN fields if none).
+    pub fn of(xs: &[f64]) -> Self {
+        let mut v: Vec<f64> = xs.iter().copied().filter(|x| x.is_finite()).collect();
+        if v.is_empty() {
+            return Self {
+                mean: f64::NAN,
+                lo: f64::NAN,
+                hi: f64::NAN,
+            };
+        }
+        v.sort_by(f64::total_cmp);
+        let q = |p: f64| {
+            // Linear interpolation between order statistics.
+            let x = p * (v.len() - 1) as f64;
+            let (i, f) = (x.floor() as usize, x - x.floor());
+            v[i] + f * (v[(i + 1).min(v.len() - 1)] - v[i])
+        };
+        Self {
+            mean: v.iter().sum::<f64>() / v.len() as f64,
+            lo: q(0.025),
+            hi: q(0.975),
+        }
+    }
+}
+
+/// One variant over the Monte Carlo runs (`estim montecarlo --learned ... --json`).
+#[derive(Debug, Clone, Serialize)]
+pub struct LearnedVariant {
+    /// Mean over runs and loss epochs of the NEES (15 states).
+    pub nees_mean: f64,
+    /// 95 % band of the run-averaged NEES at one epoch.
+    pub nees_band: [f64; 2],
+    /// Fraction of loss epochs whose run-averaged NEES lies in `nees_band`.
+    pub nees_in_band_fraction: f64,
+    /// Mean over runs and loss updates of the NIS (3 dof; NaN without updates).
+    pub nis_mean: f64,
+    /// Per-run position RMSE over the loss epochs [m].
+    pub position_rmse: MeanInterval,
+    /// Per-run velocity RMSE over the loss epochs [m/s].
+    pub velocity_rmse: MeanInterval,
+    /// Mean over runs of the network's output / IMU-driven error correlation.
+    pub output_imu_correlation: f64,
+}
+
+/// The Monte Carlo of a learned scenario.
+#[derive(Debug, Clone, Serialize)]
+pub struct LearnedMonteCarlo {
+    /// Scenario (`two-beams`).
+    pub scenario: String,
+    /// Runs.
+    pub runs: usize,
+    /// Seeds `first_seed..first_seed + runs`.
+    pub first_seed: u64,
+    /// What the statistics cover.
+    pub note: String,
+    /// Per variant.
+    pub variants: std::collections::BTreeMap<String, LearnedVariant>,
+}
+
+/// `runs` simulated missions with the two-beams loss (seeds `first_seed..`).
+pub fn two_beams_monte_carlo(
+    config: &Config,
+    beamsnet: &BeamsNet,
+    net: &TwoBeamsNet,
+    runs: usize,
+    first_seed: u64,
+    tick: &(dyn Fn() + Sync),
+) -> Result<LearnedMonteCarlo> {
+    let loss = BeamLoss::two_beams();
+    let studies: Vec<(TwoBeamsStudy, Vec<usize>)> = (0..runs)
+        .into_par_iter()
+        .map(|i| {
+            let seed = first_seed + i as u64;
+            let scenario = Scenario::simulated(config, seed)?;
+            let mut probe = scenario.clone();
+            let epochs = probe.lose_beams(&loss)?;
+            let study = two_beams_study(&scenario, config, beamsnet, net, &loss, 0, seed)?;
+            tick();
+            Ok((study, epochs))
+        })
+        .collect::<Result<_>>()?;
+    let band = chi_square_band(15, runs.max(1), 0.95)?;
+    let mut variants = std::collections::BTreeMap::new();
+    let Some((first, epochs)) = studies.first() else {
+        return Err(PipelineError::Invalid("--runs must be at least 1".into()));
+    };
+    for (v, run0) in first.runs.iter().enumerate() {
+        let per_epoch: Vec<f64> = epochs
+            .iter()
+            .map(|&k| {
+                studies
+                    .iter()
+                    .map(|(s, _)| s.runs[v].nees.get(k).copied().unwrap_or(f64::NAN))
+                    .sum::<f64>()
+                    / runs as f64
+            })
+            .collect();
+        let in_band = per_epoch
+            .iter()
+            .filter(|x| **x >= band.lower && **x <= band.upper)
+            .count() as f64
+            / per_epoch.len().max(1) as f64;
+        let loss: Vec<&LossWindowSummary> =
+            studies.iter().map(|(s, _)| &s.loss_window[v]).collect();
+        let uses_network = run0.name != INS_ONLY_DURING_LOSS;
+        variants.insert(
+            run0.name.clone(),
+            LearnedVariant {
+                nees_mean: finite_mean(&per_epoch),
+                nees_band: [band.lower, band.upper],
+                nees_in_band_fraction: in_band,
+                nis_mean: finite_mean(&loss.iter().map(|l| l.nis_mean).collect::<Vec<_>>()),
+                position_rmse: MeanInterval::of(
+                    &loss.iter().map(|l| l.position_rmse_m).collect::<Vec<_>>(),
+                ),
+                velocity_rmse: MeanInterval::of(
+                    &loss.iter().map(|l| l.velocity_rmse_mps).collect::<Vec<_>>(),
+                ),
+                output_imu_correlation: if uses_network {
+                    finite_mean(
+                        &studies
+                            .iter()
+                            .map(|(s, _)| s.output_imu_correlation)
+                            .collect::<Vec<_>>(),
+                    )
+                } else {
+                    f64::NAN
+                },
+            },
+        );
+    }
+    Ok(LearnedMonteCarlo {
+        scenario: "two-beams".into(),
+        runs,
+        first_seed,
+        note: format!(
+            "simulated missions; beams {} and {} only from {} s for {} s; NEES, NIS and RMSE over the DVL epochs of the loss; \
+             intervals are the 2.5/97.5 percentiles of the per-run values; M empirical is not run here (cost), see estim reproduce --scenario two-beams",
+            loss.kept[0] + 1,
+            loss.kept[1] + 1,
+            loss.start_s,
+            loss.duration_s
+        ),
+        variants,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mean_interval_matches_hand_computed_percentiles() {
+        // 0..=40: mean 20; 2.5th percentile at position 0.025 * 40 = 1, 97.5th at 39.
+        let xs: Vec<f64> = (0..=40).map(f64::from).collect();
+        let m = MeanInterval::of(&xs);
+        assert_eq!((m.mean, m.lo, m.hi), (20.0, 1.0, 39.0));
+        // Interpolated: [0, 10] -> 0.25 and 9.75; NaN ignored.
+        let m = MeanInterval::of(&[10.0, f64::NAN, 0.0]);
+        assert_eq!((m.mean, m.lo, m.hi), (5.0, 0.25, 9.75));
+        assert!(MeanInterval::of(&[]).mean.is_nan());
+    }
+
+    #[test]
+    fn max_correlation_is_normalised_by_both_variances() {
+        let mut m = CrossMatrix::zeros();
+        let mut q = SMatrix::<f64, ERROR_STATES, ERROR_STATES>::identity() * 4.0;
+        m[(4, 1)] = 0.3; // velocity east x output y
+        m[(0, 0)] = 100.0; // position rows are not counted
+        q[(4, 4)] = 9.0;
+        let r = Matrix3::from_diagonal(&Vector3::new(1.0, 0.25, 1.0));
+        // 0.3 / sqrt(9 * 0.25) = 0.2
+        assert!((max_correlation(&m, &q, &r) - 0.2).abs() < 1e-15);
+    }
+
+    #[test]
+    fn beam_loss_blanks_the_other_beams_inside_the_window_only() {
+        let config = Config::default();
+        let mut s = Scenario::simulated(&config, 3).unwrap();
+        let before = s.clone();
+        let loss = BeamLoss::two_beams();
+        let affected = s.lose_beams(&loss).unwrap();
+        // 1 Hz DVL: epochs at t = 200 .. 319 s.
+        assert_eq!(affected.len(), 120);
+        let t0 = s.truth[0].time;
+        for (k, (a, b)) in s.dvl.iter().zip(&before.dvl).enumerate() {
+            let t = s.truth[a.imu_index].time - t0;
+            let inside = (200.0..320.0).contains(&t);
+            assert_eq!(affected.contains(&k), inside, "epoch {k} at {t} s");
+            assert_eq!(a.beams[0], b.beams[0]);
+            assert_eq!(a.beams[1], b.beams[1]);
+            for i in 2..4 {
+                assert_eq!(a.beams[i].is_nan(), inside);
+            }
+        }
+        let bad = BeamLoss {
+            kept: [1, 1],
+            ..loss
+        };
+        assert!(s.lose_beams(&bad).is_err());
+    }
+}
