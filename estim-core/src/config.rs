@@ -86,6 +86,8 @@ pub struct FilterConfig {
     form: CovarianceUpdate,
     gate: Gate,
     joint_check: JointCheck,
+    track_accumulated_noise: bool,
+    window_capacity: usize,
     /// Gate threshold for M = 1..=CACHED_SIZES (index M-1), so the per-update gate
     /// costs no quantile computation.
     thresholds: [Option<f64>; CACHED_SIZES],
@@ -97,6 +99,8 @@ impl Default for FilterConfig {
             form: CovarianceUpdate::default(),
             gate: Gate::None,
             joint_check: JointCheck::default(),
+            track_accumulated_noise: true,
+            window_capacity: 0,
             thresholds: [None; CACHED_SIZES],
         }
     }
@@ -109,6 +113,8 @@ impl FilterConfig {
             form: CovarianceUpdate::default(),
             gate: Gate::None,
             joint_check: JointCheck::default(),
+            track_accumulated_noise: true,
+            window_capacity: 0,
         }
     }
 
@@ -127,6 +133,18 @@ impl FilterConfig {
         self.joint_check
     }
 
+    /// Whether the runners accumulate Q_acc and Phi_acc between updates (for
+    /// [`crate::CrossCovariance`] models and the joint check of one-step updates).
+    pub fn track_accumulated_noise(&self) -> bool {
+        self.track_accumulated_noise
+    }
+
+    /// How many process steps the runners keep for exact windowed cross-covariances
+    /// (0: none, nothing recorded; see [`crate::WindowedCrossCovariance`]).
+    pub fn window_capacity(&self) -> usize {
+        self.window_capacity
+    }
+
     /// NIS threshold for a measurement of size `m` (cached for small sizes).
     pub fn gate_threshold(&self, m: usize) -> Result<Option<f64>> {
         match m {
@@ -143,6 +161,8 @@ pub struct FilterConfigBuilder {
     form: CovarianceUpdate,
     gate: Gate,
     joint_check: JointCheck,
+    track_accumulated_noise: bool,
+    window_capacity: usize,
 }
 
 impl FilterConfigBuilder {
@@ -164,6 +184,31 @@ impl FilterConfigBuilder {
         }
     }
 
+    /// Accumulate Q_acc and Phi_acc between updates (default `true`). Turn it off when
+    /// every update uses [`crate::Zero`], [`crate::Fixed`] or a
+    /// [`crate::WindowedCrossCovariance`]: predict then does no accumulation work.
+    /// Models that read Q_acc ([`crate::ScaledCorrelation`]) fail with
+    /// [`Error::NotTracked`] without it, and the joint check of a one-step update
+    /// with M != 0 cannot be made (`Report`: `None`; `Reject`: that error).
+    pub fn track_accumulated_noise(self, track_accumulated_noise: bool) -> Self {
+        Self {
+            track_accumulated_noise,
+            ..self
+        }
+    }
+
+    /// Keep the last `steps` process steps (transition, state, input, dt) and the
+    /// updates among them, so that a [`crate::WindowedCrossCovariance`] whose
+    /// measurement noise shares up to `steps` steps of process noise gets its exact
+    /// M (default 0: nothing kept, windowed updates fail with
+    /// [`Error::WindowUnavailable`]). Memory: `steps` records, allocated once.
+    pub fn window_capacity(self, steps: usize) -> Self {
+        Self {
+            window_capacity: steps,
+            ..self
+        }
+    }
+
     /// Validate and precompute the gate thresholds.
     ///
     /// # Errors
@@ -177,6 +222,8 @@ impl FilterConfigBuilder {
             form: self.form,
             gate: self.gate,
             joint_check: self.joint_check,
+            track_accumulated_noise: self.track_accumulated_noise,
+            window_capacity: self.window_capacity,
             thresholds,
         })
     }

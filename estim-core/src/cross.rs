@@ -83,6 +83,12 @@ impl<T: Scalar, S, const N: usize, const M: usize> CrossCovariance<T, S, N, M>
                 reason: format!("{} is outside [-1, 1]", to_f64(self.rho)),
             });
         }
+        if !context.accumulation_tracked {
+            return Err(Error::NotTracked {
+                what: "accumulated process noise (for ScaledCorrelation)",
+                hint: "FilterConfig::builder().track_accumulated_noise(true)",
+            });
+        }
         Ok(Self::unit(context.accumulated_process_noise, context.measurement_noise) * self.rho)
     }
 }

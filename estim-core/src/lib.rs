@@ -128,6 +128,7 @@ mod runner;
 mod scalar;
 mod traits;
 mod update;
+pub mod window;
 
 pub use config::{FilterConfig, FilterConfigBuilder, Gate, JointCheck};
 pub use consistency::{average_over_runs, chi_square_band, monte_carlo, nees, nis, ChiSquareBand};
@@ -148,5 +149,6 @@ pub use traits::{
 pub use update::{
     correlated_update, innovation_covariance, joseph_covariance, CovarianceUpdate, UpdateOutcome,
 };
+pub use window::{ProcessStep, StepWindow, WindowedCrossCovariance};
 
 pub use nalgebra;

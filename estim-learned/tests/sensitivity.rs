@@ -80,6 +80,7 @@ fn cross_covariance_trait_checks_the_joint_covariance() {
     let ctx = CrossCovarianceContext {
         accumulated_process_noise: &q,
         accumulated_transition: &p,
+        accumulation_tracked: true,
         measurement_noise: &r,
         jacobian: &h,
         measurement: &y,
