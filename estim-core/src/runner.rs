@@ -406,6 +406,8 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         dt: Option<T>,
         state: &S,
         covariance: &SMatrix<T, N, N>,
+        transition: &SMatrix<T, N, N>,
+        process_noise: &SMatrix<T, N, N>,
     ) -> Result<()>
     where
         O: Observer<T, S, N>,
@@ -415,6 +417,8 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
             state,
             covariance,
             propagations_since_update: self.accumulated.steps,
+            transition,
+            process_noise,
         })
     }
 
@@ -423,11 +427,19 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         report: &UpdateReport<T, N, M>,
         state: &S,
         covariance: &SMatrix<T, N, N>,
+        prior_covariance: &SMatrix<T, N, N>,
+        jacobian: &SMatrix<T, M, N>,
     ) -> Result<()>
     where
         O: Observer<T, S, N>,
     {
         let event = UpdateEvent {
+            prior_covariance,
+            jacobian: jacobian.as_slice(),
+            noise_covariance: report.noise_covariance.as_slice(),
+            cross_covariance: report.cross_covariance.as_slice(),
+            innovation_covariance: report.innovation_covariance.as_slice(),
+            gain: report.gain.as_ref().map(|g| g.as_slice()),
             state,
             covariance,
             innovation: report.innovation.as_slice(),
@@ -611,8 +623,13 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             &self.process_noise,
             |q, phi, qd| propagate_symmetric(phi, q, qd),
         );
-        self.shared
-            .notify_predict(None, self.estimate.state(), self.estimate.covariance())
+        self.shared.notify_predict(
+            None,
+            self.estimate.state(),
+            self.estimate.covariance(),
+            &self.transition,
+            &self.process_noise,
+        )
     }
 
     fn update_from<C, W>(
@@ -635,13 +652,16 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             &self.measurement_noise,
         )?;
         self.shared.record_update(&attempt, &self.observation, None);
-        if let Some(posterior) = attempt.posterior {
-            self.estimate = posterior;
-        }
+        let prior = match attempt.posterior {
+            Some(posterior) => std::mem::replace(&mut self.estimate, posterior),
+            None => self.estimate.clone(),
+        };
         self.shared.notify_update(
             &attempt.report,
             self.estimate.state(),
             self.estimate.covariance(),
+            prior.covariance(),
+            &self.observation,
         )?;
         Ok(attempt.report)
     }
@@ -788,8 +808,13 @@ where
             .record_predict(before.state(), input, Some(dt), &phi, &qd, |q, phi, qd| {
                 process.propagate_covariance(q, phi, qd)
             });
-        self.shared
-            .notify_predict(Some(dt), self.estimate.state(), self.estimate.covariance())
+        self.shared.notify_predict(
+            Some(dt),
+            self.estimate.state(),
+            self.estimate.covariance(),
+            &phi,
+            &qd,
+        )
     }
 
     fn update_from<Mm, C, W, const M: usize>(
@@ -817,13 +842,16 @@ where
             &noise,
         )?;
         self.shared.record_update(&attempt, &jacobian, None);
-        if let Some(posterior) = attempt.posterior {
-            self.estimate = posterior;
-        }
+        let prior = match attempt.posterior {
+            Some(posterior) => std::mem::replace(&mut self.estimate, posterior),
+            None => self.estimate.clone(),
+        };
         self.shared.notify_update(
             &attempt.report,
             self.estimate.state(),
             self.estimate.covariance(),
+            prior.covariance(),
+            &jacobian,
         )?;
         Ok(attempt.report)
     }
@@ -996,7 +1024,7 @@ where
                 process.propagate_covariance(q, phi, qd)
             });
         self.shared
-            .notify_predict(Some(dt), &self.nominal, &self.covariance)
+            .notify_predict(Some(dt), &self.nominal, &self.covariance, &phi, &qd)
     }
 
     fn update_from<Mm, C, W, const M: usize>(
@@ -1041,12 +1069,18 @@ where
         }
         self.shared
             .record_update(&attempt, &jacobian, reset.as_ref());
+        let prior_covariance = self.covariance;
         if let Some((nominal, covariance)) = committed {
             self.nominal = nominal;
             self.covariance = covariance;
         }
-        self.shared
-            .notify_update(&attempt.report, &self.nominal, &self.covariance)?;
+        self.shared.notify_update(
+            &attempt.report,
+            &self.nominal,
+            &self.covariance,
+            &prior_covariance,
+            &jacobian,
+        )?;
         Ok(attempt.report)
     }
 
