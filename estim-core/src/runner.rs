@@ -1228,6 +1228,69 @@ mod tests {
         assert_eq!(kf.propagations_since_update(), 1);
     }
 
+    /// The commit rule: an observer's error is returned after the predict or update
+    /// was committed (module docs).
+    #[test]
+    fn observer_error_leaves_the_committed_result() {
+        struct Fails;
+        impl<S, const N: usize> Observer<f64, S, N> for Fails {
+            fn on_predict(&mut self, _: &PredictEvent<'_, f64, S, N>) -> Result<()> {
+                Err(Error::Observer("disk full".into()))
+            }
+            fn on_update(&mut self, _: &UpdateEvent<'_, f64, S, N>) -> Result<()> {
+                Err(Error::Observer("disk full".into()))
+            }
+        }
+        let mut reference = cv_filter();
+        let mut kf = cv_filter().with_observer(Fails);
+        reference.predict().unwrap();
+        assert!(matches!(kf.predict(), Err(Error::Observer(_))));
+        assert_eq!(kf.estimate(), reference.estimate());
+        assert_eq!(kf.propagations_since_update(), 1);
+        reference.update(&Vector1::new(0.4), &Zero).unwrap();
+        assert!(matches!(
+            kf.update(&Vector1::new(0.4), &Zero),
+            Err(Error::Observer(_))
+        ));
+        assert_eq!(kf.estimate(), reference.estimate());
+        assert_eq!(kf.propagations_since_update(), 0);
+    }
+
+    /// With accumulation off, a model that needs Q_acc fails with a typed error and
+    /// Zero / Fixed still work.
+    #[test]
+    fn untracked_accumulation_is_refused_where_needed() {
+        let config = FilterConfig::builder()
+            .track_accumulated_noise(false)
+            .build()
+            .unwrap();
+        let mut kf = cv_filter().with_config(config);
+        kf.predict().unwrap();
+        kf.predict().unwrap();
+        assert_eq!(*kf.accumulated_process_noise(), Matrix2::zeros());
+        assert_eq!(kf.propagations_since_update(), 2);
+        let err = kf
+            .update(&Vector1::new(0.1), &crate::ScaledCorrelation { rho: 0.1 })
+            .unwrap_err();
+        assert!(matches!(err, Error::NotTracked { .. }), "{err}");
+        let report = kf
+            .update(&Vector1::new(0.1), &Fixed(Matrix2x1::new(0.001, 0.002)))
+            .unwrap();
+        assert_eq!(report.joint_min_eigenvalue, None);
+        let reject = FilterConfig::builder()
+            .track_accumulated_noise(false)
+            .joint_check(JointCheck::Reject)
+            .build()
+            .unwrap();
+        let mut kf = cv_filter().with_config(reject);
+        kf.predict().unwrap();
+        assert!(kf.update(&Vector1::new(0.1), &Zero).is_ok());
+        assert!(matches!(
+            kf.update(&Vector1::new(0.1), &Fixed(Matrix2x1::new(0.001, 0.002))),
+            Err(Error::NotTracked { .. })
+        ));
+    }
+
     #[test]
     fn report_policy_exposes_negative_eigenvalue() {
         let mut kf = cv_filter();
