@@ -16,13 +16,45 @@
 //!
 //! Time index: M_k pairs the process noise accumulated since the previous
 //! measurement with the current measurement noise. Between two measurements the
-//! runners accumulate (Q_acc, Phi_acc start at 0 and I after each measurement):
+//! runners accumulate (Q_acc, Phi_acc start at 0 and I after each measurement;
+//! `FilterConfig::track_accumulated_noise(false)` turns this off):
 //!
 //! ```text
 //! Q_acc <- Phi Q_acc Phi' + Q_d        Phi_acc <- Phi Phi_acc
 //! ```
 //!
-//! and hand both to the [`CrossCovariance`] through [`CrossCovarianceContext`].
+//! and hand both to a one-step [`CrossCovariance`] through [`CrossCovarianceContext`].
+//! That is exact when the measurement noise is correlated with the accumulated noise
+//! as a whole (e.g. one predict per update). It is **not** exact when the noise shares
+//! only some of the steps (a learned sensor's input window), when Phi != I, or when
+//! other sensors update inside the window: a fixed share of Q_acc is right only for
+//! Phi = I.
+//!
+//! ## Exact cross-covariance over a window (multi-rate, several sensors)
+//!
+//! A [`WindowedCrossCovariance`] supplies, for each process step j of its
+//! measurement's window, D_j = Cov(G_j w_j, v). With
+//! `FilterConfig::window_capacity(L_max)` the runners record each step (state before
+//! it, input, dt, Phi) and each accepted update (J (I - K H), H' S^-1 H, H' S^-1 nu),
+//! and `update_windowed` computes, in one pass over the window,
+//!
+//! ```text
+//! C <- Phi_j C + D_j            each step of the window
+//! on another update A:  E[v] += C' H_A' S_A^-1 nu_A,  Var(v) -= C' H_A' S_A^-1 H_A C,
+//!                       C <- J (I - K_A H_A) C
+//! M = C,  innovation y - h(x) - E[v],  R replaced by Var(v)
+//! ```
+//!
+//! which equals joint-Gaussian conditioning of the stacked
+//! [x_0; w_1..w_K; v; other sensors' noises] (`tests/windowed.rs`: 36 sizes, 1..60
+//! predicts, windows 1..K, a second sensor inside the window, before it or at the
+//! same epoch; KF, EKF, ESKF; `tests/windowed_nonlinear.rs`: EKF/ESKF against the
+//! linearised reference). Invariants (module [`window`]): memory bounded by
+//! `L_max` recorded steps, allocated once; nothing recorded with capacity 0 (the
+//! default), so predict costs what it did; a correlated update inside another
+//! measurement's window (e.g. a window longer than the update interval: coloured
+//! noise) is [`Error::ColouredMeasurementNoise`], never approximated; a window
+//! longer than what is recorded is [`Error::WindowUnavailable`].
 //!
 //! ## The update (Simon, *Optimal State Estimation*, 2006, sec. 7.1)
 //!
@@ -62,7 +94,10 @@
 //! measurement, which leaves the state untouched and is reported as
 //! [`UpdateStatus::RejectedByGate`], not as an error. [`Observer`]s receive every
 //! prediction and update (argmin's executor pattern), so writers and plots stay out
-//! of the numerical code. Sizes are const generics: a 15-state filter does not
+//! of the numerical code; the events carry Phi, Q_d, H, R, M, S and K, so a smoother
+//! can record the forward pass. Commit rule: a predict or update either fails before
+//! touching anything or commits, then notifies; an observer's error is returned with
+//! the result committed. Sizes are const generics: a 15-state filter does not
 //! allocate per step (the optional joint eigenvalue check does, see [`JointCheck`]).
 //!
 //! ## Consistency

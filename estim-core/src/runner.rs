@@ -28,7 +28,7 @@ use crate::{
 pub struct UpdateReport<T: Scalar, const N: usize, const M: usize> {
     /// Accepted, or rejected by the innovation gate (state untouched).
     pub status: UpdateStatus,
-    /// Innovation y - h(x) - E[v] (E[v] = [`UpdateReport::noise_mean`], zero unless
+    /// Innovation y - h(x) - E\[v\] (E\[v\] = [`UpdateReport::noise_mean`], zero unless
     /// other updates inside a windowed measurement's window observed part of v).
     pub innovation: SVector<T, M>,
     /// Innovation covariance S = H P H' + H M + M' H' + R.

@@ -30,7 +30,7 @@
 //!
 //! (joint-Gaussian conditioning of [e; v] on y_A; Simon 2006 sec. 7.1 for the one-step
 //! case, Bar-Shalom, Li & Kirubarajan 2001 sec. 8.3 for the augmented state). The
-//! update of v then uses innovation y - h(x) - E[v], R replaced by Var(v | ...), and
+//! update of v then uses innovation y - h(x) - E\[v\], R replaced by Var(v | ...), and
 //! M = C: the posterior equals joint-Gaussian conditioning of the stacked
 //! [x_0; w_1..w_K; v; other sensors' noises] (tested in `tests/windowed.rs`).
 //!
