@@ -11,6 +11,8 @@ use std::process::{Command, Output, Stdio};
 
 use serde_json::Value;
 
+mod common;
+
 const README: &str = include_str!("../README.md");
 
 fn estim(args: &[&str], cwd: &Path) -> Output {
@@ -194,6 +196,45 @@ fn every_command_speaks_one_schema() {
         assert!(variant(&doc["velocity"], id)["rmse_mps"].is_number());
     }
     assert!(doc["inputs"]["model"].is_string() && doc["inputs"]["seed"].is_u64());
+}
+
+#[test]
+fn dvl_calibrate_json_speaks_the_schema() {
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    let files = estim::datasets::trajectory_files(&root, 13).expect("trajectory 13");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (gt, dvl) = (files.gt.to_string_lossy(), files.dvl.to_string_lossy());
+    let out = estim(
+        &["dvl", "calibrate", "--gt", &gt, "--dvl", &dvl, "--json"],
+        dir.path(),
+    );
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let doc = json_of(&out);
+    assert_schema(&doc, "dvl calibrate");
+    assert_eq!(doc["inputs"]["gt"].as_str(), Some(gt.as_ref()));
+    for (key, n) in [
+        ("lever_arm_m", 3),
+        ("scale_factor_error", 1),
+        ("mounting_misalignment_rad", 3),
+        ("time_offset_s", 1),
+    ] {
+        for field in ["estimate", "standard_error"] {
+            let values = doc[key][field].as_array().expect(key);
+            assert_eq!(values.len(), n, "{key}.{field}");
+            assert!(values
+                .iter()
+                .all(|v| v.as_f64().is_some_and(f64::is_finite)));
+        }
+    }
+    assert!(doc["samples"].as_u64().is_some_and(|n| n > 100));
+    assert_eq!(doc["residual_rms_mps"].as_array().map(Vec::len), Some(3));
 }
 
 #[test]

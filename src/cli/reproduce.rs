@@ -127,7 +127,10 @@ fn print_report(out: &mut String, r: &TrajectoryReport) -> std::fmt::Result {
         "  {:<10} {:>10} {:>10} {:>10} {:>10}",
         "method", "RMSE [m/s]", "MAE [m/s]", "R^2", "VAF [%]"
     )?;
-    for (id, m) in &r.velocity {
+    // LS first, then the learned sources.
+    let mut rows: Vec<_> = r.velocity.iter().collect();
+    rows.sort_by_key(|(id, _)| (id.as_str() != estim::pipeline::LS, id.as_str()));
+    for (id, m) in rows {
         writeln!(
             out,
             "  {:<10} {:>10.6} {:>10.6} {:>10.6} {:>10.4}",
