@@ -33,9 +33,9 @@ pub enum Marker {
 pub struct Style {
     /// Colour.
     pub color: RGBColor,
-    /// Stroke width [px].
+    /// Stroke width \[px\].
     pub width: u32,
-    /// Dash length and gap [px]; `None` for a solid line.
+    /// Dash length and gap \[px\]; `None` for a solid line.
     pub dash: Option<(u32, u32)>,
     /// Marker.
     pub marker: Marker,
@@ -126,7 +126,7 @@ pub struct Geometry {
     pub x: (f64, f64),
     /// Y range.
     pub y: (f64, f64),
-    /// Plotting area (width, height) [px].
+    /// Plotting area (width, height) \[px\].
     pub pixels: (u32, u32),
 }
 
@@ -325,7 +325,7 @@ where
 /// One panel of an error plot: the error of one axis against truth and its
 /// +-3 sigma bound from the filter's covariance.
 pub struct ErrorPanel<'a> {
-    /// Axis label with unit (e.g. "north error [m]").
+    /// Axis label with unit (e.g. "north error \[m\]").
     pub y_label: &'a str,
     /// Error per epoch.
     pub error: Vec<f64>,

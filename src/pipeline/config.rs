@@ -119,7 +119,7 @@ pub struct SensorSection {
     pub white_noise_density: f64,
     /// Gauss-Markov bias instability σ [m/s^2 or rad/s].
     pub bias_instability: f64,
-    /// Gauss-Markov correlation time [s]. TOML key `bias_time_constant_s` (the old
+    /// Gauss-Markov correlation time \[s\]. TOML key `bias_time_constant_s` (the old
     /// `bias_time_constant` is still accepted).
     #[serde(rename = "bias_time_constant_s", alias = "bias_time_constant")]
     pub bias_time_constant: f64,

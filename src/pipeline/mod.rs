@@ -62,7 +62,7 @@ pub enum PipelineError {
     FilterStopped {
         /// Index of the DVL epoch being processed (0-based).
         epoch: usize,
-        /// Time since the start of the scenario [s].
+        /// Time since the start of the scenario \[s\].
         time_s: f64,
         /// What the filter core reported.
         #[source]

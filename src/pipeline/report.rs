@@ -64,7 +64,7 @@ pub struct FilterFailure {
     pub seed: u64,
     /// DVL epoch (0-based) at which it stopped, if the failure is tied to one.
     pub epoch: Option<usize>,
-    /// Time since the start of the scenario [s], if known.
+    /// Time since the start of the scenario \[s\], if known.
     pub time_s: Option<f64>,
     /// What went wrong.
     pub reason: String,

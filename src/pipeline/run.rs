@@ -53,8 +53,8 @@ pub struct FilterRun {
     pub time: Vec<f64>,
     /// Diagonal of P.
     pub covariance_diagonal: Vec<[f64; 15]>,
-    /// Error against truth per axis (truth minus estimate): position N, E, D [m],
-    /// velocity N, E, D [m/s], misalignment about N, E, D [rad]; for the per-axis
+    /// Error against truth per axis (truth minus estimate): position N, E, D \[m\],
+    /// velocity N, E, D [m/s], misalignment about N, E, D \[rad\]; for the per-axis
     /// error plots with their +-3 sigma bounds from `covariance_diagonal`.
     pub axis_error: Vec<[f64; 9]>,
     /// |position error| [m].
