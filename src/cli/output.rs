@@ -105,3 +105,37 @@ pub fn is_broken_pipe(e: &anyhow::Error) -> bool {
             .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn files_are_staged_inside_the_target_and_appear_on_commit() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let target = dir.path().join("out");
+        let staged = StagedDir::new(&target).expect("writable");
+        let file = staged.path("a.csv");
+        // Inside the target: only the target needs to be writable.
+        assert_eq!(file.parent().and_then(Path::parent), Some(target.as_path()));
+        std::fs::write(&file, "x").expect("write");
+        assert!(!target.join("a.csv").exists(), "visible before commit");
+        staged.commit().expect("commit");
+        assert!(target.join("a.csv").is_file());
+        let names: Vec<_> = std::fs::read_dir(&target)
+            .expect("list")
+            .filter_map(|e| e.ok().map(|e| e.file_name()))
+            .collect();
+        assert_eq!(names.len(), 1, "{names:?}");
+        // Dropped without commit: nothing left, and a target it created is removed.
+        let other = dir.path().join("other");
+        let staged = StagedDir::new(&other).expect("writable");
+        std::fs::write(staged.path("b.csv"), "x").expect("write");
+        drop(staged);
+        assert!(!other.exists());
+        // An existing target keeps its files when a run fails.
+        let staged = StagedDir::new(&target).expect("writable");
+        drop(staged);
+        assert!(target.join("a.csv").is_file());
+    }
+}
