@@ -63,6 +63,9 @@ struct CalibrateArgs {
     /// Hold the time offset at zero instead of estimating it.
     #[arg(long)]
     no_time_offset: bool,
+    /// JSON (the schema of every `--json`, see README "Command line") instead of CSV.
+    #[arg(long)]
+    json: bool,
 }
 
 /// Run `estim dvl`.
@@ -73,8 +76,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Command::Solve(a) => solve(&a)?,
         Command::Calibrate(a) => calibrate(&a)?,
     };
-    print!("{output}");
-    Ok(())
+    crate::output::emit(&output)
 }
 
 fn solve(args: &SolveArgs) -> anyhow::Result<String> {
@@ -123,6 +125,9 @@ fn calibrate(args: &CalibrateArgs) -> anyhow::Result<String> {
         .estimate_time_offset(!args.no_time_offset)
         .build()?;
     let c = calibrator.calibrate(&trajectory, &log)?;
+    if args.json {
+        return calibration_json(args, &c);
+    }
     let mut out = String::from("parameter,estimate,standard_error,unit\n");
     let rows = [
         ("lever_arm_x", c.lever_arm[0], "m"),
@@ -151,4 +156,43 @@ fn calibrate(args: &CalibrateArgs) -> anyhow::Result<String> {
         "# standard errors assume white residuals; a lag-1 autocorrelation well above 0 makes them optimistic"
     );
     Ok(out)
+}
+
+/// `dvl calibrate --json`: the common header, then each estimate with its standard
+/// error under a key naming its unit.
+fn calibration_json(args: &CalibrateArgs, c: &estim_dvl::Calibration) -> anyhow::Result<String> {
+    use crate::schema::{document, path_json};
+    let estimate = |e: &[&estim_dvl::Estimate]| {
+        serde_json::json!({
+            "estimate": e.iter().map(|x| x.value).collect::<Vec<_>>(),
+            "standard_error": e.iter().map(|x| x.standard_error).collect::<Vec<_>>(),
+        })
+    };
+    let v = |v: &Vector3<f64>| [v.x, v.y, v.z];
+    let inputs = serde_json::json!({
+        "gt": path_json(Some(&args.gt)),
+        "dvl": path_json(Some(&args.dvl)),
+        "max_time_offset_s": args.max_time_offset,
+        "estimate_time_offset": !args.no_time_offset,
+    });
+    let doc = document(
+        "dvl calibrate",
+        inputs,
+        0,
+        serde_json::json!({
+            "lever_arm_m": estimate(&[&c.lever_arm[0], &c.lever_arm[1], &c.lever_arm[2]]),
+            "scale_factor_error": estimate(&[&c.scale_factor_error]),
+            "mounting_misalignment_rad": estimate(&[
+                &c.mounting_misalignment[0],
+                &c.mounting_misalignment[1],
+                &c.mounting_misalignment[2],
+            ]),
+            "time_offset_s": estimate(&[&c.time_offset]),
+            "samples": c.samples,
+            "residual_rms_uncalibrated_mps": v(&c.residual_rms_uncalibrated),
+            "residual_rms_mps": v(&c.residual_rms),
+            "residual_lag1_autocorrelation": v(&c.residual_lag1_autocorrelation),
+        }),
+    );
+    Ok(format!("{}\n", serde_json::to_string_pretty(&doc)?))
 }

@@ -12,6 +12,7 @@ mod montecarlo;
 mod output;
 mod plots;
 mod reproduce;
+mod schema;
 
 /// estim: state estimation with correlated process and measurement noise.
 #[derive(Debug, Parser)]
@@ -44,12 +45,20 @@ fn main() -> ExitCode {
         Command::Beamsnet(args) => beamsnet::run(args),
         Command::Dataset(args) => dataset::run(args),
     };
+    // Exit statuses: see `schema` (0 ok, 2 bad input, 3 some filter failed, 141
+    // stdout closed).
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(()) => ExitCode::from(schema::EXIT_OK),
+        // The reader of stdout went away (`estim reproduce | head`): end quietly.
+        Err(e) if output::is_broken_pipe(&e) => ExitCode::from(schema::EXIT_BROKEN_PIPE),
+        Err(e) if e.downcast_ref::<schema::FiltersFailed>().is_some() => {
+            eprintln!("warning: {e}");
+            ExitCode::from(schema::EXIT_FILTERS_FAILED)
+        }
         Err(e) => {
-            // One line, naming what was wrong; exit code 2 for bad input.
+            // One line, naming what was wrong.
             eprintln!("error: {e:#}");
-            ExitCode::from(2)
+            ExitCode::from(schema::EXIT_BAD_INPUT)
         }
     }
 }

@@ -44,12 +44,19 @@ pub struct MeasurementSet {
 /// Time series of one run, sampled at the DVL epochs (after the update).
 #[derive(Debug, Clone, Serialize)]
 pub struct FilterRun {
-    /// Variant name.
+    /// Stable filter id (e.g. `ls`, `beamsnet_m_rho`; see `pipeline::filter_label`).
+    pub id: String,
+    /// Human label (serialised as `label`).
+    #[serde(rename = "label")]
     pub name: String,
     /// Time since the start [s].
     pub time: Vec<f64>,
     /// Diagonal of P.
     pub covariance_diagonal: Vec<[f64; 15]>,
+    /// Error against truth per axis (truth minus estimate): position N, E, D \[m\],
+    /// velocity N, E, D [m/s], misalignment about N, E, D \[rad\]; for the per-axis
+    /// error plots with their +-3 sigma bounds from `covariance_diagonal`.
+    pub axis_error: Vec<[f64; 9]>,
     /// |position error| [m].
     pub position_error: Vec<f64>,
     /// |velocity error| [m/s].
@@ -259,9 +266,11 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
         .build()?;
     let n = scenario.dvl.len();
     let mut run = FilterRun {
+        id: name.to_string(),
         name: name.to_string(),
         time: Vec::with_capacity(n),
         covariance_diagonal: Vec::with_capacity(n),
+        axis_error: Vec::with_capacity(n),
         position_error: Vec::with_capacity(n),
         velocity_error: Vec::with_capacity(n),
         attitude_error_deg: Vec::with_capacity(n),
@@ -313,7 +322,9 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
             if (dt - period).abs() <= tolerance {
                 dt = period;
             }
-            filter.predict(sample, dt)?;
+            filter
+                .predict(sample, dt)
+                .map_err(|source| stopped(epoch, clock - truth0.time, source))?;
             clock = end;
         }
         if let Some(y) = measurements.velocities.get(epoch).copied().flatten() {
@@ -335,7 +346,9 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
                     &fixed
                 }
             };
-            let report = filter.update(&model, &y, source)?;
+            let report = filter
+                .update(&model, &y, source)
+                .map_err(|source| stopped(epoch, target - truth0.time, source))?;
             run.nis.push(report.nis);
             if let Some(eig) = report.joint_min_eigenvalue {
                 run.joint_min_eigenvalue.push(eig);
@@ -352,6 +365,7 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
         run.time.push(truth.time - truth0.time);
         run.covariance_diagonal
             .push(std::array::from_fn(|i| p[(i, i)]));
+        run.axis_error.push(std::array::from_fn(|i| e[i]));
         run.position_error.push(e.fixed_rows::<3>(POS).norm());
         run.velocity_error.push(e.fixed_rows::<3>(VEL).norm());
         run.attitude_error_deg
@@ -371,6 +385,16 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
         ]);
     }
     Ok(run)
+}
+
+/// A numerical failure of the filter at a DVL epoch: a finding about this filter
+/// variant, reported with where it happened (the other variants are unaffected).
+fn stopped(epoch: usize, time_s: f64, source: estim_core::Error) -> PipelineError {
+    PipelineError::FilterStopped {
+        epoch,
+        time_s,
+        source,
+    }
 }
 
 /// Reject duplicate, backward and non-finite IMU timestamps, naming the sample.
