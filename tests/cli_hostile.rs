@@ -452,3 +452,25 @@ fn reproduce_gt_dvl_hostile_files() {
     assert_one_line_error(&out, &f, Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("Longitude [rad]"));
 }
+
+/// `dvl calibrate` applies the same span rule (allowance: the searched time offset).
+#[test]
+fn dvl_calibrate_refuses_disjoint_spans() {
+    let dir = tempfile::tempdir().unwrap();
+    let gt = write(dir.path(), "gt.csv", valid_gt(60).as_bytes());
+    let far = write(dir.path(), "far.csv", shifted_dvl(60, 500.0).as_bytes());
+    let out = estim(&[
+        "dvl",
+        "calibrate",
+        "--gt",
+        gt.to_str().unwrap(),
+        "--dvl",
+        far.to_str().unwrap(),
+    ]);
+    assert_one_line_error(&out, &gt, None);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains(far.to_str().unwrap()) && stderr.contains("500.000-559.1"),
+        "{stderr}"
+    );
+}

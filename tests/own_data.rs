@@ -179,15 +179,12 @@ fn converted_trajectory_gives_the_unconverted_result() {
         1e-6,
         "by name",
     );
-    // Headers no rule knows, mapped in the configuration.
+    // Headers no rule knows, mapped by the README's own `[columns]` example.
     let mapped = converted_run(
         &root,
         ["HDG", "UP", "LAT", "Z", "SEC", "R", "P", "LON", "E", "N"],
         ["W", "SEC", "U", "V"],
-        "[columns.gt]\ntime_s = \"SEC\"\nlongitude_deg = \"LON\"\nlatitude_deg = \"LAT\"\n\
-         depth_m = \"Z\"\nv_north_mps = \"N\"\nv_east_mps = \"E\"\nv_up_mps = \"UP\"\n\
-         roll_deg = \"R\"\npitch_deg = \"P\"\nheading_deg = \"HDG\"\n\
-         [columns.dvl]\ntime_s = \"SEC\"\nx_mps = \"U\"\ny_mps = \"V\"\nz_mps = \"W\"\n",
+        &readme_column_map(),
     );
     assert_close(
         &reference["trajectories"],
@@ -195,4 +192,20 @@ fn converted_trajectory_gives_the_unconverted_result() {
         1e-6,
         "mapped",
     );
+}
+
+/// The TOML block of the README's "Your own data" section (list-item indent removed).
+fn readme_column_map() -> String {
+    let readme =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap();
+    let section = &readme[readme.find("### Your own data").expect("README section")..];
+    let start = section.find("```toml").expect("a toml block") + "```toml".len();
+    let block = &section[start..];
+    let block = &block[..block.find("```").expect("block end")];
+    let toml: String = block
+        .lines()
+        .map(|l| l.strip_prefix("  ").unwrap_or(l).to_string() + "\n")
+        .collect();
+    assert!(toml.contains("[columns.gt]") && toml.contains("[columns.dvl]"));
+    toml
 }

@@ -5,7 +5,9 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use estim::datasets::{load_dvl, load_gt, BeamFile, DatasetError};
+use estim::datasets::{
+    check_spans, load_dvl, load_gt, BeamFile, DatasetError, SPAN_TIME_OFFSET_ALLOWANCE_S,
+};
 use estim_dvl::nalgebra::Vector3;
 use estim_dvl::{BeamGeometry, Calibrator, DvlMeasurement, TrajectorySample};
 
@@ -29,7 +31,8 @@ enum Command {
     /// when fewer than 3 beams are present.
     Solve(SolveArgs),
     /// Estimate the DVL lever arm, scale factor, mounting misalignment and time offset
-    /// against a ground-truth trajectory (A-KIT CSV files).
+    /// against a ground-truth trajectory (GT and DVL CSV files, columns by name as for
+    /// `reproduce --gt/--dvl`; both must cover the same time span).
     Calibrate(CalibrateArgs),
 }
 
@@ -124,6 +127,15 @@ fn solve(args: &SolveArgs) -> anyhow::Result<String> {
 fn calibrate(args: &CalibrateArgs) -> anyhow::Result<String> {
     let gt = load_gt(&args.gt)?;
     let dvl = load_dvl(&args.dvl)?;
+    // The span rule of `reproduce`, with the searched time offset as the allowance.
+    check_spans(
+        &args.gt,
+        &gt,
+        &args.dvl,
+        &dvl,
+        SPAN_TIME_OFFSET_ALLOWANCE_S.max(args.max_time_offset.abs()),
+        false,
+    )?;
     let trajectory: Vec<TrajectorySample> = gt
         .iter()
         .map(|s| TrajectorySample {
