@@ -113,8 +113,8 @@ pub enum DatasetError {
         gt: PathBuf,
         /// The DVL file.
         dvl: PathBuf,
-        /// Both spans, the overlap and the tolerance.
-        span: SpanCheck,
+        /// Both spans, the overlap and the tolerance (boxed: the error stays small).
+        span: Box<SpanCheck>,
     },
     /// A file whose values are valid one by one but cannot be used as a whole.
     #[error("{}: {message}", path.display())]

@@ -126,7 +126,7 @@ pub fn check_spans(
     let mismatch = |span: SpanCheck| DatasetError::SpanMismatch {
         gt: gt_path.to_path_buf(),
         dvl: dvl_path.to_path_buf(),
-        span,
+        span: Box::new(span),
     };
     let Some(span) = SpanCheck::new(gt, dvl, allowance_s) else {
         let (path, found) = if gt.is_empty() {
