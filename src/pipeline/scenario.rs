@@ -44,7 +44,7 @@ pub struct Scenario {
     pub imu: Vec<ImuSample>,
     /// The error-free IMU (N samples), for oracle measurements and noise analysis.
     pub clean_imu: Vec<ImuSample>,
-    /// IMU period [s].
+    /// IMU period \[s\].
     pub imu_dt: f64,
     /// The IMU error model the samples were corrupted with (also the filter's model).
     pub imu_spec: ImuSpec,
