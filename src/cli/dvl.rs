@@ -5,7 +5,9 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use estim::datasets::{load_beams, load_dvl, load_gt};
+use estim::datasets::{
+    check_spans, load_dvl, load_gt, BeamFile, DatasetError, SPAN_TIME_OFFSET_ALLOWANCE_S,
+};
 use estim_dvl::nalgebra::Vector3;
 use estim_dvl::{BeamGeometry, Calibrator, DvlMeasurement, TrajectorySample};
 
@@ -20,14 +22,17 @@ pub struct Args {
 enum Command {
     /// Velocity from DVL beams by least squares (3-beam solutions where one is missing).
     ///
-    /// Reads a CSV with a header row; the beam columns are found by name (`beam1`..`beam4`
-    /// or `beam 1`..`beam 4`, any case), other columns are ignored; an empty or `nan`
-    /// cell is a missing beam. Writes `vx,vy,vz,error_velocity,n_beams` to stdout, one
-    /// row per input row; the error velocity is empty for a 3-beam solution, and the
-    /// velocity too when fewer than 3 beams are present.
+    /// Reads a CSV with a header row (`-` reads stdin); the beam columns are found by
+    /// name (`beam1`, `b1`, `beam_1`, `Beam 1 [m/s]`, `beam velocity 1`; any case; unit
+    /// m/s, cm/s or mm/s), a time column (`time`, `t`, `timestamp`; s or ms) is kept,
+    /// other columns are ignored; an empty or `nan` cell is a missing beam. Writes
+    /// `[time_s,]vx,vy,vz,error_velocity,n_beams` [m/s] to stdout, one row per input
+    /// row; the error velocity is empty for a 3-beam solution, and the velocity too
+    /// when fewer than 3 beams are present.
     Solve(SolveArgs),
     /// Estimate the DVL lever arm, scale factor, mounting misalignment and time offset
-    /// against a ground-truth trajectory (A-KIT CSV files).
+    /// against a ground-truth trajectory (GT and DVL CSV files, columns by name as for
+    /// `reproduce --gt/--dvl`; both must cover the same time span).
     Calibrate(CalibrateArgs),
 }
 
@@ -44,7 +49,7 @@ struct SolveArgs {
         allow_negative_numbers = true
     )]
     azimuth_offset: f64,
-    /// Input CSV file.
+    /// Input CSV file, or `-` for stdin.
     #[arg(value_name = "INPUT.csv")]
     input: PathBuf,
 }
@@ -84,10 +89,29 @@ fn solve(args: &SolveArgs) -> anyhow::Result<String> {
         .azimuth_offset(args.azimuth_offset)
         .build()
         .context("beam geometry")?;
-    let rows = load_beams(&args.input)?;
-    let mut out = String::from("vx,vy,vz,error_velocity,n_beams\n");
-    for beams in rows {
-        let solution = geometry.solve(&beams);
+    let file = if args.input.as_os_str() == "-" {
+        let stdin = std::path::Path::new("<stdin>");
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(&mut std::io::stdin().lock(), &mut bytes).map_err(|error| {
+            DatasetError::Io {
+                path: stdin.to_path_buf(),
+                error,
+            }
+        })?;
+        BeamFile::parse(&bytes, stdin)?
+    } else {
+        BeamFile::load(&args.input)?
+    };
+    let mut out = String::new();
+    if file.times.is_some() {
+        out.push_str("time_s,");
+    }
+    out.push_str("vx,vy,vz,error_velocity,n_beams\n");
+    for (k, beams) in file.rows.iter().enumerate() {
+        if let Some(t) = file.times.as_ref().and_then(|times| times.get(k)) {
+            let _ = write!(out, "{t},");
+        }
+        let solution = geometry.solve(beams);
         match solution.velocity() {
             Some(v) => {
                 let _ = write!(out, "{},{},{},", v.x, v.y, v.z);
@@ -105,6 +129,15 @@ fn solve(args: &SolveArgs) -> anyhow::Result<String> {
 fn calibrate(args: &CalibrateArgs) -> anyhow::Result<String> {
     let gt = load_gt(&args.gt)?;
     let dvl = load_dvl(&args.dvl)?;
+    // The span rule of `reproduce`, with the searched time offset as the allowance.
+    check_spans(
+        &args.gt,
+        &gt,
+        &args.dvl,
+        &dvl,
+        SPAN_TIME_OFFSET_ALLOWANCE_S.max(args.max_time_offset.abs()),
+        false,
+    )?;
     let trajectory: Vec<TrajectorySample> = gt
         .iter()
         .map(|s| TrajectorySample {

@@ -21,6 +21,17 @@ pub struct Args {
     /// A-KIT trajectories to run (repeatable); default 4 and 13.
     #[arg(long = "trajectory", value_name = "N")]
     trajectories: Vec<u32>,
+    /// A ground-truth CSV file at any path (one trajectory; with --dvl). Columns are
+    /// found by name in any order, with units from the header (README "Your own data").
+    #[arg(long, value_name = "FILE", requires = "dvl", conflicts_with_all = ["data", "trajectories"])]
+    gt: Option<PathBuf>,
+    /// The DVL velocity CSV file of that trajectory (with --gt).
+    #[arg(long, value_name = "FILE", requires = "gt")]
+    dvl: Option<PathBuf>,
+    /// Run on the common time span when GT and DVL do not cover the same span
+    /// (otherwise an error); the choice is printed on stderr.
+    #[arg(long)]
+    allow_partial: bool,
     /// TOML configuration (see --print-config for every key and default).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
@@ -52,22 +63,45 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(dir) => Some(crate::output::StagedDir::new(dir)?),
         None => None,
     };
-    let (scenarios, trajectories): (Vec<Scenario>, Option<Vec<u32>>) = match &args.data {
-        Some(dir) => {
-            let dir = data_root(Some(dir)).context("no data folder")?;
-            let list = if args.trajectories.is_empty() {
-                vec![4, 13]
-            } else {
-                args.trajectories.clone()
-            };
-            let s = list
-                .iter()
-                .map(|n| Scenario::akit(&dir, *n, &config, config.seed))
-                .collect::<Result<_, _>>()?;
-            (s, Some(list))
+    let (scenarios, trajectories): (Vec<Scenario>, Option<Vec<u32>>) =
+        match (&args.data, &args.gt, &args.dvl) {
+            (_, Some(gt), Some(dvl)) => (
+                vec![Scenario::recorded(
+                    gt,
+                    dvl,
+                    &config,
+                    config.seed,
+                    args.allow_partial,
+                )?],
+                None,
+            ),
+            (Some(dir), _, _) => {
+                let dir = data_root(Some(dir)).context("no data folder")?;
+                let list = if args.trajectories.is_empty() {
+                    vec![4, 13]
+                } else {
+                    args.trajectories.clone()
+                };
+                let s = list
+                    .iter()
+                    .map(|n| {
+                        Scenario::akit_with(&dir, *n, &config, config.seed, args.allow_partial)
+                    })
+                    .collect::<Result<_, _>>()?;
+                (s, Some(list))
+            }
+            _ => (vec![Scenario::simulated(&config, config.seed)?], None),
+        };
+    for s in &scenarios {
+        if let Some(span) = s.span.filter(|span| !span.agrees()) {
+            let [a, b] = span.overlap_s().unwrap_or(span.gt_s);
+            eprintln!(
+                "warning: --allow-partial: {}: {}; running on the overlap {a:.3}-{b:.3} s only",
+                s.name,
+                span.describe()
+            );
         }
-        None => (vec![Scenario::simulated(&config, config.seed)?], None),
-    };
+    }
     let mut scenarios = scenarios;
     for s in &mut scenarios {
         apply_faults(s, &config.faults, config.seed)?;
@@ -214,7 +248,8 @@ fn group_unit(group: &str) -> &'static str {
 fn slug(r: &TrajectoryReport) -> String {
     match r.trajectory {
         Some(n) => format!("trajectory{n}"),
-        None => "simulated".to_string(),
+        None if r.name == "simulated mission" => "simulated".to_string(),
+        None => "trajectory".to_string(),
     }
 }
 

@@ -9,6 +9,7 @@ use estim_ins::{ImuSpec, SensorSpec};
 use serde::{Deserialize, Serialize};
 
 use super::{FaultConfig, PipelineError, Result};
+use crate::datasets::ColumnMap;
 
 /// The valid values of `imu.preset`.
 pub const IMU_PRESETS: [&str; 4] = [
@@ -78,6 +79,9 @@ pub struct Config {
     pub filter: FilterSection,
     /// Sensor faults injected into every scenario (default: none).
     pub faults: FaultConfig,
+    /// Column map for recorded GT and DVL files (default: columns found by name).
+    #[serde(skip_serializing_if = "ColumnMap::is_empty")]
+    pub columns: ColumnMap,
 }
 
 /// The embedded simulated mission.
@@ -185,6 +189,7 @@ impl Default for Config {
             dvl: DvlSection::default(),
             filter: FilterSection::default(),
             faults: FaultConfig::default(),
+            columns: ColumnMap::default(),
         }
     }
 }
@@ -412,6 +417,7 @@ impl Config {
             ));
         }
         self.faults.check().map_err(|e| e.to_string())?;
+        self.columns.check()?;
         self.imu_spec().map(|_| ())
     }
 

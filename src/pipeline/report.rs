@@ -357,7 +357,7 @@ pub fn analyse(
     seed: u64,
 ) -> Result<TrajectoryReport> {
     // On real data the DVL and the ground truth disagree beyond the sensor noise.
-    let mismatch = if scenario.trajectory.is_some() {
+    let mismatch = if scenario.is_recorded() {
         Matrix3::identity() * config.dvl.akit_reference_mismatch_std.powi(2)
     } else {
         Matrix3::zeros()
