@@ -11,6 +11,7 @@ mod learned;
 mod montecarlo;
 mod output;
 mod plots;
+mod report;
 mod reproduce;
 
 /// estim: state estimation with correlated process and measurement noise.
@@ -33,6 +34,8 @@ enum Command {
     Beamsnet(beamsnet::Args),
     /// Write training datasets.
     Dataset(dataset::Args),
+    /// Regenerate the README's result tables (markdown between marker comments).
+    Report(report::Args),
 }
 
 fn main() -> ExitCode {
@@ -43,6 +46,7 @@ fn main() -> ExitCode {
         Command::Dvl(args) => dvl::run(args),
         Command::Beamsnet(args) => beamsnet::run(args),
         Command::Dataset(args) => dataset::run(args),
+        Command::Report(args) => report::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -111,8 +111,40 @@ pub struct FilterSection {
     pub initial_bias_std_scale: f64,
     /// rho of the paper's heuristic M (ScaledCorrelation).
     pub rho: f64,
+    /// Which process noise the paper's M = rho sqrt(diag Q) sqrt(diag R)' is built
+    /// from: `accumulated` (default; Q accumulated over the update interval, this
+    /// project's reading of the paper) or `per_step` (the last IMU step's Q_k, as the
+    /// paper writes E[w_k v_j'] = rho sqrt(diag Q_k) sqrt(diag R_k)').
+    pub paper_m_basis: PaperMBasis,
     /// Innovation gate probability (chi-square, 3 dof); `0` disables the gate.
     pub gate_probability: f64,
+}
+
+/// The process noise the paper's heuristic M is scaled from (`filter.paper_m_basis`).
+///
+/// The paper writes E[w_k v_j'] = rho sqrt(diag Q_k) sqrt(diag R_k)' with Q_k the
+/// process noise of one propagation step. With a 100 Hz IMU and a 1 Hz velocity the
+/// measurement noise meets the noise of 100 steps; building M from the noise
+/// accumulated over the update interval is a reading of the paper, not its letter.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum PaperMBasis {
+    /// Q_acc, accumulated since the previous update (the core's `ScaledCorrelation`).
+    #[default]
+    Accumulated,
+    /// Q_k of the last IMU step before the update.
+    PerStep,
+}
+
+impl PaperMBasis {
+    /// The configuration value (`accumulated`, `per_step`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Accumulated => "accumulated",
+            Self::PerStep => "per_step",
+        }
+    }
 }
 
 impl Default for Config {
@@ -170,6 +202,7 @@ impl Default for FilterSection {
             initial_heading_std_deg: 0.2,
             initial_bias_std_scale: 1.0,
             rho: 0.42,
+            paper_m_basis: PaperMBasis::default(),
             gate_probability: 0.9999,
         }
     }
@@ -357,5 +390,19 @@ mod tests {
             Config::from_toml("[dvl]\nls_noise_std = 0.02\n", Path::new("c.toml")).expect("valid");
         assert_eq!(c.dvl.ls_noise_std, 0.02);
         assert_eq!(c.filter.rho, 0.42);
+        assert_eq!(c.filter.paper_m_basis, PaperMBasis::Accumulated);
+    }
+
+    #[test]
+    fn paper_m_basis_values() {
+        let c = Config::from_toml(
+            "[filter]\npaper_m_basis = \"per_step\"\n",
+            Path::new("c.toml"),
+        )
+        .expect("valid");
+        assert_eq!(c.filter.paper_m_basis, PaperMBasis::PerStep);
+        let e = Config::from_toml("[filter]\npaper_m_basis = \"daily\"\n", Path::new("c.toml"))
+            .unwrap_err();
+        assert!(e.to_string().contains("line 2"), "{e}");
     }
 }

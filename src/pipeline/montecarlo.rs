@@ -58,6 +58,8 @@ pub struct MonteCarloReport {
     pub runs: usize,
     /// Seeds used: `first_seed .. first_seed + runs`.
     pub first_seed: u64,
+    /// DVL epochs per mission (of the first mission; every mission has the same length).
+    pub epochs: usize,
     /// Per variant.
     pub variants: BTreeMap<String, VariantConsistency>,
 }
@@ -82,7 +84,7 @@ fn one_mission(
         (
             ORACLE_SCALED,
             oracle,
-            CrossSource::Scaled(config.filter.rho),
+            CrossSource::paper(config.filter.rho, config.filter.paper_m_basis),
         ),
     ];
     if let Some(make) = learned {
@@ -95,7 +97,7 @@ fn one_mission(
         jobs.push((
             BEAMSNET_SCALED,
             set.clone(),
-            CrossSource::Scaled(config.filter.rho),
+            CrossSource::paper(config.filter.rho, config.filter.paper_m_basis),
         ));
         if let Some(m) = l.sensitivity {
             jobs.push((BEAMSNET_SENSITIVITY, set, CrossSource::PerEpoch(m)));
@@ -129,6 +131,7 @@ pub fn monte_carlo(
         return Ok(MonteCarloReport {
             runs,
             first_seed,
+            epochs: 0,
             variants,
         });
     };
@@ -177,6 +180,7 @@ pub fn monte_carlo(
     Ok(MonteCarloReport {
         runs,
         first_seed,
+        epochs: first.first().map_or(0, |r| r.nees.len()),
         variants,
     })
 }

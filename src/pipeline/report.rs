@@ -246,7 +246,7 @@ pub fn analyse(
         jobs.push((
             BEAMSNET_SCALED,
             set.clone(),
-            CrossSource::Scaled(config.filter.rho),
+            CrossSource::paper(config.filter.rho, config.filter.paper_m_basis),
         ));
         if let Some(m) = &l.sensitivity {
             jobs.push((BEAMSNET_SENSITIVITY, set, CrossSource::PerEpoch(m.clone())));

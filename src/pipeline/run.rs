@@ -3,8 +3,8 @@
 
 use estim_core::nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 use estim_core::{
-    nees, CrossCovariance, ErrorStateKalmanFilter, FilterConfig, Fixed, Gate, NoObserver, Observer,
-    ScaledCorrelation, Zero,
+    largest_valid_scale, nees, CrossCovariance, ErrorStateKalmanFilter, FilterConfig, Fixed, Gate,
+    NoObserver, Observer, ProcessModel, ScaledCorrelation, Zero,
 };
 use estim_dvl::DvlVelocityModel;
 use estim_ins::{
@@ -16,7 +16,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::Serialize;
 
-use super::{Config, PipelineError, Result, Scenario};
+use super::{Config, PaperMBasis, PipelineError, Result, Scenario};
 
 /// 15 x 3 cross-covariance of the INS/DVL filter.
 pub type CrossMatrix = SMatrix<f64, ERROR_STATES, 3>;
@@ -26,10 +26,24 @@ pub type CrossMatrix = SMatrix<f64, ERROR_STATES, 3>;
 pub enum CrossSource {
     /// M = 0 (correlation neglected).
     Zero,
-    /// The paper's heuristic M = rho sqrt(diag Q_acc) sqrt(diag R)'.
+    /// The paper's heuristic M = rho sqrt(diag Q_acc) sqrt(diag R)', Q_acc accumulated
+    /// since the previous update.
     Scaled(f64),
+    /// The paper's heuristic with the last IMU step's process noise:
+    /// M = rho sqrt(diag Q_k) sqrt(diag R)' (the paper's E[w_k v_j'] taken literally).
+    ScaledPerStep(f64),
     /// One precomputed M_k per DVL epoch (e.g. from the network's sensitivity).
     PerEpoch(Vec<CrossMatrix>),
+}
+
+impl CrossSource {
+    /// The paper's heuristic with `rho` on the configured basis (`filter.paper_m_basis`).
+    pub fn paper(rho: f64, basis: PaperMBasis) -> Self {
+        match basis {
+            PaperMBasis::Accumulated => Self::Scaled(rho),
+            PaperMBasis::PerStep => Self::ScaledPerStep(rho),
+        }
+    }
 }
 
 /// The velocity measurements of one variant, aligned with `Scenario::dvl`.
@@ -66,8 +80,12 @@ pub struct FilterRun {
     pub rejected: usize,
     /// Smallest eigenvalue of [[Q_acc, M], [M', R]] at each update.
     pub joint_min_eigenvalue: Vec<f64>,
-    /// Largest valid rho of the paper's heuristic at each update.
+    /// Largest valid rho of the paper's heuristic at each update (M built from the
+    /// accumulated process noise), against this run's Q_acc and R.
     pub largest_valid_rho: Vec<f64>,
+    /// The same with M built from the last IMU step's process noise Q_k (the joint
+    /// covariance is still [[Q_acc, M], [M', R]]).
+    pub largest_valid_rho_per_step: Vec<f64>,
     /// North/east position of the estimate relative to the start [m].
     pub north_east: Vec<[f64; 2]>,
     /// Epochs at which P was not positive definite (NEES recorded as NaN).
@@ -271,6 +289,7 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
         rejected: 0,
         joint_min_eigenvalue: Vec::with_capacity(n),
         largest_valid_rho: Vec::with_capacity(n),
+        largest_valid_rho_per_step: Vec::with_capacity(n),
         north_east: Vec::with_capacity(n),
         covariance_not_positive_definite: 0,
     };
@@ -281,6 +300,9 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
     // Sample in effect and the filter's clock.
     let mut k = 0;
     let mut clock = truth0.time;
+    // The last propagation step (IMU sample index, dt): its Q_k is the per-step basis
+    // of the paper's heuristic M.
+    let mut last_step: Option<(usize, f64)> = None;
     for (epoch, dvl) in scenario.dvl.iter().enumerate() {
         let truth = scenario.truth.get(dvl.imu_index).ok_or_else(|| {
             PipelineError::Invalid(format!(
@@ -314,6 +336,7 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
                 dt = period;
             }
             filter.predict(sample, dt)?;
+            last_step = Some((k, dt));
             clock = end;
         }
         if let Some(y) = measurements.velocities.get(epoch).copied().flatten() {
@@ -322,6 +345,20 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
                     filter.accumulated_process_noise(),
                     &r,
                 )?);
+            // Q_k of the last step, at the nominal state after it (the attitude moves
+            // by one IMU period in between: negligible at the rounding of a heuristic).
+            let step_noise = match last_step {
+                Some((i, dt)) => filter
+                    .process()
+                    .process_noise(filter.nominal(), &imu[i], dt)?,
+                None => SMatrix::zeros(),
+            };
+            let step_unit = ScaledCorrelation::unit(&step_noise, &r);
+            run.largest_valid_rho_per_step.push(largest_valid_scale(
+                filter.accumulated_process_noise(),
+                &step_unit,
+                &r,
+            )?);
             let scaled;
             let fixed;
             let source: &dyn CrossCovariance<f64, InsState, ERROR_STATES, 3> = match cross {
@@ -329,6 +366,10 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
                 CrossSource::Scaled(rho) => {
                     scaled = ScaledCorrelation { rho: *rho };
                     &scaled
+                }
+                CrossSource::ScaledPerStep(rho) => {
+                    fixed = Fixed(step_unit * *rho);
+                    &fixed
                 }
                 CrossSource::PerEpoch(ms) => {
                     fixed = Fixed(ms.get(epoch).copied().unwrap_or_else(CrossMatrix::zeros));
