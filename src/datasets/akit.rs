@@ -32,17 +32,17 @@ pub const DVL_HEADER: [&str; 4] = ["Time [s]", "DVL X [m/s]", "DVL Y [m/s]", "DV
 /// One ground-truth sample (post-processed Phins solution).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GtSample {
-    /// Time [s].
+    /// Time \[s\].
     pub time: f64,
-    /// Geodetic longitude [rad].
+    /// Geodetic longitude \[rad\].
     pub longitude: f64,
-    /// Geodetic latitude [rad].
+    /// Geodetic latitude \[rad\].
     pub latitude: f64,
-    /// Height above the WGS-84 ellipsoid [m] (negative under water).
+    /// Height above the WGS-84 ellipsoid \[m\] (negative under water).
     pub altitude: f64,
-    /// Velocity north, east, down [m/s].
+    /// Velocity north, east, down \[m/s\].
     pub velocity_ned: [f64; 3],
-    /// Roll, pitch, yaw [rad] (body x forward, y right, z down).
+    /// Roll, pitch, yaw \[rad\] (body x forward, y right, z down).
     pub roll_pitch_yaw: [f64; 3],
 }
 
@@ -65,9 +65,9 @@ impl GtSample {
 /// One DVL sample: body-frame velocity.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DvlSample {
-    /// Time [s].
+    /// Time \[s\].
     pub time: f64,
-    /// Body-frame velocity x, y, z [m/s].
+    /// Body-frame velocity x, y, z \[m/s\].
     pub velocity_body: [f64; 3],
 }
 

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use super::{DatasetError, Result};
 
-/// Beam velocities of one row [m/s]; `None` = missing beam.
+/// Beam velocities of one row \[m/s\]; `None` = missing beam.
 pub type BeamRow = [Option<f64>; 4];
 
 /// Read and parse a beam file (see [`parse_beams`]).

@@ -32,11 +32,11 @@ pub struct Config {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct MissionSection {
-    /// Duration [s].
+    /// Duration \[s\].
     pub duration_s: f64,
-    /// IMU rate [Hz].
+    /// IMU rate \[Hz\].
     pub imu_rate_hz: f64,
-    /// DVL / BeamsNet update period [s].
+    /// DVL / BeamsNet update period \[s\].
     pub dvl_period_s: f64,
 }
 
@@ -67,7 +67,7 @@ pub struct SensorSection {
     pub white_noise_density: f64,
     /// Gauss-Markov bias instability σ [m/s^2 or rad/s].
     pub bias_instability: f64,
-    /// Gauss-Markov correlation time [s].
+    /// Gauss-Markov correlation time \[s\].
     pub bias_time_constant: f64,
     /// Turn-on bias σ [m/s^2 or rad/s].
     pub turn_on_bias: f64,
@@ -79,16 +79,16 @@ pub struct SensorSection {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DvlSection {
-    /// Lever arm IMU -> DVL in the body frame [m]. Default: the mean of the
+    /// Lever arm IMU -> DVL in the body frame \[m\]. Default: the mean of the
     /// calibration on A-KIT training trajectories (estim-dvl README).
     pub lever_arm_m: [f64; 3],
-    /// A-KIT DVL time offset tau [s] (a sample stamped t measures the motion at t - tau).
+    /// A-KIT DVL time offset tau \[s\] (a sample stamped t measures the motion at t - tau).
     pub akit_time_offset_s: f64,
     /// `v1` (bias 0.001 m/s) or `v2` (bias 0.0001 m/s) BeamsNet beam protocol.
     pub protocol: String,
-    /// Measurement noise std of the least-squares DVL velocity per axis [m/s].
+    /// Measurement noise std of the least-squares DVL velocity per axis \[m/s\].
     pub ls_noise_std: f64,
-    /// Extra std per axis added (in quadrature) to R on A-KIT data [m/s]: the real DVL
+    /// Extra std per axis added (in quadrature) to R on A-KIT data \[m/s\]: the real DVL
     /// and the ground truth disagree by about 0.01-0.02 m/s RMS per axis even after
     /// lever arm and time offset (estim-dvl calibration residuals). Without it the
     /// BeamsNet filter (R about 0.0036^2) gates out nearly every update on trajectory 4.
@@ -99,13 +99,13 @@ pub struct DvlSection {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct FilterSection {
-    /// Initial position std per axis (N, E, D) [m].
+    /// Initial position std per axis (N, E, D) \[m\].
     pub initial_position_std_m: f64,
-    /// Initial velocity std per axis [m/s].
+    /// Initial velocity std per axis \[m/s\].
     pub initial_velocity_std_mps: f64,
-    /// Initial roll/pitch std [deg].
+    /// Initial roll/pitch std \[deg\].
     pub initial_level_std_deg: f64,
-    /// Initial heading std [deg].
+    /// Initial heading std \[deg\].
     pub initial_heading_std_deg: f64,
     /// Scale factor on the IMU spec's bias σ for the initial bias covariance.
     pub initial_bias_std_scale: f64,

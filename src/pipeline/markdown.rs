@@ -17,7 +17,7 @@
 //!   commit they ran on).
 //!
 //! Rounding (stated once, used everywhere): velocity metrics with 6 decimals (VAF 4);
-//! position errors 2 decimals [m], velocity errors 3 decimals [m/s]; NEES and NIS
+//! position errors 2 decimals \[m\], velocity errors 3 decimals \[m/s\]; NEES and NIS
 //! averages of filters with 3 significant digits, of the Monte Carlo with 2 decimals;
 //! percentages with 1 decimal; rho with 3 decimals; counts exact. Log figures are
 //! quoted as the log prints them.

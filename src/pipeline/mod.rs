@@ -30,6 +30,7 @@ pub use report::{
 pub use run::{
     error_state, filter_imu_spec, initial_covariance, initial_nominal, run_filter,
     run_filter_with_observer, CrossMatrix, CrossSource, FilterRun, MeasurementSet,
+    FILTER_BIAS_TIME_CONSTANT,
 };
 pub use scenario::{DvlEpoch, Scenario};
 

@@ -47,7 +47,7 @@ pub struct VariantConsistency {
     pub covariance_not_positive_definite: usize,
     /// Updates rejected by the gate, all runs.
     pub updates_rejected: usize,
-    /// Position error RMSE over runs and epochs [m].
+    /// Position error RMSE over runs and epochs \[m\].
     pub position_rmse_m: f64,
 }
 

@@ -60,15 +60,15 @@ pub struct MeasurementSet {
 pub struct FilterRun {
     /// Variant name.
     pub name: String,
-    /// Time since the start [s].
+    /// Time since the start \[s\].
     pub time: Vec<f64>,
     /// Diagonal of P.
     pub covariance_diagonal: Vec<[f64; 15]>,
-    /// |position error| [m].
+    /// |position error| \[m\].
     pub position_error: Vec<f64>,
-    /// |velocity error| [m/s].
+    /// |velocity error| \[m/s\].
     pub velocity_error: Vec<f64>,
-    /// |attitude error| [deg].
+    /// |attitude error| \[deg\].
     pub attitude_error_deg: Vec<f64>,
     /// NEES of the 15-state error against truth.
     pub nees: Vec<f64>,
@@ -86,7 +86,7 @@ pub struct FilterRun {
     /// The same with M built from the last IMU step's process noise Q_k (the joint
     /// covariance is still [[Q_acc, M], [M', R]]).
     pub largest_valid_rho_per_step: Vec<f64>,
-    /// North/east position of the estimate relative to the start [m].
+    /// North/east position of the estimate relative to the start \[m\].
     pub north_east: Vec<[f64; 2]>,
     /// Epochs at which P was not positive definite (NEES recorded as NaN).
     pub covariance_not_positive_definite: usize,
@@ -111,7 +111,7 @@ pub fn error_state(truth: &InsState, nominal: &InsState) -> SVector<f64, ERROR_S
     e
 }
 
-/// Correlation time the filter gives the bias states [s]: long enough that the
+/// Correlation time the filter gives the bias states \[s\]: long enough that the
 /// turn-on bias (a random constant in the simulator) is not forgotten.
 pub const FILTER_BIAS_TIME_CONSTANT: f64 = 1.0e6;
 

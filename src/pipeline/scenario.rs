@@ -18,7 +18,7 @@ use crate::datasets::{load_dvl, load_gt, trajectory_files};
 pub struct DvlEpoch {
     /// The update is applied after IMU sample `imu_index - 1`, i.e. at `truth[imu_index]`.
     pub imu_index: usize,
-    /// Velocity at the DVL in its frame [m/s] (the real DVL's on A-KIT, exact in simulation).
+    /// Velocity at the DVL in its frame \[m/s\] (the real DVL's on A-KIT, exact in simulation).
     pub reference_velocity: Vector3<f64>,
     /// Beam velocities from the BeamsNet protocol (NaN for a missing beam).
     pub beams: Vector4<f64>,
@@ -37,7 +37,7 @@ pub struct Scenario {
     pub imu: Vec<ImuSample>,
     /// The error-free IMU (N samples), for oracle measurements and noise analysis.
     pub clean_imu: Vec<ImuSample>,
-    /// IMU period [s].
+    /// IMU period \[s\].
     pub imu_dt: f64,
     /// The IMU error model the samples were corrupted with (also the filter's model).
     pub imu_spec: ImuSpec,
