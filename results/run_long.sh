@@ -12,7 +12,6 @@ if [ -n "$(git status --porcelain --untracked-files=no)" ]; then
   exit 1
 fi
 commit="$(git rev-parse HEAD)"
-cargo build --release --tests >/dev/null
 
 run() { # run LOG COMMAND...
   local log="results/$1"; shift
