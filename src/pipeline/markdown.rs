@@ -721,7 +721,10 @@ fn long_mission_table(logs: &[Log]) -> Result<Table> {
                     &log.commit[..10],
                     if passed { "passed" } else { "FAILED" },
                 ));
-            } else if let Some((name, rest)) = line.split_once(" run ") {
+            } else if let Some((name, rest)) = line
+                .split_once(" run ")
+                .filter(|(_, rest)| rest.contains(" checks, Cholesky failures "))
+            {
                 let name = name.trim();
                 let field = |key: &str, end: &str| {
                     after(rest, key, end)
@@ -891,6 +894,7 @@ mod tests {
             dir.join("long_mission-10h.log"),
             format!(
                 "{hash} cargo test --release --test long_mission -- --ignored --nocapture\n\
+                 test ten_hour ... ignored, 10-hour mission: about 75 s; run with --ignored\n\
                  10 h mission: 3600001 IMU steps, 36000 DVL epochs, generated in 70.2 s\n\
                  Zero                     run   25.1 s; 3636000 checks, Cholesky failures 0, non-finite 0, max asymmetry 1.1e-14, min eigenvalue of P 4.230e-12, of its correlation matrix 8.000e-3\n\
                  {:<24} updates 36000 accepted / 0 gated; joint covariance min eigenvalue 1.330e-1; final position error 43.5 m\n\
