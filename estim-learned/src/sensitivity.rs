@@ -38,7 +38,7 @@ pub struct ImuWindow {
     pub imu: Vec<ImuSample>,
     /// The beams of the update.
     pub beams: Vector4<f64>,
-    /// IMU period [s].
+    /// IMU period \[s\].
     pub dt: f64,
 }
 

@@ -38,10 +38,10 @@ enum Command {
 
 #[derive(Debug, clap::Args)]
 struct SolveArgs {
-    /// Beam angle from the vertical [deg] (BeamsNet 20, RDI Workhorse Navigator 30).
+    /// Beam angle from the vertical, in degrees (BeamsNet 20, RDI Workhorse Navigator 30).
     #[arg(long, value_name = "DEG")]
     beam_angle: f64,
-    /// Azimuth of beam 1 from the x axis [deg]; beam i at offset + (i-1) 90.
+    /// Azimuth of beam 1 from the x axis, in degrees; beam i at offset + (i-1) 90.
     #[arg(
         long,
         value_name = "DEG",
@@ -62,7 +62,7 @@ struct CalibrateArgs {
     /// DVL file (`DVL_trajectoryN.csv` layout).
     #[arg(long, value_name = "DVL.csv")]
     dvl: PathBuf,
-    /// Largest |time offset| searched [s].
+    /// Largest |time offset| searched, in seconds.
     #[arg(long, value_name = "S", default_value_t = 3.0)]
     max_time_offset: f64,
     /// Hold the time offset at zero instead of estimating it.

@@ -11,6 +11,7 @@ mod learned;
 mod montecarlo;
 mod output;
 mod plots;
+mod report;
 mod reproduce;
 mod schema;
 
@@ -34,6 +35,8 @@ enum Command {
     Beamsnet(beamsnet::Args),
     /// Write training datasets.
     Dataset(dataset::Args),
+    /// Regenerate the README's result tables (markdown between marker comments).
+    Report(report::Args),
 }
 
 fn main() -> ExitCode {
@@ -44,6 +47,7 @@ fn main() -> ExitCode {
         Command::Dvl(args) => dvl::run(args),
         Command::Beamsnet(args) => beamsnet::run(args),
         Command::Dataset(args) => dataset::run(args),
+        Command::Report(args) => report::run(args),
     };
     // Exit statuses: see `schema` (0 ok, 2 bad input, 3 some filter failed, 141
     // stdout closed).

@@ -88,11 +88,11 @@ pub struct Config {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct MissionSection {
-    /// Duration [s].
+    /// Duration \[s\].
     pub duration_s: f64,
-    /// IMU rate [Hz].
+    /// IMU rate \[Hz\].
     pub imu_rate_hz: f64,
-    /// DVL / BeamsNet update period [s].
+    /// DVL / BeamsNet update period \[s\].
     pub dvl_period_s: f64,
 }
 
@@ -137,18 +137,18 @@ pub struct SensorSection {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DvlSection {
-    /// Lever arm IMU -> DVL in the body frame [m]. Default: the mean of the
+    /// Lever arm IMU -> DVL in the body frame \[m\]. Default: the mean of the
     /// calibration on A-KIT training trajectories (estim-dvl README).
     pub lever_arm_m: [f64; 3],
-    /// A-KIT DVL time offset tau [s] (a sample stamped t measures the motion at t - tau).
+    /// A-KIT DVL time offset tau \[s\] (a sample stamped t measures the motion at t - tau).
     pub akit_time_offset_s: f64,
     /// `v1` (bias 0.001 m/s) or `v2` (bias 0.0001 m/s) BeamsNet beam protocol.
     pub protocol: String,
-    /// Measurement noise std of the least-squares DVL velocity per axis [m/s].
+    /// Measurement noise std of the least-squares DVL velocity per axis \[m/s\].
     /// TOML key `ls_noise_std_mps` (the old `ls_noise_std` is still accepted).
     #[serde(rename = "ls_noise_std_mps", alias = "ls_noise_std")]
     pub ls_noise_std: f64,
-    /// Extra std per axis added (in quadrature) to R on A-KIT data [m/s]: the real DVL
+    /// Extra std per axis added (in quadrature) to R on A-KIT data \[m/s\]: the real DVL
     /// and the ground truth disagree by about 0.01-0.02 m/s RMS per axis even after
     /// lever arm and time offset (estim-dvl calibration residuals). Without it the
     /// BeamsNet filter (R about 0.0036^2) gates out nearly every update on trajectory 4.
@@ -164,20 +164,52 @@ pub struct DvlSection {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct FilterSection {
-    /// Initial position std per axis (N, E, D) [m].
+    /// Initial position std per axis (N, E, D) \[m\].
     pub initial_position_std_m: f64,
-    /// Initial velocity std per axis [m/s].
+    /// Initial velocity std per axis \[m/s\].
     pub initial_velocity_std_mps: f64,
-    /// Initial roll/pitch std [deg].
+    /// Initial roll/pitch std \[deg\].
     pub initial_level_std_deg: f64,
-    /// Initial heading std [deg].
+    /// Initial heading std \[deg\].
     pub initial_heading_std_deg: f64,
     /// Scale factor on the IMU spec's bias σ for the initial bias covariance.
     pub initial_bias_std_scale: f64,
     /// rho of the paper's heuristic M (ScaledCorrelation).
     pub rho: f64,
+    /// Which process noise the paper's M = rho sqrt(diag Q) sqrt(diag R)' is built
+    /// from: `accumulated` (default; Q accumulated over the update interval, this
+    /// project's reading of the paper) or `per_step` (the last IMU step's Q_k, as the
+    /// paper writes E[w_k v_j'] = rho sqrt(diag Q_k) sqrt(diag R_k)').
+    pub paper_m_basis: PaperMBasis,
     /// Innovation gate probability (chi-square, 3 dof); `0` disables the gate.
     pub gate_probability: f64,
+}
+
+/// The process noise the paper's heuristic M is scaled from (`filter.paper_m_basis`).
+///
+/// The paper writes E[w_k v_j'] = rho sqrt(diag Q_k) sqrt(diag R_k)' with Q_k the
+/// process noise of one propagation step. With a 100 Hz IMU and a 1 Hz velocity the
+/// measurement noise meets the noise of 100 steps; building M from the noise
+/// accumulated over the update interval is a reading of the paper, not its letter.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum PaperMBasis {
+    /// Q_acc, accumulated since the previous update (the core's `ScaledCorrelation`).
+    #[default]
+    Accumulated,
+    /// Q_k of the last IMU step before the update.
+    PerStep,
+}
+
+impl PaperMBasis {
+    /// The configuration value (`accumulated`, `per_step`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Accumulated => "accumulated",
+            Self::PerStep => "per_step",
+        }
+    }
 }
 
 impl Default for Config {
@@ -236,6 +268,7 @@ impl Default for FilterSection {
             initial_heading_std_deg: 0.2,
             initial_bias_std_scale: 1.0,
             rho: 0.42,
+            paper_m_basis: PaperMBasis::default(),
             gate_probability: 0.9999,
         }
     }
@@ -568,5 +601,19 @@ mod tests {
             Config::from_toml("[dvl]\nls_noise_std = 0.02\n", Path::new("c.toml")).expect("valid");
         assert_eq!(c.dvl.ls_noise_std, 0.02);
         assert_eq!(c.filter.rho, 0.42);
+        assert_eq!(c.filter.paper_m_basis, PaperMBasis::Accumulated);
+    }
+
+    #[test]
+    fn paper_m_basis_values() {
+        let c = Config::from_toml(
+            "[filter]\npaper_m_basis = \"per_step\"\n",
+            Path::new("c.toml"),
+        )
+        .expect("valid");
+        assert_eq!(c.filter.paper_m_basis, PaperMBasis::PerStep);
+        let e = Config::from_toml("[filter]\npaper_m_basis = \"daily\"\n", Path::new("c.toml"))
+            .unwrap_err();
+        assert!(e.to_string().contains("line 2"), "{e}");
     }
 }

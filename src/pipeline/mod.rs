@@ -4,6 +4,7 @@
 mod config;
 mod faults;
 mod learned;
+pub mod markdown;
 mod montecarlo;
 mod oracle;
 mod report;
@@ -11,7 +12,9 @@ mod run;
 mod scenario;
 pub mod stats;
 
-pub use config::{Config, DvlSection, FilterSection, ImuSection, MissionSection, SensorSection};
+pub use config::{
+    Config, DvlSection, FilterSection, ImuSection, MissionSection, PaperMBasis, SensorSection,
+};
 pub use faults::{apply_faults, DvlOutage, FaultConfig, FaultLog, ImuGap};
 pub use learned::{beamsnet_inputs, complete_beams};
 pub use montecarlo::{
@@ -28,6 +31,7 @@ pub use report::{
 pub use run::{
     error_state, filter_imu_spec, initial_covariance, initial_nominal, run_filter,
     run_filter_with_observer, CrossMatrix, CrossSource, FilterRun, MeasurementSet,
+    FILTER_BIAS_TIME_CONSTANT,
 };
 pub use scenario::{DvlEpoch, Scenario};
 

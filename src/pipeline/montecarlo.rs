@@ -56,7 +56,7 @@ pub struct VariantConsistency {
     pub covariance_not_positive_definite: usize,
     /// Updates rejected by the gate, all runs.
     pub updates_rejected: usize,
-    /// Position error RMSE over runs and epochs [m].
+    /// Position error RMSE over runs and epochs \[m\].
     pub position_rmse_m: f64,
 }
 
@@ -67,6 +67,8 @@ pub struct MonteCarloReport {
     pub runs: usize,
     /// Seeds used: `first_seed .. first_seed + runs`.
     pub first_seed: u64,
+    /// DVL epochs per mission (of the first completed run; every mission has the same length).
+    pub epochs: usize,
     /// Per variant, keyed by filter id; serialised as an array (each entry has its id).
     #[serde(serialize_with = "variants_as_array")]
     pub variants: BTreeMap<String, VariantConsistency>,
@@ -109,7 +111,7 @@ fn one_mission(
         (
             ORACLE_SCALED,
             oracle,
-            CrossSource::Scaled(config.filter.rho),
+            CrossSource::paper(config.filter.rho, config.filter.paper_m_basis),
         ),
     ];
     if let Some(make) = learned {
@@ -122,7 +124,7 @@ fn one_mission(
         jobs.push((
             BEAMSNET_SCALED,
             set.clone(),
-            CrossSource::Scaled(config.filter.rho),
+            CrossSource::paper(config.filter.rho, config.filter.paper_m_basis),
         ));
         if let Some(m) = l.sensitivity {
             jobs.push((BEAMSNET_SENSITIVITY, set, CrossSource::PerEpoch(m)));
@@ -222,6 +224,11 @@ pub fn monte_carlo(
     Ok(MonteCarloReport {
         runs,
         first_seed,
+        epochs: all
+            .iter()
+            .flat_map(|m| m.iter())
+            .find_map(|(_, r)| r.as_ref().ok())
+            .map_or(0, |r| r.nees.len()),
         variants,
     })
 }

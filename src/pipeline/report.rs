@@ -125,15 +125,15 @@ pub struct LearnedInputs {
 /// RMSE, MAE, R^2, VAF of the velocity norm (paper Tables I/II).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct VelocityMetrics {
-    /// Root-mean-square error [m/s].
+    /// Root-mean-square error \[m/s\].
     #[serde(rename = "rmse_mps")]
     pub rmse: f64,
-    /// Mean absolute error [m/s].
+    /// Mean absolute error \[m/s\].
     #[serde(rename = "mae_mps")]
     pub mae: f64,
     /// Coefficient of determination.
     pub r2: f64,
-    /// Variance accounted for [%].
+    /// Variance accounted for \[%\].
     #[serde(rename = "vaf_percent")]
     pub vaf: f64,
 }
@@ -150,11 +150,11 @@ pub struct FilterSummary {
     /// (serialised with the unit in each key: `position_m`, `velocity_mps`, ...).
     #[serde(serialize_with = "super::stats::serialize_groups_with_units")]
     pub std: BTreeMap<String, StdSummary>,
-    /// |position error| against truth [m].
+    /// |position error| against truth \[m\].
     pub position_error_m: ErrorSummary,
-    /// |velocity error| against truth [m/s].
+    /// |velocity error| against truth \[m/s\].
     pub velocity_error_mps: ErrorSummary,
-    /// |attitude error| against truth [deg].
+    /// |attitude error| against truth \[deg\].
     pub attitude_error_deg: ErrorSummary,
     /// Time-averaged NEES (15 states) against truth, over the epochs where P was
     /// positive definite.
@@ -211,7 +211,7 @@ pub struct TrajectoryReport {
     /// A-KIT trajectory number, if any.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub trajectory: Option<u32>,
-    /// Duration [s].
+    /// Duration \[s\].
     pub duration_s: f64,
     /// DVL epochs.
     pub dvl_epochs: usize,
@@ -229,7 +229,7 @@ pub struct TrajectoryReport {
     /// The raw time series (not serialised; for CSV and plots).
     #[serde(skip)]
     pub runs: Vec<FilterRun>,
-    /// Truth north/east relative to the start at the DVL epochs [m] (for plots).
+    /// Truth north/east relative to the start at the DVL epochs \[m\] (for plots).
     #[serde(skip)]
     pub truth_north_east: Vec<[f64; 2]>,
 }
@@ -377,7 +377,7 @@ pub fn analyse(
         jobs.push((
             BEAMSNET_SCALED,
             set.clone(),
-            CrossSource::Scaled(config.filter.rho),
+            CrossSource::paper(config.filter.rho, config.filter.paper_m_basis),
         ));
         if let Some(m) = &l.sensitivity {
             jobs.push((BEAMSNET_SENSITIVITY, set, CrossSource::PerEpoch(m.clone())));

@@ -25,7 +25,7 @@ pub const MAX_SYNTHESIZED_IMU_SAMPLES: f64 = 5e6;
 pub struct DvlEpoch {
     /// The update is applied after IMU sample `imu_index - 1`, i.e. at `truth[imu_index]`.
     pub imu_index: usize,
-    /// Velocity at the DVL in its frame [m/s] (the real DVL's on A-KIT, exact in simulation).
+    /// Velocity at the DVL in its frame \[m/s\] (the real DVL's on A-KIT, exact in simulation).
     pub reference_velocity: Vector3<f64>,
     /// Beam velocities from the BeamsNet protocol (NaN for a missing beam).
     pub beams: Vector4<f64>,
