@@ -126,6 +126,8 @@ mod gaussian;
 mod observer;
 mod runner;
 mod scalar;
+mod sigma_point;
+mod square_root;
 mod traits;
 mod update;
 
@@ -141,6 +143,11 @@ pub use cross::{
 pub use error::{Error, Result};
 pub use gaussian::{check_finite, check_symmetric, symmetrize, StateAndCovariance};
 pub use scalar::{lit, to_f64, Scalar};
+pub use sigma_point::{unscented_predict, unscented_update, UnscentedOutcome, UnscentedTransform};
+pub use square_root::{
+    check_joint_factor, covariance_factor, square_root_predict, square_root_update,
+    SquareRootKalmanFilter, SquareRootOutcome,
+};
 pub use traits::{
     CrossCovariance, CrossCovarianceContext, ErrorStateModel, InputSpec, LearnedMeasurement,
     MeasurementModel, ProcessModel,
