@@ -182,7 +182,20 @@ fn semidefinite_cholesky<T: Scalar, L: Square<T>>(
     joint: impl Fn(usize, usize) -> T,
     l: &mut L,
 ) -> bool {
-    let tol = lit::<T>(PIVOT_TOLERANCE * n as f64) * T::default_epsilon();
+    semidefinite_cholesky_sized(n, n, given, joint, l)
+}
+
+/// [`semidefinite_cholesky`] with the tolerance of a matrix of size `tol_size`
+/// (>= n: the leading block of a larger joint matrix).
+#[inline(always)]
+fn semidefinite_cholesky_sized<T: Scalar, L: Square<T>>(
+    n: usize,
+    tol_size: usize,
+    given: usize,
+    joint: impl Fn(usize, usize) -> T,
+    l: &mut L,
+) -> bool {
+    let tol = lit::<T>(PIVOT_TOLERANCE * tol_size as f64) * T::default_epsilon();
     for j in 0..n {
         let jj = joint(j, j);
         let tol_j = tol * jj.abs();
@@ -243,16 +256,14 @@ pub(crate) fn joint_factor<T: Scalar, const N: usize, const M: usize>(
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
 ) -> Option<Blocks<T, N, M, N, M>> {
-    let mut l = Blocks::<T, N, M, N, M>::zeros();
-    let joint = |i: usize, k: usize| -> T {
-        match (i < N, k < N) {
-            (true, true) => covariance[(i, k)],
-            (false, true) => cross_covariance[(k, i - N)],
-            (false, false) => measurement_noise[(i - N, k - N)],
-            (true, false) => cross_covariance[(i, k - N)],
-        }
-    };
-    semidefinite_cholesky(N + M, 0, joint, &mut l).then_some(l)
+    // Leading block on a plain static matrix (the hot part, no block addressing),
+    // with the tolerance of the whole joint's size, then the rows of [M' R].
+    let mut l11 = SMatrix::<T, N, N>::zeros();
+    let tol_size = N + M;
+    if !semidefinite_cholesky_sized(N, tol_size, 0, |i, k| covariance[(i, k)], &mut l11) {
+        return None;
+    }
+    joint_factor_from(&l11, cross_covariance, measurement_noise)
 }
 
 /// The joint factor of [[S S', M], [M', R]] for a given lower-triangular S (the

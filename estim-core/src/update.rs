@@ -190,25 +190,27 @@ fn square_root_form<T: Scalar, const N: usize, const M: usize>(
     cross_covariance: &SMatrix<T, N, M>,
     gain: &SMatrix<T, N, M>,
 ) -> Option<SMatrix<T, N, N>> {
-    let ikh = identity_minus_kh(gain, &factored.jacobian);
     let l = crate::square_root::joint_factor(
         covariance,
         cross_covariance,
         &factored.measurement_noise,
     )?;
-    // B1 = (I-KH) L11 - K L21 (N x N), B2 = -K L22 (N x M; the sign does not matter
-    // in B B').
-    let b1 = mul_static(&ikh, &l.a) - mul_static(gain, &l.c);
+    // B1 = (I-KH) L11 - K L21 = L11 - K (H L11 + L21) (N x N, N^2 M work instead
+    // of N^3), B2 = -K L22 (N x M; the sign does not matter in B B').
+    let hl = mul_static(&factored.jacobian, &l.a) + l.c;
+    let b1 = l.a - mul_static(gain, &hl);
     let b2 = mul_static(gain, &l.d);
+    // Transposed so that the Gram products below run down contiguous columns.
+    let (b1, b2) = (b1.transpose(), b2.transpose());
     let mut out = SMatrix::<T, N, N>::zeros();
     for j in 0..N {
         for i in 0..=j {
             let mut v = T::zero();
             for k in 0..N {
-                v += b1[(i, k)] * b1[(j, k)];
+                v += b1[(k, i)] * b1[(k, j)];
             }
             for k in 0..M {
-                v += b2[(i, k)] * b2[(j, k)];
+                v += b2[(k, i)] * b2[(k, j)];
             }
             out[(i, j)] = v;
             out[(j, i)] = v;
