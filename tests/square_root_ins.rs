@@ -89,7 +89,7 @@ fn one_hour_ins_mission_in_square_root_form() {
     // A valid M: half the largest valid scaled correlation on the first interval's
     // accumulated process noise (as in tests/long_mission.rs).
     let mut probe = SquareRootInsFilter {
-        process: process.clone(),
+        process,
         nominal: nominal0,
         factor: covariance_factor(&p0, "P0").unwrap(),
         accumulated_noise: Matrix15::zeros(),
@@ -113,14 +113,15 @@ fn one_hour_ins_mission_in_square_root_form() {
 
     // M = 0 is the special case of the same code path; the valid nonzero M is the
     // one run here (one run keeps the test at about 20 s in release).
-    for (name, m) in [("Fixed(valid M)", valid_m)] {
+    let (name, m) = ("Fixed(valid M)", valid_m);
+    {
         let mut sqrt_filter = SquareRootInsFilter {
-            process: process.clone(),
+            process,
             nominal: nominal0,
             factor: covariance_factor(&p0, "P0").unwrap(),
             accumulated_noise: Matrix15::zeros(),
         };
-        let mut reference = ErrorStateKalmanFilter::new(process.clone(), nominal0, p0).unwrap();
+        let mut reference = ErrorStateKalmanFilter::new(process, nominal0, p0).unwrap();
         let mut k = 0;
         let (mut worst_diag, mut worst_rel) = (f64::INFINITY, 0.0f64);
         for (epoch, dvl) in scenario.dvl.iter().enumerate() {
