@@ -112,7 +112,7 @@ impl<T: Scalar, const R1: usize, const R2: usize, const C1: usize, const C2: usi
                     continue;
                 }
                 let a = self.get(i, i);
-                let r = a.hypot(b);
+                let r = radius(a, b);
                 let (c, s) = (a / r, b / r);
                 // Rows above i are zero in columns i and j (> their own index).
                 for k in i..rows {
@@ -160,6 +160,20 @@ impl<T: Scalar, const N: usize> Square<T> for SMatrix<T, N, N> {
     #[inline(always)]
     fn set(&mut self, i: usize, k: usize, v: T) {
         self[(i, k)] = v;
+    }
+}
+
+/// sqrt(x^2 + y^2) for a Givens rotation: the plain formula (several times faster
+/// than `hypot`), with `hypot` where the squares overflow or both underflow to zero
+/// (entries beyond ~1e+-154 in f64; precision is kept down to ~1e-160, where the
+/// squares are subnormal).
+#[inline(always)]
+fn radius<T: Scalar>(x: T, y: T) -> T {
+    let r = (x * x + y * y).sqrt();
+    if r.is_finite() && r > T::zero() {
+        r
+    } else {
+        x.hypot(y)
     }
 }
 
@@ -326,13 +340,9 @@ pub fn square_root_predict<T: Scalar, const N: usize>(
     transition: &SMatrix<T, N, N>,
     noise_factor: &SMatrix<T, N, N>,
 ) -> Result<SMatrix<T, N, N>> {
-    let mut pre = Blocks::<T, N, 0, N, N> {
-        a: mul_static(transition, factor),
-        b: *noise_factor,
-        c: SMatrix::zeros(),
-        d: SMatrix::zeros(),
-    };
-    if !pre.a.iter().chain(pre.b.iter()).all(|v| v.is_finite()) {
+    let mut a = mul_static(transition, factor);
+    let mut b = *noise_factor;
+    if !a.iter().chain(b.iter()).all(|v| v.is_finite()) {
         check_finite(transition.as_slice(), "transition")?;
         check_finite(factor.as_slice(), "covariance factor")?;
         check_finite(noise_factor.as_slice(), "process noise factor")?;
@@ -340,9 +350,69 @@ pub fn square_root_predict<T: Scalar, const N: usize>(
             what: "predicted covariance factor (overflow)",
         });
     }
-    pre.lower_triangularize();
-    check_finite(pre.a.as_slice(), "predicted covariance factor")?;
-    Ok(pre.a)
+    lower_triangularize_pair(&mut a, &mut b);
+    check_finite(a.as_slice(), "predicted covariance factor")?;
+    Ok(a)
+}
+
+/// Givens rotation of columns (i of `a`, j of `b`) over rows `from..`, chosen to zero
+/// `b[(row, j)]` against `a[(row, i)]`.
+#[inline(always)]
+fn rotate_columns<T: Scalar, const R: usize, const C1: usize, const C2: usize>(
+    a: &mut SMatrix<T, R, C1>,
+    i: usize,
+    b: &mut SMatrix<T, R, C2>,
+    j: usize,
+    row: usize,
+) {
+    let y = b[(row, j)];
+    if y.is_zero() {
+        return;
+    }
+    let x = a[(row, i)];
+    let r = radius(x, y);
+    let (c, s) = (x / r, y / r);
+    let (mut ca, mut cb) = (a.column_mut(i), b.column_mut(j));
+    for (u, v) in ca.iter_mut().zip(cb.iter_mut()).skip(row) {
+        let (p, q) = (*u, *v);
+        *u = c * p + s * q;
+        *v = c * q - s * p;
+    }
+    b[(row, j)] = T::zero();
+}
+
+/// [a, b] Theta = [L, 0] for two column blocks (R <= C1), L lower triangular with a
+/// nonnegative diagonal, by Givens rotations on contiguous columns (same algorithm
+/// as [`Blocks::lower_triangularize`], specialised to one row block).
+fn lower_triangularize_pair<T: Scalar, const R: usize, const C1: usize, const C2: usize>(
+    a: &mut SMatrix<T, R, C1>,
+    b: &mut SMatrix<T, R, C2>,
+) {
+    for i in 0..R.min(C1) {
+        for j in (i + 1)..C1 {
+            let y = a[(i, j)];
+            if y.is_zero() {
+                continue;
+            }
+            let x = a[(i, i)];
+            let r = radius(x, y);
+            let (c, s) = (x / r, y / r);
+            for k in i..R {
+                let (p, q) = (a[(k, i)], a[(k, j)]);
+                a[(k, i)] = c * p + s * q;
+                a[(k, j)] = c * q - s * p;
+            }
+            a[(i, j)] = T::zero();
+        }
+        for j in 0..C2 {
+            rotate_columns(a, i, b, j, i);
+        }
+        if a[(i, i)] < T::zero() {
+            for k in i..R {
+                a[(k, i)] = -a[(k, i)];
+            }
+        }
+    }
 }
 
 /// Everything a square-root update produced.
