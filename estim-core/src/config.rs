@@ -80,7 +80,7 @@ pub enum JointCheck {
 }
 
 /// Checked configuration shared by the runners. Build with [`FilterConfig::builder`];
-/// [`FilterConfig::default`] is Joseph-like form, no gate, joint covariance reported.
+/// [`FilterConfig::default`] is the square-root form, no gate, joint covariance reported.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FilterConfig {
     form: CovarianceUpdate,
@@ -166,7 +166,7 @@ pub struct FilterConfigBuilder {
 }
 
 impl FilterConfigBuilder {
-    /// Posterior covariance form (Joseph-like by default).
+    /// Posterior covariance form (square-root by default; see `CovarianceUpdate`).
     pub fn covariance_update(self, form: CovarianceUpdate) -> Self {
         Self { form, ..self }
     }

@@ -63,7 +63,8 @@
 //! K  = (P H' + M) S^-1
 //! x+ = x + K (y - h(x))
 //! P+ = P - K (H P + M')                                         (short form, optimal K)
-//! P+ = (I-KH) P (I-KH)' + K R K' - (I-KH) M K' - K M' (I-KH)'   (Joseph-like, any K; default)
+//! P+ = (I-KH) P (I-KH)' + K R K' - (I-KH) M K' - K M' (I-KH)'   (Joseph-like, any K)
+//! P+ = (T L)(T L)', T = [I-KH, -K], L L' = [[P, M], [M', R]]   (square root, any K; default)
 //! NIS = (y - h(x))' S^-1 (y - h(x))
 //! ```
 //!
@@ -82,6 +83,18 @@
 //! [`Error::InnovationNotPositiveDefinite`]; an S that factorises but is numerically
 //! singular (reciprocal condition of its correlation matrix below 1000 eps) is
 //! [`Error::InnovationIllConditioned`]. A result is either finite or an error.
+//!
+//! [`CovarianceUpdate`] documents the four forms, why the square-root one is the
+//! default, and its fallback when [[P, M], [M', R]] has no square root.
+//!
+//! ## Square-root and sigma-point forms
+//!
+//! [`SquareRootKalmanFilter`] keeps a Cholesky factor of P and refuses an M whose
+//! joint covariance with Q_acc has no square root; [`square_root_predict`] and
+//! [`square_root_update`] are its steps as free functions (for error-state
+//! runners). [`unscented_predict`] and [`unscented_update`] are the sigma-point
+//! (unscented) steps, the update drawing sigma points over the joint [x; v] with
+//! covariance [[P, M], [M', R]].
 //!
 //! ## Runners, gate, observers
 //!
@@ -161,6 +174,8 @@ mod gaussian;
 mod observer;
 mod runner;
 mod scalar;
+mod sigma_point;
+mod square_root;
 mod traits;
 mod update;
 pub mod window;
@@ -177,6 +192,11 @@ pub use cross::{
 pub use error::{Error, Result};
 pub use gaussian::{check_finite, check_symmetric, symmetrize, StateAndCovariance};
 pub use scalar::{lit, to_f64, Scalar};
+pub use sigma_point::{unscented_predict, unscented_update, UnscentedOutcome, UnscentedTransform};
+pub use square_root::{
+    check_joint_factor, covariance_factor, square_root_predict, square_root_update,
+    SquareRootKalmanFilter, SquareRootOutcome,
+};
 pub use traits::{
     CrossCovariance, CrossCovarianceContext, ErrorStateModel, InputSpec, LearnedMeasurement,
     MeasurementModel, ProcessModel,
