@@ -337,7 +337,11 @@ fn discrete_noise_matches_monte_carlo_of_imu_noise() {
 
 /// Phi P Phi' + Q by three explicit loops (the reference; no structure, no nalgebra
 /// product).
-fn dense_reference(p: &SMatrix<f64, 15, 15>, phi: &SMatrix<f64, 15, 15>, q: &SMatrix<f64, 15, 15>) -> SMatrix<f64, 15, 15> {
+fn dense_reference(
+    p: &SMatrix<f64, 15, 15>,
+    phi: &SMatrix<f64, 15, 15>,
+    q: &SMatrix<f64, 15, 15>,
+) -> SMatrix<f64, 15, 15> {
     let mut phi_p = SMatrix::<f64, 15, 15>::zeros();
     for i in 0..15 {
         for j in 0..15 {
