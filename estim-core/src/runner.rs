@@ -5,7 +5,7 @@
 use nalgebra::{SMatrix, SVector};
 
 use crate::config::JointCheck;
-use crate::cross::{check_joint_covariance, joint_min_correlation_eigenvalue};
+use crate::cross::{check_joint_covariance, joint_validity_margin};
 use crate::gaussian::{check_finite, check_symmetric, symmetrize};
 use crate::observer::{NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
 use crate::scalar::lit;
@@ -164,15 +164,11 @@ where
     let cross_covariance = cross.cross_covariance(&context)?;
     let joint_min_eigenvalue = match config.joint_check() {
         JointCheck::Skip => None,
-        JointCheck::Report => {
-            check_finite(cross_covariance.as_slice(), "cross-covariance")?;
-            check_finite(measurement_noise.as_slice(), "measurement noise covariance")?;
-            Some(joint_min_correlation_eigenvalue(
-                &accumulated.noise,
-                &cross_covariance,
-                measurement_noise,
-            ))
-        }
+        JointCheck::Report => Some(joint_validity_margin(
+            &accumulated.noise,
+            &cross_covariance,
+            measurement_noise,
+        )?),
         JointCheck::Reject => Some(check_joint_covariance(
             &accumulated.noise,
             &cross_covariance,
