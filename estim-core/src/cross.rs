@@ -196,14 +196,13 @@ pub fn joint_min_correlation_eigenvalue<T: Scalar, const N: usize, const M: usiz
 }
 
 /// Tolerance on the smallest eigenvalue (and the LDL' pivots) of the joint correlation
-/// matrix: 2^-4 sqrt(eps) of the scalar, 9.3e-10 in f64 (the former fixed 1e-9) and
-/// 2.2e-5 in f32. Why the square root: Q_acc and M are products of many steps, whose
-/// rounding (relative ~ steps x eps) moves a zero eigenvalue of a semidefinite joint
-/// covariance (Q_acc is often singular) by far more than a few eps, while an invalid
-/// M (e.g. rho beyond its bound by 1e-6) moves it by orders of magnitude more than
-/// sqrt(eps).
+/// matrix: [`crate::relative_tolerance`], 9.3e-10 in f64 (the former fixed 1e-9) and
+/// 2.2e-5 in f32. Why the square root of eps: Q_acc and M are products of many steps,
+/// whose rounding (relative ~ steps x eps) moves a zero eigenvalue of a semidefinite
+/// joint covariance (Q_acc is often singular) by far more than a few eps, while an
+/// invalid M (e.g. rho beyond its bound by 1e-6) moves it by orders of magnitude more.
 pub fn joint_tolerance<T: Scalar>() -> T {
-    T::default_epsilon().sqrt() * lit::<T>(0.0625)
+    crate::scalar::relative_tolerance()
 }
 
 /// Certify [[Q, B], [B', C]] (already scaled to unit diagonal) positive semidefinite by

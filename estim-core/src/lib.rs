@@ -149,7 +149,7 @@ pub use cross::{
 };
 pub use error::{Error, Result};
 pub use gaussian::{check_finite, check_symmetric, symmetrize, StateAndCovariance};
-pub use scalar::{lit, to_f64, Scalar};
+pub use scalar::{lit, relative_tolerance, to_f64, Scalar};
 pub use traits::{
     CrossCovariance, CrossCovarianceContext, ErrorStateModel, InputSpec, LearnedMeasurement,
     MeasurementModel, ProcessModel,
