@@ -219,25 +219,27 @@ fn certify_psd<T: Scalar, const N: usize, const M: usize>(
     mut c: SMatrix<T, M, M>,
     tol: T,
 ) -> Option<T> {
+    // Only the upper triangles of the symmetric blocks A and C are read and updated.
     let mut smallest = T::one();
     for k in 0..N {
         let d = a[(k, k)];
         smallest = smallest.min(d);
         if d > tol {
+            let inv = T::one() / d;
             for j in (k + 1)..N {
-                let f = a[(k, j)] / d;
-                for i in (k + 1)..N {
-                    let v = a[(i, k)] * f;
+                let f = a[(k, j)] * inv;
+                for i in (k + 1)..=j {
+                    let v = a[(k, i)] * f;
                     a[(i, j)] -= v;
                 }
             }
             for j in 0..M {
-                let f = b[(k, j)] / d;
+                let f = b[(k, j)] * inv;
                 for i in (k + 1)..N {
-                    let v = a[(i, k)] * f;
+                    let v = a[(k, i)] * f;
                     b[(i, j)] -= v;
                 }
-                for i in 0..M {
+                for i in 0..=j {
                     let v = b[(k, i)] * f;
                     c[(i, j)] -= v;
                 }
@@ -253,10 +255,11 @@ fn certify_psd<T: Scalar, const N: usize, const M: usize>(
         let d = c[(k, k)];
         smallest = smallest.min(d);
         if d > tol {
+            let inv = T::one() / d;
             for j in (k + 1)..M {
-                let f = c[(k, j)] / d;
-                for i in (k + 1)..M {
-                    let v = c[(i, k)] * f;
+                let f = c[(k, j)] * inv;
+                for i in (k + 1)..=j {
+                    let v = c[(k, i)] * f;
                     c[(i, j)] -= v;
                 }
             }
@@ -298,9 +301,22 @@ pub fn joint_validity_margin<T: Scalar, const N: usize, const M: usize>(
     let half = lit::<T>(0.5);
     let dq = q.diagonal().map(inverse_sqrt_or_one);
     let dr = r.diagonal().map(inverse_sqrt_or_one);
-    let a = SMatrix::<T, N, N>::from_fn(|i, j| (q[(i, j)] + q[(j, i)]) * half * dq[i] * dq[j]);
+    // Upper triangles only (the certificate reads no other entry).
+    let a = SMatrix::<T, N, N>::from_fn(|i, j| {
+        if i <= j {
+            (q[(i, j)] + q[(j, i)]) * half * dq[i] * dq[j]
+        } else {
+            T::zero()
+        }
+    });
     let b = SMatrix::<T, N, M>::from_fn(|i, j| m[(i, j)] * dq[i] * dr[j]);
-    let c = SMatrix::<T, M, M>::from_fn(|i, j| (r[(i, j)] + r[(j, i)]) * half * dr[i] * dr[j]);
+    let c = SMatrix::<T, M, M>::from_fn(|i, j| {
+        if i <= j {
+            (r[(i, j)] + r[(j, i)]) * half * dr[i] * dr[j]
+        } else {
+            T::zero()
+        }
+    });
     match certify_psd(a, b, c, joint_tolerance::<T>()) {
         Some(smallest_pivot) => Ok(smallest_pivot),
         None => joint_min_correlation_eigenvalue(q, m, r),
