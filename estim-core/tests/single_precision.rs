@@ -30,7 +30,7 @@ fn to_f32(m: &Matrix2<f64>) -> Matrix2<f32> {
 
 /// The initial covariance in f32: 0.3 and the next float up off the diagonal.
 fn initial_covariance() -> Matrix2<f32> {
-    let p = Matrix2::new(1.0f32, 0.3, 0.3f32.next_up(), 2.0);
+    let p = Matrix2::new(1.0f32, 0.3, f32::from_bits(0.3f32.to_bits() + 1), 2.0);
     // The asymmetry is one ulp (relative 1.5e-8 of the largest entry): a valid f32
     // covariance, rejected by a fixed 1e-9 and accepted by the scalar's tolerance.
     let asymmetry = (p[(0, 1)] - p[(1, 0)]).abs() / 2.0;
