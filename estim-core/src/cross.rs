@@ -210,7 +210,7 @@ pub fn joint_tolerance<T: Scalar>() -> T {
 /// are eliminated; a pivot within [-tol, tol] is accepted as a zero variance only if the
 /// rest of its row is within tol too (a semidefinite matrix with a zero pivot has a zero
 /// row), so the matrix is L D L' + E with D >= 0 and |E| <= tol entrywise. Returns the
-/// smallest pivot, or `None` when this does not certify it (a negative pivot, or a near
+/// smallest pivot (clamped at 0), or `None` when this does not certify it (a negative pivot, or a near
 /// zero pivot with a nonzero row: invalid, or too close to call without an eigen
 /// decomposition).
 fn certify_psd<T: Scalar, const N: usize, const M: usize>(
@@ -267,7 +267,8 @@ fn certify_psd<T: Scalar, const N: usize, const M: usize>(
             return None;
         }
     }
-    Some(smallest)
+    // A pivot accepted as zero may be a round-off -tol..0: certified means >= 0.
+    Some(smallest.max(T::zero()))
 }
 
 /// How valid the joint covariance [[Q_acc, M], [M', R]] is, without allocating when it
@@ -275,7 +276,7 @@ fn certify_psd<T: Scalar, const N: usize, const M: usize>(
 /// semidefinite (to that tolerance, on the correlation matrix C = D^-1/2 J D^-1/2).
 ///
 /// - Valid (certified by a static LDL' of C, the fast path): the smallest LDL' pivot of
-///   C, in [-tol, 1]. It is an upper bound on the smallest eigenvalue of C and is 0
+///   C, clamped at 0, so in [0, 1]. It is an upper bound on the smallest eigenvalue of C and is 0
 ///   exactly when C is singular (to the tolerance); small means M is near the edge of
 ///   what a covariance allows.
 /// - Otherwise (a negative or inconclusive pivot): the smallest eigenvalue of C, from
