@@ -1,5 +1,6 @@
 //! Runner configuration: covariance form, innovation gate, joint-covariance policy.
 
+#[cfg(feature = "consistency")]
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use crate::{CovarianceUpdate, Error, Result};
@@ -30,7 +31,8 @@ impl Gate {
     ///
     /// # Errors
     /// [`Error::InvalidParameter`] for a probability outside (0, 1), a non-positive
-    /// threshold or `m = 0`.
+    /// threshold or `m = 0`, and for [`Gate::Nis`] when estim-core is built without its
+    /// `consistency` feature (no chi-square quantile; use [`Gate::NisThreshold`]).
     pub fn threshold(&self, m: usize) -> Result<Option<f64>> {
         match *self {
             Gate::None => Ok(None),
@@ -41,11 +43,7 @@ impl Gate {
                         reason: format!("{probability} is not in (0, 1)"),
                     });
                 }
-                let chi2 = ChiSquared::new(m as f64).map_err(|e| Error::InvalidParameter {
-                    name: "measurement size",
-                    reason: format!("chi-square with {m} degrees of freedom: {e}"),
-                })?;
-                Ok(Some(chi2.inverse_cdf(probability)))
+                chi_square_quantile(m, probability).map(Some)
             }
             Gate::NisThreshold(t) => {
                 if t.is_finite() && t > 0.0 {
@@ -61,16 +59,43 @@ impl Gate {
     }
 }
 
+/// The `probability` quantile of chi-square(`m`).
+#[cfg(feature = "consistency")]
+fn chi_square_quantile(m: usize, probability: f64) -> Result<f64> {
+    let chi2 = ChiSquared::new(m as f64).map_err(|e| Error::InvalidParameter {
+        name: "measurement size",
+        reason: format!("chi-square with {m} degrees of freedom: {e}"),
+    })?;
+    Ok(chi2.inverse_cdf(probability))
+}
+
+/// Without the `consistency` feature there is no chi-square quantile: refuse the gate.
+#[cfg(not(feature = "consistency"))]
+fn chi_square_quantile(_m: usize, _probability: f64) -> Result<f64> {
+    Err(Error::InvalidParameter {
+        name: "gate",
+        reason: "Gate::Nis needs estim-core's `consistency` feature (chi-square quantiles); \
+                 use Gate::NisThreshold"
+            .into(),
+    })
+}
+
 /// What a runner does with the joint covariance [[Q_acc, M], [M', R]] at each update.
 ///
-/// Computing its smallest eigenvalue allocates (a dynamic (N+M)-square eigen
-/// decomposition); `Skip` avoids that cost and reports `None`.
+/// Both checking policies use [`crate::joint_validity_margin`]: a static LDL' of the
+/// joint correlation matrix first (no allocation, about (N+M)^3/6 multiply-adds), and
+/// an allocating (N+M)-square eigen decomposition only when that factorisation does
+/// not certify the matrix (invalid, or too close to call). The reported number is >=
+/// -[`crate::joint_tolerance`] iff the joint covariance is valid: for a valid one it is
+/// the smallest LDL' pivot of the correlation matrix (0 when singular, at most 1; an
+/// upper bound on its smallest eigenvalue), for an invalid one the smallest eigenvalue.
+/// `Skip` avoids even the factorisation and reports `None`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[non_exhaustive]
 pub enum JointCheck {
     /// Do not compute it; the update report says `None` (not checked).
     Skip,
-    /// Compute the smallest eigenvalue and put it in the update report (default).
+    /// Compute the validity margin and put it in the update report (default).
     #[default]
     Report,
     /// Compute it and fail with [`Error::InvalidJointCovariance`] when the joint
@@ -234,6 +259,7 @@ mod tests {
     use super::*;
 
     #[test]
+    #[cfg(feature = "consistency")]
     fn gate_thresholds_match_published_chi_square_quantiles() {
         // Published 95 % and 99 % quantiles (e.g. NIST/SEMATECH e-Handbook table 1.3.6.7.4).
         let g = FilterConfig::builder()
@@ -253,6 +279,13 @@ mod tests {
 
     #[test]
     fn invalid_gates_are_typed_errors() {
+        #[cfg(not(feature = "consistency"))]
+        assert!(matches!(
+            FilterConfig::builder()
+                .gate(Gate::Nis { probability: 0.99 })
+                .build(),
+            Err(Error::InvalidParameter { name: "gate", .. })
+        ));
         for gate in [
             Gate::Nis { probability: 0.0 },
             Gate::Nis { probability: 1.0 },

@@ -31,7 +31,7 @@ pub enum Error {
     #[error("joint covariance [[Q_acc, M], [M', R]] is not positive semidefinite (smallest eigenvalue of its correlation matrix {min_eigenvalue:e})")]
     InvalidJointCovariance {
         /// Smallest eigenvalue of the joint correlation matrix
-        /// diag(J)^-1/2 J diag(J)^-1/2 (below -1e-9).
+        /// diag(J)^-1/2 J diag(J)^-1/2 (below -[`crate::joint_tolerance`], 9.3e-10 in f64).
         min_eigenvalue: f64,
     },
     /// A covariance matrix that must be positive (semi)definite is not.

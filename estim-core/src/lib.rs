@@ -115,10 +115,16 @@
 //!
 //! ## Consistency
 //!
-//! [`nees`], [`nis`], [`chi_square_band`] (two-sided band of the average of R
+//! [`nees`], [`nis`], `chi_square_band` (two-sided band of the average of R
 //! chi-square(dof) values, `chi2_{dof R}` quantiles divided by R) and
-//! [`monte_carlo`] (rayon, run i seeded with `ChaCha8Rng::seed_from_u64(i)`,
+//! `monte_carlo` (rayon, run i seeded with `ChaCha8Rng::seed_from_u64(i)`,
 //! deterministic).
+//!
+//! Cargo feature `consistency` (default on): `chi_square_band`, `monte_carlo` and the
+//! chi-square quantile of [`Gate::Nis`] need statrs, rayon and rand. With
+//! `default-features = false` none of them is compiled; `nees`, `nis` and every filter
+//! remain, and [`Gate::Nis`] is refused with [`Error::InvalidParameter`] (use
+//! [`Gate::NisThreshold`]).
 //!
 //! ## Walkthrough: the correlated update in another domain
 //!
@@ -181,17 +187,20 @@ mod update;
 pub mod window;
 
 pub use config::{FilterConfig, FilterConfigBuilder, Gate, JointCheck};
-pub use consistency::{average_over_runs, chi_square_band, monte_carlo, nees, nis, ChiSquareBand};
+pub use consistency::{average_over_runs, nees, nis};
+#[cfg(feature = "consistency")]
+pub use consistency::{chi_square_band, monte_carlo, ChiSquareBand};
 pub use observer::{NisRecorder, NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
 pub use runner::{ErrorStateKalmanFilter, ExtendedKalmanFilter, KalmanFilter, UpdateReport};
 
 pub use cross::{
     check_joint_covariance, joint_covariance, joint_min_correlation_eigenvalue,
-    joint_min_eigenvalue, largest_valid_scale, Fixed, ScaledCorrelation, Zero,
+    joint_min_eigenvalue, joint_tolerance, joint_validity_margin, largest_valid_scale, Fixed,
+    ScaledCorrelation, Zero,
 };
 pub use error::{Error, Result};
 pub use gaussian::{check_finite, check_symmetric, symmetrize, StateAndCovariance};
-pub use scalar::{lit, to_f64, Scalar};
+pub use scalar::{lit, relative_tolerance, to_f64, Scalar};
 pub use sigma_point::{unscented_predict, unscented_update, UnscentedOutcome, UnscentedTransform};
 pub use square_root::{
     check_joint_factor, covariance_factor, square_root_predict, square_root_update,

@@ -12,7 +12,7 @@
 use nalgebra::{SMatrix, SVector};
 
 use crate::config::JointCheck;
-use crate::cross::{check_joint_covariance, joint_min_correlation_eigenvalue};
+use crate::cross::{check_joint_covariance, joint_validity_margin};
 use crate::gaussian::{check_finite, check_symmetric, symmetrize};
 use crate::observer::{NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
 use crate::scalar::lit;
@@ -46,8 +46,10 @@ pub struct UpdateReport<T: Scalar, const N: usize, const M: usize> {
     /// The measurement-noise mean used: zero, or for a windowed update
     /// E[v | other updates in the window].
     pub noise_mean: SVector<T, M>,
-    /// Smallest eigenvalue of the correlation matrix of the joint covariance
-    /// (dimensionless; valid iff >= 0, tolerance 1e-9): [[Q_acc, M], [M', R]] for a
+    /// Validity margin of the joint covariance, dimensionless, valid iff >= 0 (see
+    /// [`crate::joint_validity_margin`]: for a valid joint covariance the smallest
+    /// pivot of a static LDL' of its correlation matrix, clamped to [0, 1]; for an
+    /// invalid one the smallest eigenvalue of that matrix): [[Q_acc, M], [M', R]] for a
     /// one-step update, [[P, M], [M', Var(v)]] (the covariance of the error state
     /// augmented with v) for a windowed one. `None` with [`JointCheck::Skip`], or when
     /// a one-step update has M != 0 but Q_acc is not tracked.
@@ -466,9 +468,9 @@ fn joint_eigenvalue<T: Scalar, const N: usize, const M: usize>(
     if check == JointCheck::Reject {
         return check_joint_covariance(a, cross, b);
     }
-    check_finite(cross.as_slice(), "cross-covariance")?;
-    check_finite(b.as_slice(), "measurement noise covariance")?;
-    Ok(joint_min_correlation_eigenvalue(a, cross, b))
+    // Certified without allocation when valid (smallest LDL' pivot, clamped to
+    // [0, 1]); the smallest eigenvalue of the correlation matrix when invalid.
+    joint_validity_margin(a, cross, b)
 }
 
 /// The accessors every runner has, over its `shared` field (one definition).

@@ -196,7 +196,7 @@ where
                 p,
                 cross_covariance,
                 measurement_noise,
-            )),
+            )?),
         });
     };
     let (gamma, wm0, wc0, wi) = transform.weights::<T>(N + M);

@@ -439,12 +439,12 @@ fn invalid_joint<T: Scalar, const N: usize, const M: usize>(
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
 ) -> Error {
-    Error::InvalidJointCovariance {
-        min_eigenvalue: to_f64(joint_min_correlation_eigenvalue(
-            block,
-            cross_covariance,
-            measurement_noise,
-        )),
+    match joint_min_correlation_eigenvalue(block, cross_covariance, measurement_noise) {
+        Ok(min) => Error::InvalidJointCovariance {
+            min_eigenvalue: to_f64(min),
+        },
+        // Non-finite input: say so rather than report a made-up eigenvalue.
+        Err(e) => e,
     }
 }
 
