@@ -126,6 +126,8 @@ mod gaussian;
 mod observer;
 mod runner;
 mod scalar;
+#[cfg(feature = "testing")]
+pub mod testing;
 mod traits;
 mod update;
 pub mod window;
@@ -152,3 +154,6 @@ pub use update::{
 pub use window::{ProcessStep, StepWindow, WindowedCrossCovariance};
 
 pub use nalgebra;
+/// The generator [`monte_carlo`] hands each run (re-exported so callers need not
+/// guess its version).
+pub use rand_chacha;

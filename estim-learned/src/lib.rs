@@ -54,4 +54,7 @@ pub use metadata::{
     BeamGeometryMetadata, InputMetadata, ModelMetadata, OutputMetadata, METADATA_FORMAT,
 };
 pub use metrics::{metrics, speed_metrics, Metrics};
-pub use sensitivity::{CrossMatrix, Empirical, EmpiricalEstimate, ImuWindow, NetworkSensitivity};
+pub use sensitivity::{
+    CrossMatrix, Empirical, EmpiricalEstimate, InputNoise, LearnedCrossCovariance,
+    NetworkSensitivity, IMU_CHANNELS,
+};
