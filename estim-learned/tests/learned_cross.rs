@@ -9,7 +9,7 @@ use estim_core::{
     ExtendedKalmanFilter, FilterConfig, InputSpec, LearnedMeasurement, MeasurementModel,
     ProcessModel, Result, StateAndCovariance, WindowedCrossCovariance,
 };
-use estim_learned::{InputNoise, LearnedCrossCovariance};
+use estim_learned::{InputNoise, LearnedCrossCovariance, LearnedSensor, Observation};
 
 /// p += dt v, v += dt a_measured; acceleration noise variance `q` per sample.
 struct Cart {
@@ -88,18 +88,16 @@ impl LearnedMeasurement<f64, 1> for MeanAcc {
     }
 }
 
-/// Observes the velocity (h(x) and H are the user's).
+/// Observes the velocity: h(x) and H are the user's; R comes from the learned model
+/// through `LearnedSensor`.
 struct Velocity;
-impl MeasurementModel<f64, 2, 1> for Velocity {
+impl Observation<f64, 2, 1> for Velocity {
     type State = Vector2<f64>;
     fn predict(&self, x: &Vector2<f64>) -> Result<Vector1<f64>> {
         Ok(Vector1::new(x[1]))
     }
     fn jacobian(&self, _: &Vector2<f64>) -> Result<Matrix1x2<f64>> {
         Ok(Matrix1x2::new(0.0, 1.0))
-    }
-    fn noise_covariance(&self, _: &Vector2<f64>) -> Result<Matrix1<f64>> {
-        Ok(Matrix1::new(0.01))
     }
 }
 
@@ -174,9 +172,26 @@ fn the_filter_uses_the_exact_cross_covariance() {
     let cross = LearnedCrossCovariance::new::<1>(&model, &cart, &[]).unwrap();
     let window = ekf.step_window(l).unwrap();
     let y = cross.measure::<2, 1>(&window).unwrap();
-    let report = ekf.update_windowed(&Velocity, &y, &cross).unwrap();
+    let sensor = LearnedSensor::new(&model, Velocity);
+    let prior = ekf.estimate().clone();
+    assert_eq!(
+        MeasurementModel::<f64, 2, 1>::noise_covariance(&sensor, prior.state()).unwrap(),
+        model.noise_covariance()
+    );
+    let report = ekf.update_windowed(&sensor, &y, &cross).unwrap();
     let expected = closed_form(l, dt, q, 1.0);
     assert!((report.cross_covariance - expected).norm() <= 1e-12 * expected.norm());
+    // The posterior is the correlated update (Simon 2006, sec. 7.1) with that M,
+    // coded here: S = H P H' + H M + M' H' + R, K = (P H' + M) S^-1.
+    let p = prior.covariance();
+    let h = Matrix1x2::new(0.0, 1.0);
+    let s = h * p * h.transpose()
+        + h * expected
+        + expected.transpose() * h.transpose()
+        + model.noise_covariance();
+    let k = (p * h.transpose() + expected) / s[0];
+    let x = prior.state() + k * (y[0] - prior.state()[1]);
+    assert!((ekf.estimate().state() - x).norm() <= 1e-12 * x.norm().max(1.0));
 }
 
 #[test]
