@@ -78,7 +78,8 @@ impl LinearStep {
         let n = self.x0.len();
         let p = self.g.ncols();
         let m = self.y.len();
-        let checks: [(&'static str, (usize, usize), (usize, usize)); 7] = [
+        type Check = (&'static str, (usize, usize), (usize, usize));
+        let checks: [Check; 7] = [
             ("P0", self.p0.shape(), (n, n)),
             ("F", self.f.shape(), (n, n)),
             ("G", self.g.shape(), (n, p)),
@@ -161,8 +162,8 @@ pub fn stacked_reference(step: &LinearStep) -> Result<(DVector<f64>, DMatrix<f64
     Ok((x, p))
 }
 
-/// Posterior (x_k, P_k) by decorrelation (Simon 2006, sec. 7.1): y_k = (H F) x_{k-1}
-/// + nu with nu = H G w + v; G w = D nu + w~, D = Cov(G w, nu) Cov(nu)^-1, so that
+/// Posterior (x_k, P_k) by decorrelation (Simon 2006, sec. 7.1): y_k = (H F) x_{k-1} +
+/// nu with nu = H G w + v; G w = D nu + w~, D = Cov(G w, nu) Cov(nu)^-1, so that
 /// x_k = (F - D H F) x_{k-1} + D y_k + w~ with w~ uncorrelated with nu: an
 /// uncorrelated update of x_{k-1}, then the decorrelated prediction.
 ///

@@ -313,7 +313,7 @@ where
                 .input_noise_jacobian(step.state, step.input, dt);
             let sigma = self.process.input_noise_covariance(dt);
             // J_j' (K x M): row c = (J_j e_c)'.
-            let jt = SMatrix::<T, K, M>::from_fn(|c, m| jvp[step.position * K + c][m].clone());
+            let jt = SMatrix::<T, K, M>::from_fn(|c, m| jvp[step.position * K + c][m]);
             sink(&(a * sigma * jt))?;
         }
         Ok(())
