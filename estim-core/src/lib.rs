@@ -182,6 +182,8 @@ mod runner;
 mod scalar;
 mod sigma_point;
 mod square_root;
+#[cfg(feature = "testing")]
+pub mod testing;
 mod traits;
 mod update;
 pub mod window;
@@ -216,3 +218,7 @@ pub use update::{
 pub use window::{ProcessStep, StepWindow, WindowedCrossCovariance};
 
 pub use nalgebra;
+/// The generator [`monte_carlo`] hands each run (re-exported so callers need not
+/// guess its version).
+#[cfg(feature = "consistency")]
+pub use rand_chacha;

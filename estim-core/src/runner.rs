@@ -755,6 +755,20 @@ where
 impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ExtendedKalmanFilter<T, P, N, O> {
     shared_accessors!();
 
+    /// The last `steps` recorded process steps (states before propagation, inputs,
+    /// dt, transitions), e.g. to build a learned measurement's input window from the
+    /// samples the filter itself consumed (the runner is the ring buffer of its
+    /// input stream).
+    ///
+    /// # Errors
+    /// [`Error::WindowUnavailable`] if fewer steps are recorded (or `steps` is 0).
+    pub fn step_window(
+        &self,
+        steps: usize,
+    ) -> Result<crate::StepWindow<'_, T, SVector<T, N>, P::Input, N>> {
+        self.shared.history.window(steps)
+    }
+
     /// Replace the observer.
     #[must_use]
     pub fn with_observer<O2>(self, observer: O2) -> ExtendedKalmanFilter<T, P, N, O2> {
@@ -964,6 +978,20 @@ where
 
 impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ErrorStateKalmanFilter<T, P, N, O> {
     shared_accessors!();
+
+    /// The last `steps` recorded process steps (states before propagation, inputs,
+    /// dt, transitions), e.g. to build a learned measurement's input window from the
+    /// samples the filter itself consumed (the runner is the ring buffer of its
+    /// input stream).
+    ///
+    /// # Errors
+    /// [`Error::WindowUnavailable`] if fewer steps are recorded (or `steps` is 0).
+    pub fn step_window(
+        &self,
+        steps: usize,
+    ) -> Result<crate::StepWindow<'_, T, P::State, P::Input, N>> {
+        self.shared.history.window(steps)
+    }
 
     /// Replace the observer.
     #[must_use]

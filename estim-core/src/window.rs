@@ -288,7 +288,7 @@ impl<T: Scalar, S, U, const N: usize> History<T, S, U, N> {
     }
 
     /// The last `steps` steps and the updates among them.
-    fn window(&self, steps: usize) -> Result<StepWindow<'_, T, S, U, N>> {
+    pub(crate) fn window(&self, steps: usize) -> Result<StepWindow<'_, T, S, U, N>> {
         if steps == 0 || steps > self.steps.len() {
             return Err(Error::WindowUnavailable {
                 needed: steps,

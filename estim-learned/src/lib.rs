@@ -49,9 +49,12 @@ pub use dataset::{
 };
 pub use error::{Error, Result};
 pub use evaluation::{evaluate, Evaluation};
-pub use measurement::{OnnxMeasurement, DEFAULT_SENSITIVITY_STEP};
+pub use measurement::{LearnedSensor, Observation, OnnxMeasurement, DEFAULT_SENSITIVITY_STEP};
 pub use metadata::{
     BeamGeometryMetadata, InputMetadata, ModelMetadata, OutputMetadata, METADATA_FORMAT,
 };
 pub use metrics::{metrics, speed_metrics, Metrics};
-pub use sensitivity::{CrossMatrix, Empirical, EmpiricalEstimate, ImuWindow, NetworkSensitivity};
+pub use sensitivity::{
+    CrossMatrix, Empirical, EmpiricalEstimate, InputNoise, LearnedCrossCovariance,
+    NetworkSensitivity, IMU_CHANNELS,
+};
