@@ -126,6 +126,7 @@ mod gaussian;
 mod observer;
 mod runner;
 mod scalar;
+mod smoother;
 mod traits;
 mod update;
 pub mod window;
@@ -142,6 +143,7 @@ pub use cross::{
 pub use error::{Error, Result};
 pub use gaussian::{check_finite, check_symmetric, symmetrize, StateAndCovariance};
 pub use scalar::{lit, to_f64, Scalar};
+pub use smoother::{FixedLagSmoother, ForwardRecorder, RecordAt, Smoothed};
 pub use traits::{
     CrossCovariance, CrossCovarianceContext, ErrorStateModel, InputSpec, LearnedMeasurement,
     MeasurementModel, ProcessModel,

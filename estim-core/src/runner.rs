@@ -422,6 +422,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         })
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn notify_update<const M: usize>(
         &mut self,
         report: &UpdateReport<T, N, M>,
@@ -429,11 +430,15 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         covariance: &SMatrix<T, N, N>,
         prior_covariance: &SMatrix<T, N, N>,
         jacobian: &SMatrix<T, M, N>,
+        windowed: bool,
+        reset: Option<&SMatrix<T, N, N>>,
     ) -> Result<()>
     where
         O: Observer<T, S, N>,
     {
         let event = UpdateEvent {
+            windowed,
+            reset,
             prior_covariance,
             jacobian: jacobian.as_slice(),
             noise_covariance: report.noise_covariance.as_slice(),
@@ -642,6 +647,7 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         W: WindowedCrossCovariance<T, SVector<T, N>, (), N, M> + ?Sized,
     {
         let predicted = mul_static(&self.observation, self.estimate.state());
+        let windowed = matches!(source, CrossSource::Windowed(_));
         let attempt = self.shared.attempt(
             source,
             &self.estimate,
@@ -662,6 +668,8 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             self.estimate.covariance(),
             prior.covariance(),
             &self.observation,
+            windowed,
+            None,
         )?;
         Ok(attempt.report)
     }
@@ -832,6 +840,7 @@ where
         let predicted = model.predict(x)?;
         let jacobian = model.jacobian(x)?;
         let noise = model.noise_covariance(x)?;
+        let windowed = matches!(source, CrossSource::Windowed(_));
         let attempt = self.shared.attempt(
             source,
             &self.estimate,
@@ -852,6 +861,8 @@ where
             self.estimate.covariance(),
             prior.covariance(),
             &jacobian,
+            windowed,
+            None,
         )?;
         Ok(attempt.report)
     }
@@ -1042,6 +1053,7 @@ where
         let jacobian = model.jacobian(&self.nominal)?;
         let noise = model.noise_covariance(&self.nominal)?;
         let prior = StateAndCovariance::new_unchecked(SVector::zeros(), self.covariance);
+        let windowed = matches!(source, CrossSource::Windowed(_));
         let attempt = self.shared.attempt(
             source,
             &prior,
@@ -1080,6 +1092,8 @@ where
             &self.covariance,
             &prior_covariance,
             &jacobian,
+            windowed,
+            reset.as_ref(),
         )?;
         Ok(attempt.report)
     }
