@@ -12,6 +12,7 @@ mod montecarlo;
 mod output;
 mod plots;
 mod reproduce;
+mod smooth;
 
 /// estim: state estimation with correlated process and measurement noise.
 #[derive(Debug, Parser)]
@@ -33,6 +34,8 @@ enum Command {
     Beamsnet(beamsnet::Args),
     /// Write training datasets.
     Dataset(dataset::Args),
+    /// Smooth the INS/DVL survey (RTS): smoothed vs filtered errors against truth.
+    Smooth(smooth::Args),
 }
 
 fn main() -> ExitCode {
@@ -43,6 +46,7 @@ fn main() -> ExitCode {
         Command::Dvl(args) => dvl::run(args),
         Command::Beamsnet(args) => beamsnet::run(args),
         Command::Dataset(args) => dataset::run(args),
+        Command::Smooth(args) => smooth::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

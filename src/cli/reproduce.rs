@@ -31,6 +31,10 @@ pub struct Args {
     /// Write CSV time series and plots (PNG, SVG) into this folder.
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
+    /// Also smooth each trajectory (RTS, LS DVL, M = 0): smoothed vs filtered errors
+    /// and NEES (files in `--out DIR/smoothing`).
+    #[arg(long)]
+    smooth: bool,
 }
 
 /// Run it.
@@ -72,19 +76,35 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Ok(analyse(s, &config, inputs.as_ref(), config.seed)?)
         })
         .collect::<Result<_, _>>()?;
-    let json = serde_json::to_string_pretty(&serde_json::json!({
+    let smoothed = if args.smooth {
+        let cross = estim::pipeline::CrossSource::Zero;
+        Some(crate::smooth::smooth_all(&scenarios, &config, &cross)?)
+    } else {
+        None
+    };
+    let mut value = serde_json::json!({
         "config": config,
         "trajectories": reports,
-    }))?;
+    });
+    if let Some(s) = &smoothed {
+        value["smoothing"] = serde_json::to_value(s)?;
+    }
+    let json = serde_json::to_string_pretty(&value)?;
     // Outputs first: on failure nothing is printed as if it had succeeded.
     if let Some(dir) = &args.out {
         write_outputs(dir, &reports, &json)?;
+        if let Some(s) = &smoothed {
+            crate::smooth::write_outputs(&dir.join("smoothing"), s)?;
+        }
     }
     if args.json {
         println!("{json}");
     } else {
         for r in &reports {
             print_report(r);
+        }
+        if let Some(s) = &smoothed {
+            crate::smooth::print_reports(s);
         }
     }
     Ok(())

@@ -9,6 +9,7 @@ mod oracle;
 mod report;
 mod run;
 mod scenario;
+mod smooth;
 pub mod stats;
 
 pub use config::{Config, DvlSection, FilterSection, ImuSection, MissionSection, SensorSection};
@@ -29,6 +30,9 @@ pub use run::{
     run_filter_with_observer, CrossMatrix, CrossSource, FilterRun, MeasurementSet,
 };
 pub use scenario::{DvlEpoch, Scenario};
+pub use smooth::{
+    least_squares_measurements, smooth_scenario, EstimateSeries, EstimateSummary, SmoothReport,
+};
 
 use std::path::PathBuf;
 
