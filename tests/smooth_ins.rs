@@ -28,7 +28,7 @@ fn check_report(r: &SmoothReport) {
     // Velocity is observed by the DVL, so the smoother (which also uses the later
     // updates) must beat the filter on it. Position is not observable from DVL aiding
     // alone (its initial error stays), so no gain is asserted there: measured, the
-    // smoothed position RMSE is within 1.2% of the filtered one (README).
+    // smoothed position RMSE is within 0.8 % of the filtered one (README).
     assert!(
         r.smoothed_summary.velocity_mps.rmse < r.filtered_summary.velocity_mps.rmse,
         "{}: smoothed velocity RMSE {} not below filtered {}",
