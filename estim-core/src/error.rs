@@ -91,6 +91,15 @@ pub enum Error {
         /// Where the earlier correlated update lies, in steps before the window's end.
         steps_before_end: usize,
     },
+    /// The recorded forward pass is outside what the smoother handles exactly (see
+    /// `estim_core::ForwardRecorder`); nothing was smoothed.
+    #[error("the smoother does not cover this recording: {reason} (epoch {epoch})")]
+    SmootherUnsupported {
+        /// The first epoch (index in the recording) where it happened.
+        epoch: usize,
+        /// What the forward pass did.
+        reason: &'static str,
+    },
     /// A model (process, measurement or learned) failed to evaluate.
     #[error("model evaluation failed: {0}")]
     Model(String),

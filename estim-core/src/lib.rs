@@ -181,6 +181,7 @@ mod observer;
 mod runner;
 mod scalar;
 mod sigma_point;
+mod smoother;
 mod square_root;
 #[cfg(feature = "testing")]
 pub mod testing;
@@ -204,6 +205,7 @@ pub use error::{Error, Result};
 pub use gaussian::{check_finite, check_symmetric, symmetrize, StateAndCovariance};
 pub use scalar::{lit, relative_tolerance, to_f64, Scalar};
 pub use sigma_point::{unscented_predict, unscented_update, UnscentedOutcome, UnscentedTransform};
+pub use smoother::{FixedLagSmoother, ForwardRecorder, RecordAt, Smoothed};
 pub use square_root::{
     check_joint_factor, covariance_factor, square_root_predict, square_root_update,
     SquareRootKalmanFilter, SquareRootOutcome,

@@ -65,6 +65,12 @@ pub struct UpdateEvent<'a, T: Scalar, S, const N: usize> {
     pub innovation_covariance: &'a [T],
     /// The gain K (N x M, column-major), `None` if rejected.
     pub gain: Option<&'a [T]>,
+    /// Whether the cross-covariance came from a windowed model (exact M over a window
+    /// of steps, see [`crate::window`]) rather than a one-step one.
+    pub windowed: bool,
+    /// The error-state reset J applied after injection (P <- J P J'), `None` when it
+    /// is the identity or the runner has no reset (KF, EKF).
+    pub reset: Option<&'a SMatrix<T, N, N>>,
 }
 
 /// Receives a runner's events. Every method has a default that does nothing.

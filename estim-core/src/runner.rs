@@ -424,6 +424,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         })
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn notify_update<const M: usize>(
         &mut self,
         report: &UpdateReport<T, N, M>,
@@ -431,11 +432,15 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         covariance: &SMatrix<T, N, N>,
         prior_covariance: &SMatrix<T, N, N>,
         jacobian: &SMatrix<T, M, N>,
+        windowed: bool,
+        reset: Option<&SMatrix<T, N, N>>,
     ) -> Result<()>
     where
         O: Observer<T, S, N>,
     {
         let event = UpdateEvent {
+            windowed,
+            reset,
             prior_covariance,
             jacobian: jacobian.as_slice(),
             noise_covariance: report.noise_covariance.as_slice(),
@@ -644,6 +649,7 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         W: WindowedCrossCovariance<T, SVector<T, N>, (), N, M> + ?Sized,
     {
         let predicted = mul_static(&self.observation, self.estimate.state());
+        let windowed = matches!(source, CrossSource::Windowed(_));
         let attempt = self.shared.attempt(
             source,
             &self.estimate,
@@ -664,6 +670,8 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             self.estimate.covariance(),
             prior.covariance(),
             &self.observation,
+            windowed,
+            None,
         )?;
         Ok(attempt.report)
     }
@@ -848,6 +856,7 @@ where
         let predicted = model.predict(x)?;
         let jacobian = model.jacobian(x)?;
         let noise = model.noise_covariance(x)?;
+        let windowed = matches!(source, CrossSource::Windowed(_));
         let attempt = self.shared.attempt(
             source,
             &self.estimate,
@@ -868,6 +877,8 @@ where
             self.estimate.covariance(),
             prior.covariance(),
             &jacobian,
+            windowed,
+            None,
         )?;
         Ok(attempt.report)
     }
@@ -1072,6 +1083,7 @@ where
         let jacobian = model.jacobian(&self.nominal)?;
         let noise = model.noise_covariance(&self.nominal)?;
         let prior = StateAndCovariance::new_unchecked(SVector::zeros(), self.covariance);
+        let windowed = matches!(source, CrossSource::Windowed(_));
         let attempt = self.shared.attempt(
             source,
             &prior,
@@ -1110,6 +1122,8 @@ where
             &self.covariance,
             &prior_covariance,
             &jacobian,
+            windowed,
+            reset.as_ref(),
         )?;
         Ok(attempt.report)
     }

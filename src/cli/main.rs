@@ -14,6 +14,7 @@ mod plots;
 mod report;
 mod reproduce;
 mod schema;
+mod smooth;
 
 /// estim: state estimation with correlated process and measurement noise.
 #[derive(Debug, Parser)]
@@ -37,6 +38,8 @@ enum Command {
     Dataset(dataset::Args),
     /// Regenerate the README's result tables (markdown between marker comments).
     Report(report::Args),
+    /// Smooth the INS/DVL survey (RTS): smoothed vs filtered errors against truth.
+    Smooth(smooth::Args),
 }
 
 fn main() -> ExitCode {
@@ -48,6 +51,7 @@ fn main() -> ExitCode {
         Command::Beamsnet(args) => beamsnet::run(args),
         Command::Dataset(args) => dataset::run(args),
         Command::Report(args) => report::run(args),
+        Command::Smooth(args) => smooth::run(args),
     };
     // Exit statuses: see `schema` (0 ok, 2 bad input, 3 some filter failed, 141
     // stdout closed).

@@ -72,6 +72,11 @@ pub fn style(id: &str) -> Style {
         "oracle_m_neglected" => s(RGBColor(148, 103, 189), 5, None, Marker::None, 1),
         "oracle_m_true" => s(RGBColor(23, 190, 207), 2, Some((10, 6)), Marker::Circle, 3),
         "oracle_m_rho" => s(RGBColor(227, 119, 194), 2, Some((3, 3)), Marker::Cross, 2),
+        // `estim smooth`: filtered in blue, smoothed in orange; 3-sigma dashed.
+        "smooth_filtered" => s(RGBColor(31, 119, 180), 3, None, Marker::None, 1),
+        "smooth_filtered_3sigma" => s(RGBColor(31, 119, 180), 1, Some((6, 3)), Marker::None, 2),
+        "smooth_smoothed" => s(RGBColor(255, 127, 14), 2, None, Marker::None, 3),
+        "smooth_smoothed_3sigma" => s(RGBColor(255, 127, 14), 1, Some((6, 3)), Marker::None, 4),
         other => {
             // FNV-1a: stable across runs and platforms.
             let h = other.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {

@@ -47,6 +47,10 @@ pub struct Args {
     /// Write CSV time series and plots (PNG, SVG) into this folder.
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
+    /// Also smooth each trajectory (RTS, LS DVL, M = 0): smoothed vs filtered errors
+    /// and NEES (files in `--out DIR/smoothing`).
+    #[arg(long)]
+    smooth: bool,
 }
 
 /// Run it. Exit status: see `schema` (3 when a filter variant failed).
@@ -127,15 +131,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "seed": config.seed,
         "config": config,
     });
-    let json = serde_json::to_string_pretty(&document(
-        "reproduce",
-        inputs,
-        failures,
-        serde_json::json!({ "trajectories": reports }),
-    ))?;
+    let smoothed = if args.smooth {
+        let cross = estim::pipeline::CrossSource::Zero;
+        Some(crate::smooth::smooth_all(&scenarios, &config, &cross)?)
+    } else {
+        None
+    };
+    let mut payload = serde_json::json!({ "trajectories": reports });
+    if let Some(s) = &smoothed {
+        payload["smoothing"] = serde_json::to_value(s)?;
+    }
+    let json = serde_json::to_string_pretty(&document("reproduce", inputs, failures, payload))?;
     // Outputs first: on failure nothing is printed as if it had succeeded.
     if let Some(staged) = staged {
         write_outputs(staged, &reports, &json)?;
+        if let (Some(s), Some(dir)) = (&smoothed, &args.out) {
+            crate::smooth::write_outputs(&dir.join("smoothing"), s)?;
+        }
     }
     if args.json {
         emit(&format!("{json}\n"))?;
@@ -143,6 +155,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let mut text = String::new();
         for r in &reports {
             print_report(&mut text, r)?;
+        }
+        if let Some(s) = &smoothed {
+            crate::smooth::print_reports(s);
         }
         emit(&text)?;
     }

@@ -10,6 +10,7 @@ mod oracle;
 mod report;
 mod run;
 mod scenario;
+mod smooth;
 pub mod stats;
 
 pub use config::{
@@ -34,6 +35,9 @@ pub use run::{
     FILTER_BIAS_TIME_CONSTANT,
 };
 pub use scenario::{DvlEpoch, Scenario};
+pub use smooth::{
+    least_squares_measurements, smooth_scenario, EstimateSeries, EstimateSummary, SmoothReport,
+};
 
 use std::path::PathBuf;
 
