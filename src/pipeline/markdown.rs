@@ -24,7 +24,7 @@
 
 use std::path::Path;
 
-use super::report::{BEAMSNET_NEGLECTED, BEAMSNET_SCALED, BEAMSNET_SENSITIVITY, LS};
+use super::report::{BEAMSNET, BEAMSNET_NEGLECTED, BEAMSNET_SCALED, BEAMSNET_SENSITIVITY, LS};
 use super::{
     analyse, apply_faults, beamsnet_inputs, monte_carlo, Config, FilterSummary, LearnedInputs,
     LearnedSource, PaperMBasis, PipelineError, Result, Scenario, TrajectoryReport,
@@ -241,7 +241,7 @@ fn filter<'a>(report: &'a TrajectoryReport, name: &str) -> Result<&'a FilterSumm
     report
         .filters
         .iter()
-        .find(|f| f.name == name)
+        .find(|f| f.id == name)
         .ok_or_else(|| PipelineError::Invalid(format!("{}: no filter {name:?}", report.name)))
 }
 
@@ -286,7 +286,7 @@ fn velocity_table(sets: &[DataSet]) -> Result<Table> {
         let ls = v.get(LS).ok_or_else(|| {
             PipelineError::Invalid(format!("{}: no least-squares velocity", set.label))
         })?;
-        for (method, m) in [("LS", Some(ls)), ("BeamsNet", v.get("BeamsNet"))] {
+        for (method, m) in [("LS", Some(ls)), ("BeamsNet", v.get(BEAMSNET))] {
             let Some(m) = m else { continue };
             let versus = if method == "LS" {
                 String::new()
@@ -312,9 +312,9 @@ fn filters_table(sets: &[DataSet], rho: f64) -> Result<Table> {
     );
     for set in sets {
         let rows = [
-            (LS.to_string(), filter(&set.accumulated, LS)?),
+            ("LS".to_string(), filter(&set.accumulated, LS)?),
             (
-                BEAMSNET_NEGLECTED.to_string(),
+                "BeamsNet, M neglected".to_string(),
                 filter(&set.accumulated, BEAMSNET_NEGLECTED)?,
             ),
             (
@@ -326,7 +326,7 @@ fn filters_table(sets: &[DataSet], rho: f64) -> Result<Table> {
                 filter(&set.per_step, BEAMSNET_SCALED)?,
             ),
             (
-                BEAMSNET_SENSITIVITY.to_string(),
+                "BeamsNet, M from network".to_string(),
                 filter(&set.accumulated, BEAMSNET_SENSITIVITY)?,
             ),
         ];
@@ -368,7 +368,7 @@ fn paper_std_table(sets: &[DataSet], rho: f64) -> Result<Table> {
             report
                 .improvements
                 .iter()
-                .find(|i| i.variant == variant)
+                .find(|i| i.id == variant)
                 .cloned()
                 .ok_or_else(|| {
                     PipelineError::Invalid(format!("{}: no improvement of {variant}", set.label))
@@ -441,7 +441,7 @@ fn rho_table(sets: &[DataSet], rho: f64) -> Result<Table> {
             .accumulated
             .runs
             .iter()
-            .find(|r| r.name == BEAMSNET_NEGLECTED)
+            .find(|r| r.id == BEAMSNET_NEGLECTED)
             .ok_or_else(|| {
                 PipelineError::Invalid(format!("{}: no run {BEAMSNET_NEGLECTED:?}", set.label))
             })?;
