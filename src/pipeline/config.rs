@@ -49,6 +49,7 @@ const KEY_DOCS: &[(&str, &str, &str)] = &[
     ("filter", "initial_heading_std_deg", "[deg] initial heading std"),
     ("filter", "initial_bias_std_scale", "[-] factor on the IMU spec's bias sigma for the initial bias covariance"),
     ("filter", "rho", "[-] rho of the paper's M = rho sqrt(diag Q) sqrt(diag R)' (valid only up to about 0.167 here)"),
+    ("filter", "paper_m_basis", "[-] the Q of the paper's M: accumulated (over the update interval, this project's reading) or per_step (one IMU step's Q_k)"),
     ("filter", "gate_probability", "[-] innovation gate probability (chi-square, 3 dof); 0 disables the gate"),
     ("faults", "beam_dropout_probability", "[-] probability that each beam of each DVL epoch is missing"),
     ("faults", "dvl_outages", "[-] full DVL outages: [[faults.dvl_outages]] tables with start_s [s] and duration_s [s]"),
