@@ -172,13 +172,13 @@ fn paper_m_claims(scenario: &Scenario, config: &Config) -> (Improvements, Improv
         let scaled = report
             .filters
             .iter()
-            .find(|f| f.name == BEAMSNET_SCALED)
+            .find(|f| f.id == BEAMSNET_SCALED)
             .expect("paper variant");
         let updates = scaled.updates_accepted + scaled.updates_rejected;
         let neglected = report
             .runs
             .iter()
-            .find(|r| r.name == BEAMSNET_NEGLECTED)
+            .find(|r| r.id == BEAMSNET_NEGLECTED)
             .expect("neglected run");
         let largest = match basis {
             PaperMBasis::Accumulated => &neglected.largest_valid_rho,
@@ -211,7 +211,7 @@ fn paper_m_claims(scenario: &Scenario, config: &Config) -> (Improvements, Improv
         let improvement = report
             .improvements
             .iter()
-            .find(|i| i.variant == BEAMSNET_SCALED)
+            .find(|i| i.id == BEAMSNET_SCALED)
             .expect("improvement of the paper's M");
         out.push(
             improvement
