@@ -23,15 +23,15 @@ run() { # run LOG COMMAND...
 
 # The missions run beside the fuzzing (two processes for the machine's two cores).
 (
-  run long_mission-10h.log cargo test --release --test long_mission -- --ignored --nocapture
-  run long_mission-1h.log cargo test --release --test long_mission -- --nocapture
+  run long_mission-10h.log cargo test --workspace --release --test long_mission -- --ignored --nocapture
+  run long_mission-1h.log cargo test --workspace --release --test long_mission -- --nocapture
 ) &
 missions=$!
 
 cases="${ESTIM_FUZZ_CASES:-1000000}"
-properties=$(cargo test --release --test fuzz_parsers -- --list 2>/dev/null \
+properties=$(cargo test --workspace --release --test fuzz_parsers -- --list 2>/dev/null \
   | sed -n 's/^\(.*survives_.*\): test$/\1/p')
 for p in $properties; do
-  run "fuzz_parsers-$p.log" ESTIM_FUZZ_CASES="$cases" cargo test --release --test fuzz_parsers -- --exact "$p"
+  run "fuzz_parsers-$p.log" ESTIM_FUZZ_CASES="$cases" cargo test --workspace --release --test fuzz_parsers -- --exact "$p"
 done
 wait "$missions"

@@ -500,7 +500,7 @@ impl ProcessModel<f64, ERROR_STATES> for InsErrorModel {
     }
 
     /// P' = Phi P Phi' + Q from the block structure of Phi (see
-    /// [`propagate_structured`]); falls back to the dense product when Phi lacks that
+    /// `propagate_structured`); falls back to the dense product when Phi lacks that
     /// structure. Equal to the default up to rounding (tested to 1e-12 over a 400 s
     /// mission).
     fn propagate_covariance(

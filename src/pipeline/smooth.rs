@@ -18,14 +18,14 @@ use super::{
 /// Error series of one estimate (filtered or smoothed) at the smoother's epochs.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct EstimateSeries {
-    /// |position error| [m].
+    /// |position error| \[m\].
     pub position_error: Vec<f64>,
-    /// 3 sqrt(trace of the position covariance) [m] (the 3-sigma of the error norm's
+    /// 3 sqrt(trace of the position covariance) \[m\] (the 3-sigma of the error norm's
     /// scale).
     pub position_3sigma: Vec<f64>,
-    /// |velocity error| [m/s].
+    /// |velocity error| \[m/s\].
     pub velocity_error: Vec<f64>,
-    /// |attitude error| [deg].
+    /// |attitude error| \[deg\].
     pub attitude_error_deg: Vec<f64>,
     /// NEES of the 15-state error (NaN where the covariance is not positive definite).
     pub nees: Vec<f64>,
@@ -80,7 +80,7 @@ pub struct SmoothReport {
     pub trajectory: Option<u32>,
     /// The cross-covariance used ("M = 0" or "rho = ...").
     pub cross: String,
-    /// Time of each epoch since the start [s].
+    /// Time of each epoch since the start \[s\].
     pub time: Vec<f64>,
     /// The filter at each epoch (after its updates).
     pub filtered: EstimateSeries,
