@@ -697,7 +697,7 @@ fn long_mission_model(name: &str) -> String {
 
 fn long_mission_table(logs: &[Log]) -> Result<Table> {
     let mut s = String::from(
-        "| Mission | Cross-covariance | Checks | Cholesky failures | Non-finite | Max asymmetry | Smallest eigenvalue of P | Of its correlation matrix | Joint covariance, smallest eigenvalue of its correlation matrix | Run time | Final position error |\n\
+        "| Mission | Cross-covariance | Checks | Cholesky failures | Non-finite | Max asymmetry | Smallest eigenvalue of P | Of its correlation matrix | Joint covariance validity margin (valid: smallest LDL' pivot of its correlation matrix; invalid: its smallest eigenvalue) | Run time | Final position error |\n\
          |---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     let mut notes = Vec::new();
