@@ -2,12 +2,18 @@
 //! correlated update) for (states, measurements) = (4, 2), (15, 3), (30, 6), and the
 //! peer crate adskalman on the same (4, 2) model in the same run.
 //!
-//! Run: `cargo bench --bench core_update`. Both filters use the Joseph form; estim's
-//! runner is configured without the joint-covariance eigen check (adskalman has no
-//! such check) — a separate line measures it with the check reported.
+//! Run: `cargo bench --bench core_update` (times are the thread's CPU time, see
+//! `benches/common`). Both filters use the Joseph form; estim's
+//! runner is measured without the joint-covariance check (adskalman has no such check)
+//! and with the default configuration (check reported: a static LDL' of the joint
+//! correlation matrix). Groups `state_size` (N = 6..30) and `single_precision` (f32 vs
+//! f64 vs eskf) follow.
 
 use std::hint::black_box;
 use std::time::Duration;
+
+mod common;
+use common::ThreadCpuTime;
 
 use adskalman::{
     CovarianceUpdateMethod, KalmanFilterNoControl, ObservationModel,
@@ -88,7 +94,7 @@ fn estim_filter<const N: usize, const M: usize>(
 }
 
 fn bench_estim<const N: usize, const M: usize, C>(
-    c: &mut Criterion,
+    c: &mut Criterion<ThreadCpuTime>,
     name: &str,
     mut kf: KalmanFilter<f64, N, M>,
     cross: C,
@@ -141,7 +147,7 @@ impl ObservationModel<f64, U4, U2> for AdsObservation {
     }
 }
 
-fn predict_update(c: &mut Criterion) {
+fn predict_update(c: &mut Criterion<ThreadCpuTime>) {
     let cv = constant_velocity();
     bench_estim(
         c,
@@ -244,7 +250,7 @@ fn predict_update(c: &mut Criterion) {
 }
 
 /// The INS pattern: 100 propagations (with Q_acc / Phi_acc accumulation) per update.
-fn hundred_predictions_per_update(c: &mut Criterion) {
+fn hundred_predictions_per_update(c: &mut Criterion<ThreadCpuTime>) {
     let mut kf = estim_filter(random_model::<15, 3>(15), JointCheck::Skip);
     let y = SVector::<f64, 3>::zeros();
     c.bench_function("estim KalmanFilter (15,3) 100 predicts + 1 update", |b| {
@@ -257,12 +263,94 @@ fn hundred_predictions_per_update(c: &mut Criterion) {
     });
 }
 
+/// Per-step cost against state size: predict + update of a random (N, 3) model with the
+/// default configuration (Joseph-like form, joint covariance reported), N = 6, 9, 15,
+/// 21, 30. The dense multiply-add count of each size is in estim-ins/README.md.
+fn state_size(c: &mut Criterion<ThreadCpuTime>) {
+    fn one<const N: usize>(c: &mut Criterion<ThreadCpuTime>) {
+        let mut kf = estim_filter(random_model::<N, 3>(N as u64), JointCheck::default());
+        let y = SVector::<f64, 3>::new(0.1, -0.2, 0.05);
+        c.bench_function(
+            &format!("state_size/({N},3) predict+update, default configuration"),
+            |b| {
+                b.iter(|| {
+                    kf.predict().expect("predict");
+                    black_box(kf.update(black_box(&y), &Zero).expect("update").nis)
+                })
+            },
+        );
+    }
+    one::<6>(c);
+    one::<9>(c);
+    one::<15>(c);
+    one::<21>(c);
+    one::<30>(c);
+}
+
+/// f32 against f64 and the peer: an 18-state linear predict (dense F P F' + Q, the size
+/// of eskf's covariance) in f32 and f64, beside eskf 0.2's predict (f32, 18 states,
+/// with its own nominal-state kinematics) in the same run.
+fn single_precision(c: &mut Criterion<ThreadCpuTime>) {
+    fn predict_only<T: estim_core::Scalar>(c: &mut Criterion<ThreadCpuTime>, name: &str) {
+        let (f, q, h, r) = random_model::<18, 3>(18);
+        let cast = |x: f64| -> T { estim_core::lit(x) };
+        let mut kf = KalmanFilter::new(
+            f.map(cast),
+            q.map(cast),
+            h.map(cast),
+            r.map(cast),
+            StateAndCovariance::new(SVector::<T, 18>::zeros(), SMatrix::identity())
+                .expect("initial"),
+        )
+        .expect("filter");
+        let y = SVector::<T, 3>::zeros();
+        c.bench_function(name, |b| {
+            let mut k = 0u32;
+            b.iter(|| {
+                kf.predict().expect("predict");
+                // Keep the covariance bounded: one update every 100 predicts.
+                k += 1;
+                if k % 100 == 0 {
+                    kf.update(&y, &Zero).expect("update");
+                }
+                black_box(kf.estimate().covariance()[(0, 0)])
+            })
+        });
+    }
+    predict_only::<f32>(c, "single_precision/estim KalmanFilter<f32, 18, 3> predict");
+    predict_only::<f64>(c, "single_precision/estim KalmanFilter<f64, 18, 3> predict");
+    c.bench_function(
+        "single_precision/eskf 0.2 predict (peer, f32, 18 states)",
+        |b| {
+            let mut filter = eskf::Builder::new()
+                .acceleration_variance(0.03f32 * 0.03)
+                .rotation_variance(5e-4f32 * 5e-4)
+                .initial_covariance(1e-3)
+                .build();
+            let fresh = filter;
+            let (mut acc, mut rot) = (filter.velocity, filter.velocity);
+            acc.z = -9.81;
+            rot.z = 0.01;
+            let mut k = 0u32;
+            b.iter(|| {
+                filter.predict(black_box(acc), black_box(rot), Duration::from_millis(10));
+                k += 1;
+                if k % 40_000 == 0 {
+                    filter = fresh;
+                }
+                black_box(&filter);
+            })
+        },
+    );
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default()
+        .with_measurement(ThreadCpuTime)
         .measurement_time(Duration::from_secs(2))
         .warm_up_time(Duration::from_millis(500))
         .sample_size(30);
-    targets = predict_update, hundred_predictions_per_update
+    targets = predict_update, hundred_predictions_per_update, state_size, single_precision
 }
 criterion_main!(benches);

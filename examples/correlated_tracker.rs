@@ -70,7 +70,9 @@ impl MeasurementModel<f64, 2, 2> for CameraFix {
 
 /// M = -(delay / interval) Q_acc: the share of the accumulated odometry noise that the
 /// vision module reused, with opposite sign (process noise is -dt e, the carried
-/// fix error is +dt e).
+/// fix error is +dt e). A fixed share of Q_acc is exact here only because the
+/// transition is the identity; with Phi != I or other updates in between use a
+/// `WindowedCrossCovariance` (see `examples/windowed_tracker.rs`).
 struct SharedOdometry;
 
 impl CrossCovariance<f64, Vector2<f64>, 2, 2> for SharedOdometry {

@@ -313,3 +313,164 @@ fn wrong_model_file_is_one_line_naming_it() {
         None,
     );
 }
+
+/// A GT file cut inside the last number of its last row (it parses as a shorter
+/// number): reported as truncated, never run.
+#[test]
+fn reproduce_gt_cut_inside_its_last_number_is_truncated() {
+    let out_parent = tempfile::tempdir().unwrap();
+    let out_dir = out_parent.path().join("out");
+    let text = valid_gt(60);
+    let cut = &text.as_bytes()[..text.len() - 3];
+    let (files, gt, _) = akit(cut, valid_dvl(60).as_bytes());
+    let out = estim(&[
+        "reproduce",
+        "--data",
+        files.root.to_str().unwrap(),
+        "--trajectory",
+        "4",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert_one_line_error(&out, &gt, Some(61));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("truncated"));
+    assert_nothing_in(&out_dir);
+}
+
+fn shifted_dvl(rows: usize, shift: f64) -> String {
+    let mut s = DVL_HEADER.join(",");
+    s.push('\n');
+    for k in 0..rows {
+        s.push_str(&format!("{},1.5,0.0,0.0\n", k as f64 * 1.0025 + shift));
+    }
+    s
+}
+
+/// GT and DVL that do not cover the same span: an error naming both files and their
+/// spans, exit 2, nothing written; --allow-partial runs on the overlap and says so.
+#[test]
+fn reproduce_refuses_spans_that_differ_unless_partial_is_allowed() {
+    let out_parent = tempfile::tempdir().unwrap();
+    let out_dir = out_parent.path().join("out");
+    let run = |gt: &Path, dvl: &Path, partial: bool| {
+        let mut args = vec![
+            "reproduce",
+            "--gt",
+            gt.to_str().unwrap(),
+            "--dvl",
+            dvl.to_str().unwrap(),
+            "--out",
+            out_dir.to_str().unwrap(),
+            "--json",
+        ];
+        if partial {
+            args.push("--allow-partial");
+        }
+        estim(&args)
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let gt = write(dir.path(), "gt.csv", valid_gt(60).as_bytes());
+    // No overlap at all: refused, even with --allow-partial.
+    let far = write(dir.path(), "far.csv", shifted_dvl(60, 1000.0).as_bytes());
+    for partial in [false, true] {
+        let out = run(&gt, &far, partial);
+        assert_one_line_error(&out, &gt, None);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(stderr.contains(far.to_str().unwrap()), "{stderr}");
+        assert!(
+            stderr.contains("0.000-59.000") && stderr.contains("1000.000-1059.1"),
+            "{stderr}"
+        );
+        assert_nothing_in(&out_dir);
+    }
+    // The DVL covers the first half: refused; with --allow-partial, 0-29.07 s is run.
+    let half = write(dir.path(), "half.csv", valid_dvl(30).as_bytes());
+    let out = run(&gt, &half, false);
+    assert_one_line_error(&out, &gt, None);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--allow-partial"));
+    assert_nothing_in(&out_dir);
+    let out = run(&gt, &half, true);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    assert!(
+        stderr.contains("warning: --allow-partial") && stderr.contains("overlap 0.000-29.07"),
+        "{stderr}"
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let duration = json["trajectories"][0]["duration_s"].as_f64().unwrap();
+    assert!(
+        (duration - 29.0).abs() < 0.011,
+        "ran {duration} s, GT rows 0-29 s lie inside the overlap"
+    );
+    assert!(out_dir.join("trajectory_timeseries.csv").is_file());
+}
+
+/// A folder holding only trajectory 7, asked for 4: the error lists what is there.
+#[test]
+fn missing_trajectory_lists_the_trajectories_found() {
+    let dir = tempfile::tempdir().unwrap();
+    let traj = dir.path().join("Trajectory7");
+    std::fs::create_dir(&traj).unwrap();
+    write(&traj, "GT_trajectory7.csv", valid_gt(60).as_bytes());
+    write(&traj, "DVL_trajectory7.csv", valid_dvl(60).as_bytes());
+    let out = estim(&["reproduce", "--data", dir.path().to_str().unwrap()]);
+    let expected = dir.path().join("Trajectory4/GT_trajectory4.csv");
+    assert_one_line_error(&out, &expected, None);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("Trajectory4/GT_trajectory4.csv: file not found; trajectories found: 7"),
+        "{stderr}"
+    );
+}
+
+/// `--gt` / `--dvl` name their files in errors like `--data` does.
+#[test]
+fn reproduce_gt_dvl_hostile_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let gt = write(dir.path(), "gt.csv", valid_gt(60).as_bytes());
+    let dvl = write(dir.path(), "dvl.csv", valid_dvl(60).as_bytes());
+    let run = |g: &Path, d: &Path| {
+        estim(&[
+            "reproduce",
+            "--gt",
+            g.to_str().unwrap(),
+            "--dvl",
+            d.to_str().unwrap(),
+        ])
+    };
+    let missing = dir.path().join("missing.csv");
+    assert_one_line_error(&run(&missing, &dvl), &missing, None);
+    assert_one_line_error(&run(&gt, &missing), &missing, None);
+    for (label, bytes, line) in hostile(&valid_dvl(60)) {
+        let f = write(dir.path(), &format!("dvl_{label}.csv"), &bytes);
+        assert_one_line_error(&run(&gt, &f), &f, line);
+    }
+    // A value out of range names the file, the line and the column.
+    let bad = valid_gt(60).replacen(",0.609,", ",34.9,", 3);
+    let f = write(dir.path(), "deg.csv", bad.as_bytes());
+    let out = run(&f, &dvl);
+    assert_one_line_error(&out, &f, Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("Longitude [rad]"));
+}
+
+/// `dvl calibrate` applies the same span rule (allowance: the searched time offset).
+#[test]
+fn dvl_calibrate_refuses_disjoint_spans() {
+    let dir = tempfile::tempdir().unwrap();
+    let gt = write(dir.path(), "gt.csv", valid_gt(60).as_bytes());
+    let far = write(dir.path(), "far.csv", shifted_dvl(60, 500.0).as_bytes());
+    let out = estim(&[
+        "dvl",
+        "calibrate",
+        "--gt",
+        gt.to_str().unwrap(),
+        "--dvl",
+        far.to_str().unwrap(),
+    ]);
+    assert_one_line_error(&out, &gt, None);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains(far.to_str().unwrap()) && stderr.contains("500.000-559.1"),
+        "{stderr}"
+    );
+}

@@ -66,23 +66,25 @@ fn solve_writes_one_row_per_input_row() {
     );
     let text = String::from_utf8(out.stdout).unwrap();
     let lines: Vec<&str> = text.lines().collect();
-    assert_eq!(lines[0], "vx,vy,vz,error_velocity,n_beams");
+    // The time column is kept (in seconds), first.
+    assert_eq!(lines[0], "time_s,vx,vy,vz,error_velocity,n_beams");
     assert_eq!(lines.len(), 5);
-    for (line, n) in lines[1..4].iter().zip([4, 3, 3]) {
+    for (i, (line, n)) in lines[1..4].iter().zip([4, 3, 3]).enumerate() {
         let cells: Vec<&str> = line.split(',').collect();
-        assert_eq!(cells.len(), 5, "{line}");
+        assert_eq!(cells.len(), 6, "{line}");
+        assert_eq!(cells[0], i.to_string());
         for k in 0..3 {
-            let x: f64 = cells[k].parse().unwrap();
+            let x: f64 = cells[k + 1].parse().unwrap();
             assert!((x - v[k]).abs() < 1e-12, "{line}");
         }
-        assert_eq!(cells[4], n.to_string());
+        assert_eq!(cells[5], n.to_string());
         if n == 4 {
-            assert!(cells[3].parse::<f64>().unwrap().abs() < 1e-12);
+            assert!(cells[4].parse::<f64>().unwrap().abs() < 1e-12);
         } else {
-            assert_eq!(cells[3], "");
+            assert_eq!(cells[4], "");
         }
     }
-    assert_eq!(lines[4], ",,,,2");
+    assert_eq!(lines[4], "3,,,,,2");
 }
 
 #[test]
@@ -294,4 +296,78 @@ fn calibrate_prints_estimates_on_akit_13() {
         assert!(cells[1].parse::<f64>().unwrap().is_finite());
         assert!(cells[2].parse::<f64>().unwrap() > 0.0);
     }
+}
+
+#[test]
+fn solve_reads_stdin_with_dash_other_beam_names_and_units() {
+    use std::process::Stdio;
+    let v = [1.2, 0.4, -0.1];
+    let b = beams(30.0, 45.0, v);
+    // Beams in mm/s under other common names, time in ms, columns in another order.
+    let input = format!(
+        "Beam 4 [mm/s],b2 [mm/s],Time [ms],beam_1 [mm/s],beam velocity 3 [mm/s]\r\n{},{},1500,{},{}\r\n",
+        b[3] * 1e3,
+        b[1] * 1e3,
+        b[0] * 1e3,
+        b[2] * 1e3
+    );
+    let mut child = Command::new(env!("CARGO_BIN_EXE_estim"))
+        .args(["dvl", "solve", "--beam-angle", "30", "-"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(input.as_bytes())
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines[0], "time_s,vx,vy,vz,error_velocity,n_beams");
+    let cells: Vec<&str> = lines[1].split(',').collect();
+    assert_eq!(cells[0], "1.5");
+    for k in 0..3 {
+        let x: f64 = cells[k + 1].parse().unwrap();
+        assert!((x - v[k]).abs() < 1e-9, "{}", lines[1]);
+    }
+    // A bad stdin names `<stdin>` and the line.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_estim"))
+        .args(["dvl", "solve", "--beam-angle", "30", "-"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(b"b1,b2,b3,b4\n1,2,x,4\n")
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert_bad_input(&out, "<stdin>:2:");
+}
+
+#[test]
+fn missing_file_names_the_os_error_once() {
+    let out = estim(&[
+        "dvl",
+        "solve",
+        "--beam-angle",
+        "20",
+        "/nonexistent/beams.csv",
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2));
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert_eq!(stderr.matches("No such file").count(), 1, "{stderr}");
 }

@@ -51,9 +51,10 @@ fn valid_csv(header: &[&str], rows: usize, seed: u64) -> String {
             x = x
                 .wrapping_mul(6364136223846793005)
                 .wrapping_add(1442695040888963407);
+            // Within +-1.4: inside every column's range (latitude < 1.5 rad).
             cells.push(format!(
                 "{}",
-                ((x >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 40.0
+                ((x >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 2.8
             ));
         }
         s.push_str(&cells.join(","));
@@ -163,8 +164,19 @@ fn rows_valid(times: &[f64], mut values: impl Iterator<Item = f64>) -> bool {
     times.len() >= 2 && times.windows(2).all(|w| w[1] > w[0]) && values.all(f64::is_finite)
 }
 
+/// An accepted file ends with a newline, or with blanks after its last one (the rule
+/// of a complete last line, coded independently of the loaders).
+fn ends_complete(bytes: &[u8]) -> bool {
+    let tail = match bytes.iter().rposition(|&c| c == b'\n') {
+        Some(i) => &bytes[i + 1..],
+        None => bytes,
+    };
+    tail.iter().all(|&c| c == b' ' || c == b'\t')
+}
+
 fn check_gt(bytes: &[u8]) {
     if let Ok(rows) = parse_gt(bytes, Path::new("fuzz/GT.csv")) {
+        assert!(ends_complete(bytes), "accepted a truncated GT file");
         let times: Vec<f64> = rows.iter().map(|r| r.time).collect();
         let values = rows.iter().flat_map(|r| {
             [r.longitude, r.latitude, r.altitude]
@@ -178,6 +190,7 @@ fn check_gt(bytes: &[u8]) {
 
 fn check_dvl(bytes: &[u8]) {
     if let Ok(rows) = parse_dvl(bytes, Path::new("fuzz/DVL.csv")) {
+        assert!(ends_complete(bytes), "accepted a truncated DVL file");
         let times: Vec<f64> = rows.iter().map(|r| r.time).collect();
         assert!(
             rows_valid(&times, rows.iter().flat_map(|r| r.velocity_body)),
@@ -188,6 +201,7 @@ fn check_dvl(bytes: &[u8]) {
 
 fn check_beams(bytes: &[u8]) {
     if let Ok(rows) = parse_beams(bytes, Path::new("fuzz/beams.csv")) {
+        assert!(ends_complete(bytes), "accepted a truncated beam file");
         // At most one row per data line; every present beam finite.
         let lines = bytes.split(|&c| c == b'\n' || c == b'\r').count();
         assert!(rows.len() < lines.max(1), "more rows than lines");

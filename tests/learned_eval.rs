@@ -116,11 +116,15 @@ fn eval_cli_json_shape() {
     );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["trajectory"], 13);
-    for method in ["ls", "beamsnet"] {
-        for key in ["rmse", "mae", "r2", "vaf"] {
+    let rows = v["velocity"].as_array().expect("velocity array");
+    let ids: Vec<&str> = rows.iter().filter_map(|r| r["id"].as_str()).collect();
+    assert_eq!(ids, ["ls", "beamsnet"]);
+    for row in rows {
+        for key in ["rmse_mps", "mae_mps", "r2", "vaf_percent"] {
             assert!(
-                v[method][key].as_f64().is_some_and(f64::is_finite),
-                "{method}.{key}: {v}"
+                row[key].as_f64().is_some_and(f64::is_finite),
+                "{}.{key}: {v}",
+                row["id"]
             );
         }
     }

@@ -43,22 +43,27 @@ fn assert_all_finite(v: &Value, path: &str) {
 
 fn check_trajectory(t: &Value, expect_learned: bool) {
     let name = t["name"].as_str().unwrap_or("?");
-    let velocity = t["velocity"].as_object().expect("velocity table");
-    assert!(velocity.contains_key("LS"), "{name}: LS row");
-    for m in velocity.values() {
-        for key in ["rmse", "mae", "r2", "vaf"] {
+    let velocity = t["velocity"].as_array().expect("velocity table");
+    let has = |id: &str| velocity.iter().any(|m| m["id"] == id);
+    assert!(has("ls"), "{name}: LS row");
+    for m in velocity {
+        for key in ["rmse_mps", "mae_mps", "r2", "vaf_percent"] {
             assert!(m[key].is_number(), "{name}: velocity.{key}");
         }
     }
+    assert!(
+        t["failures"].as_array().is_some_and(Vec::is_empty),
+        "{name}: no filter fails on the default configuration"
+    );
     let filters = t["filters"].as_array().expect("filters");
     assert!(!filters.is_empty());
     for f in filters {
         for group in [
-            "position",
-            "velocity",
-            "misalignment",
-            "acc_bias",
-            "gyro_bias",
+            "position_m",
+            "velocity_mps",
+            "misalignment_rad",
+            "acc_bias_mps2",
+            "gyro_bias_radps",
         ] {
             assert!(
                 f["std"][group]["time_average"].is_number(),
@@ -91,7 +96,7 @@ fn check_trajectory(t: &Value, expect_learned: bool) {
         assert!(f["nees_band"][1].as_f64() > f["nees_band"][0].as_f64());
     }
     if expect_learned {
-        assert!(velocity.contains_key("BeamsNet"), "{name}: BeamsNet row");
+        assert!(has("beamsnet"), "{name}: BeamsNet row");
         assert!(filters.len() >= 3, "{name}: LS + BeamsNet variants");
         assert!(!t["improvements"]
             .as_array()

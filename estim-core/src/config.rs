@@ -1,5 +1,6 @@
 //! Runner configuration: covariance form, innovation gate, joint-covariance policy.
 
+#[cfg(feature = "consistency")]
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use crate::{CovarianceUpdate, Error, Result};
@@ -30,7 +31,8 @@ impl Gate {
     ///
     /// # Errors
     /// [`Error::InvalidParameter`] for a probability outside (0, 1), a non-positive
-    /// threshold or `m = 0`.
+    /// threshold or `m = 0`, and for [`Gate::Nis`] when estim-core is built without its
+    /// `consistency` feature (no chi-square quantile; use [`Gate::NisThreshold`]).
     pub fn threshold(&self, m: usize) -> Result<Option<f64>> {
         match *self {
             Gate::None => Ok(None),
@@ -41,11 +43,7 @@ impl Gate {
                         reason: format!("{probability} is not in (0, 1)"),
                     });
                 }
-                let chi2 = ChiSquared::new(m as f64).map_err(|e| Error::InvalidParameter {
-                    name: "measurement size",
-                    reason: format!("chi-square with {m} degrees of freedom: {e}"),
-                })?;
-                Ok(Some(chi2.inverse_cdf(probability)))
+                chi_square_quantile(m, probability).map(Some)
             }
             Gate::NisThreshold(t) => {
                 if t.is_finite() && t > 0.0 {
@@ -61,16 +59,43 @@ impl Gate {
     }
 }
 
+/// The `probability` quantile of chi-square(`m`).
+#[cfg(feature = "consistency")]
+fn chi_square_quantile(m: usize, probability: f64) -> Result<f64> {
+    let chi2 = ChiSquared::new(m as f64).map_err(|e| Error::InvalidParameter {
+        name: "measurement size",
+        reason: format!("chi-square with {m} degrees of freedom: {e}"),
+    })?;
+    Ok(chi2.inverse_cdf(probability))
+}
+
+/// Without the `consistency` feature there is no chi-square quantile: refuse the gate.
+#[cfg(not(feature = "consistency"))]
+fn chi_square_quantile(_m: usize, _probability: f64) -> Result<f64> {
+    Err(Error::InvalidParameter {
+        name: "gate",
+        reason: "Gate::Nis needs estim-core's `consistency` feature (chi-square quantiles); \
+                 use Gate::NisThreshold"
+            .into(),
+    })
+}
+
 /// What a runner does with the joint covariance [[Q_acc, M], [M', R]] at each update.
 ///
-/// Computing its smallest eigenvalue allocates (a dynamic (N+M)-square eigen
-/// decomposition); `Skip` avoids that cost and reports `None`.
+/// Both checking policies use [`crate::joint_validity_margin`]: a static LDL' of the
+/// joint correlation matrix first (no allocation, about (N+M)^3/6 multiply-adds), and
+/// an allocating (N+M)-square eigen decomposition only when that factorisation does
+/// not certify the matrix (invalid, or too close to call). The reported number is >=
+/// -[`crate::joint_tolerance`] iff the joint covariance is valid: for a valid one it is
+/// the smallest LDL' pivot of the correlation matrix (0 when singular, at most 1; an
+/// upper bound on its smallest eigenvalue), for an invalid one the smallest eigenvalue.
+/// `Skip` avoids even the factorisation and reports `None`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[non_exhaustive]
 pub enum JointCheck {
     /// Do not compute it; the update report says `None` (not checked).
     Skip,
-    /// Compute the smallest eigenvalue and put it in the update report (default).
+    /// Compute the validity margin and put it in the update report (default).
     #[default]
     Report,
     /// Compute it and fail with [`Error::InvalidJointCovariance`] when the joint
@@ -80,12 +105,14 @@ pub enum JointCheck {
 }
 
 /// Checked configuration shared by the runners. Build with [`FilterConfig::builder`];
-/// [`FilterConfig::default`] is Joseph-like form, no gate, joint covariance reported.
+/// [`FilterConfig::default`] is the square-root form, no gate, joint covariance reported.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FilterConfig {
     form: CovarianceUpdate,
     gate: Gate,
     joint_check: JointCheck,
+    track_accumulated_noise: bool,
+    window_capacity: usize,
     /// Gate threshold for M = 1..=CACHED_SIZES (index M-1), so the per-update gate
     /// costs no quantile computation.
     thresholds: [Option<f64>; CACHED_SIZES],
@@ -97,6 +124,8 @@ impl Default for FilterConfig {
             form: CovarianceUpdate::default(),
             gate: Gate::None,
             joint_check: JointCheck::default(),
+            track_accumulated_noise: true,
+            window_capacity: 0,
             thresholds: [None; CACHED_SIZES],
         }
     }
@@ -109,6 +138,8 @@ impl FilterConfig {
             form: CovarianceUpdate::default(),
             gate: Gate::None,
             joint_check: JointCheck::default(),
+            track_accumulated_noise: true,
+            window_capacity: 0,
         }
     }
 
@@ -127,6 +158,18 @@ impl FilterConfig {
         self.joint_check
     }
 
+    /// Whether the runners accumulate Q_acc and Phi_acc between updates (for
+    /// [`crate::CrossCovariance`] models and the joint check of one-step updates).
+    pub fn track_accumulated_noise(&self) -> bool {
+        self.track_accumulated_noise
+    }
+
+    /// How many process steps the runners keep for exact windowed cross-covariances
+    /// (0: none, nothing recorded; see [`crate::WindowedCrossCovariance`]).
+    pub fn window_capacity(&self) -> usize {
+        self.window_capacity
+    }
+
     /// NIS threshold for a measurement of size `m` (cached for small sizes).
     pub fn gate_threshold(&self, m: usize) -> Result<Option<f64>> {
         match m {
@@ -143,10 +186,12 @@ pub struct FilterConfigBuilder {
     form: CovarianceUpdate,
     gate: Gate,
     joint_check: JointCheck,
+    track_accumulated_noise: bool,
+    window_capacity: usize,
 }
 
 impl FilterConfigBuilder {
-    /// Posterior covariance form (Joseph-like by default).
+    /// Posterior covariance form (square-root by default; see `CovarianceUpdate`).
     pub fn covariance_update(self, form: CovarianceUpdate) -> Self {
         Self { form, ..self }
     }
@@ -164,6 +209,31 @@ impl FilterConfigBuilder {
         }
     }
 
+    /// Accumulate Q_acc and Phi_acc between updates (default `true`). Turn it off when
+    /// every update uses [`crate::Zero`], [`crate::Fixed`] or a
+    /// [`crate::WindowedCrossCovariance`]: predict then does no accumulation work.
+    /// Models that read Q_acc ([`crate::ScaledCorrelation`]) fail with
+    /// [`Error::NotTracked`] without it, and the joint check of a one-step update
+    /// with M != 0 cannot be made (`Report`: `None`; `Reject`: that error).
+    pub fn track_accumulated_noise(self, track_accumulated_noise: bool) -> Self {
+        Self {
+            track_accumulated_noise,
+            ..self
+        }
+    }
+
+    /// Keep the last `steps` process steps (transition, state, input, dt) and the
+    /// updates among them, so that a [`crate::WindowedCrossCovariance`] whose
+    /// measurement noise shares up to `steps` steps of process noise gets its exact
+    /// M (default 0: nothing kept, windowed updates fail with
+    /// [`Error::WindowUnavailable`]). Memory: `steps` records, allocated once.
+    pub fn window_capacity(self, steps: usize) -> Self {
+        Self {
+            window_capacity: steps,
+            ..self
+        }
+    }
+
     /// Validate and precompute the gate thresholds.
     ///
     /// # Errors
@@ -177,6 +247,8 @@ impl FilterConfigBuilder {
             form: self.form,
             gate: self.gate,
             joint_check: self.joint_check,
+            track_accumulated_noise: self.track_accumulated_noise,
+            window_capacity: self.window_capacity,
             thresholds,
         })
     }
@@ -187,6 +259,7 @@ mod tests {
     use super::*;
 
     #[test]
+    #[cfg(feature = "consistency")]
     fn gate_thresholds_match_published_chi_square_quantiles() {
         // Published 95 % and 99 % quantiles (e.g. NIST/SEMATECH e-Handbook table 1.3.6.7.4).
         let g = FilterConfig::builder()
@@ -206,6 +279,13 @@ mod tests {
 
     #[test]
     fn invalid_gates_are_typed_errors() {
+        #[cfg(not(feature = "consistency"))]
+        assert!(matches!(
+            FilterConfig::builder()
+                .gate(Gate::Nis { probability: 0.99 })
+                .build(),
+            Err(Error::InvalidParameter { name: "gate", .. })
+        ));
         for gate in [
             Gate::Nis { probability: 0.0 },
             Gate::Nis { probability: 1.0 },

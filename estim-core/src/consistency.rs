@@ -7,9 +7,13 @@
 //! Navigation*, 2001, sec. 5.4.2.
 
 use nalgebra::{SMatrix, SVector};
+#[cfg(feature = "consistency")]
 use rand::SeedableRng;
+#[cfg(feature = "consistency")]
 use rand_chacha::ChaCha8Rng;
+#[cfg(feature = "consistency")]
 use rayon::prelude::*;
+#[cfg(feature = "consistency")]
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use crate::gaussian::check_finite;
@@ -54,6 +58,7 @@ fn quadratic_form<T: Scalar, const N: usize>(
 }
 
 /// Two-sided probability interval of an average of chi-square variables.
+#[cfg(feature = "consistency")]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ChiSquareBand {
     /// Lower bound.
@@ -64,6 +69,7 @@ pub struct ChiSquareBand {
     pub probability: f64,
 }
 
+#[cfg(feature = "consistency")]
 impl ChiSquareBand {
     /// Whether `value` lies inside the band (bounds included).
     pub fn contains(&self, value: f64) -> bool {
@@ -78,7 +84,10 @@ impl ChiSquareBand {
 /// filter over 200 Monte Carlo runs.
 ///
 /// # Errors
-/// [`Error::InvalidParameter`] for `dof` or `runs` zero or `probability` outside (0, 1).
+/// [`Error::InvalidParameter`] for `dof` or `runs` zero, `dof * runs` overflowing
+/// `usize` or beyond 2^53 (not exact as an `f64` degree of freedom), or `probability`
+/// outside (0, 1).
+#[cfg(feature = "consistency")]
 pub fn chi_square_band(dof: usize, runs: usize, probability: f64) -> Result<ChiSquareBand> {
     if dof == 0 || runs == 0 {
         return Err(Error::InvalidParameter {
@@ -92,7 +101,15 @@ pub fn chi_square_band(dof: usize, runs: usize, probability: f64) -> Result<ChiS
             reason: format!("{probability} is not in (0, 1)"),
         });
     }
-    let total = (dof * runs) as f64;
+    // Checked: dof * runs can overflow usize, and above 2^53 the f64 degree of freedom
+    // would silently round.
+    let total = dof
+        .checked_mul(runs)
+        .filter(|t| *t <= 1usize << 53)
+        .ok_or_else(|| Error::InvalidParameter {
+            name: "dof, runs",
+            reason: format!("dof * runs = {dof} * {runs} overflows (limit 2^53)"),
+        })? as f64;
     let chi2 = ChiSquared::new(total).map_err(|e| Error::InvalidParameter {
         name: "dof",
         reason: e.to_string(),
@@ -108,6 +125,7 @@ pub fn chi_square_band(dof: usize, runs: usize, probability: f64) -> Result<ChiS
 /// Run `run(index, rng)` for index 0..runs in parallel (rayon), each with its own
 /// `ChaCha8Rng::seed_from_u64(index)`; results in index order, identical whatever
 /// the number of threads.
+#[cfg(feature = "consistency")]
 pub fn monte_carlo<R, F>(runs: usize, run: F) -> Vec<R>
 where
     R: Send,
@@ -157,9 +175,25 @@ pub fn average_over_runs<T: Scalar>(series: &[Vec<T>]) -> Result<Vec<f64>> {
 mod tests {
     use super::*;
     use nalgebra::{Matrix2, Vector2};
+    #[cfg(feature = "consistency")]
     use rand::RngExt;
 
     #[test]
+    #[cfg(feature = "consistency")]
+    fn band_rejects_overflowing_sizes() {
+        for (dof, runs) in [(usize::MAX, 2), (1 << 40, 1 << 40), ((1 << 53) + 1, 1)] {
+            assert!(matches!(
+                chi_square_band(dof, runs, 0.95),
+                Err(Error::InvalidParameter {
+                    name: "dof, runs",
+                    ..
+                })
+            ));
+        }
+    }
+
+    #[test]
+    #[cfg(feature = "consistency")]
     fn band_matches_published_quantiles() {
         // One run of dof 2: the 2.5 % and 97.5 % quantiles of chi-square(2) are
         // -2 ln(0.975) and -2 ln(0.025) (closed form for 2 dof).
@@ -188,6 +222,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "consistency")]
     fn monte_carlo_is_deterministic_and_ordered() {
         let a = monte_carlo(64, |i, rng| (i, rng.random::<u64>()));
         let b = monte_carlo(64, |i, rng| (i, rng.random::<u64>()));

@@ -2,6 +2,7 @@
 
 use nalgebra::{DMatrix, SMatrix};
 
+use crate::gaussian::check_finite;
 use crate::scalar::{lit, to_f64};
 use crate::{CrossCovariance, CrossCovarianceContext, Error, Result, Scalar};
 
@@ -58,10 +59,20 @@ impl<T: Scalar> ScaledCorrelation<T> {
     }
 
     /// The largest |rho| for which [[Q, M(rho)], [M(rho)', R]] stays PSD.
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`] if Q or R holds NaN or infinity (checked before the square
+    /// roots of [`ScaledCorrelation::unit`], which would clamp a NaN to 0); those of
+    /// [`largest_valid_scale`].
     pub fn largest_valid_rho<const N: usize, const M: usize>(
         accumulated_process_noise: &SMatrix<T, N, N>,
         measurement_noise: &SMatrix<T, M, M>,
     ) -> Result<T> {
+        check_finite(
+            accumulated_process_noise.as_slice(),
+            "accumulated process noise",
+        )?;
+        check_finite(measurement_noise.as_slice(), "measurement noise")?;
         largest_valid_scale(
             accumulated_process_noise,
             &Self::unit(accumulated_process_noise, measurement_noise),
@@ -81,6 +92,12 @@ impl<T: Scalar, S, const N: usize, const M: usize> CrossCovariance<T, S, N, M>
             return Err(Error::InvalidParameter {
                 name: "rho",
                 reason: format!("{} is outside [-1, 1]", to_f64(self.rho)),
+            });
+        }
+        if !context.accumulation_tracked {
+            return Err(Error::NotTracked {
+                what: "accumulated process noise (for ScaledCorrelation)",
+                hint: "FilterConfig::builder().track_accumulated_noise(true)",
             });
         }
         Ok(Self::unit(context.accumulated_process_noise, context.measurement_noise) * self.rho)
@@ -103,23 +120,44 @@ pub fn joint_covariance<T: Scalar, const N: usize, const M: usize>(
     j
 }
 
-/// Smallest eigenvalue of the (symmetrised) joint covariance; NaN if an entry is not
-/// finite.
+/// Fail with [`Error::NonFinite`] naming the first of Q_acc, M, R that holds NaN or
+/// infinity (an eigen decomposition of such a matrix does not converge to anything
+/// meaningful).
+fn check_joint_finite<T: Scalar, const N: usize, const M: usize>(
+    accumulated_process_noise: &SMatrix<T, N, N>,
+    cross_covariance: &SMatrix<T, N, M>,
+    measurement_noise: &SMatrix<T, M, M>,
+) -> Result<()> {
+    check_finite(
+        accumulated_process_noise.as_slice(),
+        "accumulated process noise",
+    )?;
+    check_finite(cross_covariance.as_slice(), "cross-covariance")?;
+    check_finite(measurement_noise.as_slice(), "measurement noise")
+}
+
+/// Smallest eigenvalue of the (symmetrised) joint covariance (allocates: a dynamic
+/// (N+M)-square eigen decomposition).
+///
+/// # Errors
+/// [`Error::NonFinite`] if an entry is NaN or infinite.
 pub fn joint_min_eigenvalue<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
-) -> T {
+) -> Result<T> {
+    check_joint_finite(
+        accumulated_process_noise,
+        cross_covariance,
+        measurement_noise,
+    )?;
     let j = joint_covariance(
         accumulated_process_noise,
         cross_covariance,
         measurement_noise,
     );
-    if !j.iter().all(|v| v.is_finite()) {
-        return lit(f64::NAN);
-    }
     let j = (&j + j.transpose()) * lit::<T>(0.5);
-    j.symmetric_eigenvalues().min()
+    Ok(j.symmetric_eigenvalues().min())
 }
 
 /// 1/sqrt(d), or 1 where d <= 0 (a zero variance: its row must then be zero).
@@ -136,60 +174,185 @@ fn inverse_sqrt_or_one<T: Scalar>(d: T) -> T {
 ///
 /// Unlike [`joint_min_eigenvalue`] it does not depend on the units of the state and
 /// measurement components, so one tolerance serves every scale: PSD iff >= 0.
-/// NaN if an entry is not finite.
+/// Allocates (dynamic eigen decomposition); [`joint_validity_margin`] avoids it when the
+/// joint covariance is valid.
+///
+/// # Errors
+/// [`Error::NonFinite`] if an entry is NaN or infinite.
 pub fn joint_min_correlation_eigenvalue<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
-) -> T {
+) -> Result<T> {
+    check_joint_finite(
+        accumulated_process_noise,
+        cross_covariance,
+        measurement_noise,
+    )?;
     let j = joint_covariance(
         accumulated_process_noise,
         cross_covariance,
         measurement_noise,
     );
-    // The eigen solver on NaN would not converge: report NaN instead.
-    if !j.iter().all(|v| v.is_finite()) {
-        return lit(f64::NAN);
-    }
     let scale: Vec<T> = (0..N + M).map(|i| inverse_sqrt_or_one(j[(i, i)])).collect();
     let c = DMatrix::from_fn(N + M, N + M, |r, k| {
         (j[(r, k)] + j[(k, r)]) * lit::<T>(0.5) * scale[r] * scale[k]
     });
-    c.symmetric_eigenvalues().min()
+    Ok(c.symmetric_eigenvalues().min())
 }
 
-/// Tolerance on the smallest eigenvalue of the joint correlation matrix.
-const JOINT_TOLERANCE: f64 = 1e-9;
+/// Tolerance on the smallest eigenvalue (and the LDL' pivots) of the joint correlation
+/// matrix: [`crate::relative_tolerance`], 9.3e-10 in f64 (the former fixed 1e-9) and
+/// 2.2e-5 in f32. Why the square root of eps: Q_acc and M are products of many steps,
+/// whose rounding (relative ~ steps x eps) moves a zero eigenvalue of a semidefinite
+/// joint covariance (Q_acc is often singular) by far more than a few eps, while an
+/// invalid M (e.g. rho beyond its bound by 1e-6) moves it by orders of magnitude more.
+pub fn joint_tolerance<T: Scalar>() -> T {
+    crate::scalar::relative_tolerance()
+}
 
-/// Check that [[Q_acc, M], [M', R]] is positive semidefinite: the smallest
-/// eigenvalue of its correlation matrix ([`joint_min_correlation_eigenvalue`]) must be
-/// at least -1e-9 (scale invariant, so Q_acc and R may be in any units). Returns
-/// that eigenvalue on success.
+/// Certify [[Q, B], [B', C]] (already scaled to unit diagonal) positive semidefinite by
+/// an LDL' elimination in static storage, without pivoting: pivots above the tolerance
+/// are eliminated; a pivot within [-tol, tol] is accepted as a zero variance only if the
+/// rest of its row is within tol too (a semidefinite matrix with a zero pivot has a zero
+/// row), so the matrix is L D L' + E with D >= 0 and |E| <= tol entrywise. Returns the
+/// smallest pivot (clamped at 0), or `None` when this does not certify it (a negative pivot, or a near
+/// zero pivot with a nonzero row: invalid, or too close to call without an eigen
+/// decomposition).
+fn certify_psd<T: Scalar, const N: usize, const M: usize>(
+    mut a: SMatrix<T, N, N>,
+    mut b: SMatrix<T, N, M>,
+    mut c: SMatrix<T, M, M>,
+    tol: T,
+) -> Option<T> {
+    // Only the upper triangles of the symmetric blocks A and C are read and updated.
+    let mut smallest = T::one();
+    for k in 0..N {
+        let d = a[(k, k)];
+        smallest = smallest.min(d);
+        if d > tol {
+            let inv = T::one() / d;
+            for j in (k + 1)..N {
+                let f = a[(k, j)] * inv;
+                for i in (k + 1)..=j {
+                    let v = a[(k, i)] * f;
+                    a[(i, j)] -= v;
+                }
+            }
+            for j in 0..M {
+                let f = b[(k, j)] * inv;
+                for i in (k + 1)..N {
+                    let v = a[(k, i)] * f;
+                    b[(i, j)] -= v;
+                }
+                for i in 0..=j {
+                    let v = b[(k, i)] * f;
+                    c[(i, j)] -= v;
+                }
+            }
+        } else if d < -tol
+            || ((k + 1)..N).any(|j| a[(k, j)].abs() > tol)
+            || (0..M).any(|j| b[(k, j)].abs() > tol)
+        {
+            return None;
+        }
+    }
+    for k in 0..M {
+        let d = c[(k, k)];
+        smallest = smallest.min(d);
+        if d > tol {
+            let inv = T::one() / d;
+            for j in (k + 1)..M {
+                let f = c[(k, j)] * inv;
+                for i in (k + 1)..=j {
+                    let v = c[(k, i)] * f;
+                    c[(i, j)] -= v;
+                }
+            }
+        } else if d < -tol || ((k + 1)..M).any(|j| c[(k, j)].abs() > tol) {
+            return None;
+        }
+    }
+    // A pivot accepted as zero may be a round-off -tol..0: certified means >= 0.
+    Some(smallest.max(T::zero()))
+}
+
+/// How valid the joint covariance [[Q_acc, M], [M', R]] is, without allocating when it
+/// is valid: the number is >= -[`joint_tolerance`] iff the joint covariance is positive
+/// semidefinite (to that tolerance, on the correlation matrix C = D^-1/2 J D^-1/2).
+///
+/// - Valid (certified by a static LDL' of C, the fast path): the smallest LDL' pivot of
+///   C, clamped at 0, so in [0, 1]. It is an upper bound on the smallest eigenvalue of C and is 0
+///   exactly when C is singular (to the tolerance); small means M is near the edge of
+///   what a covariance allows.
+/// - Otherwise (a negative or inconclusive pivot): the smallest eigenvalue of C, from
+///   [`joint_min_correlation_eigenvalue`] (allocates).
+///
+/// # Errors
+/// [`Error::NonFinite`] if an entry is NaN or infinite.
+pub fn joint_validity_margin<T: Scalar, const N: usize, const M: usize>(
+    accumulated_process_noise: &SMatrix<T, N, N>,
+    cross_covariance: &SMatrix<T, N, M>,
+    measurement_noise: &SMatrix<T, M, M>,
+) -> Result<T> {
+    check_joint_finite(
+        accumulated_process_noise,
+        cross_covariance,
+        measurement_noise,
+    )?;
+    let (q, m, r) = (
+        accumulated_process_noise,
+        cross_covariance,
+        measurement_noise,
+    );
+    let half = lit::<T>(0.5);
+    let dq = q.diagonal().map(inverse_sqrt_or_one);
+    let dr = r.diagonal().map(inverse_sqrt_or_one);
+    // Upper triangles only (the certificate reads no other entry).
+    let a = SMatrix::<T, N, N>::from_fn(|i, j| {
+        if i <= j {
+            (q[(i, j)] + q[(j, i)]) * half * dq[i] * dq[j]
+        } else {
+            T::zero()
+        }
+    });
+    let b = SMatrix::<T, N, M>::from_fn(|i, j| m[(i, j)] * dq[i] * dr[j]);
+    let c = SMatrix::<T, M, M>::from_fn(|i, j| {
+        if i <= j {
+            (r[(i, j)] + r[(j, i)]) * half * dr[i] * dr[j]
+        } else {
+            T::zero()
+        }
+    });
+    match certify_psd(a, b, c, joint_tolerance::<T>()) {
+        Some(smallest_pivot) => Ok(smallest_pivot),
+        None => joint_min_correlation_eigenvalue(q, m, r),
+    }
+}
+
+/// Check that [[Q_acc, M], [M', R]] is positive semidefinite: [`joint_validity_margin`]
+/// must be at least -[`joint_tolerance`] (scale invariant, so Q_acc and R may be in any
+/// units). Returns that margin on success (the smallest LDL' pivot of the correlation
+/// matrix when the fast static factorisation certifies it, else its smallest eigenvalue).
 ///
 /// # Errors
 /// [`Error::NonFinite`] for non-finite input, [`Error::InvalidJointCovariance`]
-/// otherwise.
+/// otherwise (carrying the smallest eigenvalue of the correlation matrix).
 pub fn check_joint_covariance<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
 ) -> Result<T> {
-    crate::gaussian::check_finite(cross_covariance.as_slice(), "cross-covariance")?;
-    crate::gaussian::check_finite(
-        accumulated_process_noise.as_slice(),
-        "accumulated process noise",
-    )?;
-    crate::gaussian::check_finite(measurement_noise.as_slice(), "measurement noise")?;
-    let min = joint_min_correlation_eigenvalue(
+    let margin = joint_validity_margin(
         accumulated_process_noise,
         cross_covariance,
         measurement_noise,
-    );
-    if min >= -lit::<T>(JOINT_TOLERANCE) {
-        Ok(min)
+    )?;
+    if margin >= -joint_tolerance::<T>() {
+        Ok(margin)
     } else {
         Err(Error::InvalidJointCovariance {
-            min_eigenvalue: to_f64(min),
+            min_eigenvalue: to_f64(margin),
         })
     }
 }
@@ -203,6 +366,12 @@ pub fn largest_valid_scale<T: Scalar, const N: usize, const M: usize>(
     u: &SMatrix<T, N, M>,
     r: &SMatrix<T, M, M>,
 ) -> Result<T> {
+    check_finite(q.as_slice(), "process noise (largest_valid_scale)")?;
+    check_finite(
+        u.as_slice(),
+        "cross-covariance direction (largest_valid_scale)",
+    )?;
+    check_finite(r.as_slice(), "measurement noise (largest_valid_scale)")?;
     // c is invariant under diagonal scaling (congruence keeps PSD-ness): work on
     // D_q^-1/2 Q D_q^-1/2, D_q^-1/2 U D_r^-1/2, D_r^-1/2 R D_r^-1/2 so that mixed units
     // (e.g. 1e-16 and 1e-2 variances in one Q) do not fall below the null-space
@@ -216,7 +385,10 @@ pub fn largest_valid_scale<T: Scalar, const N: usize, const M: usize>(
     let q_dyn = DMatrix::from_column_slice(N, N, crate::gaussian::symmetrize(q).as_slice());
     let eig = q_dyn.symmetric_eigen();
     let qmax = eig.eigenvalues.amax();
-    let tol = lit::<T>(1e-12) * qmax;
+    // Null-space threshold: 4096 eps of the largest eigenvalue of the unit-diagonal Q
+    // (9.1e-13 in f64, 4.9e-4 in f32), well above the eigen solver's backward error
+    // (a small multiple of N eps).
+    let tol = T::default_epsilon() * lit::<T>(4096.0) * qmax;
     // Components of U along the eigenvectors of Q.
     let u_dyn = DMatrix::from_column_slice(N, M, u.as_slice());
     let coords = eig.eigenvectors.transpose() * u_dyn;
@@ -226,7 +398,7 @@ pub fn largest_valid_scale<T: Scalar, const N: usize, const M: usize>(
         if *lambda > tol && *lambda > T::zero() {
             let row_t = SMatrix::<T, 1, M>::from_iterator(row.iter().copied());
             w += row_t.transpose() * row_t / *lambda;
-        } else if row.amax() > lit::<T>(1e-9) * u.amax() {
+        } else if row.amax() > joint_tolerance::<T>() * u.amax() {
             return Ok(T::zero());
         }
     }
@@ -252,5 +424,108 @@ pub fn largest_valid_scale<T: Scalar, const N: usize, const M: usize>(
         Ok(T::max_value().unwrap_or_else(|| lit(f64::MAX)))
     } else {
         Ok(T::one() / lmax.sqrt())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Matrix2, SMatrix};
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// NaN or infinity on the diagonal of a 15x15 Q is a typed error everywhere an eigen
+    /// decomposition could be reached (it used to give 0.154 and NaN).
+    #[test]
+    fn non_finite_joint_input_is_a_typed_error() {
+        let r = Matrix2::<f64>::identity() * 0.1;
+        let m = SMatrix::<f64, 15, 2>::from_element(1e-3);
+        for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            let mut q = SMatrix::<f64, 15, 15>::identity();
+            q[(7, 7)] = bad;
+            let non_finite = |e: Error| matches!(e, Error::NonFinite { .. });
+            assert!(non_finite(
+                ScaledCorrelation::largest_valid_rho(&q, &r).unwrap_err()
+            ));
+            assert!(non_finite(largest_valid_scale(&q, &m, &r).unwrap_err()));
+            assert!(non_finite(
+                joint_min_correlation_eigenvalue(&q, &m, &r).unwrap_err()
+            ));
+            assert!(non_finite(joint_min_eigenvalue(&q, &m, &r).unwrap_err()));
+            assert!(non_finite(joint_validity_margin(&q, &m, &r).unwrap_err()));
+            assert!(non_finite(check_joint_covariance(&q, &m, &r).unwrap_err()));
+            // In M or R too.
+            let q = SMatrix::<f64, 15, 15>::identity();
+            let mut m_bad = m;
+            m_bad[(3, 1)] = bad;
+            assert!(non_finite(
+                joint_validity_margin(&q, &m_bad, &r).unwrap_err()
+            ));
+            let mut r_bad = r;
+            r_bad[(1, 1)] = bad;
+            assert!(non_finite(
+                ScaledCorrelation::largest_valid_rho(&q, &r_bad).unwrap_err()
+            ));
+        }
+    }
+
+    /// The static LDL' certificate agrees with the eigen decomposition: on random joint
+    /// covariances (singular Q of rank 1..N, M = c U with c on both sides of the largest
+    /// valid scale) the fast margin is >= -tol exactly when the smallest eigenvalue of
+    /// the correlation matrix is, and a certified margin is never below that
+    /// eigenvalue (a pivot bounds it from above).
+    #[test]
+    fn fast_certificate_agrees_with_the_eigen_decomposition() {
+        let mut rng = ChaCha8Rng::seed_from_u64(41);
+        let tol = joint_tolerance::<f64>();
+        let (mut valid, mut invalid) = (0, 0);
+        for case in 0..400 {
+            let rank = 1 + case % 6;
+            let g = SMatrix::<f64, 6, 6>::from_fn(|_, j| {
+                if j < rank {
+                    rng.random_range(-1.0..1.0)
+                } else {
+                    0.0
+                }
+            });
+            let scales = SMatrix::<f64, 6, 1>::from_fn(|i, _| 10f64.powi(i as i32 - 3));
+            let g = SMatrix::<f64, 6, 6>::from_fn(|i, j| g[(i, j)] * scales[i]);
+            let q = g * g.transpose();
+            // U in range(Q) half the time, arbitrary otherwise.
+            let coef = SMatrix::<f64, 6, 2>::from_fn(|_, _| rng.random_range(-1.0..1.0));
+            let u = if case % 2 == 0 {
+                g * coef
+            } else {
+                SMatrix::<f64, 6, 2>::from_fn(|i, _| rng.random_range(-1.0..1.0) * scales[i])
+            };
+            let r = Matrix2::new(2.0, 0.3, 0.3, 1.0) * 1e-2;
+            let c_max = largest_valid_scale(&q, &u, &r).unwrap();
+            let factor = [0.5, 0.999, 1.001, 2.0][case % 4];
+            let c = if c_max.is_finite() && c_max > 0.0 {
+                c_max * factor
+            } else {
+                factor
+            };
+            let m = u * c;
+            let eig = joint_min_correlation_eigenvalue(&q, &m, &r).unwrap();
+            let margin = joint_validity_margin(&q, &m, &r).unwrap();
+            assert_eq!(
+                margin >= -tol,
+                eig >= -tol,
+                "case {case}: margin {margin:e}, eigenvalue {eig:e}"
+            );
+            if margin >= -tol {
+                valid += 1;
+                // Up to the tolerance: a pivot accepted as zero may be -tol..0 where the
+                // eigenvalue of a singular matrix rounds to 0.
+                assert!(margin >= eig - tol, "case {case}: {margin:e} < {eig:e}");
+            } else {
+                invalid += 1;
+            }
+        }
+        assert!(
+            valid > 100 && invalid > 100,
+            "{valid} valid, {invalid} invalid"
+        );
     }
 }

@@ -31,7 +31,7 @@ pub enum Error {
     #[error("joint covariance [[Q_acc, M], [M', R]] is not positive semidefinite (smallest eigenvalue of its correlation matrix {min_eigenvalue:e})")]
     InvalidJointCovariance {
         /// Smallest eigenvalue of the joint correlation matrix
-        /// diag(J)^-1/2 J diag(J)^-1/2 (below -1e-9).
+        /// diag(J)^-1/2 J diag(J)^-1/2 (below -[`crate::joint_tolerance`], 9.3e-10 in f64).
         min_eigenvalue: f64,
     },
     /// A covariance matrix that must be positive (semi)definite is not.
@@ -59,6 +59,46 @@ pub enum Error {
         name: &'static str,
         /// Why it was rejected.
         reason: String,
+    },
+    /// A quantity the runner was configured not to track was needed (e.g. Q_acc with
+    /// `track_accumulated_noise(false)`).
+    #[error("{what} is not tracked by this filter's configuration ({hint})")]
+    NotTracked {
+        /// The quantity.
+        what: &'static str,
+        /// The configuration setting that enables it.
+        hint: &'static str,
+    },
+    /// A windowed cross-covariance needs more recorded process steps than the filter
+    /// holds (its capacity, or the steps predicted so far).
+    #[error("windowed cross-covariance needs the last {needed} process steps, the filter holds {available} (capacity {capacity}; set FilterConfig window_capacity)")]
+    WindowUnavailable {
+        /// Window length asked for.
+        needed: usize,
+        /// Steps recorded and available.
+        available: usize,
+        /// Configured capacity.
+        capacity: usize,
+    },
+    /// Another update whose measurement noise is itself correlated with the process
+    /// noise lies inside a windowed measurement's window: the two measurement noises
+    /// may be correlated with each other (coloured noise), which the exact
+    /// consider-state bookkeeping does not represent. Refused, never approximated.
+    #[error("coloured measurement noise: a correlated update {steps_before_end} steps before the end of this measurement's {window}-step window (stack both measurements into one, or shorten the window to the update interval)")]
+    ColouredMeasurementNoise {
+        /// Window length of the measurement being updated.
+        window: usize,
+        /// Where the earlier correlated update lies, in steps before the window's end.
+        steps_before_end: usize,
+    },
+    /// The recorded forward pass is outside what the smoother handles exactly (see
+    /// `estim_core::ForwardRecorder`); nothing was smoothed.
+    #[error("the smoother does not cover this recording: {reason} (epoch {epoch})")]
+    SmootherUnsupported {
+        /// The first epoch (index in the recording) where it happened.
+        epoch: usize,
+        /// What the forward pass did.
+        reason: &'static str,
     },
     /// A model (process, measurement or learned) failed to evaluate.
     #[error("model evaluation failed: {0}")]

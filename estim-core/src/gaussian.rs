@@ -7,7 +7,8 @@ use crate::{Error, Result, Scalar};
 /// Mean and covariance of a Gaussian state estimate of size `N`.
 ///
 /// Fields are private so the pair stays consistent: the constructor checks that
-/// every value is finite and the covariance is symmetric (to a relative 1e-9).
+/// every value is finite and the covariance is symmetric (to a relative
+/// [`crate::relative_tolerance`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct StateAndCovariance<T: Scalar, const N: usize> {
     state: SVector<T, N>,
@@ -59,13 +60,14 @@ pub fn check_finite<T: Scalar>(values: &[T], what: &'static str) -> Result<()> {
     }
 }
 
-/// Fail with [`Error::InvalidCovariance`] unless `m` is symmetric to a relative 1e-9.
+/// Fail with [`Error::InvalidCovariance`] unless `m` is symmetric to a relative
+/// [`crate::relative_tolerance`] of its largest entry (9.3e-10 in f64, 2.2e-5 in f32).
 pub fn check_symmetric<T: Scalar, const N: usize>(
     m: &SMatrix<T, N, N>,
     what: &'static str,
 ) -> Result<()> {
     let scale = m.amax();
-    let tol = crate::scalar::lit::<T>(1e-9) * scale;
+    let tol = crate::scalar::relative_tolerance::<T>() * scale;
     for i in 0..N {
         for j in (i + 1)..N {
             if (m[(i, j)] - m[(j, i)]).abs() > tol {

@@ -16,13 +16,45 @@
 //!
 //! Time index: M_k pairs the process noise accumulated since the previous
 //! measurement with the current measurement noise. Between two measurements the
-//! runners accumulate (Q_acc, Phi_acc start at 0 and I after each measurement):
+//! runners accumulate (Q_acc, Phi_acc start at 0 and I after each measurement;
+//! `FilterConfig::track_accumulated_noise(false)` turns this off):
 //!
 //! ```text
 //! Q_acc <- Phi Q_acc Phi' + Q_d        Phi_acc <- Phi Phi_acc
 //! ```
 //!
-//! and hand both to the [`CrossCovariance`] through [`CrossCovarianceContext`].
+//! and hand both to a one-step [`CrossCovariance`] through [`CrossCovarianceContext`].
+//! That is exact when the measurement noise is correlated with the accumulated noise
+//! as a whole (e.g. one predict per update). It is **not** exact when the noise shares
+//! only some of the steps (a learned sensor's input window), when Phi != I, or when
+//! other sensors update inside the window: a fixed share of Q_acc is right only for
+//! Phi = I.
+//!
+//! ## Exact cross-covariance over a window (multi-rate, several sensors)
+//!
+//! A [`WindowedCrossCovariance`] supplies, for each process step j of its
+//! measurement's window, D_j = Cov(G_j w_j, v). With
+//! `FilterConfig::window_capacity(L_max)` the runners record each step (state before
+//! it, input, dt, Phi) and each accepted update (J (I - K H), H' S^-1 H, H' S^-1 nu),
+//! and `update_windowed` computes, in one pass over the window,
+//!
+//! ```text
+//! C <- Phi_j C + D_j            each step of the window
+//! on another update A:  E[v] += C' H_A' S_A^-1 nu_A,  Var(v) -= C' H_A' S_A^-1 H_A C,
+//!                       C <- J (I - K_A H_A) C
+//! M = C,  innovation y - h(x) - E[v],  R replaced by Var(v)
+//! ```
+//!
+//! which equals joint-Gaussian conditioning of the stacked
+//! [x_0; w_1..w_K; v; other sensors' noises] (`tests/windowed.rs`: 36 sizes, 1..60
+//! predicts, windows 1..K, a second sensor inside the window, before it or at the
+//! same epoch; KF, EKF, ESKF; `tests/windowed_nonlinear.rs`: EKF/ESKF against the
+//! linearised reference). Invariants (module [`window`]): memory bounded by
+//! `L_max` recorded steps, allocated once; nothing recorded with capacity 0 (the
+//! default), so predict costs what it did; a correlated update inside another
+//! measurement's window (e.g. a window longer than the update interval: coloured
+//! noise) is [`Error::ColouredMeasurementNoise`], never approximated; a window
+//! longer than what is recorded is [`Error::WindowUnavailable`].
 //!
 //! ## The update (Simon, *Optimal State Estimation*, 2006, sec. 7.1)
 //!
@@ -31,7 +63,8 @@
 //! K  = (P H' + M) S^-1
 //! x+ = x + K (y - h(x))
 //! P+ = P - K (H P + M')                                         (short form, optimal K)
-//! P+ = (I-KH) P (I-KH)' + K R K' - (I-KH) M K' - K M' (I-KH)'   (Joseph-like, any K; default)
+//! P+ = (I-KH) P (I-KH)' + K R K' - (I-KH) M K' - K M' (I-KH)'   (Joseph-like, any K)
+//! P+ = (T L)(T L)', T = [I-KH, -K], L L' = [[P, M], [M', R]]   (square root, any K; default)
 //! NIS = (y - h(x))' S^-1 (y - h(x))
 //! ```
 //!
@@ -51,6 +84,18 @@
 //! singular (reciprocal condition of its correlation matrix below 1000 eps) is
 //! [`Error::InnovationIllConditioned`]. A result is either finite or an error.
 //!
+//! [`CovarianceUpdate`] documents the four forms, why the square-root one is the
+//! default, and its fallback when [[P, M], [M', R]] has no square root.
+//!
+//! ## Square-root and sigma-point forms
+//!
+//! [`SquareRootKalmanFilter`] keeps a Cholesky factor of P and refuses an M whose
+//! joint covariance with Q_acc has no square root; [`square_root_predict`] and
+//! [`square_root_update`] are its steps as free functions (for error-state
+//! runners). [`unscented_predict`] and [`unscented_update`] are the sigma-point
+//! (unscented) steps, the update drawing sigma points over the joint [x; v] with
+//! covariance [[P, M], [M', R]].
+//!
 //! ## Runners, gate, observers
 //!
 //! [`KalmanFilter`] (F, H, Q, R matrices), [`ExtendedKalmanFilter`] (any
@@ -62,15 +107,24 @@
 //! measurement, which leaves the state untouched and is reported as
 //! [`UpdateStatus::RejectedByGate`], not as an error. [`Observer`]s receive every
 //! prediction and update (argmin's executor pattern), so writers and plots stay out
-//! of the numerical code. Sizes are const generics: a 15-state filter does not
+//! of the numerical code; the events carry Phi, Q_d, H, R, M, S and K, so a smoother
+//! can record the forward pass. Commit rule: a predict or update either fails before
+//! touching anything or commits, then notifies; an observer's error is returned with
+//! the result committed. Sizes are const generics: a 15-state filter does not
 //! allocate per step (the optional joint eigenvalue check does, see [`JointCheck`]).
 //!
 //! ## Consistency
 //!
-//! [`nees`], [`nis`], [`chi_square_band`] (two-sided band of the average of R
+//! [`nees`], [`nis`], `chi_square_band` (two-sided band of the average of R
 //! chi-square(dof) values, `chi2_{dof R}` quantiles divided by R) and
-//! [`monte_carlo`] (rayon, run i seeded with `ChaCha8Rng::seed_from_u64(i)`,
+//! `monte_carlo` (rayon, run i seeded with `ChaCha8Rng::seed_from_u64(i)`,
 //! deterministic).
+//!
+//! Cargo feature `consistency` (default on): `chi_square_band`, `monte_carlo` and the
+//! chi-square quantile of [`Gate::Nis`] need statrs, rayon and rand. With
+//! `default-features = false` none of them is compiled; `nees`, `nis` and every filter
+//! remain, and [`Gate::Nis`] is refused with [`Error::InvalidParameter`] (use
+//! [`Gate::NisThreshold`]).
 //!
 //! ## Walkthrough: the correlated update in another domain
 //!
@@ -126,21 +180,36 @@ mod gaussian;
 mod observer;
 mod runner;
 mod scalar;
+mod sigma_point;
+mod smoother;
+mod square_root;
+#[cfg(feature = "testing")]
+pub mod testing;
 mod traits;
 mod update;
+pub mod window;
 
 pub use config::{FilterConfig, FilterConfigBuilder, Gate, JointCheck};
-pub use consistency::{average_over_runs, chi_square_band, monte_carlo, nees, nis, ChiSquareBand};
+pub use consistency::{average_over_runs, nees, nis};
+#[cfg(feature = "consistency")]
+pub use consistency::{chi_square_band, monte_carlo, ChiSquareBand};
 pub use observer::{NisRecorder, NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
 pub use runner::{ErrorStateKalmanFilter, ExtendedKalmanFilter, KalmanFilter, UpdateReport};
 
 pub use cross::{
     check_joint_covariance, joint_covariance, joint_min_correlation_eigenvalue,
-    joint_min_eigenvalue, largest_valid_scale, Fixed, ScaledCorrelation, Zero,
+    joint_min_eigenvalue, joint_tolerance, joint_validity_margin, largest_valid_scale, Fixed,
+    ScaledCorrelation, Zero,
 };
 pub use error::{Error, Result};
 pub use gaussian::{check_finite, check_symmetric, symmetrize, StateAndCovariance};
-pub use scalar::{lit, to_f64, Scalar};
+pub use scalar::{lit, relative_tolerance, to_f64, Scalar};
+pub use sigma_point::{unscented_predict, unscented_update, UnscentedOutcome, UnscentedTransform};
+pub use smoother::{FixedLagSmoother, ForwardRecorder, RecordAt, Smoothed};
+pub use square_root::{
+    check_joint_factor, covariance_factor, square_root_predict, square_root_update,
+    SquareRootKalmanFilter, SquareRootOutcome,
+};
 pub use traits::{
     CrossCovariance, CrossCovarianceContext, ErrorStateModel, InputSpec, LearnedMeasurement,
     MeasurementModel, ProcessModel,
@@ -148,5 +217,10 @@ pub use traits::{
 pub use update::{
     correlated_update, innovation_covariance, joseph_covariance, CovarianceUpdate, UpdateOutcome,
 };
+pub use window::{ProcessStep, StepWindow, WindowedCrossCovariance};
 
 pub use nalgebra;
+/// The generator [`monte_carlo`] hands each run (re-exported so callers need not
+/// guess its version).
+#[cfg(feature = "consistency")]
+pub use rand_chacha;

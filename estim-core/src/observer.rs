@@ -16,6 +16,10 @@ pub struct PredictEvent<'a, T: Scalar, S, const N: usize> {
     pub covariance: &'a SMatrix<T, N, N>,
     /// Propagations since the last measurement (including this one).
     pub propagations_since_update: usize,
+    /// The transition Phi of this step (for smoothers and recorders).
+    pub transition: &'a SMatrix<T, N, N>,
+    /// The process noise Q_d of this step.
+    pub process_noise: &'a SMatrix<T, N, N>,
 }
 
 /// Whether an update was applied.
@@ -48,6 +52,25 @@ pub struct UpdateEvent<'a, T: Scalar, S, const N: usize> {
     pub joint_min_eigenvalue: Option<T>,
     /// Accepted or rejected.
     pub status: UpdateStatus,
+    /// The covariance before the update (the prior of this update).
+    pub prior_covariance: &'a SMatrix<T, N, N>,
+    /// H (M x N), column-major.
+    pub jacobian: &'a [T],
+    /// The measurement-noise covariance used (M x M, column-major): R, or the
+    /// conditional Var(v | ...) of a windowed update.
+    pub noise_covariance: &'a [T],
+    /// The cross-covariance M used (N x M, column-major).
+    pub cross_covariance: &'a [T],
+    /// The innovation covariance S (M x M, column-major).
+    pub innovation_covariance: &'a [T],
+    /// The gain K (N x M, column-major), `None` if rejected.
+    pub gain: Option<&'a [T]>,
+    /// Whether the cross-covariance came from a windowed model (exact M over a window
+    /// of steps, see [`crate::window`]) rather than a one-step one.
+    pub windowed: bool,
+    /// The error-state reset J applied after injection (P <- J P J'), `None` when it
+    /// is the identity or the runner has no reset (KF, EKF).
+    pub reset: Option<&'a SMatrix<T, N, N>>,
 }
 
 /// Receives a runner's events. Every method has a default that does nothing.

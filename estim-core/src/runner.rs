@@ -1,18 +1,26 @@
 //! The three runners (linear KF, EKF, error-state EKF), all built on the one
-//! [`crate::correlated_update`], with process-noise accumulation, the innovation gate,
-//! the joint-covariance policy and observers.
+//! [`crate::correlated_update`]. What they share lives in one place, [`Shared`]:
+//! process-noise accumulation (one-step cross-covariances), the window of recorded
+//! steps and updates (exact windowed cross-covariances, see [`crate::window`]), the
+//! configuration, the innovation gate, the joint-covariance policy and the observer.
+//!
+//! Commit rule, the same for every runner: a predict or an update either fails with
+//! an error before touching anything, or commits its result (state, covariance,
+//! accumulators, recorded history) and *then* notifies the observer. If the observer
+//! returns an error, that error is returned and the committed result stays.
 
 use nalgebra::{SMatrix, SVector};
 
 use crate::config::JointCheck;
-use crate::cross::{check_joint_covariance, joint_min_correlation_eigenvalue};
+use crate::cross::{check_joint_covariance, joint_validity_margin};
 use crate::gaussian::{check_finite, check_symmetric, symmetrize};
 use crate::observer::{NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
 use crate::scalar::lit;
 use crate::update::{factor_innovation, finish_update, mul_static};
+use crate::window::{exact_terms, History};
 use crate::{
     CrossCovariance, CrossCovarianceContext, Error, ErrorStateModel, FilterConfig,
-    MeasurementModel, ProcessModel, Result, Scalar, StateAndCovariance,
+    MeasurementModel, ProcessModel, Result, Scalar, StateAndCovariance, WindowedCrossCovariance,
 };
 
 /// Everything one update attempt produced, accepted or rejected.
@@ -20,7 +28,8 @@ use crate::{
 pub struct UpdateReport<T: Scalar, const N: usize, const M: usize> {
     /// Accepted, or rejected by the innovation gate (state untouched).
     pub status: UpdateStatus,
-    /// Innovation y - h(x).
+    /// Innovation y - h(x) - E\[v\] (E\[v\] = [`UpdateReport::noise_mean`], zero unless
+    /// other updates inside a windowed measurement's window observed part of v).
     pub innovation: SVector<T, M>,
     /// Innovation covariance S = H P H' + H M + M' H' + R.
     pub innovation_covariance: SMatrix<T, M, M>,
@@ -28,11 +37,22 @@ pub struct UpdateReport<T: Scalar, const N: usize, const M: usize> {
     pub nis: T,
     /// The gate's NIS threshold for this measurement size, if a gate is configured.
     pub gate_threshold: Option<T>,
-    /// The cross-covariance M_k the [`CrossCovariance`] produced.
+    /// The cross-covariance M_k used (from the [`CrossCovariance`], or the exact
+    /// windowed one).
     pub cross_covariance: SMatrix<T, N, M>,
-    /// Smallest eigenvalue of the correlation matrix of [[Q_acc, M], [M', R]]
-    /// (dimensionless; the joint covariance is valid iff it is >= 0, tolerance 1e-9);
-    /// `None` with [`JointCheck::Skip`].
+    /// The measurement-noise covariance used: R, or for a windowed update
+    /// Var(v | other updates in the window) <= R.
+    pub noise_covariance: SMatrix<T, M, M>,
+    /// The measurement-noise mean used: zero, or for a windowed update
+    /// E[v | other updates in the window].
+    pub noise_mean: SVector<T, M>,
+    /// Validity margin of the joint covariance, dimensionless, valid iff >= 0 (see
+    /// [`crate::joint_validity_margin`]: for a valid joint covariance the smallest
+    /// pivot of a static LDL' of its correlation matrix, clamped to [0, 1]; for an
+    /// invalid one the smallest eigenvalue of that matrix): [[Q_acc, M], [M', R]] for a
+    /// one-step update, [[P, M], [M', Var(v)]] (the covariance of the error state
+    /// augmented with v) for a windowed one. `None` with [`JointCheck::Skip`], or when
+    /// a one-step update has M != 0 but Q_acc is not tracked.
     pub joint_min_eigenvalue: Option<T>,
     /// The gain K (`None` if rejected).
     pub gain: Option<SMatrix<T, N, M>>,
@@ -86,7 +106,7 @@ impl<T: Scalar, const N: usize> Accumulator<T, N> {
             self.transition = *transition;
         } else {
             self.noise = propagate(&self.noise, transition, process_noise);
-            self.transition = transition * self.transition;
+            self.transition = mul_static(transition, &self.transition);
         }
         self.steps += 1;
     }
@@ -130,127 +150,399 @@ fn check_dt<T: Scalar>(dt: T) -> Result<()> {
     }
 }
 
-/// The update attempt shared by all runners. Returns the report and, if accepted,
-/// the posterior. Touches nothing: the caller commits.
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn attempt_update<T, S, C, const N: usize, const M: usize>(
-    config: &FilterConfig,
-    prior: &StateAndCovariance<T, N>,
-    state: &S,
-    accumulated: &Accumulator<T, N>,
-    measurement: &SVector<T, M>,
-    innovation: SVector<T, M>,
-    jacobian: &SMatrix<T, M, N>,
-    measurement_noise: &SMatrix<T, M, M>,
-    cross: &C,
-) -> Result<(UpdateReport<T, N, M>, Option<StateAndCovariance<T, N>>)>
-where
-    T: Scalar,
-    C: CrossCovariance<T, S, N, M> + ?Sized,
-{
-    // H, R, M and P are checked by `factor_innovation` (any NaN reaches S); the
-    // measurement is checked here so the error names it.
-    check_finite(measurement.as_slice(), "measurement")?;
-    let context = CrossCovarianceContext {
-        accumulated_process_noise: &accumulated.noise,
-        accumulated_transition: &accumulated.transition,
-        measurement_noise,
-        jacobian,
-        measurement,
-        state,
-        covariance: prior.covariance(),
-    };
-    let cross_covariance = cross.cross_covariance(&context)?;
-    let joint_min_eigenvalue = match config.joint_check() {
-        JointCheck::Skip => None,
-        JointCheck::Report => {
-            check_finite(cross_covariance.as_slice(), "cross-covariance")?;
-            check_finite(measurement_noise.as_slice(), "measurement noise covariance")?;
-            Some(joint_min_correlation_eigenvalue(
-                &accumulated.noise,
-                &cross_covariance,
-                measurement_noise,
-            ))
-        }
-        JointCheck::Reject => Some(check_joint_covariance(
-            &accumulated.noise,
-            &cross_covariance,
-            measurement_noise,
-        )?),
-    };
-    let factored = factor_innovation(
-        prior,
-        &innovation,
-        jacobian,
-        measurement_noise,
-        &cross_covariance,
-    )?;
-    let gate_threshold = config.gate_threshold(M)?.map(lit::<T>);
-    let mut report = UpdateReport {
-        status: UpdateStatus::Accepted,
-        innovation,
-        innovation_covariance: factored.covariance,
-        nis: factored.nis,
-        gate_threshold,
-        cross_covariance,
-        joint_min_eigenvalue,
-        gain: None,
-        correction: None,
-    };
-    if let Some(threshold) = gate_threshold {
-        if factored.nis > threshold {
-            report.status = UpdateStatus::RejectedByGate;
-            return Ok((report, None));
-        }
-    }
-    let outcome = finish_update(
-        prior,
-        &innovation,
-        &cross_covariance,
-        config.covariance_update(),
-        factored,
-    )?;
-    report.gain = Some(outcome.gain);
-    report.correction = Some(outcome.posterior.state() - prior.state());
-    Ok((report, Some(outcome.posterior)))
+/// Where an update's cross-covariance comes from.
+enum CrossSource<'c, C: ?Sized, W: ?Sized> {
+    /// A one-step [`CrossCovariance`] (reads Q_acc, Phi_acc from the context).
+    OneStep(&'c C),
+    /// An exact [`WindowedCrossCovariance`].
+    Windowed(&'c W),
 }
 
-fn notify_update<T, S, O, const N: usize, const M: usize>(
-    observer: &mut O,
-    report: &UpdateReport<T, N, M>,
-    state: &S,
-    covariance: &SMatrix<T, N, N>,
-) -> Result<()>
-where
-    T: Scalar,
-    O: Observer<T, S, N>,
-{
-    let event = UpdateEvent {
-        state,
-        covariance,
-        innovation: report.innovation.as_slice(),
-        measurement_size: M,
-        nis: report.nis,
-        gate_threshold: report.gate_threshold,
-        joint_min_eigenvalue: report.joint_min_eigenvalue,
-        status: report.status,
-    };
-    match report.status {
-        UpdateStatus::Accepted => observer.on_update(&event),
-        UpdateStatus::RejectedByGate => observer.on_rejected(&event),
+/// The update attempt's result before the runner commits it.
+struct Attempt<T: Scalar, const N: usize, const M: usize> {
+    report: UpdateReport<T, N, M>,
+    posterior: Option<StateAndCovariance<T, N>>,
+    /// (H' S^-1 H, H' S^-1 nu) when the history records updates.
+    information: Option<(SMatrix<T, N, N>, SVector<T, N>)>,
+}
+
+/// The bookkeeping every runner shares: accumulation, recorded window, configuration,
+/// observer. `S` is the state models see, `U` the process input.
+#[derive(Debug, Clone)]
+struct Shared<T: Scalar, S, U, const N: usize, O> {
+    accumulated: Accumulator<T, N>,
+    history: History<T, S, U, N>,
+    config: FilterConfig,
+    observer: O,
+}
+
+impl<T: Scalar, S, U, const N: usize> Shared<T, S, U, N, NoObserver> {
+    fn new() -> Self {
+        let config = FilterConfig::default();
+        Self {
+            accumulated: Accumulator::new(),
+            history: History::new(config.window_capacity()),
+            config,
+            observer: NoObserver,
+        }
     }
+}
+
+impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
+    /// New configuration; the recorded window restarts with its capacity.
+    fn set_config(&mut self, config: FilterConfig) {
+        self.history = History::new(config.window_capacity());
+        self.config = config;
+    }
+
+    fn with_observer<O2>(self, observer: O2) -> Shared<T, S, U, N, O2> {
+        Shared {
+            accumulated: self.accumulated,
+            history: self.history,
+            config: self.config,
+            observer,
+        }
+    }
+
+    /// Record a committed predict: accumulation (if tracked) and window (if kept).
+    fn record_predict(
+        &mut self,
+        state_before: &S,
+        input: &U,
+        dt: Option<T>,
+        transition: &SMatrix<T, N, N>,
+        process_noise: &SMatrix<T, N, N>,
+        propagate: impl FnOnce(
+            &SMatrix<T, N, N>,
+            &SMatrix<T, N, N>,
+            &SMatrix<T, N, N>,
+        ) -> SMatrix<T, N, N>,
+    ) where
+        S: Clone,
+        U: Clone,
+    {
+        if self.config.track_accumulated_noise() {
+            self.accumulated.push(transition, process_noise, propagate);
+        } else {
+            self.accumulated.steps += 1;
+        }
+        self.history.push_step(state_before, input, dt, transition);
+    }
+
+    /// Cross-covariance, noise covariance, noise mean and joint eigenvalue for an
+    /// update; fails before anything is touched.
+    #[allow(clippy::type_complexity)]
+    fn cross_terms<C, W, const M: usize>(
+        &self,
+        source: CrossSource<'_, C, W>,
+        prior: &StateAndCovariance<T, N>,
+        state: &S,
+        measurement: &SVector<T, M>,
+        jacobian: &SMatrix<T, M, N>,
+        measurement_noise: &SMatrix<T, M, M>,
+    ) -> Result<(SMatrix<T, N, M>, SMatrix<T, M, M>, SVector<T, M>, Option<T>)>
+    where
+        C: CrossCovariance<T, S, N, M> + ?Sized,
+        W: WindowedCrossCovariance<T, S, U, N, M> + ?Sized,
+    {
+        match source {
+            CrossSource::OneStep(model) => {
+                let tracked = self.config.track_accumulated_noise();
+                let context = CrossCovarianceContext {
+                    accumulated_process_noise: &self.accumulated.noise,
+                    accumulated_transition: &self.accumulated.transition,
+                    accumulation_tracked: tracked,
+                    measurement_noise,
+                    jacobian,
+                    measurement,
+                    state,
+                    covariance: prior.covariance(),
+                };
+                let cross = model.cross_covariance(&context)?;
+                let correlated = cross.iter().any(|v| !v.is_zero());
+                let joint = match self.config.joint_check() {
+                    JointCheck::Skip => None,
+                    _ if !tracked && correlated => {
+                        if self.config.joint_check() == JointCheck::Reject {
+                            return Err(Error::NotTracked {
+                                what: "accumulated process noise (for the joint check)",
+                                hint: "FilterConfig::builder().track_accumulated_noise(true)",
+                            });
+                        }
+                        None
+                    }
+                    check => Some(joint_eigenvalue(
+                        check,
+                        &self.accumulated.noise,
+                        &cross,
+                        measurement_noise,
+                    )?),
+                };
+                Ok((cross, *measurement_noise, SVector::zeros(), joint))
+            }
+            CrossSource::Windowed(model) => {
+                let terms = exact_terms(&self.history, model, measurement_noise)?;
+                let joint = match self.config.joint_check() {
+                    JointCheck::Skip => None,
+                    check => Some(joint_eigenvalue(
+                        check,
+                        prior.covariance(),
+                        &terms.cross,
+                        &terms.noise_covariance,
+                    )?),
+                };
+                Ok((terms.cross, terms.noise_covariance, terms.noise_mean, joint))
+            }
+        }
+    }
+
+    /// The update attempt shared by all runners. Touches nothing: the caller commits.
+    #[allow(clippy::too_many_arguments)]
+    fn attempt<C, W, const M: usize>(
+        &self,
+        source: CrossSource<'_, C, W>,
+        prior: &StateAndCovariance<T, N>,
+        state: &S,
+        measurement: &SVector<T, M>,
+        predicted: SVector<T, M>,
+        jacobian: &SMatrix<T, M, N>,
+        measurement_noise: &SMatrix<T, M, M>,
+    ) -> Result<Attempt<T, N, M>>
+    where
+        C: CrossCovariance<T, S, N, M> + ?Sized,
+        W: WindowedCrossCovariance<T, S, U, N, M> + ?Sized,
+    {
+        // H, R, M and P are checked by `factor_innovation` (any NaN reaches S); the
+        // measurement is checked here so the error names it.
+        check_finite(measurement.as_slice(), "measurement")?;
+        check_finite(predicted.as_slice(), "predicted measurement")?;
+        let (cross_covariance, noise_covariance, noise_mean, joint_min_eigenvalue) = self
+            .cross_terms(
+                source,
+                prior,
+                state,
+                measurement,
+                jacobian,
+                measurement_noise,
+            )?;
+        let innovation = measurement - predicted - noise_mean;
+        let factored = factor_innovation(
+            prior,
+            &innovation,
+            jacobian,
+            &noise_covariance,
+            &cross_covariance,
+        )?;
+        let gate_threshold = self.config.gate_threshold(M)?.map(lit::<T>);
+        let mut report = UpdateReport {
+            status: UpdateStatus::Accepted,
+            innovation,
+            innovation_covariance: factored.covariance,
+            nis: factored.nis,
+            gate_threshold,
+            cross_covariance,
+            noise_covariance,
+            noise_mean,
+            joint_min_eigenvalue,
+            gain: None,
+            correction: None,
+        };
+        if let Some(threshold) = gate_threshold {
+            if factored.nis > threshold {
+                report.status = UpdateStatus::RejectedByGate;
+                return Ok(Attempt {
+                    report,
+                    posterior: None,
+                    information: None,
+                });
+            }
+        }
+        let information = self.history.is_enabled().then(|| {
+            // H' S^-1 H and H' S^-1 nu: what a later windowed update needs of this one.
+            let hs = mul_static(&jacobian.transpose(), &factored.inverse);
+            (
+                symmetrize(&mul_static(&hs, jacobian)),
+                mul_static(&hs, &innovation),
+            )
+        });
+        let outcome = finish_update(
+            prior,
+            &innovation,
+            &cross_covariance,
+            self.config.covariance_update(),
+            factored,
+        )?;
+        report.gain = Some(outcome.gain);
+        report.correction = Some(outcome.posterior.state() - prior.state());
+        Ok(Attempt {
+            report,
+            posterior: Some(outcome.posterior),
+            information,
+        })
+    }
+
+    /// After the runner committed an attempt: record it for later windows (with the
+    /// reset Jacobian J of an error-state filter), close the accumulation interval.
+    fn record_update<const M: usize>(
+        &mut self,
+        attempt: &Attempt<T, N, M>,
+        jacobian: &SMatrix<T, M, N>,
+        reset: Option<&SMatrix<T, N, N>>,
+    ) {
+        if let (Some(gain), Some((information, weighted))) =
+            (attempt.report.gain.as_ref(), attempt.information.as_ref())
+        {
+            let mut transform = SMatrix::<T, N, N>::identity() - mul_static(gain, jacobian);
+            if let Some(j) = reset {
+                transform = mul_static(j, &transform);
+            }
+            let correlated = attempt.report.cross_covariance.iter().any(|v| !v.is_zero());
+            self.history
+                .push_update(transform, *information, *weighted, correlated);
+        }
+        self.accumulated.reset();
+    }
+
+    fn notify_predict(
+        &mut self,
+        dt: Option<T>,
+        state: &S,
+        covariance: &SMatrix<T, N, N>,
+        transition: &SMatrix<T, N, N>,
+        process_noise: &SMatrix<T, N, N>,
+    ) -> Result<()>
+    where
+        O: Observer<T, S, N>,
+    {
+        self.observer.on_predict(&PredictEvent {
+            dt,
+            state,
+            covariance,
+            propagations_since_update: self.accumulated.steps,
+            transition,
+            process_noise,
+        })
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn notify_update<const M: usize>(
+        &mut self,
+        report: &UpdateReport<T, N, M>,
+        state: &S,
+        covariance: &SMatrix<T, N, N>,
+        prior_covariance: &SMatrix<T, N, N>,
+        jacobian: &SMatrix<T, M, N>,
+        windowed: bool,
+        reset: Option<&SMatrix<T, N, N>>,
+    ) -> Result<()>
+    where
+        O: Observer<T, S, N>,
+    {
+        let event = UpdateEvent {
+            windowed,
+            reset,
+            prior_covariance,
+            jacobian: jacobian.as_slice(),
+            noise_covariance: report.noise_covariance.as_slice(),
+            cross_covariance: report.cross_covariance.as_slice(),
+            innovation_covariance: report.innovation_covariance.as_slice(),
+            gain: report.gain.as_ref().map(|g| g.as_slice()),
+            state,
+            covariance,
+            innovation: report.innovation.as_slice(),
+            measurement_size: M,
+            nis: report.nis,
+            gate_threshold: report.gate_threshold,
+            joint_min_eigenvalue: report.joint_min_eigenvalue,
+            status: report.status,
+        };
+        match report.status {
+            UpdateStatus::Accepted => self.observer.on_update(&event),
+            UpdateStatus::RejectedByGate => self.observer.on_rejected(&event),
+        }
+    }
+}
+
+/// The joint check of `config` on [[A, M], [M', B]].
+fn joint_eigenvalue<T: Scalar, const N: usize, const M: usize>(
+    check: JointCheck,
+    a: &SMatrix<T, N, N>,
+    cross: &SMatrix<T, N, M>,
+    b: &SMatrix<T, M, M>,
+) -> Result<T> {
+    if check == JointCheck::Reject {
+        return check_joint_covariance(a, cross, b);
+    }
+    // Certified without allocation when valid (smallest LDL' pivot, clamped to
+    // [0, 1]); the smallest eigenvalue of the correlation matrix when invalid.
+    joint_validity_margin(a, cross, b)
+}
+
+/// The accessors every runner has, over its `shared` field (one definition).
+macro_rules! shared_accessors {
+    () => {
+        /// The configuration.
+        pub fn config(&self) -> &FilterConfig {
+            &self.shared.config
+        }
+
+        /// Q_acc since the last measurement (zero when not tracked, see
+        /// [`FilterConfig::track_accumulated_noise`]).
+        pub fn accumulated_process_noise(&self) -> &SMatrix<T, N, N> {
+            &self.shared.accumulated.noise
+        }
+
+        /// Phi_acc since the last measurement (identity when not tracked).
+        pub fn accumulated_transition(&self) -> &SMatrix<T, N, N> {
+            &self.shared.accumulated.transition
+        }
+
+        /// Propagations since the last measurement.
+        pub fn propagations_since_update(&self) -> usize {
+            self.shared.accumulated.steps
+        }
+
+        /// Process steps currently recorded for windowed cross-covariances (at most
+        /// [`FilterConfig::window_capacity`]).
+        pub fn recorded_steps(&self) -> usize {
+            self.shared.history.len()
+        }
+
+        /// The observer.
+        pub fn observer(&self) -> &O {
+            &self.shared.observer
+        }
+
+        /// The observer, mutably.
+        pub fn observer_mut(&mut self) -> &mut O {
+            &mut self.shared.observer
+        }
+
+        /// Consume the filter, keeping the observer (e.g. to read what it recorded).
+        pub fn into_observer(self) -> O {
+            self.shared.observer
+        }
+
+        /// Replace the configuration. The recorded window (if any) restarts empty
+        /// with the new capacity; Q_acc is kept.
+        #[must_use]
+        pub fn with_config(mut self, config: FilterConfig) -> Self {
+            self.shared.set_config(config);
+            self
+        }
+    };
 }
 
 /// Linear Kalman filter x_k = F x_{k-1} + G w, y_k = H x_k + v, with the correlated
 /// update.
 ///
 /// State kept between calls (all readable): the estimate, Q_acc and Phi_acc since
-/// the last measurement, the configuration and the observer. Q_acc and Phi_acc are
-/// reset after every update attempt, accepted or rejected by the gate (the
-/// measurement's noise is correlated with the process noise of the interval that
-/// ends at it; a rejected measurement still closes its interval). They are kept
-/// when an update fails with an error, and when a step has no measurement (`None`).
+/// the last measurement, the recorded window (if configured), the configuration and
+/// the observer. Q_acc and Phi_acc are reset after every update attempt, accepted or
+/// rejected by the gate (the measurement's noise is correlated with the process noise
+/// of the interval that ends at it; a rejected measurement still closes its
+/// interval). They are kept when an update fails with an error, and when a step has
+/// no measurement (`None`). On an observer error, see the module docs' commit rule.
 #[derive(Debug, Clone)]
 pub struct KalmanFilter<T: Scalar, const N: usize, const M: usize, O = NoObserver> {
     transition: SMatrix<T, N, N>,
@@ -258,9 +550,7 @@ pub struct KalmanFilter<T: Scalar, const N: usize, const M: usize, O = NoObserve
     observation: SMatrix<T, M, N>,
     measurement_noise: SMatrix<T, M, M>,
     estimate: StateAndCovariance<T, N>,
-    accumulated: Accumulator<T, N>,
-    config: FilterConfig,
-    observer: O,
+    shared: Shared<T, SVector<T, N>, (), N, O>,
 }
 
 impl<T: Scalar, const N: usize, const M: usize> KalmanFilter<T, N, M, NoObserver> {
@@ -288,19 +578,13 @@ impl<T: Scalar, const N: usize, const M: usize> KalmanFilter<T, N, M, NoObserver
             observation,
             measurement_noise,
             estimate: initial,
-            accumulated: Accumulator::new(),
-            config: FilterConfig::default(),
-            observer: NoObserver,
+            shared: Shared::new(),
         })
     }
 }
 
 impl<T: Scalar, const N: usize, const M: usize, O> KalmanFilter<T, N, M, O> {
-    /// Replace the configuration.
-    #[must_use]
-    pub fn with_config(self, config: FilterConfig) -> Self {
-        Self { config, ..self }
-    }
+    shared_accessors!();
 
     /// Replace the observer.
     #[must_use]
@@ -311,50 +595,13 @@ impl<T: Scalar, const N: usize, const M: usize, O> KalmanFilter<T, N, M, O> {
             observation: self.observation,
             measurement_noise: self.measurement_noise,
             estimate: self.estimate,
-            accumulated: self.accumulated,
-            config: self.config,
-            observer,
+            shared: self.shared.with_observer(observer),
         }
     }
 
     /// The current estimate.
     pub fn estimate(&self) -> &StateAndCovariance<T, N> {
         &self.estimate
-    }
-
-    /// The configuration.
-    pub fn config(&self) -> &FilterConfig {
-        &self.config
-    }
-
-    /// Q_acc since the last measurement.
-    pub fn accumulated_process_noise(&self) -> &SMatrix<T, N, N> {
-        &self.accumulated.noise
-    }
-
-    /// Phi_acc since the last measurement.
-    pub fn accumulated_transition(&self) -> &SMatrix<T, N, N> {
-        &self.accumulated.transition
-    }
-
-    /// Propagations since the last measurement.
-    pub fn propagations_since_update(&self) -> usize {
-        self.accumulated.steps
-    }
-
-    /// The observer.
-    pub fn observer(&self) -> &O {
-        &self.observer
-    }
-
-    /// The observer, mutably.
-    pub fn observer_mut(&mut self) -> &mut O {
-        &mut self.observer
-    }
-
-    /// Consume the filter, keeping the observer (e.g. to read what it recorded).
-    pub fn into_observer(self) -> O {
-        self.observer
     }
 }
 
@@ -371,19 +618,65 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         let covariance = propagate_symmetric(f, self.estimate.covariance(), &self.process_noise);
         check_finite(state.as_slice(), "predicted state")?;
         check_finite(covariance.as_slice(), "predicted covariance")?;
-        self.estimate = StateAndCovariance::new_unchecked(state, covariance);
-        self.accumulated.push(f, &self.process_noise, |q, phi, qd| {
-            propagate_symmetric(phi, q, qd)
-        });
-        self.observer.on_predict(&PredictEvent {
-            dt: None,
-            state: self.estimate.state(),
-            covariance: self.estimate.covariance(),
-            propagations_since_update: self.accumulated.steps,
-        })
+        let before = std::mem::replace(
+            &mut self.estimate,
+            StateAndCovariance::new_unchecked(state, covariance),
+        );
+        self.shared.record_predict(
+            before.state(),
+            &(),
+            None,
+            f,
+            &self.process_noise,
+            |q, phi, qd| propagate_symmetric(phi, q, qd),
+        );
+        self.shared.notify_predict(
+            None,
+            self.estimate.state(),
+            self.estimate.covariance(),
+            &self.transition,
+            &self.process_noise,
+        )
     }
 
-    /// Update with measurement y and the cross-covariance model `cross`.
+    fn update_from<C, W>(
+        &mut self,
+        measurement: &SVector<T, M>,
+        source: CrossSource<'_, C, W>,
+    ) -> Result<UpdateReport<T, N, M>>
+    where
+        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
+        W: WindowedCrossCovariance<T, SVector<T, N>, (), N, M> + ?Sized,
+    {
+        let predicted = mul_static(&self.observation, self.estimate.state());
+        let windowed = matches!(source, CrossSource::Windowed(_));
+        let attempt = self.shared.attempt(
+            source,
+            &self.estimate,
+            self.estimate.state(),
+            measurement,
+            predicted,
+            &self.observation,
+            &self.measurement_noise,
+        )?;
+        self.shared.record_update(&attempt, &self.observation, None);
+        let prior = match attempt.posterior {
+            Some(posterior) => std::mem::replace(&mut self.estimate, posterior),
+            None => self.estimate.clone(),
+        };
+        self.shared.notify_update(
+            &attempt.report,
+            self.estimate.state(),
+            self.estimate.covariance(),
+            prior.covariance(),
+            &self.observation,
+            windowed,
+            None,
+        )?;
+        Ok(attempt.report)
+    }
+
+    /// Update with measurement y and the one-step cross-covariance model `cross`.
     ///
     /// # Errors
     /// Those of [`crate::correlated_update`], [`Error::InvalidJointCovariance`] under
@@ -396,29 +689,27 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
     where
         C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
     {
-        let innovation = measurement - self.observation * self.estimate.state();
-        let (report, posterior) = attempt_update(
-            &self.config,
-            &self.estimate,
-            self.estimate.state(),
-            &self.accumulated,
+        self.update_from::<C, dyn WindowedCrossCovariance<T, SVector<T, N>, (), N, M>>(
             measurement,
-            innovation,
-            &self.observation,
-            &self.measurement_noise,
-            cross,
-        )?;
-        if let Some(posterior) = posterior {
-            self.estimate = posterior;
-        }
-        self.accumulated.reset();
-        notify_update(
-            &mut self.observer,
-            &report,
-            self.estimate.state(),
-            self.estimate.covariance(),
-        )?;
-        Ok(report)
+            CrossSource::OneStep(cross),
+        )
+    }
+
+    /// Update with measurement y whose noise shares the process noise of a window of
+    /// recorded steps: exact M, Var(v | ...) and E[v | ...] (see [`crate::window`]).
+    ///
+    /// # Errors
+    /// As [`KalmanFilter::update`], plus [`Error::NotTracked`] (no window kept),
+    /// [`Error::WindowUnavailable`], [`Error::ColouredMeasurementNoise`].
+    pub fn update_windowed<W>(
+        &mut self,
+        measurement: &SVector<T, M>,
+        cross: &W,
+    ) -> Result<UpdateReport<T, N, M>>
+    where
+        W: WindowedCrossCovariance<T, SVector<T, N>, (), N, M> + ?Sized,
+    {
+        self.update_from::<crate::Zero, W>(measurement, CrossSource::Windowed(cross))
     }
 
     /// One time step: predict, then update if a measurement is present.
@@ -439,17 +730,19 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
 }
 
 /// Extended Kalman filter over a [`ProcessModel`] whose state is `SVector<T, N>`,
-/// updated with any [`MeasurementModel`] and [`CrossCovariance`].
+/// updated with any [`MeasurementModel`] and [`CrossCovariance`] (one-step) or
+/// [`WindowedCrossCovariance`] (exact over a window).
 ///
-/// F and Q_d are evaluated at the state before propagation. Kept state and the
-/// reset rule of Q_acc / Phi_acc: as for [`KalmanFilter`].
+/// F and Q_d are evaluated at the state before propagation. Kept state, the reset
+/// rule of Q_acc / Phi_acc and the commit rule: as for [`KalmanFilter`].
 #[derive(Debug, Clone)]
-pub struct ExtendedKalmanFilter<T: Scalar, P, const N: usize, O = NoObserver> {
+pub struct ExtendedKalmanFilter<T: Scalar, P, const N: usize, O = NoObserver>
+where
+    P: ProcessModel<T, N>,
+{
     process: P,
     estimate: StateAndCovariance<T, N>,
-    accumulated: Accumulator<T, N>,
-    config: FilterConfig,
-    observer: O,
+    shared: Shared<T, SVector<T, N>, P::Input, N, O>,
 }
 
 impl<T, P, const N: usize> ExtendedKalmanFilter<T, P, N, NoObserver>
@@ -462,18 +755,26 @@ where
         Self {
             process,
             estimate: initial,
-            accumulated: Accumulator::new(),
-            config: FilterConfig::default(),
-            observer: NoObserver,
+            shared: Shared::new(),
         }
     }
 }
 
-impl<T: Scalar, P, const N: usize, O> ExtendedKalmanFilter<T, P, N, O> {
-    /// Replace the configuration.
-    #[must_use]
-    pub fn with_config(self, config: FilterConfig) -> Self {
-        Self { config, ..self }
+impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ExtendedKalmanFilter<T, P, N, O> {
+    shared_accessors!();
+
+    /// The last `steps` recorded process steps (states before propagation, inputs,
+    /// dt, transitions), e.g. to build a learned measurement's input window from the
+    /// samples the filter itself consumed (the runner is the ring buffer of its
+    /// input stream).
+    ///
+    /// # Errors
+    /// [`Error::WindowUnavailable`] if fewer steps are recorded (or `steps` is 0).
+    pub fn step_window(
+        &self,
+        steps: usize,
+    ) -> Result<crate::StepWindow<'_, T, SVector<T, N>, P::Input, N>> {
+        self.shared.history.window(steps)
     }
 
     /// Replace the observer.
@@ -482,9 +783,7 @@ impl<T: Scalar, P, const N: usize, O> ExtendedKalmanFilter<T, P, N, O> {
         ExtendedKalmanFilter {
             process: self.process,
             estimate: self.estimate,
-            accumulated: self.accumulated,
-            config: self.config,
-            observer,
+            shared: self.shared.with_observer(observer),
         }
     }
 
@@ -497,47 +796,13 @@ impl<T: Scalar, P, const N: usize, O> ExtendedKalmanFilter<T, P, N, O> {
     pub fn estimate(&self) -> &StateAndCovariance<T, N> {
         &self.estimate
     }
-
-    /// The configuration.
-    pub fn config(&self) -> &FilterConfig {
-        &self.config
-    }
-
-    /// Q_acc since the last measurement.
-    pub fn accumulated_process_noise(&self) -> &SMatrix<T, N, N> {
-        &self.accumulated.noise
-    }
-
-    /// Phi_acc since the last measurement.
-    pub fn accumulated_transition(&self) -> &SMatrix<T, N, N> {
-        &self.accumulated.transition
-    }
-
-    /// Propagations since the last measurement.
-    pub fn propagations_since_update(&self) -> usize {
-        self.accumulated.steps
-    }
-
-    /// The observer.
-    pub fn observer(&self) -> &O {
-        &self.observer
-    }
-
-    /// The observer, mutably.
-    pub fn observer_mut(&mut self) -> &mut O {
-        &mut self.observer
-    }
-
-    /// Consume the filter, keeping the observer.
-    pub fn into_observer(self) -> O {
-        self.observer
-    }
 }
 
 impl<T, P, const N: usize, O> ExtendedKalmanFilter<T, P, N, O>
 where
     T: Scalar,
     P: ProcessModel<T, N, State = SVector<T, N>>,
+    P::Input: Clone,
     O: Observer<T, SVector<T, N>, N>,
 {
     /// Prior over `dt`: x <- f(x, u), P <- Phi P Phi' + Q_d (via
@@ -558,20 +823,67 @@ where
             .propagate_covariance(self.estimate.covariance(), &phi, &qd);
         check_finite(state.as_slice(), "predicted state")?;
         check_finite(covariance.as_slice(), "predicted covariance")?;
-        self.estimate = StateAndCovariance::new_unchecked(state, covariance);
+        let before = std::mem::replace(
+            &mut self.estimate,
+            StateAndCovariance::new_unchecked(state, covariance),
+        );
         let process = &self.process;
-        self.accumulated.push(&phi, &qd, |q, phi, qd| {
-            process.propagate_covariance(q, phi, qd)
-        });
-        self.observer.on_predict(&PredictEvent {
-            dt: Some(dt),
-            state: self.estimate.state(),
-            covariance: self.estimate.covariance(),
-            propagations_since_update: self.accumulated.steps,
-        })
+        self.shared
+            .record_predict(before.state(), input, Some(dt), &phi, &qd, |q, phi, qd| {
+                process.propagate_covariance(q, phi, qd)
+            });
+        self.shared.notify_predict(
+            Some(dt),
+            self.estimate.state(),
+            self.estimate.covariance(),
+            &phi,
+            &qd,
+        )
     }
 
-    /// Update with `model`, measurement y and the cross-covariance model `cross`.
+    fn update_from<Mm, C, W, const M: usize>(
+        &mut self,
+        model: &Mm,
+        measurement: &SVector<T, M>,
+        source: CrossSource<'_, C, W>,
+    ) -> Result<UpdateReport<T, N, M>>
+    where
+        Mm: MeasurementModel<T, N, M, State = SVector<T, N>> + ?Sized,
+        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
+        W: WindowedCrossCovariance<T, SVector<T, N>, P::Input, N, M> + ?Sized,
+    {
+        let x = self.estimate.state();
+        let predicted = model.predict(x)?;
+        let jacobian = model.jacobian(x)?;
+        let noise = model.noise_covariance(x)?;
+        let windowed = matches!(source, CrossSource::Windowed(_));
+        let attempt = self.shared.attempt(
+            source,
+            &self.estimate,
+            x,
+            measurement,
+            predicted,
+            &jacobian,
+            &noise,
+        )?;
+        self.shared.record_update(&attempt, &jacobian, None);
+        let prior = match attempt.posterior {
+            Some(posterior) => std::mem::replace(&mut self.estimate, posterior),
+            None => self.estimate.clone(),
+        };
+        self.shared.notify_update(
+            &attempt.report,
+            self.estimate.state(),
+            self.estimate.covariance(),
+            prior.covariance(),
+            &jacobian,
+            windowed,
+            None,
+        )?;
+        Ok(attempt.report)
+    }
+
+    /// Update with `model`, measurement y and the one-step cross-covariance `cross`.
     ///
     /// # Errors
     /// As [`KalmanFilter::update`], plus the measurement model's errors.
@@ -585,32 +897,29 @@ where
         Mm: MeasurementModel<T, N, M, State = SVector<T, N>> + ?Sized,
         C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
     {
-        let x = self.estimate.state();
-        let innovation = measurement - model.predict(x)?;
-        let jacobian = model.jacobian(x)?;
-        let noise = model.noise_covariance(x)?;
-        let (report, posterior) = attempt_update(
-            &self.config,
-            &self.estimate,
-            x,
-            &self.accumulated,
+        self.update_from::<Mm, C, dyn WindowedCrossCovariance<T, SVector<T, N>, P::Input, N, M>, M>(
+            model,
             measurement,
-            innovation,
-            &jacobian,
-            &noise,
-            cross,
-        )?;
-        if let Some(posterior) = posterior {
-            self.estimate = posterior;
-        }
-        self.accumulated.reset();
-        notify_update(
-            &mut self.observer,
-            &report,
-            self.estimate.state(),
-            self.estimate.covariance(),
-        )?;
-        Ok(report)
+            CrossSource::OneStep(cross),
+        )
+    }
+
+    /// Update with a measurement whose noise shares a window of recorded process
+    /// steps: exact M, Var(v | ...) and E[v | ...] (see [`crate::window`]).
+    ///
+    /// # Errors
+    /// As [`KalmanFilter::update_windowed`], plus the measurement model's errors.
+    pub fn update_windowed<Mm, W, const M: usize>(
+        &mut self,
+        model: &Mm,
+        measurement: &SVector<T, M>,
+        cross: &W,
+    ) -> Result<UpdateReport<T, N, M>>
+    where
+        Mm: MeasurementModel<T, N, M, State = SVector<T, N>> + ?Sized,
+        W: WindowedCrossCovariance<T, SVector<T, N>, P::Input, N, M> + ?Sized,
+    {
+        self.update_from::<Mm, crate::Zero, W, M>(model, measurement, CrossSource::Windowed(cross))
     }
 
     /// One time step: predict over `dt`, then update if a measurement is present.
@@ -640,9 +949,11 @@ where
 /// an N-dimensional error covariance, updates that estimate the error, inject it into
 /// the nominal state and reset the covariance (P <- J P J', J = `reset_jacobian`
 /// evaluated at the nominal state before injection and the injected error). The
-/// error estimate is zero between updates.
+/// error estimate is zero between updates; the windowed bookkeeping applies J to the
+/// carried cross-covariance too.
 ///
-/// Kept state and the reset rule of Q_acc / Phi_acc: as for [`KalmanFilter`].
+/// Kept state, the reset rule of Q_acc / Phi_acc and the commit rule: as for
+/// [`KalmanFilter`].
 #[derive(Debug, Clone)]
 pub struct ErrorStateKalmanFilter<T, P, const N: usize, O = NoObserver>
 where
@@ -652,9 +963,7 @@ where
     process: P,
     nominal: P::State,
     covariance: SMatrix<T, N, N>,
-    accumulated: Accumulator<T, N>,
-    config: FilterConfig,
-    observer: O,
+    shared: Shared<T, P::State, P::Input, N, O>,
 }
 
 impl<T, P, const N: usize> ErrorStateKalmanFilter<T, P, N, NoObserver>
@@ -673,18 +982,26 @@ where
             process,
             nominal,
             covariance,
-            accumulated: Accumulator::new(),
-            config: FilterConfig::default(),
-            observer: NoObserver,
+            shared: Shared::new(),
         })
     }
 }
 
 impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ErrorStateKalmanFilter<T, P, N, O> {
-    /// Replace the configuration.
-    #[must_use]
-    pub fn with_config(self, config: FilterConfig) -> Self {
-        Self { config, ..self }
+    shared_accessors!();
+
+    /// The last `steps` recorded process steps (states before propagation, inputs,
+    /// dt, transitions), e.g. to build a learned measurement's input window from the
+    /// samples the filter itself consumed (the runner is the ring buffer of its
+    /// input stream).
+    ///
+    /// # Errors
+    /// [`Error::WindowUnavailable`] if fewer steps are recorded (or `steps` is 0).
+    pub fn step_window(
+        &self,
+        steps: usize,
+    ) -> Result<crate::StepWindow<'_, T, P::State, P::Input, N>> {
+        self.shared.history.window(steps)
     }
 
     /// Replace the observer.
@@ -694,9 +1011,7 @@ impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ErrorStateKalmanFilter
             process: self.process,
             nominal: self.nominal,
             covariance: self.covariance,
-            accumulated: self.accumulated,
-            config: self.config,
-            observer,
+            shared: self.shared.with_observer(observer),
         }
     }
 
@@ -714,47 +1029,13 @@ impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ErrorStateKalmanFilter
     pub fn covariance(&self) -> &SMatrix<T, N, N> {
         &self.covariance
     }
-
-    /// The configuration.
-    pub fn config(&self) -> &FilterConfig {
-        &self.config
-    }
-
-    /// Q_acc since the last measurement.
-    pub fn accumulated_process_noise(&self) -> &SMatrix<T, N, N> {
-        &self.accumulated.noise
-    }
-
-    /// Phi_acc since the last measurement.
-    pub fn accumulated_transition(&self) -> &SMatrix<T, N, N> {
-        &self.accumulated.transition
-    }
-
-    /// Propagations since the last measurement.
-    pub fn propagations_since_update(&self) -> usize {
-        self.accumulated.steps
-    }
-
-    /// The observer.
-    pub fn observer(&self) -> &O {
-        &self.observer
-    }
-
-    /// The observer, mutably.
-    pub fn observer_mut(&mut self) -> &mut O {
-        &mut self.observer
-    }
-
-    /// Consume the filter, keeping the observer.
-    pub fn into_observer(self) -> O {
-        self.observer
-    }
 }
 
 impl<T, P, const N: usize, O> ErrorStateKalmanFilter<T, P, N, O>
 where
     T: Scalar,
     P: ErrorStateModel<T, N>,
+    P::Input: Clone,
     O: Observer<T, P::State, N>,
 {
     /// Propagate the nominal state with [`ProcessModel::propagate`] and the error
@@ -776,18 +1057,75 @@ where
             .process
             .propagate_covariance(&self.covariance, &phi, &qd);
         check_finite(covariance.as_slice(), "predicted covariance")?;
-        self.nominal = nominal;
+        let before = std::mem::replace(&mut self.nominal, nominal);
         self.covariance = covariance;
         let process = &self.process;
-        self.accumulated.push(&phi, &qd, |q, phi, qd| {
-            process.propagate_covariance(q, phi, qd)
-        });
-        self.observer.on_predict(&PredictEvent {
-            dt: Some(dt),
-            state: &self.nominal,
-            covariance: &self.covariance,
-            propagations_since_update: self.accumulated.steps,
-        })
+        self.shared
+            .record_predict(&before, input, Some(dt), &phi, &qd, |q, phi, qd| {
+                process.propagate_covariance(q, phi, qd)
+            });
+        self.shared
+            .notify_predict(Some(dt), &self.nominal, &self.covariance, &phi, &qd)
+    }
+
+    fn update_from<Mm, C, W, const M: usize>(
+        &mut self,
+        model: &Mm,
+        measurement: &SVector<T, M>,
+        source: CrossSource<'_, C, W>,
+    ) -> Result<UpdateReport<T, N, M>>
+    where
+        Mm: MeasurementModel<T, N, M, State = P::State> + ?Sized,
+        C: CrossCovariance<T, P::State, N, M> + ?Sized,
+        W: WindowedCrossCovariance<T, P::State, P::Input, N, M> + ?Sized,
+    {
+        let predicted = model.predict(&self.nominal)?;
+        let jacobian = model.jacobian(&self.nominal)?;
+        let noise = model.noise_covariance(&self.nominal)?;
+        let prior = StateAndCovariance::new_unchecked(SVector::zeros(), self.covariance);
+        let windowed = matches!(source, CrossSource::Windowed(_));
+        let attempt = self.shared.attempt(
+            source,
+            &prior,
+            &self.nominal,
+            measurement,
+            predicted,
+            &jacobian,
+            &noise,
+        )?;
+        // Everything that can fail happens before the commit.
+        let mut committed = None;
+        let mut reset = None;
+        if let Some(posterior) = attempt.posterior.as_ref() {
+            let error = *posterior.state();
+            let j = self.process.reset_jacobian(&self.nominal, &error);
+            check_finite(j.as_slice(), "reset jacobian")?;
+            let nominal = self.process.inject(&self.nominal, &error)?;
+            let covariance = if j == SMatrix::<T, N, N>::identity() {
+                *posterior.covariance()
+            } else {
+                reset = Some(j);
+                symmetrize(&(j * posterior.covariance() * j.transpose()))
+            };
+            committed = Some((nominal, covariance));
+        }
+        self.shared
+            .record_update(&attempt, &jacobian, reset.as_ref());
+        let prior_covariance = self.covariance;
+        if let Some((nominal, covariance)) = committed {
+            self.nominal = nominal;
+            self.covariance = covariance;
+        }
+        self.shared.notify_update(
+            &attempt.report,
+            &self.nominal,
+            &self.covariance,
+            &prior_covariance,
+            &jacobian,
+            windowed,
+            reset.as_ref(),
+        )?;
+        Ok(attempt.report)
     }
 
     /// Estimate the error from measurement y (prior error zero), inject it into the
@@ -795,7 +1133,7 @@ where
     ///
     /// # Errors
     /// As [`ExtendedKalmanFilter::update`], plus the injection's errors; on any error
-    /// the filter is left untouched.
+    /// other than the observer's the filter is left untouched.
     pub fn update<Mm, C, const M: usize>(
         &mut self,
         model: &Mm,
@@ -806,37 +1144,29 @@ where
         Mm: MeasurementModel<T, N, M, State = P::State> + ?Sized,
         C: CrossCovariance<T, P::State, N, M> + ?Sized,
     {
-        let innovation = measurement - model.predict(&self.nominal)?;
-        let jacobian = model.jacobian(&self.nominal)?;
-        let noise = model.noise_covariance(&self.nominal)?;
-        let prior = StateAndCovariance::new_unchecked(SVector::zeros(), self.covariance);
-        let (report, posterior) = attempt_update(
-            &self.config,
-            &prior,
-            &self.nominal,
-            &self.accumulated,
+        self.update_from::<Mm, C, dyn WindowedCrossCovariance<T, P::State, P::Input, N, M>, M>(
+            model,
             measurement,
-            innovation,
-            &jacobian,
-            &noise,
-            cross,
-        )?;
-        if let Some(posterior) = posterior {
-            let (error, covariance) = posterior.into_parts();
-            let reset = self.process.reset_jacobian(&self.nominal, &error);
-            check_finite(reset.as_slice(), "reset jacobian")?;
-            let nominal = self.process.inject(&self.nominal, &error)?;
-            let covariance = if reset == SMatrix::<T, N, N>::identity() {
-                covariance
-            } else {
-                symmetrize(&(reset * covariance * reset.transpose()))
-            };
-            self.nominal = nominal;
-            self.covariance = covariance;
-        }
-        self.accumulated.reset();
-        notify_update(&mut self.observer, &report, &self.nominal, &self.covariance)?;
-        Ok(report)
+            CrossSource::OneStep(cross),
+        )
+    }
+
+    /// Windowed update (exact M, Var(v | ...), E[v | ...]; see [`crate::window`]),
+    /// then injection and reset as [`ErrorStateKalmanFilter::update`].
+    ///
+    /// # Errors
+    /// As [`ExtendedKalmanFilter::update_windowed`], plus the injection's errors.
+    pub fn update_windowed<Mm, W, const M: usize>(
+        &mut self,
+        model: &Mm,
+        measurement: &SVector<T, M>,
+        cross: &W,
+    ) -> Result<UpdateReport<T, N, M>>
+    where
+        Mm: MeasurementModel<T, N, M, State = P::State> + ?Sized,
+        W: WindowedCrossCovariance<T, P::State, P::Input, N, M> + ?Sized,
+    {
+        self.update_from::<Mm, crate::Zero, W, M>(model, measurement, CrossSource::Windowed(cross))
     }
 
     /// One time step: predict over `dt`, then update if a measurement is present.
@@ -940,6 +1270,69 @@ mod tests {
         assert!(matches!(err, Error::InvalidJointCovariance { .. }));
         assert_eq!(*kf.estimate(), before);
         assert_eq!(kf.propagations_since_update(), 1);
+    }
+
+    /// The commit rule: an observer's error is returned after the predict or update
+    /// was committed (module docs).
+    #[test]
+    fn observer_error_leaves_the_committed_result() {
+        struct Fails;
+        impl<S, const N: usize> Observer<f64, S, N> for Fails {
+            fn on_predict(&mut self, _: &PredictEvent<'_, f64, S, N>) -> Result<()> {
+                Err(Error::Observer("disk full".into()))
+            }
+            fn on_update(&mut self, _: &UpdateEvent<'_, f64, S, N>) -> Result<()> {
+                Err(Error::Observer("disk full".into()))
+            }
+        }
+        let mut reference = cv_filter();
+        let mut kf = cv_filter().with_observer(Fails);
+        reference.predict().unwrap();
+        assert!(matches!(kf.predict(), Err(Error::Observer(_))));
+        assert_eq!(kf.estimate(), reference.estimate());
+        assert_eq!(kf.propagations_since_update(), 1);
+        reference.update(&Vector1::new(0.4), &Zero).unwrap();
+        assert!(matches!(
+            kf.update(&Vector1::new(0.4), &Zero),
+            Err(Error::Observer(_))
+        ));
+        assert_eq!(kf.estimate(), reference.estimate());
+        assert_eq!(kf.propagations_since_update(), 0);
+    }
+
+    /// With accumulation off, a model that needs Q_acc fails with a typed error and
+    /// Zero / Fixed still work.
+    #[test]
+    fn untracked_accumulation_is_refused_where_needed() {
+        let config = FilterConfig::builder()
+            .track_accumulated_noise(false)
+            .build()
+            .unwrap();
+        let mut kf = cv_filter().with_config(config);
+        kf.predict().unwrap();
+        kf.predict().unwrap();
+        assert_eq!(*kf.accumulated_process_noise(), Matrix2::zeros());
+        assert_eq!(kf.propagations_since_update(), 2);
+        let err = kf
+            .update(&Vector1::new(0.1), &crate::ScaledCorrelation { rho: 0.1 })
+            .unwrap_err();
+        assert!(matches!(err, Error::NotTracked { .. }), "{err}");
+        let report = kf
+            .update(&Vector1::new(0.1), &Fixed(Matrix2x1::new(0.001, 0.002)))
+            .unwrap();
+        assert_eq!(report.joint_min_eigenvalue, None);
+        let reject = FilterConfig::builder()
+            .track_accumulated_noise(false)
+            .joint_check(JointCheck::Reject)
+            .build()
+            .unwrap();
+        let mut kf = cv_filter().with_config(reject);
+        kf.predict().unwrap();
+        assert!(kf.update(&Vector1::new(0.1), &Zero).is_ok());
+        assert!(matches!(
+            kf.update(&Vector1::new(0.1), &Fixed(Matrix2x1::new(0.001, 0.002))),
+            Err(Error::NotTracked { .. })
+        ));
     }
 
     #[test]

@@ -184,12 +184,23 @@ pub trait MeasurementModel<T: Scalar, const N: usize, const M: usize> {
 ///
 /// Time index: M_k = Cov(G w_{k-1}, v_k), the process noise accumulated since the
 /// previous update (transported to now) against the current measurement noise.
+///
+/// A one-step model is exact when one predict separates two updates, or when the
+/// measurement noise is correlated with the accumulated noise *as a whole*. When the
+/// measurement noise shares only some of the process steps (a window), use a
+/// [`crate::WindowedCrossCovariance`]: a fixed share of Q_acc is exact only for
+/// Phi = I.
 #[derive(Debug, Clone, Copy)]
 pub struct CrossCovarianceContext<'a, T: Scalar, S, const N: usize, const M: usize> {
     /// Q_acc: process noise accumulated since the last update, in state space at time k.
     pub accumulated_process_noise: &'a SMatrix<T, N, N>,
     /// Product of the transition matrices since the last update.
     pub accumulated_transition: &'a SMatrix<T, N, N>,
+    /// Whether the runner tracks Q_acc and Phi_acc (`FilterConfig::
+    /// track_accumulated_noise`); when `false` the two fields above are zero and
+    /// identity and a model that needs them must fail with
+    /// [`crate::Error::NotTracked`].
+    pub accumulation_tracked: bool,
     /// R of the current measurement.
     pub measurement_noise: &'a SMatrix<T, M, M>,
     /// H of the current measurement.

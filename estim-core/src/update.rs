@@ -17,14 +17,41 @@ use crate::scalar::{lit, to_f64};
 use crate::{Error, Result, Scalar, StateAndCovariance};
 
 /// How the posterior covariance is computed.
+///
+/// All four are algebraically identical at the optimal gain (and the first, third
+/// and fourth for any gain); they differ in round-off. With A = P H' + M,
+/// J = [[P, M], [M', R]] (the joint covariance of the prior error and the
+/// measurement noise) and T = [I - K H, -K], the posterior error is T [e; v], so
+/// P+ = T J T' (Simon 2006, eq. 7.18 generalised to M). Measured on 2,000
+/// ill-conditioned priors (`estim-core/tests/numerical_forms.rs`, table in the crate
+/// README), [`CovarianceUpdate::SquareRoot`] is the only form whose posteriors never
+/// had an eigenvalue below -1e-12 ||P||; it is the default.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[non_exhaustive]
 pub enum CovarianceUpdate {
-    /// Joseph-like form, valid for any gain and better conditioned (default).
-    #[default]
+    /// Joseph-like form, valid for any gain, evaluated expanded as
+    /// P - K A' - A K' + K S K' (upper triangle, mirrored).
     JosephLike,
     /// Short form P - K (H P + M'), valid only at the optimal gain.
     Short,
+    /// Product form T J T' with T = [I - K H, -K], evaluated as
+    /// ((I-KH) P - K M') (I-KH)' - ((I-KH) M - K R) K' over the upper triangle
+    /// (exactly symmetric). Needs no factorisation.
+    Product,
+    /// Square-root form (default): J = L L' by a Cholesky that tolerates round-off
+    /// zero pivots (a pivot within 16 (N+M) eps J_jj of zero, with its column, is a
+    /// zero column: a positive *semi*definite J is valid), B = T L, P+ = B B' (a
+    /// Gram product: positive semidefinite by construction).
+    ///
+    /// **Fallback.** If J has no square root (a pivot below -16 (N+M) eps J_jj, or a
+    /// zero pivot whose column is not zero to round-off) it is not factored around:
+    /// the posterior is computed with [`CovarianceUpdate::JosephLike`] (the previous
+    /// default, which needs no factor), and [`UpdateOutcome::covariance_form`] says
+    /// so. Whether such an M is acceptable at all is the runners' [`crate::JointCheck`]
+    /// policy on [[Q_acc, M], [M', R]] (reported in every update report by default,
+    /// refused with `Reject`); [`crate::SquareRootKalmanFilter`] always refuses it.
+    #[default]
+    SquareRoot,
 }
 
 /// Everything an update produced.
@@ -40,6 +67,10 @@ pub struct UpdateOutcome<T: Scalar, const N: usize, const M: usize> {
     pub gain: SMatrix<T, N, M>,
     /// Normalised innovation squared, innovation' S^-1 innovation.
     pub nis: T,
+    /// The form that computed the posterior covariance: the one asked for, except
+    /// [`CovarianceUpdate::SquareRoot`] falling back to
+    /// [`CovarianceUpdate::JosephLike`] when [[P, M], [M', R]] has no square root.
+    pub covariance_form: CovarianceUpdate,
 }
 
 /// S = H P H' + H M + M' H' + R (Simon 2006, eq. 7.13).
@@ -103,6 +134,91 @@ fn joseph_from_parts<T: Scalar, const N: usize, const M: usize>(
     out
 }
 
+/// I - K H.
+#[inline(always)]
+fn identity_minus_kh<T: Scalar, const N: usize, const M: usize>(
+    gain: &SMatrix<T, N, M>,
+    jacobian: &SMatrix<T, M, N>,
+) -> SMatrix<T, N, N> {
+    let mut a = -mul_static(gain, jacobian);
+    for i in 0..N {
+        a[(i, i)] += T::one();
+    }
+    a
+}
+
+/// Product form P+ = T J T', T = [I - K H, -K], J = [[P, M], [M', R]]:
+/// X = (I-KH) P - K M' (N x N), Y = (I-KH) M - K R (N x M),
+/// P+ = X (I-KH)' - Y K', upper triangle mirrored (exactly symmetric). P and R are
+/// read through their averaged triangles, so J is exactly symmetric too.
+#[inline(always)]
+fn product_form<T: Scalar, const N: usize, const M: usize>(
+    covariance: &SMatrix<T, N, N>,
+    ikh: &SMatrix<T, N, N>,
+    cross_covariance: &SMatrix<T, N, M>,
+    measurement_noise: &SMatrix<T, M, M>,
+    gain: &SMatrix<T, N, M>,
+) -> SMatrix<T, N, N> {
+    let p = symmetrize(covariance);
+    let r = symmetrize(measurement_noise);
+    let x = mul_static(ikh, &p) - mul_transpose_static(gain, cross_covariance);
+    let y = mul_static(ikh, cross_covariance) - mul_static(gain, &r);
+    let mut out = SMatrix::<T, N, N>::zeros();
+    for j in 0..N {
+        for i in 0..=j {
+            let mut v = T::zero();
+            for k in 0..N {
+                v += x[(i, k)] * ikh[(j, k)];
+            }
+            for k in 0..M {
+                v -= y[(i, k)] * gain[(j, k)];
+            }
+            out[(i, j)] = v;
+            out[(j, i)] = v;
+        }
+    }
+    out
+}
+
+/// Square-root form: J = L L' (round-off-tolerant Cholesky), B = [I-KH, -K] L,
+/// P+ = B B' (upper triangle, mirrored). `None` if J has no square root (the caller
+/// falls back, as documented on [`CovarianceUpdate::SquareRoot`]).
+#[inline(always)]
+fn square_root_form<T: Scalar, const N: usize, const M: usize>(
+    covariance: &SMatrix<T, N, N>,
+    factored: &FactoredInnovation<T, N, M>,
+    cross_covariance: &SMatrix<T, N, M>,
+    gain: &SMatrix<T, N, M>,
+) -> Option<SMatrix<T, N, N>> {
+    let l = crate::square_root::joint_factor(
+        covariance,
+        cross_covariance,
+        &factored.measurement_noise,
+    )?;
+    // B1 = (I-KH) L11 - K L21 = L11 - K (H L11 + L21) (N x N, N^2 M work instead
+    // of N^3), B2 = -K L22 (N x M; the sign does not matter in B B').
+    let hl = mul_static(&factored.jacobian, &l.a) + l.c;
+    let b1 = l.a - mul_static(gain, &hl);
+    let b2 = mul_static(gain, &l.d);
+    // Transposed so that the Gram products below run down contiguous columns.
+    let (b1, b2) = (b1.transpose(), b2.transpose());
+    let mut out = SMatrix::<T, N, N>::zeros();
+    for j in 0..N {
+        for i in 0..=j {
+            let mut v = T::zero();
+            for k in 0..N {
+                v += b1[(k, i)] * b1[(k, j)];
+            }
+            for k in 0..M {
+                v += b2[(k, i)] * b2[(k, j)];
+            }
+            out[(i, j)] = v;
+            out[(j, i)] = v;
+        }
+    }
+    Some(out)
+}
+
 /// A B' for static sizes as plain loops (see [`mul_static`]).
 #[inline(always)]
 fn mul_transpose_static<T: Scalar, const R: usize, const K: usize, const C: usize>(
@@ -154,6 +270,10 @@ pub(crate) struct FactoredInnovation<T: Scalar, const N: usize, const M: usize> 
     pub(crate) nis: T,
     /// Whether M is nonzero (skips the cross terms when it is zero).
     pub(crate) correlated: bool,
+    /// R (for the product and square-root forms).
+    pub(crate) measurement_noise: SMatrix<T, M, M>,
+    /// H (for the product and square-root forms).
+    pub(crate) jacobian: SMatrix<T, M, N>,
 }
 
 /// Inverse of a symmetric positive definite matrix through its Cholesky factor
@@ -162,7 +282,9 @@ pub(crate) struct FactoredInnovation<T: Scalar, const N: usize, const M: usize> 
 ///
 /// Written out for static sizes: for the small S of a measurement update it is
 /// several times faster than the generic `nalgebra` Cholesky + inverse.
-fn spd_inverse<T: Scalar, const M: usize>(s: &SMatrix<T, M, M>) -> Option<SMatrix<T, M, M>> {
+pub(crate) fn spd_inverse<T: Scalar, const M: usize>(
+    s: &SMatrix<T, M, M>,
+) -> Option<SMatrix<T, M, M>> {
     let mut l = SMatrix::<T, M, M>::zeros();
     for j in 0..M {
         let mut d = s[(j, j)];
@@ -210,6 +332,39 @@ fn spd_inverse<T: Scalar, const M: usize>(s: &SMatrix<T, M, M>) -> Option<SMatri
     Some(inv)
 }
 
+/// Numerical singularity test of S, invariant to the units of each measurement
+/// component: the reciprocal 1-norm condition number of the correlation matrix
+/// C = D^-1/2 S D^-1/2 (D = diag S), from C^-1 = D^1/2 S^-1 D^1/2. A singular S
+/// computed in floating point has rcond of order M eps; anything below RCOND_FLOOR
+/// eps is refused, i.e. cond(C) above ~4e12 (the gain would have fewer than ~4
+/// correct digits).
+#[inline(always)]
+pub(crate) fn check_innovation_conditioning<T: Scalar, const M: usize>(
+    s: &SMatrix<T, M, M>,
+    inverse: &SMatrix<T, M, M>,
+) -> Result<()> {
+    let sd = s.diagonal().map(|v| v.sqrt());
+    let isd = sd.map(|v| T::one() / v);
+    let mut norm_c = T::zero();
+    let mut norm_c_inv = T::zero();
+    for j in 0..M {
+        let (mut col_c, mut col_c_inv) = (T::zero(), T::zero());
+        for i in 0..M {
+            col_c += s[(i, j)].abs() * isd[i];
+            col_c_inv += inverse[(i, j)].abs() * sd[i];
+        }
+        norm_c = norm_c.max(col_c * isd[j]);
+        norm_c_inv = norm_c_inv.max(col_c_inv * sd[j]);
+    }
+    let rcond = T::one() / (norm_c * norm_c_inv);
+    if !rcond.is_finite() || rcond <= T::default_epsilon() * lit::<T>(RCOND_FLOOR) {
+        return Err(Error::InnovationIllConditioned {
+            reciprocal_condition: to_f64(rcond),
+        });
+    }
+    Ok(())
+}
+
 /// Form and factorise S, compute the NIS. Checks finiteness of every input and the
 /// conditioning of S.
 #[inline(always)]
@@ -255,31 +410,7 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
     }
     check_finite(innovation.as_slice(), "innovation")?;
     let inverse = spd_inverse(&s).ok_or(Error::InnovationNotPositiveDefinite)?;
-    // Numerical singularity test, invariant to the units of each measurement
-    // component: the reciprocal 1-norm condition number of the correlation matrix
-    // C = D^-1/2 S D^-1/2 (D = diag S), from C^-1 = D^1/2 S^-1 D^1/2. A singular S
-    // computed in floating point has rcond of order M eps; reject anything below
-    // RCOND_FLOOR eps, i.e. cond(C) above ~4e12 (the gain would have fewer than ~4
-    // correct digits).
-    let sd = s.diagonal().map(|v| v.sqrt());
-    let isd = sd.map(|v| T::one() / v);
-    let mut norm_c = T::zero();
-    let mut norm_c_inv = T::zero();
-    for j in 0..M {
-        let (mut col_c, mut col_c_inv) = (T::zero(), T::zero());
-        for i in 0..M {
-            col_c += s[(i, j)].abs() * isd[i];
-            col_c_inv += inverse[(i, j)].abs() * sd[i];
-        }
-        norm_c = norm_c.max(col_c * isd[j]);
-        norm_c_inv = norm_c_inv.max(col_c_inv * sd[j]);
-    }
-    let rcond = T::one() / (norm_c * norm_c_inv);
-    if !rcond.is_finite() || rcond <= T::default_epsilon() * lit::<T>(RCOND_FLOOR) {
-        return Err(Error::InnovationIllConditioned {
-            reciprocal_condition: to_f64(rcond),
-        });
-    }
+    check_innovation_conditioning(&s, &inverse)?;
     let nis = innovation.dot(&mul_static(&inverse, innovation));
     if !nis.is_finite() {
         return Err(Error::NonFinite {
@@ -292,6 +423,8 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
         pht,
         nis,
         correlated,
+        measurement_noise: *measurement_noise,
+        jacobian: *jacobian,
     })
 }
 
@@ -314,9 +447,26 @@ pub(crate) fn finish_update<T: Scalar, const N: usize, const M: usize>(
     };
     let gain = mul_static(&pht_m, &factored.inverse);
     let state = prior.state() + mul_static(&gain, innovation);
+    let mut covariance_form = form;
     let covariance = match form {
         CovarianceUpdate::JosephLike => joseph_from_parts(p, &pht_m, &factored.covariance, &gain),
         CovarianceUpdate::Short => symmetrize(&(p - gain * pht_m.transpose())),
+        CovarianceUpdate::Product => product_form(
+            p,
+            &identity_minus_kh(&gain, &factored.jacobian),
+            cross_covariance,
+            &factored.measurement_noise,
+            &gain,
+        ),
+        CovarianceUpdate::SquareRoot => {
+            match square_root_form(p, &factored, cross_covariance, &gain) {
+                Some(covariance) => covariance,
+                None => {
+                    covariance_form = CovarianceUpdate::JosephLike;
+                    joseph_from_parts(p, &pht_m, &factored.covariance, &gain)
+                }
+            }
+        }
     };
     check_finite(state.as_slice(), "posterior state")?;
     check_finite(covariance.as_slice(), "posterior covariance")?;
@@ -326,6 +476,7 @@ pub(crate) fn finish_update<T: Scalar, const N: usize, const M: usize>(
         innovation_covariance: factored.covariance,
         gain,
         nis: factored.nis,
+        covariance_form,
     })
 }
 

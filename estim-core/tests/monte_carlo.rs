@@ -81,53 +81,66 @@ fn run<C: CrossCovariance<f64, Vector2<f64>, 2, 1>>(
     out
 }
 
+/// Run-to-run statistic: each run's NEES averaged over steps 10.. (past the
+/// transient), then the mean over runs and its standard error from the runs' spread.
+/// For a consistent filter the expectation is the state size, 2 (chi-square mean).
+fn time_averaged(per_run: &[Vec<f64>]) -> (f64, f64) {
+    let means: Vec<f64> = per_run
+        .iter()
+        .map(|r| r[10..].iter().sum::<f64>() / (r.len() - 10) as f64)
+        .collect();
+    let n = means.len() as f64;
+    let mean = means.iter().sum::<f64>() / n;
+    let var = means.iter().map(|m| (m - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, (var / n).sqrt())
+}
+
+/// Seed blocks checked: block b seeds run i with 1_000_003 b + i. Both controls must
+/// hold in every block (measured margins printed), so the result does not hang on
+/// one lucky seed.
+const SEED_BLOCKS: u64 = 20;
+
 #[test]
 fn m_aware_filter_is_consistent_and_m_neglecting_is_not() {
+    use rand::SeedableRng;
     let truth = Truth::new();
-    // Both filters see the same noise in each run (same seed per run index).
-    let aware = monte_carlo(RUNS, |_, rng| run(&truth, rng, &Fixed(truth.m())));
-    let neglect = monte_carlo(RUNS, |_, rng| run(&truth, rng, &Zero));
-    let aware = average_over_runs(&aware).unwrap();
-    let neglect = average_over_runs(&neglect).unwrap();
-    let band = chi_square_band(2, RUNS, 0.95).unwrap();
-    let inside = |s: &[f64]| s.iter().filter(|v| band.contains(**v)).count();
-    let mean = |s: &[f64]| s[10..].iter().sum::<f64>() / (s.len() - 10) as f64;
+    let mut worst_aware: f64 = 0.0;
+    let mut closest_neglect = f64::INFINITY;
+    for block in 0..SEED_BLOCKS {
+        let seeded =
+            |i: usize| rand_chacha::ChaCha8Rng::seed_from_u64(1_000_003 * block + i as u64);
+        // Both filters see the same noise in each run (same seed per run index).
+        let aware = monte_carlo(RUNS, |i, _| run(&truth, &mut seeded(i), &Fixed(truth.m())));
+        let neglect = monte_carlo(RUNS, |i, _| run(&truth, &mut seeded(i), &Zero));
+        let (a, a_se) = time_averaged(&aware);
+        let (g, g_se) = time_averaged(&neglect);
+        let a_z = (a - 2.0) / a_se;
+        let g_z = (g - 2.0) / g_se;
+        println!(
+            "block {block:2}: M-aware time-averaged NEES {a:.4} (se {a_se:.4}, z {a_z:+.2}); \
+             M-neglected {g:.4} (se {g_se:.4}, z {g_z:+.2})"
+        );
+        worst_aware = worst_aware.max(a_z.abs());
+        closest_neglect = closest_neglect.min(g_z);
+        // Consistent: within 4 standard errors of 2 (two-sided normal tail 6e-5 per
+        // block).
+        assert!(
+            a_z.abs() <= 4.0,
+            "block {block}: M-aware NEES {a} (z {a_z})"
+        );
+        // Inconsistent: more than 8 standard errors above 2.
+        assert!(g_z >= 8.0, "block {block}: M-neglected NEES {g} (z {g_z})");
+        // The band of the average NEES at the last step still holds for M-aware in
+        // most blocks; keep the classical check on the per-step average too.
+        let aware_avg = average_over_runs(&aware).unwrap();
+        let band = chi_square_band(2, RUNS, 0.999).unwrap();
+        let inside = aware_avg.iter().filter(|v| band.contains(**v)).count();
+        assert!(
+            inside * 10 >= STEPS * 8,
+            "block {block}: M-aware steps inside the 99.9 % band {inside}/{STEPS}"
+        );
+    }
     println!(
-        "{RUNS} runs x {STEPS} steps, 95 % band of the average NEES (2 states): [{:.3}, {:.3}]",
-        band.lower, band.upper
-    );
-    println!(
-        "M-aware:     final average NEES {:.3}, time mean (steps 10..) {:.3}, steps inside band {}/{STEPS}",
-        aware[STEPS - 1],
-        mean(&aware),
-        inside(&aware)
-    );
-    println!(
-        "M-neglected: final average NEES {:.3}, time mean (steps 10..) {:.3}, steps inside band {}/{STEPS}",
-        neglect[STEPS - 1],
-        mean(&neglect),
-        inside(&neglect)
-    );
-    assert!(
-        band.contains(aware[STEPS - 1]),
-        "M-aware final NEES {}",
-        aware[STEPS - 1]
-    );
-    // 95 % of steps expected inside; the per-step averages are correlated in time,
-    // so allow down to 80 %.
-    assert!(
-        inside(&aware) * 10 >= STEPS * 8,
-        "M-aware: {}",
-        inside(&aware)
-    );
-    assert!(
-        !band.contains(neglect[STEPS - 1]),
-        "M-neglected final NEES {} inside the band",
-        neglect[STEPS - 1]
-    );
-    assert!(
-        inside(&neglect) * 10 <= STEPS,
-        "M-neglected: {}",
-        inside(&neglect)
+        "{SEED_BLOCKS} blocks x {RUNS} runs: largest |z| M-aware {worst_aware:.2}, smallest z M-neglected {closest_neglect:.2}"
     );
 }

@@ -13,20 +13,20 @@ pub const CALIBRATION_PARAMETERS: usize = 8;
 /// One sample of a reference trajectory (e.g. a post-processed INS solution).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TrajectorySample {
-    /// Time [s].
+    /// Time \[s\].
     pub time: f64,
-    /// Velocity north, east, down [m/s].
+    /// Velocity north, east, down \[m/s\].
     pub velocity_ned: Vector3<f64>,
-    /// Roll, pitch, yaw [rad]: C_b^n = Rz(yaw) Ry(pitch) Rx(roll).
+    /// Roll, pitch, yaw \[rad\]: C_b^n = Rz(yaw) Ry(pitch) Rx(roll).
     pub roll_pitch_yaw: Vector3<f64>,
 }
 
 /// One DVL velocity (DVL frame) with its time stamp.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DvlMeasurement {
-    /// Time stamp [s], on the trajectory's clock.
+    /// Time stamp \[s\], on the trajectory's clock.
     pub time: f64,
-    /// Velocity reported by the DVL [m/s].
+    /// Velocity reported by the DVL \[m/s\].
     pub velocity: Vector3<f64>,
 }
 
@@ -51,19 +51,19 @@ pub struct Estimate {
 /// time offset tau means the DVL stamps lag the motion they measured.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Calibration {
-    /// Lever arm l (IMU / reference point -> DVL, body frame) [m].
+    /// Lever arm l (IMU / reference point -> DVL, body frame) \[m\].
     pub lever_arm: [Estimate; 3],
     /// DVL scale-factor error k.
     pub scale_factor_error: Estimate,
-    /// Mounting misalignment mu (rotation vector DVL -> body) [rad].
+    /// Mounting misalignment mu (rotation vector DVL -> body) \[rad\].
     pub mounting_misalignment: [Estimate; 3],
-    /// Time offset tau [s].
+    /// Time offset tau \[s\].
     pub time_offset: Estimate,
     /// Covariance of the 8 parameters (order: l, k, mu, tau; rows of fixed ones zero).
     pub covariance: SMatrix<f64, CALIBRATION_PARAMETERS, CALIBRATION_PARAMETERS>,
-    /// RMS of the residuals per DVL axis at the estimate [m/s].
+    /// RMS of the residuals per DVL axis at the estimate \[m/s\].
     pub residual_rms: Vector3<f64>,
-    /// RMS of the residuals per axis with every parameter zero [m/s].
+    /// RMS of the residuals per axis with every parameter zero \[m/s\].
     pub residual_rms_uncalibrated: Vector3<f64>,
     /// Lag-1 autocorrelation of the residuals per axis: near 0 when they are white, as
     /// the standard errors assume; well above 0 means the standard errors are optimistic.
@@ -75,12 +75,12 @@ pub struct Calibration {
 }
 
 impl Calibration {
-    /// The lever-arm estimate as a vector [m].
+    /// The lever-arm estimate as a vector \[m\].
     pub fn lever_arm_vector(&self) -> Vector3<f64> {
         Vector3::from_fn(|i, _| self.lever_arm[i].value)
     }
 
-    /// The mounting-misalignment estimate as a vector [rad].
+    /// The mounting-misalignment estimate as a vector \[rad\].
     pub fn mounting_misalignment_vector(&self) -> Vector3<f64> {
         Vector3::from_fn(|i, _| self.mounting_misalignment[i].value)
     }
@@ -132,7 +132,7 @@ impl Default for CalibratorBuilder {
 }
 
 impl CalibratorBuilder {
-    /// Largest |time offset| searched [s] (default 3). DVL samples closer than this to
+    /// Largest |time offset| searched \[s\] (default 3). DVL samples closer than this to
     /// either end of the trajectory are not used.
     pub fn max_time_offset(mut self, seconds: f64) -> Self {
         self.max_time_offset = seconds;
@@ -145,7 +145,7 @@ impl CalibratorBuilder {
         self
     }
 
-    /// Spacing of the initial grid search over the time offset [s] (default 0.25).
+    /// Spacing of the initial grid search over the time offset \[s\] (default 0.25).
     pub fn time_offset_grid_step(mut self, seconds: f64) -> Self {
         self.time_offset_grid_step = seconds;
         self

@@ -59,13 +59,13 @@ impl DvlErrorModelBuilder {
         self
     }
 
-    /// Bias of each beam [m/s].
+    /// Bias of each beam \[m/s\].
     pub fn beam_bias(mut self, bias: [f64; 4]) -> Self {
         self.beam_bias = bias;
         self
     }
 
-    /// Standard deviation of the white noise on each beam [m/s], >= 0.
+    /// Standard deviation of the white noise on each beam \[m/s\], >= 0.
     pub fn noise_std(mut self, std: f64) -> Self {
         self.noise_std = std;
         self
@@ -123,12 +123,12 @@ impl DvlErrorModel {
         self.scale_factor_error
     }
 
-    /// Per-beam bias [m/s].
+    /// Per-beam bias \[m/s\].
     pub fn beam_bias(&self) -> &Vector4<f64> {
         &self.beam_bias
     }
 
-    /// White-noise standard deviation per beam [m/s].
+    /// White-noise standard deviation per beam \[m/s\].
     pub fn noise_std(&self) -> f64 {
         self.noise_std
     }

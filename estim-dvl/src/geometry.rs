@@ -326,14 +326,14 @@ impl BeamGeometry {
 pub enum BeamSolution {
     /// All four beams: least squares and the error velocity.
     FourBeam {
-        /// Velocity in the DVL frame [m/s].
+        /// Velocity in the DVL frame \[m/s\].
         velocity: Vector3<f64>,
-        /// Error velocity [m/s] (see [`BeamGeometry::error_velocity`]).
+        /// Error velocity \[m/s\] (see [`BeamGeometry::error_velocity`]).
         error_velocity: f64,
     },
     /// Three beams: the unique solution; no redundancy, so no error velocity.
     ThreeBeam {
-        /// Velocity in the DVL frame [m/s].
+        /// Velocity in the DVL frame \[m/s\].
         velocity: Vector3<f64>,
         /// Number (1..=4) of the missing beam.
         missing_beam: usize,

@@ -99,7 +99,7 @@ pub struct DvlVelocityModelBuilder {
 }
 
 impl DvlVelocityModelBuilder {
-    /// Lever arm IMU -> DVL in the body frame [m] (default zero).
+    /// Lever arm IMU -> DVL in the body frame \[m\] (default zero).
     pub fn lever_arm(mut self, lever_arm: Vector3<f64>) -> Self {
         self.lever_arm = lever_arm;
         self
@@ -111,7 +111,7 @@ impl DvlVelocityModelBuilder {
         self
     }
 
-    /// Mounting misalignment mu [rad] (rotation vector DVL -> body; default zero),
+    /// Mounting misalignment mu \[rad\] (rotation vector DVL -> body; default zero),
     /// |mu| <= 0.5 rad.
     pub fn mounting_misalignment(mut self, mu: Vector3<f64>) -> Self {
         self.mounting_misalignment = mu;
@@ -127,7 +127,7 @@ impl DvlVelocityModelBuilder {
             .mounting_misalignment(calibration.mounting_misalignment_vector())
     }
 
-    /// R = diag(std^2) with the same standard deviation on each axis [m/s].
+    /// R = diag(std^2) with the same standard deviation on each axis \[m/s\].
     pub fn noise_std(mut self, std: f64) -> Self {
         self.noise_covariance = Some(Matrix3::from_diagonal_element(std * std));
         self
@@ -192,7 +192,7 @@ impl DvlVelocityModel {
         DvlVelocityModelBuilder::default()
     }
 
-    /// Lever arm IMU -> DVL, body frame [m].
+    /// Lever arm IMU -> DVL, body frame \[m\].
     pub fn lever_arm(&self) -> &Vector3<f64> {
         &self.lever_arm
     }
@@ -202,7 +202,7 @@ impl DvlVelocityModel {
         self.scale_factor_error
     }
 
-    /// Mounting misalignment mu [rad].
+    /// Mounting misalignment mu \[rad\].
     pub fn mounting_misalignment(&self) -> &Vector3<f64> {
         &self.mounting_misalignment
     }

@@ -27,7 +27,7 @@ pub struct BeamsNetInput {
     pub acc: DMatrix<f64>,
     /// Angular rate ω_ib^b, 3 x 100 [rad/s].
     pub gyro: DMatrix<f64>,
-    /// Beam velocities [m/s].
+    /// Beam velocities \[m/s\].
     pub beams: Vector4<f64>,
 }
 

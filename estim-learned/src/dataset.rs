@@ -48,17 +48,17 @@ use crate::{Error, Result};
 /// Columns of a dataset row (see the module docs).
 pub const DATASET_COLUMNS: usize = 610;
 
-/// IMU rate of the synthesized windows [Hz].
+/// IMU rate of the synthesized windows \[Hz\].
 pub const IMU_RATE_HZ: f64 = 100.0;
 
 /// One synthesized BeamsNet example.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BeamsNetSample {
-    /// DVL sample time [s].
+    /// DVL sample time \[s\].
     pub time: f64,
     /// Network input (measured IMU window + beams).
     pub input: BeamsNetInput,
-    /// Target: the DVL velocity (body) [m/s].
+    /// Target: the DVL velocity (body) \[m/s\].
     pub target: Vector3<f64>,
     /// Index one past the window's last IMU sample in [`SynthesizedRun::imu`].
     pub imu_end: usize,

@@ -6,8 +6,8 @@
 //!   Jacobian-vector products);
 //! - [`BeamsNet`]: BeamsNetV1 (IMU windows + 4 beams -> body velocity);
 //! - [`synthesize`], [`dataset_row`], [`write_npy`]: BeamsNet training data;
-//! - [`TwoBeamsNet`]: IMU window + two beams -> body velocity; [`ImuNetworkSensitivity`],
-//!   [`ImuNetworkEmpirical`]: M for any IMU-window network;
+//! - [`TwoBeamsNet`]: IMU window + two beams -> body velocity (its M is the generic
+//!   [`LearnedCrossCovariance`], by Monte Carlo [`Empirical::for_model`]);
 //! - [`RowOverlaps`]: rows shared between recorded trajectories (keeps windows that
 //!   touch a held-out trajectory out of training and validation);
 //! - [`metrics`](fn@metrics), [`speed_metrics`], [`evaluate`]: the paper's RMSE, MAE, R^2, VAF;
@@ -40,7 +40,6 @@ mod beamsnet;
 mod dataset;
 mod error;
 mod evaluation;
-mod imu_network;
 mod measurement;
 mod metadata;
 mod metrics;
@@ -56,12 +55,14 @@ pub use dataset::{
 };
 pub use error::{Error, Result};
 pub use evaluation::{evaluate, Evaluation};
-pub use imu_network::{ImuNetworkEmpirical, ImuNetworkSensitivity, ImuNetworkWindow};
-pub use measurement::{OnnxMeasurement, DEFAULT_SENSITIVITY_STEP};
+pub use measurement::{LearnedSensor, Observation, OnnxMeasurement, DEFAULT_SENSITIVITY_STEP};
 pub use metadata::{
     BeamGeometryMetadata, InputMetadata, ModelMetadata, OutputMetadata, METADATA_FORMAT,
 };
 pub use metrics::{metrics, speed_metrics, Metrics};
 pub use overlap::{row_key, row_span, RowKey, RowOverlaps};
-pub use sensitivity::{CrossMatrix, Empirical, EmpiricalEstimate, ImuWindow, NetworkSensitivity};
+pub use sensitivity::{
+    driven_error_covariance, CrossMatrix, Empirical, EmpiricalEstimate, InputNoise,
+    LearnedCrossCovariance, NetworkSensitivity, IMU_CHANNELS,
+};
 pub use two_beams::{default_two_beams_model_path, TwoBeamsNet};

@@ -260,3 +260,77 @@ impl<const M: usize> LearnedMeasurement<f64, M> for OnnxMeasurement<M> {
         Ok(Some(self.jacobian_vector_products(inputs, directions)?))
     }
 }
+
+/// What a learned output measures, written by the user: h(x) and its Jacobian H
+/// (e.g. the velocity in the body frame at the DVL). The learned model supplies the
+/// value y and its error covariance R; this trait supplies the rest of the
+/// measurement model (see [`LearnedSensor`]).
+pub trait Observation<T: estim_core::Scalar, const N: usize, const M: usize> {
+    /// The state h reads.
+    type State;
+    /// h(x).
+    ///
+    /// # Errors
+    /// The user's (e.g. a state outside h's domain).
+    fn predict(&self, state: &Self::State) -> estim_core::Result<SVector<T, M>>;
+    /// H = dh/dx at `state` (in the filter's error convention).
+    ///
+    /// # Errors
+    /// As [`Observation::predict`].
+    fn jacobian(&self, state: &Self::State) -> estim_core::Result<SMatrix<T, M, N>>;
+}
+
+/// A [`LearnedMeasurement`] plus the user's [`Observation`] (h(x), H) as an estim-core
+/// [`MeasurementModel`](estim_core::MeasurementModel), with R from the learned model.
+///
+/// One type implementing both `LearnedMeasurement` and `MeasurementModel` does not
+/// compile cleanly (both traits have a `noise_covariance`, E0034 at the call site);
+/// this adapter keeps them apart. It borrows the learned model, so building one per
+/// update costs nothing.
+#[derive(Debug, Clone, Copy)]
+pub struct LearnedSensor<'a, L: ?Sized, H> {
+    learned: &'a L,
+    observation: H,
+}
+
+impl<'a, L: ?Sized, H> LearnedSensor<'a, L, H> {
+    /// The learned model's output, observed through `observation`.
+    pub fn new(learned: &'a L, observation: H) -> Self {
+        Self {
+            learned,
+            observation,
+        }
+    }
+
+    /// The learned model.
+    pub fn learned(&self) -> &'a L {
+        self.learned
+    }
+
+    /// The user's observation.
+    pub fn observation(&self) -> &H {
+        &self.observation
+    }
+}
+
+impl<T, L, H, const N: usize, const M: usize> estim_core::MeasurementModel<T, N, M>
+    for LearnedSensor<'_, L, H>
+where
+    T: estim_core::Scalar,
+    L: LearnedMeasurement<T, M> + ?Sized,
+    H: Observation<T, N, M>,
+{
+    type State = H::State;
+
+    fn predict(&self, state: &H::State) -> estim_core::Result<SVector<T, M>> {
+        self.observation.predict(state)
+    }
+
+    fn jacobian(&self, state: &H::State) -> estim_core::Result<SMatrix<T, M, N>> {
+        self.observation.jacobian(state)
+    }
+
+    fn noise_covariance(&self, _state: &H::State) -> estim_core::Result<SMatrix<T, M, M>> {
+        Ok(self.learned.noise_covariance())
+    }
+}

@@ -22,7 +22,7 @@ pub struct InputMetadata {
     pub channels: usize,
     /// Samples per window.
     pub window: usize,
-    /// Sample rate of the stream [Hz].
+    /// Sample rate of the stream \[Hz\].
     pub sample_rate_hz: f64,
     /// Shape of the tensor without the batch axis (e.g. `[3, 100]` or `[4]`); its
     /// elements are the `channels x window` matrix in row-major (channel-major) order.
@@ -58,9 +58,9 @@ pub struct OutputMetadata {
 /// `[cos(psi_i) sin(theta), sin(psi_i) sin(theta), cos(theta)]` (body frame).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct BeamGeometryMetadata {
-    /// Beam angle from the body z axis [deg].
+    /// Beam angle from the body z axis \[deg\].
     pub theta_deg: f64,
-    /// Azimuth of each beam [deg].
+    /// Azimuth of each beam \[deg\].
     pub psi_deg: Vec<f64>,
 }
 

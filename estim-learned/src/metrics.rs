@@ -3,7 +3,7 @@
 //! With y the reference speeds, ŷ the predictions and e = y - ŷ (n samples):
 //! - RMSE = sqrt(mean(e^2)), MAE = mean(|e|),
 //! - R^2 = 1 - sum(e^2) / sum((y - mean(y))^2) (coefficient of determination),
-//! - VAF = 100 (1 - var(e) / var(y)) [%] (variance accounted for; a constant offset
+//! - VAF = 100 (1 - var(e) / var(y)) \[%\] (variance accounted for; a constant offset
 //!   in e does not lower it, which is why the paper's LS VAF exceeds its R^2).
 
 use nalgebra::Vector3;
@@ -14,13 +14,13 @@ use crate::{Error, Result};
 /// RMSE, MAE, R^2 and VAF of one prediction series.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Metrics {
-    /// Root-mean-square error [m/s].
+    /// Root-mean-square error \[m/s\].
     pub rmse: f64,
-    /// Mean absolute error [m/s].
+    /// Mean absolute error \[m/s\].
     pub mae: f64,
     /// Coefficient of determination.
     pub r2: f64,
-    /// Variance accounted for [%].
+    /// Variance accounted for \[%\].
     pub vaf: f64,
 }
 

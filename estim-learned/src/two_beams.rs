@@ -3,6 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
+use nalgebra::{DMatrix, Vector4};
+
 use crate::beamsnet::BEAMSNET_WINDOW;
 use crate::measurement::OnnxMeasurement;
 use crate::{Error, Result};
@@ -82,5 +84,17 @@ impl TwoBeamsNet {
     /// The two beams fed to the network (0-based indices into the four beams).
     pub fn beams_used(&self) -> [usize; 2] {
         self.beams_used
+    }
+
+    /// The network's per-update input (the `beams` stream, 2 x 1) picked from four
+    /// beam readings; `None` if one of the two it uses is missing (not finite). With
+    /// the IMU window it is what [`LearnedCrossCovariance`](crate::LearnedCrossCovariance)
+    /// and [`Empirical::for_model`](crate::Empirical::for_model) take as `extra`.
+    pub fn beam_inputs(&self, beams: &Vector4<f64>) -> Option<Vec<DMatrix<f64>>> {
+        let picked = self.beams_used.map(|i| beams[i]);
+        picked
+            .iter()
+            .all(|b| b.is_finite())
+            .then(|| vec![DMatrix::from_column_slice(2, 1, &picked)])
     }
 }

@@ -8,7 +8,11 @@ use estim_dvl::BeamsNetProtocol;
 use estim_ins::{Mission, MissionConfig};
 use estim_learned::{default_model_path, evaluate, synthesize, BeamsNet, Evaluation};
 
+use estim::pipeline::{filter_label, BEAMSNET, LS};
+
 use crate::dataset::{imu_spec, load_akit, TEST_TRAJECTORIES};
+use crate::output::emit;
+use crate::schema::{document, path_json};
 
 /// Arguments of `estim beamsnet`.
 #[derive(Debug, clap::Args)]
@@ -85,16 +89,38 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
         }
     };
     if args.json {
-        let out = serde_json::json!({
+        let metrics = |id: &str, m: &estim_learned::Metrics| {
+            serde_json::json!({
+                "id": id,
+                "label": filter_label(id, f64::NAN),
+                "rmse_mps": m.rmse,
+                "mae_mps": m.mae,
+                "r2": m.r2,
+                "vaf_percent": m.vaf,
+            })
+        };
+        let inputs = serde_json::json!({
+            "data": path_json(args.data.as_deref()),
             "trajectory": trajectory_json,
-            "ls": evaluation.ls,
-            "beamsnet": evaluation.beamsnet,
+            "model": path_json(Some(&model_path)),
+            "seed": seed,
+            "base_seed": args.seed,
         });
-        println!("{}", serde_json::to_string(&out)?);
+        let doc = document(
+            "beamsnet eval",
+            inputs,
+            0,
+            serde_json::json!({
+                "trajectory": trajectory_json,
+                "windows": evaluation.reference.len(),
+                "velocity": [metrics(LS, &evaluation.ls), metrics(BEAMSNET, &evaluation.beamsnet)],
+                "rmse_reduction_percent": evaluation.rmse_reduction_percent(),
+            }),
+        );
+        emit(&format!("{}\n", serde_json::to_string_pretty(&doc)?))
     } else {
-        print_table(&label, &evaluation, seed);
+        emit(&print_table(&label, &evaluation, seed))
     }
-    Ok(())
 }
 
 /// The embedded default: a seeded estim-ins mission (400 s), DVL = true body velocity
@@ -118,23 +144,24 @@ fn simulated(
     Ok(evaluate(beamsnet, protocol.geometry(), &run.samples)?)
 }
 
-fn print_table(label: &str, e: &Evaluation, seed: u64) {
-    println!(
-        "{label}: {} windows, seed {seed}, metrics on |v|",
+fn print_table(label: &str, e: &Evaluation, seed: u64) -> String {
+    let mut out = format!(
+        "{label}: {} windows, seed {seed}, metrics on |v|\n",
         e.reference.len()
     );
-    println!(
-        "{:<10} {:>12} {:>12} {:>10} {:>11}",
+    out.push_str(&format!(
+        "{:<10} {:>12} {:>12} {:>10} {:>11}\n",
         "method", "RMSE [m/s]", "MAE [m/s]", "R^2", "VAF [%]"
-    );
+    ));
     for (name, m) in [("LS", &e.ls), ("BeamsNet", &e.beamsnet)] {
-        println!(
-            "{name:<10} {:>12.6} {:>12.6} {:>10.6} {:>11.6}",
+        out.push_str(&format!(
+            "{name:<10} {:>12.6} {:>12.6} {:>10.6} {:>11.6}\n",
             m.rmse, m.mae, m.r2, m.vaf
-        );
+        ));
     }
-    println!(
-        "BeamsNet RMSE is {:.1}% below LS",
+    out.push_str(&format!(
+        "BeamsNet RMSE is {:.1}% below LS\n",
         e.rmse_reduction_percent()
-    );
+    ));
+    out
 }

@@ -4,8 +4,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use estim::datasets::{
-    akit_overlaps, data_root, load_dvl, load_gt, touches_held_out, trajectory_files,
-    WINDOW_MARGIN_ROWS,
+    akit_overlaps, check_spans, data_root, load_dvl, load_gt, touches_held_out, trajectory_files,
+    SPAN_TIME_OFFSET_ALLOWANCE_S, WINDOW_MARGIN_ROWS,
 };
 use estim_core::nalgebra::Vector3;
 use estim_dvl::BeamsNetProtocol;
@@ -62,6 +62,14 @@ pub fn load_akit(dir: &Path, n: u32) -> anyhow::Result<(Trajectory, DvlVelocitie
     let files = trajectory_files(dir, n)?;
     let gt = load_gt(&files.gt)?;
     let dvl = load_dvl(&files.dvl)?;
+    check_spans(
+        &files.gt,
+        &gt,
+        &files.dvl,
+        &dvl,
+        SPAN_TIME_OFFSET_ALLOWANCE_S,
+        false,
+    )?;
     let samples = gt.iter().map(|g| g.trajectory_sample()).collect();
     let trajectory = Trajectory::new(samples)
         .with_context(|| format!("{}: not a usable trajectory", files.gt.display()))?;

@@ -5,7 +5,9 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use estim::datasets::{load_beams, load_dvl, load_gt};
+use estim::datasets::{
+    check_spans, load_dvl, load_gt, BeamFile, DatasetError, SPAN_TIME_OFFSET_ALLOWANCE_S,
+};
 use estim_dvl::nalgebra::Vector3;
 use estim_dvl::{BeamGeometry, Calibrator, DvlMeasurement, TrajectorySample};
 
@@ -20,23 +22,26 @@ pub struct Args {
 enum Command {
     /// Velocity from DVL beams by least squares (3-beam solutions where one is missing).
     ///
-    /// Reads a CSV with a header row; the beam columns are found by name (`beam1`..`beam4`
-    /// or `beam 1`..`beam 4`, any case), other columns are ignored; an empty or `nan`
-    /// cell is a missing beam. Writes `vx,vy,vz,error_velocity,n_beams` to stdout, one
-    /// row per input row; the error velocity is empty for a 3-beam solution, and the
-    /// velocity too when fewer than 3 beams are present.
+    /// Reads a CSV with a header row (`-` reads stdin); the beam columns are found by
+    /// name (`beam1`, `b1`, `beam_1`, `Beam 1 [m/s]`, `beam velocity 1`; any case; unit
+    /// m/s, cm/s or mm/s), a time column (`time`, `t`, `timestamp`; s or ms) is kept,
+    /// other columns are ignored; an empty or `nan` cell is a missing beam. Writes
+    /// `[time_s,]vx,vy,vz,error_velocity,n_beams` [m/s] to stdout, one row per input
+    /// row; the error velocity is empty for a 3-beam solution, and the velocity too
+    /// when fewer than 3 beams are present.
     Solve(SolveArgs),
     /// Estimate the DVL lever arm, scale factor, mounting misalignment and time offset
-    /// against a ground-truth trajectory (A-KIT CSV files).
+    /// against a ground-truth trajectory (GT and DVL CSV files, columns by name as for
+    /// `reproduce --gt/--dvl`; both must cover the same time span).
     Calibrate(CalibrateArgs),
 }
 
 #[derive(Debug, clap::Args)]
 struct SolveArgs {
-    /// Beam angle from the vertical [deg] (BeamsNet 20, RDI Workhorse Navigator 30).
+    /// Beam angle from the vertical, in degrees (BeamsNet 20, RDI Workhorse Navigator 30).
     #[arg(long, value_name = "DEG")]
     beam_angle: f64,
-    /// Azimuth of beam 1 from the x axis [deg]; beam i at offset + (i-1) 90.
+    /// Azimuth of beam 1 from the x axis, in degrees; beam i at offset + (i-1) 90.
     #[arg(
         long,
         value_name = "DEG",
@@ -44,7 +49,7 @@ struct SolveArgs {
         allow_negative_numbers = true
     )]
     azimuth_offset: f64,
-    /// Input CSV file.
+    /// Input CSV file, or `-` for stdin.
     #[arg(value_name = "INPUT.csv")]
     input: PathBuf,
 }
@@ -57,12 +62,15 @@ struct CalibrateArgs {
     /// DVL file (`DVL_trajectoryN.csv` layout).
     #[arg(long, value_name = "DVL.csv")]
     dvl: PathBuf,
-    /// Largest |time offset| searched [s].
+    /// Largest |time offset| searched, in seconds.
     #[arg(long, value_name = "S", default_value_t = 3.0)]
     max_time_offset: f64,
     /// Hold the time offset at zero instead of estimating it.
     #[arg(long)]
     no_time_offset: bool,
+    /// JSON (the schema of every `--json`, see README "Command line") instead of CSV.
+    #[arg(long)]
+    json: bool,
 }
 
 /// Run `estim dvl`.
@@ -73,8 +81,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Command::Solve(a) => solve(&a)?,
         Command::Calibrate(a) => calibrate(&a)?,
     };
-    print!("{output}");
-    Ok(())
+    crate::output::emit(&output)
 }
 
 fn solve(args: &SolveArgs) -> anyhow::Result<String> {
@@ -82,10 +89,29 @@ fn solve(args: &SolveArgs) -> anyhow::Result<String> {
         .azimuth_offset(args.azimuth_offset)
         .build()
         .context("beam geometry")?;
-    let rows = load_beams(&args.input)?;
-    let mut out = String::from("vx,vy,vz,error_velocity,n_beams\n");
-    for beams in rows {
-        let solution = geometry.solve(&beams);
+    let file = if args.input.as_os_str() == "-" {
+        let stdin = std::path::Path::new("<stdin>");
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(&mut std::io::stdin().lock(), &mut bytes).map_err(|error| {
+            DatasetError::Io {
+                path: stdin.to_path_buf(),
+                error,
+            }
+        })?;
+        BeamFile::parse(&bytes, stdin)?
+    } else {
+        BeamFile::load(&args.input)?
+    };
+    let mut out = String::new();
+    if file.times.is_some() {
+        out.push_str("time_s,");
+    }
+    out.push_str("vx,vy,vz,error_velocity,n_beams\n");
+    for (k, beams) in file.rows.iter().enumerate() {
+        if let Some(t) = file.times.as_ref().and_then(|times| times.get(k)) {
+            let _ = write!(out, "{t},");
+        }
+        let solution = geometry.solve(beams);
         match solution.velocity() {
             Some(v) => {
                 let _ = write!(out, "{},{},{},", v.x, v.y, v.z);
@@ -103,6 +129,15 @@ fn solve(args: &SolveArgs) -> anyhow::Result<String> {
 fn calibrate(args: &CalibrateArgs) -> anyhow::Result<String> {
     let gt = load_gt(&args.gt)?;
     let dvl = load_dvl(&args.dvl)?;
+    // The span rule of `reproduce`, with the searched time offset as the allowance.
+    check_spans(
+        &args.gt,
+        &gt,
+        &args.dvl,
+        &dvl,
+        SPAN_TIME_OFFSET_ALLOWANCE_S.max(args.max_time_offset.abs()),
+        false,
+    )?;
     let trajectory: Vec<TrajectorySample> = gt
         .iter()
         .map(|s| TrajectorySample {
@@ -123,6 +158,9 @@ fn calibrate(args: &CalibrateArgs) -> anyhow::Result<String> {
         .estimate_time_offset(!args.no_time_offset)
         .build()?;
     let c = calibrator.calibrate(&trajectory, &log)?;
+    if args.json {
+        return calibration_json(args, &c);
+    }
     let mut out = String::from("parameter,estimate,standard_error,unit\n");
     let rows = [
         ("lever_arm_x", c.lever_arm[0], "m"),
@@ -151,4 +189,43 @@ fn calibrate(args: &CalibrateArgs) -> anyhow::Result<String> {
         "# standard errors assume white residuals; a lag-1 autocorrelation well above 0 makes them optimistic"
     );
     Ok(out)
+}
+
+/// `dvl calibrate --json`: the common header, then each estimate with its standard
+/// error under a key naming its unit.
+fn calibration_json(args: &CalibrateArgs, c: &estim_dvl::Calibration) -> anyhow::Result<String> {
+    use crate::schema::{document, path_json};
+    let estimate = |e: &[&estim_dvl::Estimate]| {
+        serde_json::json!({
+            "estimate": e.iter().map(|x| x.value).collect::<Vec<_>>(),
+            "standard_error": e.iter().map(|x| x.standard_error).collect::<Vec<_>>(),
+        })
+    };
+    let v = |v: &Vector3<f64>| [v.x, v.y, v.z];
+    let inputs = serde_json::json!({
+        "gt": path_json(Some(&args.gt)),
+        "dvl": path_json(Some(&args.dvl)),
+        "max_time_offset_s": args.max_time_offset,
+        "estimate_time_offset": !args.no_time_offset,
+    });
+    let doc = document(
+        "dvl calibrate",
+        inputs,
+        0,
+        serde_json::json!({
+            "lever_arm_m": estimate(&[&c.lever_arm[0], &c.lever_arm[1], &c.lever_arm[2]]),
+            "scale_factor_error": estimate(&[&c.scale_factor_error]),
+            "mounting_misalignment_rad": estimate(&[
+                &c.mounting_misalignment[0],
+                &c.mounting_misalignment[1],
+                &c.mounting_misalignment[2],
+            ]),
+            "time_offset_s": estimate(&[&c.time_offset]),
+            "samples": c.samples,
+            "residual_rms_uncalibrated_mps": v(&c.residual_rms_uncalibrated),
+            "residual_rms_mps": v(&c.residual_rms),
+            "residual_lag1_autocorrelation": v(&c.residual_lag1_autocorrelation),
+        }),
+    );
+    Ok(format!("{}\n", serde_json::to_string_pretty(&doc)?))
 }

@@ -7,6 +7,8 @@ use estim::pipeline::{
     TwoBeamsStudy,
 };
 
+use std::fmt::Write as _;
+
 use anyhow::Context;
 
 /// The `--scenario` of `estim reproduce`.
@@ -63,21 +65,27 @@ pub fn reproduce_two_beams(
         .collect()
 }
 
-/// Print a study as a table.
-pub fn print_study(s: &TwoBeamsStudy) {
-    println!(
+/// A study as a table.
+pub fn print_study(out: &mut String, s: &TwoBeamsStudy) -> std::fmt::Result {
+    writeln!(
+        out,
         "== {}: beams 1-2 only for 120 s ({} two-beams updates); paper rho used {:.3}",
         s.scenario, s.loss_epochs, s.paper_rho
-    );
-    println!(
+    )?;
+    writeln!(
+        out,
         "   correlation network output error / IMU-driven INS error (mean over the loss of the largest |rho_ij|): {:.3e}",
         s.output_imu_correlation
-    );
+    )?;
     if let Some(d) = s.network_vs_empirical_relative {
-        println!("   max |M_network - M_empirical| / max |M_empirical|: {d:.3}");
+        writeln!(
+            out,
+            "   max |M_network - M_empirical| / max |M_empirical|: {d:.3}"
+        )?;
     }
-    println!(
-        "   {:<32} {:>10} {:>10} {:>10} {:>10} | {:>9} {:>9} {:>9}",
+    writeln!(
+        out,
+        "   {:<56} {:>10} {:>10} {:>10} {:>10} | {:>9} {:>9} {:>9}",
         "variant (loss window | whole run)",
         "NEES",
         "NIS",
@@ -86,10 +94,11 @@ pub fn print_study(s: &TwoBeamsStudy) {
         "NEES",
         "pos RMSE",
         "vel RMSE"
-    );
+    )?;
     for (f, l) in s.filters.iter().zip(&s.loss_window) {
-        println!(
-            "   {:<32} {:>10.2} {:>10.2} {:>9.3}m {:>8.4}m/s | {:>9.2} {:>8.3}m {:>7.4}m/s",
+        writeln!(
+            out,
+            "   {:<56} {:>10.2} {:>10.2} {:>9.3}m {:>8.4}m/s | {:>9.2} {:>8.3}m {:>7.4}m/s",
             f.name,
             l.nees_mean,
             l.nis_mean,
@@ -98,8 +107,9 @@ pub fn print_study(s: &TwoBeamsStudy) {
             f.nees_average,
             f.position_error_m.rmse,
             f.velocity_error_mps.rmse
-        );
+        )?;
     }
+    Ok(())
 }
 
 /// `estim montecarlo --learned two-beams`.
@@ -115,15 +125,17 @@ pub fn monte_carlo_two_beams(
     )?)
 }
 
-/// Print a learned Monte Carlo as a table.
-pub fn print_monte_carlo(r: &LearnedMonteCarlo) {
-    println!(
+/// A learned Monte Carlo as a table.
+pub fn print_monte_carlo(out: &mut String, r: &LearnedMonteCarlo) -> std::fmt::Result {
+    writeln!(
+        out,
         "Monte Carlo ({}): {} runs from seed {}",
         r.scenario, r.runs, r.first_seed
-    );
-    println!("({})", r.note);
-    println!(
-        "{:<32} {:>8} {:>15} {:>8} {:>8} {:>26} {:>28} {:>10}",
+    )?;
+    writeln!(out, "({})", r.note)?;
+    writeln!(
+        out,
+        "{:<56} {:>8} {:>15} {:>8} {:>8} {:>26} {:>28} {:>10}",
         "variant",
         "NEES",
         "band",
@@ -132,11 +144,12 @@ pub fn print_monte_carlo(r: &LearnedMonteCarlo) {
         "pos RMSE mean [lo, hi] m",
         "vel RMSE mean [lo, hi] m/s",
         "corr"
-    );
-    for (name, v) in &r.variants {
-        println!(
-            "{:<32} {:>8.2} {:>7.2}-{:<7.2} {:>7.1}% {:>8.2} {:>8.3} [{:.3}, {:.3}] {:>9.4} [{:.4}, {:.4}] {:>10.2e}",
-            name,
+    )?;
+    for v in &r.variants {
+        writeln!(
+        out,
+            "{:<56} {:>8.2} {:>7.2}-{:<7.2} {:>7.1}% {:>8.2} {:>8.3} [{:.3}, {:.3}] {:>9.4} [{:.4}, {:.4}] {:>10.2e}",
+            v.label,
             v.nees_mean,
             v.nees_band[0],
             v.nees_band[1],
@@ -149,6 +162,7 @@ pub fn print_monte_carlo(r: &LearnedMonteCarlo) {
             v.velocity_rmse.lo,
             v.velocity_rmse.hi,
             v.output_imu_correlation
-        );
+        )?;
     }
+    Ok(())
 }

@@ -12,7 +12,10 @@ mod learned_scenarios;
 mod montecarlo;
 mod output;
 mod plots;
+mod report;
 mod reproduce;
+mod schema;
+mod smooth;
 
 /// estim: state estimation with correlated process and measurement noise.
 #[derive(Debug, Parser)]
@@ -34,6 +37,10 @@ enum Command {
     Beamsnet(beamsnet::Args),
     /// Write training datasets.
     Dataset(dataset::Args),
+    /// Regenerate the README's result tables (markdown between marker comments).
+    Report(report::Args),
+    /// Smooth the INS/DVL survey (RTS): smoothed vs filtered errors against truth.
+    Smooth(smooth::Args),
 }
 
 fn main() -> ExitCode {
@@ -44,13 +51,23 @@ fn main() -> ExitCode {
         Command::Dvl(args) => dvl::run(args),
         Command::Beamsnet(args) => beamsnet::run(args),
         Command::Dataset(args) => dataset::run(args),
+        Command::Report(args) => report::run(args),
+        Command::Smooth(args) => smooth::run(args),
     };
+    // Exit statuses: see `schema` (0 ok, 2 bad input, 3 some filter failed, 141
+    // stdout closed).
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(()) => ExitCode::from(schema::EXIT_OK),
+        // The reader of stdout went away (`estim reproduce | head`): end quietly.
+        Err(e) if output::is_broken_pipe(&e) => ExitCode::from(schema::EXIT_BROKEN_PIPE),
+        Err(e) if e.downcast_ref::<schema::FiltersFailed>().is_some() => {
+            eprintln!("warning: {e}");
+            ExitCode::from(schema::EXIT_FILTERS_FAILED)
+        }
         Err(e) => {
-            // One line, naming what was wrong; exit code 2 for bad input.
+            // One line, naming what was wrong.
             eprintln!("error: {e:#}");
-            ExitCode::from(2)
+            ExitCode::from(schema::EXIT_BAD_INPUT)
         }
     }
 }

@@ -2,8 +2,15 @@
 
 use std::path::PathBuf;
 
+use std::fmt::Write as _;
+use std::io::IsTerminal;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
 use estim::pipeline::{monte_carlo, Config};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+use crate::output::emit;
+use crate::schema::{document, path_json, status_result};
 
 /// Arguments of `estim montecarlo`.
 #[derive(Debug, clap::Args)]
@@ -33,7 +40,62 @@ pub struct Args {
     learned: Option<crate::learned_scenarios::LearnedKind>,
 }
 
-/// Run it.
+/// Progress on stderr: a bar when stderr is a terminal, otherwise one plain line per
+/// tenth of the missions (logs and CI keep a readable trace; stdout stays clean).
+struct Progress {
+    bar: Option<ProgressBar>,
+    total: usize,
+    done: AtomicUsize,
+    start: std::time::Instant,
+}
+
+impl Progress {
+    fn new(total: usize) -> Self {
+        let bar = std::io::stderr().is_terminal().then(|| {
+            let bar =
+                ProgressBar::with_draw_target(Some(total as u64), ProgressDrawTarget::stderr());
+            bar.set_style(
+                ProgressStyle::with_template(
+                    "{bar:40} {pos}/{len} missions ({elapsed}, eta {eta})",
+                )
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+            );
+            bar
+        });
+        Self {
+            bar,
+            total,
+            done: AtomicUsize::new(0),
+            start: std::time::Instant::now(),
+        }
+    }
+
+    fn tick(&self) {
+        let done = self.done.fetch_add(1, Ordering::SeqCst) + 1;
+        match &self.bar {
+            Some(bar) => bar.inc(1),
+            None => {
+                // A line when the completed tenth changes (and at the end).
+                let tenth = |k: usize| k * 10 / self.total;
+                if tenth(done) != tenth(done - 1) || done == self.total {
+                    eprintln!(
+                        "montecarlo: {done}/{} missions done ({:.1} s)",
+                        self.total,
+                        self.start.elapsed().as_secs_f64()
+                    );
+                }
+            }
+        }
+    }
+
+    fn finish(&self) {
+        if let Some(bar) = &self.bar {
+            bar.finish_and_clear();
+        }
+    }
+}
+
+/// Run it. Exit status: see `schema` (3 when a filter variant failed in some run).
 pub fn run(args: Args) -> anyhow::Result<()> {
     if args.runs == 0 {
         anyhow::bail!("--runs must be at least 1");
@@ -45,50 +107,79 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.faults && config.faults == estim::pipeline::FaultConfig::default() {
         config.faults = estim::pipeline::FaultConfig::standard();
     }
-    let bar = ProgressBar::with_draw_target(Some(args.runs as u64), ProgressDrawTarget::stderr());
-    bar.set_style(
-        ProgressStyle::with_template("{bar:40} {pos}/{len} missions ({elapsed})")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
     match args.learned {
         None | Some(crate::learned_scenarios::LearnedKind::Beamsnet) => {}
         Some(crate::learned_scenarios::LearnedKind::TwoBeams) => {
+            let progress = Progress::new(args.runs);
             let report = crate::learned_scenarios::monte_carlo_two_beams(
                 &config,
                 args.runs,
                 args.seed,
-                &|| bar.inc(1),
-            )?;
-            bar.finish_and_clear();
+                &|| progress.tick(),
+            );
+            progress.finish();
+            let report = report?;
             if args.json {
-                println!("{}", serde_json::to_string_pretty(&report)?);
+                let inputs = serde_json::json!({
+                    "config_file": path_json(args.config.as_deref()),
+                    "runs": args.runs,
+                    "first_seed": args.seed,
+                    "seeds": [args.seed, args.seed + args.runs as u64 - 1],
+                    "learned": "two-beams",
+                    "config": config,
+                });
+                let doc = document("montecarlo", inputs, 0, serde_json::to_value(&report)?);
+                emit(&format!("{}\n", serde_json::to_string_pretty(&doc)?))?;
             } else {
-                crate::learned_scenarios::print_monte_carlo(&report);
+                let mut text = String::new();
+                crate::learned_scenarios::print_monte_carlo(&mut text, &report)?;
+                emit(&text)?;
             }
             return Ok(());
         }
         Some(crate::learned_scenarios::LearnedKind::Outage) => {
-            anyhow::bail!("--learned outage is not built yet (estim issue 12, step 4)")
+            anyhow::bail!("--learned outage is not built yet (estim issue 12)")
         }
     }
     let learned = crate::learned::sensor(&config, None)?;
+    let progress = Progress::new(args.runs);
     let report = monte_carlo(&config, args.runs, args.seed, learned.as_deref(), &|| {
-        bar.inc(1)
-    })?;
-    bar.finish_and_clear();
+        progress.tick()
+    });
+    progress.finish();
+    let report = report?;
+    let failures = report.failures().count();
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-        return Ok(());
+        let inputs = serde_json::json!({
+            "config_file": path_json(args.config.as_deref()),
+            "runs": args.runs,
+            "first_seed": args.seed,
+            "seeds": [args.seed, args.seed + args.runs as u64 - 1],
+            "faults_flag": args.faults,
+            "config": config,
+        });
+        let doc = document(
+            "montecarlo",
+            inputs,
+            failures,
+            serde_json::to_value(&report)?,
+        );
+        emit(&format!("{}\n", serde_json::to_string_pretty(&doc)?))?;
+        return status_result(failures);
     }
-    println!(
+    let mut out = String::new();
+    writeln!(
+        out,
         "Monte Carlo: {} simulated missions (seeds {}..{}), 95% chi-square bands of the run average",
         report.runs,
         report.first_seed,
         report.first_seed + report.runs as u64 - 1
-    );
-    println!(
-        "{:<28} {:>9} {:>17} {:>9} {:>8} {:>17} {:>9} {:>7} {:>9} {:>8}",
+    )?;
+    writeln!(
+        out,
+        "{:<32} {:>7} {:>9} {:>17} {:>9} {:>8} {:>17} {:>9} {:>7} {:>10} {:>8}",
         "variant",
+        "runs ok",
         "NEES",
         "band",
         "in band",
@@ -98,12 +189,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "gated",
         "pos RMSE",
         "P not PD"
-    );
-    println!("(\"in band\": share of epochs whose run-averaged value lies in the band; \"P not PD\": run-epochs whose covariance lost positive definiteness, excluded from the averages)");
-    for (name, v) in &report.variants {
-        println!(
-            "{:<28} {:>9.2} {:>8.2}-{:<8.2} {:>8.1}% {:>8.2} {:>8.2}-{:<8.2} {:>8.1}% {:>7} {:>8.2}m {:>8}",
-            name,
+    )?;
+    writeln!(out, "(\"in band\": share of epochs whose run-averaged value lies in the band; \"P not PD\": run-epochs whose covariance lost positive definiteness, excluded from the averages; statistics over the runs that completed)")?;
+    for v in report.variants.values() {
+        writeln!(
+            out,
+            "{:<32} {:>7} {:>9.2} {:>8.2}-{:<8.2} {:>8.1}% {:>8.2} {:>8.2}-{:<8.2} {:>8.1}% {:>7} {:>8.2} m {:>8}",
+            v.label,
+            format!("{}/{}", v.runs_completed, report.runs),
             v.nees_average,
             v.nees_band[0],
             v.nees_band[1],
@@ -115,7 +208,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             v.updates_rejected,
             v.position_rmse_m,
             v.covariance_not_positive_definite
-        );
+        )?;
     }
-    Ok(())
+    for f in report.failures() {
+        writeln!(out, "FAILED: {f}")?;
+    }
+    emit(&out)?;
+    status_result(failures)
 }

@@ -2,9 +2,14 @@
 
 use std::path::PathBuf;
 
+use std::fmt::Write as _;
+
 use anyhow::Context;
 use estim::datasets::data_root;
-use estim::pipeline::{analyse, apply_faults, Config, Scenario, TrajectoryReport};
+use estim::pipeline::{analyse, apply_faults, filter_label, Config, Scenario, TrajectoryReport};
+
+use crate::output::{emit, StagedDir};
+use crate::schema::{document, path_json, status_result};
 
 /// Arguments of `estim reproduce`.
 #[derive(Debug, clap::Args)]
@@ -16,6 +21,17 @@ pub struct Args {
     /// A-KIT trajectories to run (repeatable); default 4 and 13.
     #[arg(long = "trajectory", value_name = "N")]
     trajectories: Vec<u32>,
+    /// A ground-truth CSV file at any path (one trajectory; with --dvl). Columns are
+    /// found by name in any order, with units from the header (README "Your own data").
+    #[arg(long, value_name = "FILE", requires = "dvl", conflicts_with_all = ["data", "trajectories"])]
+    gt: Option<PathBuf>,
+    /// The DVL velocity CSV file of that trajectory (with --gt).
+    #[arg(long, value_name = "FILE", requires = "gt")]
+    dvl: Option<PathBuf>,
+    /// Run on the common time span when GT and DVL do not cover the same span
+    /// (otherwise an error); the choice is printed on stderr.
+    #[arg(long)]
+    allow_partial: bool,
     /// TOML configuration (see --print-config for every key and default).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
@@ -35,32 +51,65 @@ pub struct Args {
     /// two-beams network), `outage` (not built yet).
     #[arg(long, value_enum, default_value = "paper")]
     scenario: crate::learned_scenarios::ScenarioKind,
+    /// Also smooth each trajectory (RTS, LS DVL, M = 0): smoothed vs filtered errors
+    /// and NEES (files in `--out DIR/smoothing`).
+    #[arg(long)]
+    smooth: bool,
 }
 
-/// Run it.
+/// Run it. Exit status: see `schema` (3 when a filter variant failed).
 pub fn run(args: Args) -> anyhow::Result<()> {
     let config = match &args.config {
         Some(path) => Config::from_file(path)?,
         None => Config::default(),
     };
     if args.print_config {
-        print!("{}", config.to_toml());
-        return Ok(());
+        return crate::output::emit(&config.to_commented_toml());
     }
-    let scenarios: Vec<Scenario> = match &args.data {
-        Some(dir) => {
-            let dir = data_root(Some(dir)).context("no data folder")?;
-            let list = if args.trajectories.is_empty() {
-                vec![4, 13]
-            } else {
-                args.trajectories.clone()
-            };
-            list.iter()
-                .map(|n| Scenario::akit(&dir, *n, &config, config.seed))
-                .collect::<Result<_, _>>()?
-        }
-        None => vec![Scenario::simulated(&config, config.seed)?],
+    // Checked before any work: an unwritable --out fails now, naming the folder.
+    let staged = match &args.out {
+        Some(dir) => Some(crate::output::StagedDir::new(dir)?),
+        None => None,
     };
+    let (scenarios, trajectories): (Vec<Scenario>, Option<Vec<u32>>) =
+        match (&args.data, &args.gt, &args.dvl) {
+            (_, Some(gt), Some(dvl)) => (
+                vec![Scenario::recorded(
+                    gt,
+                    dvl,
+                    &config,
+                    config.seed,
+                    args.allow_partial,
+                )?],
+                None,
+            ),
+            (Some(dir), _, _) => {
+                let dir = data_root(Some(dir)).context("no data folder")?;
+                let list = if args.trajectories.is_empty() {
+                    vec![4, 13]
+                } else {
+                    args.trajectories.clone()
+                };
+                let s = list
+                    .iter()
+                    .map(|n| {
+                        Scenario::akit_with(&dir, *n, &config, config.seed, args.allow_partial)
+                    })
+                    .collect::<Result<_, _>>()?;
+                (s, Some(list))
+            }
+            _ => (vec![Scenario::simulated(&config, config.seed)?], None),
+        };
+    for s in &scenarios {
+        if let Some(span) = s.span.filter(|span| !span.agrees()) {
+            let [a, b] = span.overlap_s().unwrap_or(span.gt_s);
+            eprintln!(
+                "warning: --allow-partial: {}: {}; running on the overlap {a:.3}-{b:.3} s only",
+                s.name,
+                span.describe()
+            );
+        }
+    }
     let mut scenarios = scenarios;
     for s in &mut scenarios {
         apply_faults(s, &config.faults, config.seed)?;
@@ -70,11 +119,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         crate::learned_scenarios::ScenarioKind::TwoBeams => {
             let studies = crate::learned_scenarios::reproduce_two_beams(&scenarios, &config)?;
             if args.json {
-                println!("{}", serde_json::to_string_pretty(&studies)?);
+                let inputs = serde_json::json!({
+                    "data": path_json(args.data.as_deref()),
+                    "trajectories": trajectories,
+                    "config_file": path_json(args.config.as_deref()),
+                    "scenario": "two-beams",
+                    "seed": config.seed,
+                    "config": config,
+                });
+                let payload = serde_json::json!({ "studies": studies });
+                let doc = document("reproduce", inputs, 0, payload);
+                emit(&format!("{}\n", serde_json::to_string_pretty(&doc)?))?;
             } else {
-                studies
-                    .iter()
-                    .for_each(crate::learned_scenarios::print_study);
+                let mut text = String::new();
+                for s in &studies {
+                    crate::learned_scenarios::print_study(&mut text, s)?;
+                }
+                emit(&text)?;
             }
             return Ok(());
         }
@@ -93,50 +154,92 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Ok(analyse(s, &config, inputs.as_ref(), config.seed)?)
         })
         .collect::<Result<_, _>>()?;
-    let json = serde_json::to_string_pretty(&serde_json::json!({
+    let failures: usize = reports.iter().map(|r| r.failures.len()).sum();
+    let inputs = serde_json::json!({
+        "data": path_json(args.data.as_deref()),
+        "trajectories": trajectories,
+        "config_file": path_json(args.config.as_deref()),
+        "model": path_json(args.model.as_deref()),
+        "out": path_json(args.out.as_deref()),
+        "seed": config.seed,
         "config": config,
-        "trajectories": reports,
-    }))?;
+    });
+    let smoothed = if args.smooth {
+        let cross = estim::pipeline::CrossSource::Zero;
+        Some(crate::smooth::smooth_all(&scenarios, &config, &cross)?)
+    } else {
+        None
+    };
+    let mut payload = serde_json::json!({ "trajectories": reports });
+    if let Some(s) = &smoothed {
+        payload["smoothing"] = serde_json::to_value(s)?;
+    }
+    let json = serde_json::to_string_pretty(&document("reproduce", inputs, failures, payload))?;
     // Outputs first: on failure nothing is printed as if it had succeeded.
-    if let Some(dir) = &args.out {
-        write_outputs(dir, &reports, &json)?;
+    if let Some(staged) = staged {
+        write_outputs(staged, &reports, &json)?;
+        if let (Some(s), Some(dir)) = (&smoothed, &args.out) {
+            crate::smooth::write_outputs(&dir.join("smoothing"), s)?;
+        }
     }
     if args.json {
-        println!("{json}");
+        emit(&format!("{json}\n"))?;
     } else {
+        let mut text = String::new();
         for r in &reports {
-            print_report(r);
+            print_report(&mut text, r)?;
         }
+        if let Some(s) = &smoothed {
+            crate::smooth::print_reports(s);
+        }
+        emit(&text)?;
     }
-    Ok(())
+    status_result(failures)
 }
 
-fn print_report(r: &TrajectoryReport) {
-    println!(
+fn print_report(out: &mut String, r: &TrajectoryReport) -> std::fmt::Result {
+    writeln!(
+        out,
         "== {} ({:.0} s, {} DVL epochs)",
         r.name, r.duration_s, r.dvl_epochs
-    );
-    println!("velocity norm vs DVL reference (paper Tables I/II):");
-    println!(
+    )?;
+    writeln!(out, "velocity norm vs DVL reference (paper Tables I/II):")?;
+    writeln!(
+        out,
         "  {:<10} {:>10} {:>10} {:>10} {:>10}",
-        "method", "RMSE", "MAE", "R^2", "VAF [%]"
-    );
-    for (name, m) in &r.velocity {
-        println!(
+        "method", "RMSE [m/s]", "MAE [m/s]", "R^2", "VAF [%]"
+    )?;
+    // LS first, then the learned sources.
+    let mut rows: Vec<_> = r.velocity.iter().collect();
+    rows.sort_by_key(|(id, _)| (id.as_str() != estim::pipeline::LS, id.as_str()));
+    for (id, m) in rows {
+        writeln!(
+            out,
             "  {:<10} {:>10.6} {:>10.6} {:>10.6} {:>10.4}",
-            name, m.rmse, m.mae, m.r2, m.vaf
-        );
+            filter_label(id, f64::NAN),
+            m.rmse,
+            m.mae,
+            m.r2,
+            m.vaf
+        )?;
     }
-    println!("filters (std = time average / final, summed over axes; errors RMSE / final):");
+    writeln!(
+        out,
+        "filters (std = time average / final, summed over axes; errors RMSE / final):"
+    )?;
     for f in &r.filters {
-        println!("  {}", f.name);
+        writeln!(out, "  {} [{}]", f.name, f.id)?;
         for (g, s) in &f.std {
-            println!(
-                "    std {:<13} {:>12.4e} / {:>12.4e}",
-                g, s.time_average, s.final_value
-            );
+            writeln!(
+                out,
+                "    std {:<17} {:>12.4e} / {:>12.4e}",
+                format!("{g} [{}]", group_unit(g)),
+                s.time_average,
+                s.final_value
+            )?;
         }
-        println!(
+        writeln!(
+            out,
             "    error position {:.3} / {:.3} m, velocity {:.4} / {:.4} m/s, attitude {:.4} / {:.4} deg",
             f.position_error_m.rmse,
             f.position_error_m.final_value,
@@ -144,28 +247,48 @@ fn print_report(r: &TrajectoryReport) {
             f.velocity_error_mps.final_value,
             f.attitude_error_deg.rmse,
             f.attitude_error_deg.final_value
-        );
-        println!(
+        )?;
+        writeln!(
+            out,
             "    NEES {:.2} (95% band {:.2}-{:.2}), NIS {:.2} (band {:.2}-{:.2}), updates {} accepted / {} gated",
             f.nees_average, f.nees_band[0], f.nees_band[1], f.nis_average, f.nis_band[0], f.nis_band[1],
             f.updates_accepted, f.updates_rejected
-        );
-        println!(
+        )?;
+        writeln!(
+            out,
             "    joint covariance: min eigenvalue {:.3e}, invalid updates {}, largest valid rho (median) {:.3}; P not positive definite at {} epochs",
             f.joint_min_eigenvalue, f.joint_invalid_updates, f.largest_valid_rho, f.covariance_not_positive_definite_epochs
-        );
+        )?;
+    }
+    for failure in &r.failures {
+        writeln!(out, "  FAILED: {failure}")?;
     }
     for imp in &r.improvements {
-        println!(
+        writeln!(
+            out,
             "  improvement of {} over M neglected (time average / final):",
             imp.variant
-        );
+        )?;
         for (g, v) in &imp.groups {
-            println!(
+            writeln!(
+                out,
                 "    {:<13} {:>7.2} % / {:>7.2} %",
                 g, v.time_average_percent, v.final_percent
-            );
+            )?;
         }
+    }
+    Ok(())
+}
+
+/// Unit of a state group's std.
+fn group_unit(group: &str) -> &'static str {
+    match group {
+        "position" => "m",
+        "velocity" => "m/s",
+        "misalignment" => "rad",
+        "acc_bias" => "m/s^2",
+        "gyro_bias" => "rad/s",
+        _ => "?",
     }
 }
 
@@ -173,22 +296,23 @@ fn print_report(r: &TrajectoryReport) {
 fn slug(r: &TrajectoryReport) -> String {
     match r.trajectory {
         Some(n) => format!("trajectory{n}"),
-        None => "simulated".to_string(),
+        None if r.name == "simulated mission" => "simulated".to_string(),
+        None => "trajectory".to_string(),
     }
 }
 
-/// CSV time series and plots of every report into a staged folder.
+/// CSV time series and plots of every report into the staged folder, then commit.
 fn write_outputs(
-    dir: &std::path::Path,
+    staged: StagedDir,
     reports: &[TrajectoryReport],
     json: &str,
 ) -> anyhow::Result<()> {
-    use crate::output::StagedDir;
-    use crate::plots::{bar_chart, line_chart, LineChart, Series};
+    use crate::plots::{
+        bar_chart, error_chart, line_chart, BarChart, ErrorPanel, LineChart, Series,
+    };
     use estim::pipeline::stats::GROUPS;
     use std::io::Write;
 
-    let staged = StagedDir::new(dir)?;
     std::fs::write(staged.path("report.json"), json).context("cannot write report.json")?;
     for r in reports {
         let stem = slug(r);
@@ -198,8 +322,12 @@ fn write_outputs(
             std::fs::File::create(&path)
                 .with_context(|| format!("{}: cannot create", path.display()))?,
         );
-        let mut header = vec!["filter".to_string(), "time_s".to_string()];
-        header.extend(GROUPS.iter().map(|(g, _)| format!("{g}_std_sum")));
+        let mut header = vec!["filter_id".to_string(), "time_s".to_string()];
+        header.extend(
+            GROUPS.iter().map(|(g, _)| {
+                format!("{}_std_sum", estim::pipeline::stats::group_key_with_unit(g))
+            }),
+        );
         header.extend(
             [
                 "position_error_m",
@@ -226,8 +354,8 @@ fn write_outputs(
                     .collect();
                 writeln!(
                     w,
-                    "\"{}\",{},{},{},{},{},{},{},{}",
-                    run.name,
+                    "{},{},{},{},{},{},{},{},{}",
+                    run.id,
                     run.time[k],
                     stds.join(","),
                     run.position_error[k],
@@ -257,13 +385,14 @@ fn write_outputs(
             let chart = LineChart {
                 title: &format!("{}: {g} std (sum over axes)", r.name),
                 x_label: "time [s]",
-                y_label: "std",
+                y_label: &format!("{g} std, sum over axes [{}]", group_unit(g)),
                 series: r
                     .runs
                     .iter()
                     .zip(&ys)
                     .map(|(run, y)| Series {
-                        name: &run.name,
+                        id: &run.id,
+                        label: &run.name,
                         x: &run.time,
                         y,
                     })
@@ -277,64 +406,86 @@ fn write_outputs(
         // Improvement bars (paper Fig. 5).
         if !r.improvements.is_empty() {
             let groups: Vec<&str> = GROUPS.iter().skip(1).map(|(g, _)| *g).collect();
-            let variants: Vec<&str> = r.improvements.iter().map(|i| i.variant.as_str()).collect();
+            let variants: Vec<(&str, &str)> = r
+                .improvements
+                .iter()
+                .map(|i| (i.id.as_str(), i.variant.as_str()))
+                .collect();
             let values: Vec<Vec<f64>> = r
                 .improvements
                 .iter()
                 .map(|imp| {
                     groups
                         .iter()
-                        .map(|g| imp.groups[*g].time_average_percent)
+                        .map(|g| {
+                            imp.groups
+                                .get(*g)
+                                .map_or(f64::NAN, |v| v.time_average_percent)
+                        })
                         .collect()
                 })
                 .collect();
             bar_chart(
                 &staged.path(&format!("{stem}_improvement")),
-                &format!("{}: time-averaged std improvement over M neglected", r.name),
-                "improvement [%]",
-                &groups,
-                &variants,
-                &values,
+                &BarChart {
+                    title: &format!("{}: time-averaged std improvement over M neglected", r.name),
+                    y_label: "improvement of the time-averaged std [%]",
+                    groups: &groups,
+                    variants: &variants,
+                    values: &values,
+                },
             )
             .map_err(plot_err)?;
         }
-        // North-east track (paper Fig. 2).
-        let east: Vec<Vec<f64>> = std::iter::once(&r.truth_north_east)
-            .chain(r.runs.iter().map(|run| &run.north_east))
-            .map(|ne| ne.iter().map(|p| p[1]).collect())
+        // North-east track (paper Fig. 2), equal metres per pixel.
+        let tracks: Vec<(&str, &str, &Vec<[f64; 2]>)> =
+            std::iter::once(("truth", "truth", &r.truth_north_east))
+                .chain(
+                    r.runs
+                        .iter()
+                        .map(|run| (run.id.as_str(), run.name.as_str(), &run.north_east)),
+                )
+                .collect();
+        let east: Vec<Vec<f64>> = tracks
+            .iter()
+            .map(|t| t.2.iter().map(|p| p[1]).collect())
             .collect();
-        let north: Vec<Vec<f64>> = std::iter::once(&r.truth_north_east)
-            .chain(r.runs.iter().map(|run| &run.north_east))
-            .map(|ne| ne.iter().map(|p| p[0]).collect())
-            .collect();
-        let names: Vec<&str> = std::iter::once("truth")
-            .chain(r.runs.iter().map(|run| run.name.as_str()))
+        let north: Vec<Vec<f64>> = tracks
+            .iter()
+            .map(|t| t.2.iter().map(|p| p[0]).collect())
             .collect();
         let chart = LineChart {
             title: &format!("{}: north-east track", r.name),
             x_label: "east [m]",
             y_label: "north [m]",
-            series: names
+            series: tracks
                 .iter()
                 .zip(east.iter().zip(&north))
-                .map(|(n, (x, y))| Series { name: n, x, y })
+                .map(|(t, (x, y))| Series {
+                    id: t.0,
+                    label: t.1,
+                    x,
+                    y,
+                })
                 .collect(),
             hlines: vec![],
             log_y: false,
             equal_axes: true,
         };
         line_chart(&staged.path(&format!("{stem}_track")), &chart).map_err(plot_err)?;
-        // NEES over time with the per-epoch 95 % band of chi-square(15).
+        // NEES over time with the per-epoch 95 % band of chi-square(15); the line
+        // breaks where P was not positive definite (NEES undefined).
         let band = estim::core::chi_square_band(15, 1, 0.95)?;
         let chart = LineChart {
             title: &format!("{}: NEES (15 states) against truth", r.name),
             x_label: "time [s]",
-            y_label: "NEES",
+            y_label: "NEES [-] (log scale)",
             series: r
                 .runs
                 .iter()
                 .map(|run| Series {
-                    name: &run.name,
+                    id: &run.id,
+                    label: &run.name,
                     x: &run.time,
                     y: &run.nees,
                 })
@@ -344,6 +495,51 @@ fn write_outputs(
             equal_axes: false,
         };
         line_chart(&staged.path(&format!("{stem}_nees")), &chart).map_err(plot_err)?;
+        // Per-axis error against truth with the filter's +-3 sigma, per filter.
+        const AXES: [&str; 3] = ["north", "east", "down"];
+        for run in &r.runs {
+            for (group, first, unit, scale) in [
+                ("position", 0, "m", 1.0),
+                ("velocity", 3, "m/s", 1.0),
+                ("misalignment", 6, "deg", 180.0 / std::f64::consts::PI),
+            ] {
+                let labels: Vec<String> = AXES
+                    .iter()
+                    .map(|a| format!("{a} {group} error [{unit}]"))
+                    .collect();
+                let panels: Vec<ErrorPanel<'_>> = (0..3)
+                    .map(|a| ErrorPanel {
+                        y_label: &labels[a],
+                        error: run
+                            .axis_error
+                            .iter()
+                            .map(|e| e[first + a] * scale)
+                            .collect(),
+                        three_sigma: run
+                            .covariance_diagonal
+                            .iter()
+                            .map(|d| {
+                                let v = d[first + a];
+                                // Undefined where the variance is not positive.
+                                if v > 0.0 {
+                                    3.0 * v.sqrt() * scale
+                                } else {
+                                    f64::NAN
+                                }
+                            })
+                            .collect(),
+                    })
+                    .collect();
+                error_chart(
+                    &staged.path(&format!("{stem}_error_{group}_{}", run.id)),
+                    &format!("{}: {} {group} error vs truth, +-3 sigma", r.name, run.name),
+                    &run.id,
+                    &run.time,
+                    &panels,
+                )
+                .map_err(plot_err)?;
+            }
+        }
     }
     staged.commit()
 }

@@ -1,18 +1,38 @@
-//! A-KIT CSV files: `GT_trajectoryN.csv` and `DVL_trajectoryN.csv`.
+//! Ground-truth and DVL velocity CSV files (`GT_trajectoryN.csv`, `DVL_trajectoryN.csv`
+//! of A-KIT, or a user's own files with the same quantities).
+//!
+//! Columns are found by name in any order, with the units their headers state (see
+//! [`super::columns`]). The file must end with a newline: a last line without one is
+//! reported as truncated (a partial write), even if it parses. CRLF line ends, a
+//! UTF-8 BOM and trailing blank lines are accepted. Every value is checked where it
+//! stands (file and line): a number, finite, within the physical range the pipeline
+//! models, and a strictly increasing time.
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
-use super::{DatasetError, Result};
+use super::columns::{flipped, resolve, same, Alias, Kind, Quantity};
+use super::{ColumnMap, DatasetError, Result};
 
-fn open(path: &Path) -> Result<std::fs::File> {
-    std::fs::File::open(path).map_err(|source| DatasetError::Io {
+fn read_all(mut reader: impl Read, path: &Path) -> Result<Vec<u8>> {
+    let mut bytes = Vec::new();
+    reader
+        .read_to_end(&mut bytes)
+        .map_err(|error| DatasetError::Io {
+            path: path.to_path_buf(),
+            error,
+        })?;
+    Ok(bytes)
+}
+
+pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(|error| DatasetError::Io {
         path: path.to_path_buf(),
-        source,
+        error,
     })
 }
 
-/// Header of `GT_trajectoryN.csv`.
+/// Header of A-KIT's `GT_trajectoryN.csv` (one accepted layout among many).
 pub const GT_HEADER: [&str; 10] = [
     "Time [s]",
     "Longitude [rad]",
@@ -26,23 +46,168 @@ pub const GT_HEADER: [&str; 10] = [
     "Yaw [rad]",
 ];
 
-/// Header of `DVL_trajectoryN.csv`.
+/// Header of A-KIT's `DVL_trajectoryN.csv` (one accepted layout among many).
 pub const DVL_HEADER: [&str; 4] = ["Time [s]", "DVL X [m/s]", "DVL Y [m/s]", "DVL Z [m/s]"];
 
-/// One ground-truth sample (post-processed Phins solution).
+/// Largest |time| accepted \[s\] (Unix time is about 1.7e9 s).
+pub const MAX_ABS_TIME_S: f64 = 1e10;
+/// Largest |speed| component accepted \[m/s\], GT and DVL.
+pub const MAX_ABS_SPEED_MPS: f64 = 1000.0;
+/// |latitude| must stay below this \[rad\] (85.9 deg; the INS model's pole limit).
+pub const MAX_ABS_LATITUDE_RAD: f64 = 1.5;
+/// |longitude| must stay below this \[rad\] (a little more than 360 deg).
+pub const MAX_ABS_LONGITUDE_RAD: f64 = 7.0;
+/// |altitude| must stay below this \[m\].
+pub const MAX_ABS_ALTITUDE_M: f64 = 1e5;
+/// |roll|, |pitch|, |yaw| must stay below this \[rad\] (unwrapped yaw may exceed 2 pi).
+pub const MAX_ABS_ANGLE_RAD: f64 = 1e4;
+
+const TIME: Quantity = Quantity {
+    key: "time",
+    kind: Kind::Time,
+    aliases: &[same("time"), same("t"), same("timestamp")],
+    max_abs: MAX_ABS_TIME_S,
+};
+
+const fn speed(key: &'static str, aliases: &'static [Alias]) -> Quantity {
+    Quantity {
+        key,
+        kind: Kind::Speed,
+        aliases,
+        max_abs: MAX_ABS_SPEED_MPS,
+    }
+}
+
+const fn angle(key: &'static str, aliases: &'static [Alias]) -> Quantity {
+    Quantity {
+        key,
+        kind: Kind::Angle,
+        aliases,
+        max_abs: MAX_ABS_ANGLE_RAD,
+    }
+}
+
+/// The quantities of a ground-truth file, in [`GtSample`] order.
+pub(crate) const GT_QUANTITIES: &[Quantity; 10] = &[
+    TIME,
+    Quantity {
+        key: "longitude",
+        kind: Kind::Angle,
+        aliases: &[same("longitude"), same("lon"), same("long"), same("lng")],
+        max_abs: MAX_ABS_LONGITUDE_RAD,
+    },
+    Quantity {
+        key: "latitude",
+        kind: Kind::Angle,
+        aliases: &[same("latitude"), same("lat")],
+        max_abs: MAX_ABS_LATITUDE_RAD,
+    },
+    Quantity {
+        key: "altitude",
+        kind: Kind::Length,
+        aliases: &[
+            same("altitude"),
+            same("alt"),
+            same("height"),
+            flipped("depth"),
+        ],
+        max_abs: MAX_ABS_ALTITUDE_M,
+    },
+    speed(
+        "v_north",
+        &[
+            same("vnorth"),
+            same("vn"),
+            same("velnorth"),
+            same("velocitynorth"),
+            same("northvelocity"),
+        ],
+    ),
+    speed(
+        "v_east",
+        &[
+            same("veast"),
+            same("ve"),
+            same("veleast"),
+            same("velocityeast"),
+            same("eastvelocity"),
+        ],
+    ),
+    speed(
+        "v_down",
+        &[
+            same("vdown"),
+            same("vd"),
+            same("veldown"),
+            same("velocitydown"),
+            same("downvelocity"),
+            flipped("vup"),
+            flipped("vu"),
+            flipped("velup"),
+            flipped("velocityup"),
+            flipped("upvelocity"),
+        ],
+    ),
+    angle("roll", &[same("roll")]),
+    angle("pitch", &[same("pitch")]),
+    angle("yaw", &[same("yaw"), same("heading")]),
+];
+
+/// The quantities of a DVL velocity file, in [`DvlSample`] order.
+pub(crate) const DVL_QUANTITIES: &[Quantity; 4] = &[
+    TIME,
+    speed(
+        "x",
+        &[
+            same("dvlx"),
+            same("dvlvx"),
+            same("vx"),
+            same("velx"),
+            same("velocityx"),
+            same("x"),
+        ],
+    ),
+    speed(
+        "y",
+        &[
+            same("dvly"),
+            same("dvlvy"),
+            same("vy"),
+            same("vely"),
+            same("velocityy"),
+            same("y"),
+        ],
+    ),
+    speed(
+        "z",
+        &[
+            same("dvlz"),
+            same("dvlvz"),
+            same("vz"),
+            same("velz"),
+            same("velocityz"),
+            same("z"),
+        ],
+    ),
+];
+
+/// One ground-truth sample (post-processed Phins solution on A-KIT).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GtSample {
-    /// Time [s].
+    /// 1-based line of the file this sample was read from.
+    pub line: u64,
+    /// Time \[s\].
     pub time: f64,
-    /// Geodetic longitude [rad].
+    /// Geodetic longitude \[rad\].
     pub longitude: f64,
-    /// Geodetic latitude [rad].
+    /// Geodetic latitude \[rad\].
     pub latitude: f64,
-    /// Height above the WGS-84 ellipsoid [m] (negative under water).
+    /// Height above the WGS-84 ellipsoid \[m\], negative under water (a depth column
+    /// is read as altitude = -depth; the sign is never dropped).
     pub altitude: f64,
-    /// Velocity north, east, down [m/s].
+    /// Velocity north, east, down \[m/s\].
     pub velocity_ned: [f64; 3],
-    /// Roll, pitch, yaw [rad] (body x forward, y right, z down).
+    /// Roll, pitch, yaw \[rad\] (body x forward, y right, z down).
     pub roll_pitch_yaw: [f64; 3],
 }
 
@@ -65,23 +230,44 @@ impl GtSample {
 /// One DVL sample: body-frame velocity.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DvlSample {
-    /// Time [s].
+    /// 1-based line of the file this sample was read from.
+    pub line: u64,
+    /// Time \[s\].
     pub time: f64,
-    /// Body-frame velocity x, y, z [m/s].
+    /// Body-frame velocity x, y, z \[m/s\].
     pub velocity_body: [f64; 3],
 }
 
-/// Load and validate a ground-truth file.
+/// Load and validate a ground-truth file, columns found by name.
+///
+/// # Errors
+/// Every [`DatasetError`] variant that names a file or a line.
 pub fn load_gt(path: &Path) -> Result<Vec<GtSample>> {
-    parse_gt(open(path)?, path)
+    load_gt_with(path, &ColumnMap::default())
+}
+
+/// [`load_gt`] with a column map (`[columns.gt]`).
+///
+/// # Errors
+/// As [`load_gt`], and [`DatasetError::ColumnMap`].
+pub fn load_gt_with(path: &Path, map: &ColumnMap) -> Result<Vec<GtSample>> {
+    gt_from_bytes(&read_file(path)?, path, map)
 }
 
 /// Parse ground truth from any reader; `path` names the source in errors.
+///
+/// # Errors
+/// As [`load_gt`].
 pub fn parse_gt(reader: impl Read, path: &Path) -> Result<Vec<GtSample>> {
-    let rows = read_numeric_csv(reader, path, &GT_HEADER, 2)?;
+    gt_from_bytes(&read_all(reader, path)?, path, &ColumnMap::default())
+}
+
+fn gt_from_bytes(bytes: &[u8], path: &Path, map: &ColumnMap) -> Result<Vec<GtSample>> {
+    let rows = read_table(bytes, path, GT_QUANTITIES, &map.gt, "columns.gt", 2)?;
     Ok(rows
         .into_iter()
-        .map(|r| GtSample {
+        .map(|(line, r)| GtSample {
+            line,
             time: r[0],
             longitude: r[1],
             latitude: r[2],
@@ -92,101 +278,156 @@ pub fn parse_gt(reader: impl Read, path: &Path) -> Result<Vec<GtSample>> {
         .collect())
 }
 
-/// Load and validate a DVL file.
+/// Load and validate a DVL velocity file, columns found by name.
+///
+/// # Errors
+/// As [`load_gt`].
 pub fn load_dvl(path: &Path) -> Result<Vec<DvlSample>> {
-    parse_dvl(open(path)?, path)
+    load_dvl_with(path, &ColumnMap::default())
+}
+
+/// [`load_dvl`] with a column map (`[columns.dvl]`).
+///
+/// # Errors
+/// As [`load_gt_with`].
+pub fn load_dvl_with(path: &Path, map: &ColumnMap) -> Result<Vec<DvlSample>> {
+    dvl_from_bytes(&read_file(path)?, path, map)
 }
 
 /// Parse a DVL log from any reader; `path` names the source in errors.
+///
+/// # Errors
+/// As [`load_gt`].
 pub fn parse_dvl(reader: impl Read, path: &Path) -> Result<Vec<DvlSample>> {
-    let rows = read_numeric_csv(reader, path, &DVL_HEADER, 2)?;
+    dvl_from_bytes(&read_all(reader, path)?, path, &ColumnMap::default())
+}
+
+fn dvl_from_bytes(bytes: &[u8], path: &Path, map: &ColumnMap) -> Result<Vec<DvlSample>> {
+    let rows = read_table(bytes, path, DVL_QUANTITIES, &map.dvl, "columns.dvl", 2)?;
     Ok(rows
         .into_iter()
-        .map(|r| DvlSample {
+        .map(|(line, r)| DvlSample {
+            line,
             time: r[0],
             velocity_body: [r[1], r[2], r[3]],
         })
         .collect())
 }
 
-/// Read a CSV whose header must equal `header` (cells trimmed), every cell a finite
-/// number, the first column a strictly increasing time, at least `min_rows` rows.
-fn read_numeric_csv<const C: usize>(
-    input: impl Read,
+/// A file cut inside its last line: something other than blanks after the last
+/// newline. Returns the 1-based number of that line.
+pub(crate) fn truncated_line(bytes: &[u8]) -> Option<u64> {
+    let tail_start = bytes.iter().rposition(|&c| c == b'\n').map_or(0, |i| i + 1);
+    let tail = &bytes[tail_start..];
+    if tail.iter().all(|&c| c == b' ' || c == b'\t') {
+        return None;
+    }
+    Some(1 + bytes[..tail_start].iter().filter(|&&c| c == b'\n').count() as u64)
+}
+
+/// 1-based line of the record at byte offset `byte` (the csv crate's own line counter
+/// skips blank lines, and a record's offset may point at the blank lines before it).
+pub(crate) fn line_at(bytes: &[u8], byte: u64) -> u64 {
+    let mut start = usize::try_from(byte).unwrap_or(usize::MAX).min(bytes.len());
+    while start < bytes.len() && matches!(bytes[start], b'\n' | b'\r') {
+        start += 1;
+    }
+    1 + bytes[..start].iter().filter(|&&c| c == b'\n').count() as u64
+}
+
+pub(crate) fn csv_error(bytes: &[u8], path: &Path, e: &csv::Error) -> DatasetError {
+    DatasetError::Csv {
+        path: path.to_path_buf(),
+        line: e.position().map_or(1, |p| line_at(bytes, p.byte())),
+        message: e.to_string(),
+    }
+}
+
+/// Read a table: the header names the quantities' columns (see [`resolve`]); every
+/// row holds as many fields as the header; every cell of a quantity's column is a
+/// finite number within the quantity's range (in SI after the header's unit); the
+/// first quantity is a strictly increasing time; at least `min_rows` rows.
+/// Returns (line, values in quantity order) per row.
+fn read_table<const C: usize>(
+    bytes: &[u8],
     path: &Path,
-    header: &[&str; C],
+    quantities: &[Quantity; C],
+    map: &std::collections::BTreeMap<String, String>,
+    section: &str,
     min_rows: usize,
-) -> Result<Vec<[f64; C]>> {
+) -> Result<Vec<(u64, [f64; C])>> {
     let pb = || PathBuf::from(path);
+    if bytes.iter().all(|c| c.is_ascii_whitespace()) {
+        return Err(DatasetError::TooFewRows {
+            path: pb(),
+            found: 0,
+            min: min_rows,
+        });
+    }
+    if let Some(line) = truncated_line(bytes) {
+        return Err(DatasetError::Truncated { path: pb(), line });
+    }
     let mut reader = csv::ReaderBuilder::new()
         .has_headers(false)
         .flexible(true)
-        .from_reader(std::io::BufReader::new(input));
+        .from_reader(bytes);
     let mut records = reader.records();
-    let csv_err = |e: csv::Error| match e.kind() {
-        csv::ErrorKind::Io(_) => DatasetError::Io {
-            path: pb(),
-            source: std::io::Error::other(e.to_string()),
-        },
-        _ => DatasetError::Csv {
-            path: pb(),
-            line: e.position().map_or(0, |p| p.line()),
-            message: e.to_string(),
-        },
-    };
-    let first = match records.next() {
+    let header = match records.next() {
         None => {
             return Err(DatasetError::TooFewRows {
                 path: pb(),
                 found: 0,
                 min: min_rows,
-            });
+            })
         }
-        Some(r) => r.map_err(csv_err)?,
+        Some(r) => r.map_err(|e| csv_error(bytes, path, &e))?,
     };
-    let found: Vec<&str> = first
-        .iter()
-        .map(|c| c.trim().trim_start_matches('\u{feff}'))
-        .collect();
-    if found != header.as_slice() {
-        return Err(DatasetError::Header {
-            path: pb(),
-            expected: header.join(","),
-            found: found.join(","),
-        });
-    }
-    let mut rows: Vec<[f64; C]> = Vec::new();
+    let header: Vec<String> = header.iter().map(str::to_string).collect();
+    let columns = resolve(path, &header, quantities, map, section)?;
+    let mut rows: Vec<(u64, [f64; C])> = Vec::new();
     let mut previous: Option<f64> = None;
     for record in records {
-        let record = record.map_err(csv_err)?;
-        let line = record.position().map_or(0, |p| p.line());
-        if record.len() == 1 && record.get(0).is_some_and(|c| c.trim().is_empty()) {
+        let record = record.map_err(|e| csv_error(bytes, path, &e))?;
+        let line = record.position().map_or(0, |p| line_at(bytes, p.byte()));
+        if record.len() <= 1 && record.iter().all(|c| c.trim().is_empty()) {
             continue; // blank line
         }
-        if record.len() != C {
+        if record.len() != header.len() {
             return Err(DatasetError::FieldCount {
                 path: pb(),
                 line,
-                expected: C,
+                expected: header.len(),
                 found: record.len(),
             });
         }
         let mut row = [0.0; C];
-        for (i, cell) in record.iter().enumerate() {
-            let v: f64 = cell.trim().parse().map_err(|_| DatasetError::Parse {
+        for (k, (column, quantity)) in columns.iter().zip(quantities).enumerate() {
+            let cell = record.get(column.index).unwrap_or("").trim();
+            let read: f64 = cell.parse().map_err(|_| DatasetError::Parse {
                 path: pb(),
                 line,
-                column: header[i].to_string(),
+                column: column.header.clone(),
                 value: cell.chars().take(40).collect(),
             })?;
-            if !v.is_finite() {
+            if !read.is_finite() {
                 return Err(DatasetError::NonFinite {
                     path: pb(),
                     line,
-                    column: header[i].to_string(),
+                    column: column.header.clone(),
                 });
             }
-            row[i] = v;
+            let value = read * column.factor;
+            if value.abs() >= quantity.max_abs {
+                return Err(DatasetError::OutOfRange {
+                    path: pb(),
+                    line,
+                    column: column.header.clone(),
+                    value,
+                    limit: quantity.max_abs,
+                    unit: quantity.kind.si_unit(),
+                });
+            }
+            row[k] = value;
         }
         if let Some(prev) = previous {
             if row[0] <= prev {
@@ -199,7 +440,7 @@ fn read_numeric_csv<const C: usize>(
             }
         }
         previous = Some(row[0]);
-        rows.push(row);
+        rows.push((line, row));
     }
     if rows.len() < min_rows {
         return Err(DatasetError::TooFewRows {
@@ -234,9 +475,102 @@ mod tests {
 
     #[test]
     fn bad_header_is_named() {
-        let f = write("t,x,y,z\n0,1,2,3\n1,1,2,3\n");
+        let f = write("a,b,c,d\n0,1,2,3\n1,1,2,3\n");
         let e = load_dvl(f.path()).unwrap_err();
-        assert!(matches!(e, DatasetError::Header { .. }), "{e}");
+        assert!(matches!(e, DatasetError::MissingColumn { .. }), "{e}");
+        let s = e.to_string();
+        assert!(s.contains("time") && s.contains("a,b,c,d"), "{s}");
+    }
+
+    const GT_A_KIT: &str = "Time [s],Longitude [rad],Latitude [rad],Altitude [m],V North [m/s],V East [m/s],V Down [m/s],Roll [rad],Pitch [rad],Yaw [rad]\n\
+         0,0.6,0.57,-20.5,1,0,0,0,0,0\n1,0.6,0.57,-20.6,1,0,0,0,0,0.1\n";
+
+    #[test]
+    fn reordered_columns_degrees_depth_and_v_up_give_the_same_samples() {
+        let a = parse_gt(GT_A_KIT.as_bytes(), Path::new("a.csv")).expect("A-KIT layout");
+        let d = |r: f64| r.to_degrees();
+        let converted = format!(
+            "\u{feff}yaw_deg,V Up [m/s],lat (deg),Depth [m],time,Roll [deg],Pitch [rad],lon [deg],v_east,VN\r\n\
+             {},0,{},20.5,0,0,0,{},0,1\r\n{},0,{},20.6,1,0,0,{},0,1\r\n\r\n",
+            d(0.0),
+            d(0.57),
+            d(0.6),
+            d(0.1),
+            d(0.57),
+            d(0.6)
+        );
+        let b = parse_gt(converted.as_bytes(), Path::new("b.csv")).expect("converted layout");
+        for (x, y) in a.iter().zip(&b) {
+            assert_eq!(x.time, y.time);
+            assert_eq!(x.altitude, y.altitude, "depth is minus altitude");
+            assert!((x.latitude - y.latitude).abs() < 1e-15);
+            assert!((x.longitude - y.longitude).abs() < 1e-15);
+            assert!((x.roll_pitch_yaw[2] - y.roll_pitch_yaw[2]).abs() < 1e-15);
+            assert_eq!(x.velocity_ned, y.velocity_ned);
+        }
+        assert_eq!(b[1].line, 3);
+    }
+
+    #[test]
+    fn column_map_names_headers_with_units() {
+        let text =
+            "T,LAT,LON,Z,N,E,D,R,P,H\n0,32.7,34.9,15,1,0,0,0,0,90\n1,32.7,34.9,15,1,0,0,0,0,90\n";
+        let mut map = ColumnMap::default();
+        for (k, v) in [
+            ("time_s", "T"),
+            ("latitude_deg", "LAT"),
+            ("longitude_deg", "LON"),
+            ("depth_m", "Z"),
+            ("v_north_mps", "N"),
+            ("v_east_mps", "E"),
+            ("v_down_mps", "D"),
+            ("roll_deg", "R"),
+            ("pitch_deg", "P"),
+            ("heading_deg", "H"),
+        ] {
+            map.gt.insert(k.into(), v.into());
+        }
+        let f = write(text);
+        let rows = load_gt_with(f.path(), &map).expect("mapped");
+        assert_eq!(rows[0].altitude, -15.0);
+        assert!((rows[0].latitude - 32.7f64.to_radians()).abs() < 1e-15);
+        assert!((rows[0].roll_pitch_yaw[2] - std::f64::consts::FRAC_PI_2).abs() < 1e-15);
+        // Without the map the same file fails, naming the file, the column and the headers.
+        let e = load_gt(f.path()).unwrap_err().to_string();
+        assert!(
+            e.contains(&f.path().display().to_string()) && e.contains("T,LAT,LON"),
+            "{e}"
+        );
+        map.gt.insert("yaw_furlong".into(), "H".into());
+        let e = load_gt_with(f.path(), &map).unwrap_err().to_string();
+        assert!(e.contains("yaw_furlong"), "{e}");
+    }
+
+    #[test]
+    fn truncation_crlf_bom_blank_lines_and_ranges() {
+        let h = "Time [s],DVL X [m/s],DVL Y [m/s],DVL Z [m/s]\n";
+        let p = Path::new("d.csv");
+        // A last line without newline is a truncation even when it parses.
+        let e = parse_dvl(format!("{h}0,1,2,3\n1,1,2,3").as_bytes(), p).unwrap_err();
+        assert!(matches!(e, DatasetError::Truncated { line: 3, .. }), "{e}");
+        let e = parse_dvl(format!("{h}0,1,2,3\n1,1,2,3\r").as_bytes(), p).unwrap_err();
+        assert!(matches!(e, DatasetError::Truncated { line: 3, .. }), "{e}");
+        let ok = format!(
+            "\u{feff}{}0,1,2,3\r\n1,1,2,3\r\n\r\n\n  ",
+            h.replace('\n', "\r\n")
+        );
+        assert_eq!(parse_dvl(ok.as_bytes(), p).map(|r| r.len()).ok(), Some(2));
+        let e = parse_dvl(format!("{h}0,1,2,3\n1,1,2000,3\n").as_bytes(), p).unwrap_err();
+        assert!(
+            e.to_string().starts_with("d.csv:3: column `DVL Y [m/s]`"),
+            "{e}"
+        );
+        let deg_as_rad = GT_A_KIT.replace("0.57,", "32.7,");
+        let e = parse_gt(deg_as_rad.as_bytes(), p).unwrap_err().to_string();
+        assert!(
+            e.starts_with("d.csv:2:") && e.contains("Latitude [rad]") && e.contains("deg"),
+            "{e}"
+        );
     }
 
     #[test]

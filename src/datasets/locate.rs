@@ -55,20 +55,61 @@ pub struct TrajectoryFiles {
     pub dvl: PathBuf,
 }
 
+/// The numbers of the complete trajectories (`TrajectoryN/` holding both files)
+/// under an A-KIT folder, in increasing order.
+pub fn trajectories_in(akit: &Path) -> Vec<u32> {
+    let mut found: Vec<u32> = std::fs::read_dir(akit)
+        .map(|entries| {
+            entries
+                .filter_map(|e| e.ok())
+                .filter_map(|e| {
+                    e.file_name()
+                        .to_str()?
+                        .strip_prefix("Trajectory")?
+                        .parse::<u32>()
+                        .ok()
+                })
+                .filter(|&n| files_in(akit, n).iter().all(|p| p.is_file()))
+                .collect()
+        })
+        .unwrap_or_default();
+    found.sort_unstable();
+    found
+}
+
+fn files_in(akit: &Path, n: u32) -> [PathBuf; 2] {
+    let base = akit.join(format!("Trajectory{n}"));
+    [
+        base.join(format!("GT_trajectory{n}.csv")),
+        base.join(format!("DVL_trajectory{n}.csv")),
+    ]
+}
+
 /// The files of trajectory `n` under `dir` (see [`akit_dir`]); both must exist.
+///
+/// # Errors
+/// [`DatasetError::Missing`] naming the file looked for and listing the trajectories
+/// that the folder does hold.
 pub fn trajectory_files(dir: &Path, n: u32) -> Result<TrajectoryFiles> {
-    let base = akit_dir(dir)?.join(format!("Trajectory{n}"));
-    let files = TrajectoryFiles {
-        gt: base.join(format!("GT_trajectory{n}.csv")),
-        dvl: base.join(format!("DVL_trajectory{n}.csv")),
-    };
-    for p in [&files.gt, &files.dvl] {
+    let akit = akit_dir(dir)?;
+    let [gt, dvl] = files_in(&akit, n);
+    for p in [&gt, &dvl] {
         if !p.is_file() {
+            let found = trajectories_in(&akit);
+            let list = if found.is_empty() {
+                "none complete".to_string()
+            } else {
+                found
+                    .iter()
+                    .map(u32::to_string)
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            };
             return Err(DatasetError::Missing {
                 path: p.clone(),
-                what: "file not found".into(),
+                what: format!("file not found; trajectories found: {list}"),
             });
         }
     }
-    Ok(files)
+    Ok(TrajectoryFiles { gt, dvl })
 }

@@ -1,20 +1,31 @@
-//! Loaders for the public A-KIT AUV data (ground truth and DVL CSV files) and the
-//! rules for finding the data on disk.
+//! Loaders for ground-truth and DVL CSV files (the public A-KIT AUV data, or a
+//! user's own files), the beam files of `estim dvl solve`, and the rules for finding
+//! the data on disk.
 //!
-//! Every loader validates the header, the row count, strictly increasing time and
-//! finite values; every error names the file and, where there is one, the line.
+//! Columns are found by name in any order, with the units the header states, or
+//! through a [`ColumnMap`]. Every loader validates the header, the row count, a
+//! complete last line, strictly increasing time and finite, in-range values; every
+//! error names the file and, where there is one, the line.
 
 mod akit;
 mod beams;
+mod columns;
 mod locate;
 mod overlaps;
+mod span;
 
 pub use akit::{
-    load_dvl, load_gt, parse_dvl, parse_gt, DvlSample, GtSample, DVL_HEADER, GT_HEADER,
+    load_dvl, load_dvl_with, load_gt, load_gt_with, parse_dvl, parse_gt, DvlSample, GtSample,
+    DVL_HEADER, GT_HEADER, MAX_ABS_ALTITUDE_M, MAX_ABS_ANGLE_RAD, MAX_ABS_LATITUDE_RAD,
+    MAX_ABS_LONGITUDE_RAD, MAX_ABS_SPEED_MPS, MAX_ABS_TIME_S,
 };
-pub use beams::{load_beams, parse_beams, BeamRow};
-pub use locate::{akit_dir, data_root, trajectory_files, TrajectoryFiles, DATA_DIR_ENV};
+pub use beams::{load_beams, parse_beams, BeamFile, BeamRow};
+pub use columns::ColumnMap;
+pub use locate::{
+    akit_dir, data_root, trajectories_in, trajectory_files, TrajectoryFiles, DATA_DIR_ENV,
+};
 pub use overlaps::{akit_overlaps, akit_row_keys, touches_held_out, WINDOW_MARGIN_ROWS};
+pub use span::{check_spans, span_tolerance, SpanCheck, SPAN_TIME_OFFSET_ALLOWANCE_S};
 
 use std::path::PathBuf;
 
@@ -23,12 +34,97 @@ use std::path::PathBuf;
 #[non_exhaustive]
 pub enum DatasetError {
     /// The file could not be opened or read.
-    #[error("{}: cannot read: {source}", path.display())]
+    #[error("{}: cannot read: {error}", path.display())]
     Io {
         /// The file.
         path: PathBuf,
-        /// The underlying error.
-        source: std::io::Error,
+        /// The underlying error (in the message, not chained as a source, so that a
+        /// report of the whole chain names it once).
+        error: std::io::Error,
+    },
+    /// The last line does not end with a newline: the file was cut (a partial write).
+    #[error("{}:{line}: truncated: the last line has no newline at its end", path.display())]
+    Truncated {
+        /// The file.
+        path: PathBuf,
+        /// 1-based number of the cut line.
+        line: u64,
+    },
+    /// No header column holds a quantity the loader needs.
+    #[error("{}:1: no column for {column} (names accepted: {accepted}; header found: `{found}`)", path.display())]
+    MissingColumn {
+        /// The file.
+        path: PathBuf,
+        /// The quantity looked for.
+        column: String,
+        /// The names that would have matched.
+        accepted: String,
+        /// The header found.
+        found: String,
+    },
+    /// Several header columns could hold one quantity.
+    #[error("{}:1: {column}: more than one column matches ({candidates}); name one in the [columns] map", path.display())]
+    AmbiguousColumn {
+        /// The file.
+        path: PathBuf,
+        /// The quantity.
+        column: String,
+        /// The matching header cells.
+        candidates: String,
+    },
+    /// A header states a unit the quantity cannot be read in.
+    #[error("{}:1: column `{column}`: unit `{unit}` not accepted (accepted: {accepted})", path.display())]
+    Unit {
+        /// The file.
+        path: PathBuf,
+        /// The header cell.
+        column: String,
+        /// The unit it states.
+        unit: String,
+        /// The units accepted for that quantity.
+        accepted: String,
+    },
+    /// The column map of the configuration is invalid for this file.
+    #[error("{}: column map: {message}", path.display())]
+    ColumnMap {
+        /// The file the map was applied to.
+        path: PathBuf,
+        /// What is wrong, naming the key.
+        message: String,
+    },
+    /// A value outside the range the pipeline models.
+    #[error("{}:{line}: column `{column}`: {value} {unit} is outside +-{limit} {unit}{}", path.display(), range_hint(unit))]
+    OutOfRange {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: u64,
+        /// The header cell.
+        column: String,
+        /// The value, converted to `unit`.
+        value: f64,
+        /// The largest magnitude accepted.
+        limit: f64,
+        /// SI unit of `value` and `limit`.
+        unit: &'static str,
+    },
+    /// Ground truth and DVL do not cover the same time span.
+    #[error("{} and {} do not cover the same time span: {}; --allow-partial runs on the overlap", gt.display(), dvl.display(), span.describe())]
+    SpanMismatch {
+        /// The ground-truth file.
+        gt: PathBuf,
+        /// The DVL file.
+        dvl: PathBuf,
+        /// Both spans, the overlap and the tolerance (boxed: the error stays small).
+        span: Box<SpanCheck>,
+    },
+    /// A file whose values are valid one by one but cannot be used as a whole.
+    #[error("{}: {message}", path.display())]
+    Unusable {
+        /// The file.
+        path: PathBuf,
+        /// Why (with the lines involved).
+        message: String,
     },
     /// The CSV layer failed (bad quoting, invalid UTF-8, ragged row).
     #[error("{}:{line}: malformed CSV: {message}", path.display())]
@@ -114,6 +210,15 @@ pub enum DatasetError {
         /// What was missing.
         what: String,
     },
+}
+
+/// A hint for an angle out of range: degrees read as radians.
+fn range_hint(unit: &str) -> &'static str {
+    if unit == "rad" {
+        " (degrees read as radians? state the unit in the header, e.g. `Latitude [deg]`)"
+    } else {
+        ""
+    }
 }
 
 /// `Result` of the dataset loaders.

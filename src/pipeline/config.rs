@@ -9,6 +9,60 @@ use estim_ins::{ImuSpec, SensorSpec};
 use serde::{Deserialize, Serialize};
 
 use super::{FaultConfig, PipelineError, Result};
+use crate::datasets::ColumnMap;
+
+/// The valid values of `imu.preset`.
+pub const IMU_PRESETS: [&str; 4] = [
+    "akit_observed",
+    "tactical_mems",
+    "navigation_grade_fog",
+    "consumer_mems",
+];
+
+/// One line of documentation per TOML key of `--print-config`: `(section, key,
+/// "[unit] meaning")`. A key missing here makes `to_commented_toml` fail its test.
+const KEY_DOCS: &[(&str, &str, &str)] = &[
+    ("", "seed", "[-] seed of every random draw (mission, IMU errors, beams, initial errors, faults)"),
+    ("mission", "duration_s", "[s] duration of the embedded simulated mission"),
+    ("mission", "imu_rate_hz", "[Hz] IMU rate"),
+    ("mission", "dvl_period_s", "[s] DVL / BeamsNet update period"),
+    ("imu", "preset", "[-] IMU error model: akit_observed, tactical_mems, navigation_grade_fog, consumer_mems"),
+    ("imu", "scale_factor_errors", "[-] keep the preset's scale-factor errors in the simulated IMU (the 15-state filter does not estimate them)"),
+    ("imu.accelerometer", "white_noise_density", "[m/s/sqrt(s)] velocity random walk (overrides the preset)"),
+    ("imu.accelerometer", "bias_instability", "[m/s^2] Gauss-Markov bias sigma"),
+    ("imu.accelerometer", "bias_time_constant_s", "[s] Gauss-Markov correlation time"),
+    ("imu.accelerometer", "turn_on_bias", "[m/s^2] turn-on bias sigma"),
+    ("imu.accelerometer", "scale_factor", "[-] scale-factor error sigma (1e-6 = 1 ppm)"),
+    ("imu.gyroscope", "white_noise_density", "[rad/sqrt(s)] angle random walk (overrides the preset)"),
+    ("imu.gyroscope", "bias_instability", "[rad/s] Gauss-Markov bias sigma"),
+    ("imu.gyroscope", "bias_time_constant_s", "[s] Gauss-Markov correlation time"),
+    ("imu.gyroscope", "turn_on_bias", "[rad/s] turn-on bias sigma"),
+    ("imu.gyroscope", "scale_factor", "[-] scale-factor error sigma (1e-6 = 1 ppm)"),
+    ("dvl", "lever_arm_m", "[m] lever arm IMU -> DVL in the body frame (x, y, z)"),
+    ("dvl", "akit_time_offset_s", "[s] A-KIT DVL time offset (a sample stamped t measures the motion at t - offset)"),
+    ("dvl", "protocol", "[-] BeamsNet beam protocol: v1 (bias 0.001 m/s) or v2 (bias 0.0001 m/s)"),
+    ("dvl", "ls_noise_std_mps", "[m/s] noise std per axis of the least-squares DVL velocity (was ls_noise_std)"),
+    ("dvl", "akit_reference_mismatch_std_mps", "[m/s] std per axis added to R on A-KIT data for the DVL-vs-ground-truth mismatch (was akit_reference_mismatch_std)"),
+    ("filter", "initial_position_std_m", "[m] initial position std per axis (N, E, D)"),
+    ("filter", "initial_velocity_std_mps", "[m/s] initial velocity std per axis"),
+    ("filter", "initial_level_std_deg", "[deg] initial roll / pitch std"),
+    ("filter", "initial_heading_std_deg", "[deg] initial heading std"),
+    ("filter", "initial_bias_std_scale", "[-] factor on the IMU spec's bias sigma for the initial bias covariance"),
+    ("filter", "rho", "[-] rho of the paper's M = rho sqrt(diag Q) sqrt(diag R)' (valid only up to about 0.167 here)"),
+    ("filter", "paper_m_basis", "[-] the Q of the paper's M: accumulated (over the update interval, this project's reading) or per_step (one IMU step's Q_k)"),
+    ("filter", "gate_probability", "[-] innovation gate probability (chi-square, 3 dof); 0 disables the gate"),
+    ("faults", "beam_dropout_probability", "[-] probability that each beam of each DVL epoch is missing"),
+    ("faults", "dvl_outages", "[-] full DVL outages: [[faults.dvl_outages]] tables with start_s [s] and duration_s [s]"),
+    ("faults", "beam_outlier_probability", "[-] probability that a DVL epoch has one beam off by an outlier"),
+    ("faults", "beam_outlier_magnitude_mps", "[m/s] range of the outlier magnitude (random sign)"),
+    ("faults", "imu_gap_rate_per_s", "[1/s] rate of random IMU gaps"),
+    ("faults", "imu_gap_samples", "[samples] length of each random IMU gap"),
+    ("faults", "imu_gaps", "[-] listed IMU gaps: [[faults.imu_gaps]] tables with start_s [s] and samples"),
+    ("faults.dvl_outages", "start_s", "[s] outage start since the first truth sample"),
+    ("faults.dvl_outages", "duration_s", "[s] outage length"),
+    ("faults.imu_gaps", "start_s", "[s] time of the first removed IMU sample"),
+    ("faults.imu_gaps", "samples", "[samples] consecutive IMU samples removed"),
+];
 
 /// The whole configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -26,17 +80,20 @@ pub struct Config {
     pub filter: FilterSection,
     /// Sensor faults injected into every scenario (default: none).
     pub faults: FaultConfig,
+    /// Column map for recorded GT and DVL files (default: columns found by name).
+    #[serde(skip_serializing_if = "ColumnMap::is_empty")]
+    pub columns: ColumnMap,
 }
 
 /// The embedded simulated mission.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct MissionSection {
-    /// Duration [s].
+    /// Duration \[s\].
     pub duration_s: f64,
-    /// IMU rate [Hz].
+    /// IMU rate \[Hz\].
     pub imu_rate_hz: f64,
-    /// DVL / BeamsNet update period [s].
+    /// DVL / BeamsNet update period \[s\].
     pub dvl_period_s: f64,
 }
 
@@ -67,7 +124,9 @@ pub struct SensorSection {
     pub white_noise_density: f64,
     /// Gauss-Markov bias instability σ [m/s^2 or rad/s].
     pub bias_instability: f64,
-    /// Gauss-Markov correlation time [s].
+    /// Gauss-Markov correlation time \[s\]. TOML key `bias_time_constant_s` (the old
+    /// `bias_time_constant` is still accepted).
+    #[serde(rename = "bias_time_constant_s", alias = "bias_time_constant")]
     pub bias_time_constant: f64,
     /// Turn-on bias σ [m/s^2 or rad/s].
     pub turn_on_bias: f64,
@@ -79,19 +138,26 @@ pub struct SensorSection {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DvlSection {
-    /// Lever arm IMU -> DVL in the body frame [m]. Default: the mean of the
+    /// Lever arm IMU -> DVL in the body frame \[m\]. Default: the mean of the
     /// calibration on A-KIT training trajectories (estim-dvl README).
     pub lever_arm_m: [f64; 3],
-    /// A-KIT DVL time offset tau [s] (a sample stamped t measures the motion at t - tau).
+    /// A-KIT DVL time offset tau \[s\] (a sample stamped t measures the motion at t - tau).
     pub akit_time_offset_s: f64,
     /// `v1` (bias 0.001 m/s) or `v2` (bias 0.0001 m/s) BeamsNet beam protocol.
     pub protocol: String,
-    /// Measurement noise std of the least-squares DVL velocity per axis [m/s].
+    /// Measurement noise std of the least-squares DVL velocity per axis \[m/s\].
+    /// TOML key `ls_noise_std_mps` (the old `ls_noise_std` is still accepted).
+    #[serde(rename = "ls_noise_std_mps", alias = "ls_noise_std")]
     pub ls_noise_std: f64,
-    /// Extra std per axis added (in quadrature) to R on A-KIT data [m/s]: the real DVL
+    /// Extra std per axis added (in quadrature) to R on A-KIT data \[m/s\]: the real DVL
     /// and the ground truth disagree by about 0.01-0.02 m/s RMS per axis even after
     /// lever arm and time offset (estim-dvl calibration residuals). Without it the
     /// BeamsNet filter (R about 0.0036^2) gates out nearly every update on trajectory 4.
+    /// TOML key `akit_reference_mismatch_std_mps` (the old name is still accepted).
+    #[serde(
+        rename = "akit_reference_mismatch_std_mps",
+        alias = "akit_reference_mismatch_std"
+    )]
     pub akit_reference_mismatch_std: f64,
 }
 
@@ -99,20 +165,52 @@ pub struct DvlSection {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct FilterSection {
-    /// Initial position std per axis (N, E, D) [m].
+    /// Initial position std per axis (N, E, D) \[m\].
     pub initial_position_std_m: f64,
-    /// Initial velocity std per axis [m/s].
+    /// Initial velocity std per axis \[m/s\].
     pub initial_velocity_std_mps: f64,
-    /// Initial roll/pitch std [deg].
+    /// Initial roll/pitch std \[deg\].
     pub initial_level_std_deg: f64,
-    /// Initial heading std [deg].
+    /// Initial heading std \[deg\].
     pub initial_heading_std_deg: f64,
     /// Scale factor on the IMU spec's bias σ for the initial bias covariance.
     pub initial_bias_std_scale: f64,
     /// rho of the paper's heuristic M (ScaledCorrelation).
     pub rho: f64,
+    /// Which process noise the paper's M = rho sqrt(diag Q) sqrt(diag R)' is built
+    /// from: `accumulated` (default; Q accumulated over the update interval, this
+    /// project's reading of the paper) or `per_step` (the last IMU step's Q_k, as the
+    /// paper writes E[w_k v_j'] = rho sqrt(diag Q_k) sqrt(diag R_k)').
+    pub paper_m_basis: PaperMBasis,
     /// Innovation gate probability (chi-square, 3 dof); `0` disables the gate.
     pub gate_probability: f64,
+}
+
+/// The process noise the paper's heuristic M is scaled from (`filter.paper_m_basis`).
+///
+/// The paper writes E[w_k v_j'] = rho sqrt(diag Q_k) sqrt(diag R_k)' with Q_k the
+/// process noise of one propagation step. With a 100 Hz IMU and a 1 Hz velocity the
+/// measurement noise meets the noise of 100 steps; building M from the noise
+/// accumulated over the update interval is a reading of the paper, not its letter.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum PaperMBasis {
+    /// Q_acc, accumulated since the previous update (the core's `ScaledCorrelation`).
+    #[default]
+    Accumulated,
+    /// Q_k of the last IMU step before the update.
+    PerStep,
+}
+
+impl PaperMBasis {
+    /// The configuration value (`accumulated`, `per_step`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Accumulated => "accumulated",
+            Self::PerStep => "per_step",
+        }
+    }
 }
 
 impl Default for Config {
@@ -124,6 +222,7 @@ impl Default for Config {
             dvl: DvlSection::default(),
             filter: FilterSection::default(),
             faults: FaultConfig::default(),
+            columns: ColumnMap::default(),
         }
     }
 }
@@ -170,6 +269,7 @@ impl Default for FilterSection {
             initial_heading_std_deg: 0.2,
             initial_bias_std_scale: 1.0,
             rho: 0.42,
+            paper_m_basis: PaperMBasis::default(),
             gate_probability: 0.9999,
         }
     }
@@ -218,9 +318,67 @@ impl Config {
         Ok(config)
     }
 
-    /// The defaults as TOML.
+    /// The configuration as TOML.
     pub fn to_toml(&self) -> String {
         toml::to_string_pretty(self).unwrap_or_default()
+    }
+
+    /// The configuration as TOML for `--print-config`: every section, including the
+    /// accelerometer and gyroscope ones (filled with the preset's values when not
+    /// overridden, which loads back to the same IMU model), and a comment with the
+    /// unit and meaning above every key. Loads back to an equivalent configuration.
+    pub fn to_commented_toml(&self) -> String {
+        let mut full = self.clone();
+        if let Ok(spec) = self.preset_spec() {
+            let section = |s: &SensorSpec| SensorSection {
+                white_noise_density: s.white_noise_density,
+                bias_instability: s.bias_instability,
+                bias_time_constant: s.bias_time_constant,
+                turn_on_bias: s.turn_on_bias,
+                scale_factor: s.scale_factor,
+            };
+            full.imu.accelerometer = Some(
+                self.imu
+                    .accelerometer
+                    .unwrap_or_else(|| section(spec.accelerometer())),
+            );
+            full.imu.gyroscope = Some(
+                self.imu
+                    .gyroscope
+                    .unwrap_or_else(|| section(spec.gyroscope())),
+            );
+        }
+        let plain = full.to_toml();
+        let mut out = String::from(
+            "# estim configuration (estim reproduce --config FILE, estim montecarlo --config FILE).\n\
+             # Every key is optional; missing keys take the values shown here.\n\
+             # Units are in brackets ([-] = dimensionless).\n\n",
+        );
+        let mut section = String::new();
+        for line in plain.lines() {
+            let trimmed = line.trim();
+            if let Some(name) = trimmed
+                .strip_prefix("[[")
+                .and_then(|t| t.strip_suffix("]]"))
+                .or_else(|| trimmed.strip_prefix('[').and_then(|t| t.strip_suffix(']')))
+            {
+                section = name.trim().to_string();
+            } else if let Some((key, _)) = trimmed.split_once(" = ") {
+                if !line.starts_with(' ') {
+                    if let Some((_, _, doc)) = KEY_DOCS
+                        .iter()
+                        .find(|(s, k, _)| *s == section && *k == key.trim())
+                    {
+                        out.push_str("# ");
+                        out.push_str(doc);
+                        out.push('\n');
+                    }
+                }
+            }
+            out.push_str(line);
+            out.push('\n');
+        }
+        out
     }
 
     /// Validate ranges; the message names the key.
@@ -241,11 +399,11 @@ impl Config {
         if self.mission.duration_s < 2.0 * self.mission.dvl_period_s {
             return Err("mission.duration_s must hold at least two DVL periods".into());
         }
-        positive("dvl.ls_noise_std", self.dvl.ls_noise_std)?;
+        positive("dvl.ls_noise_std_mps", self.dvl.ls_noise_std)?;
         let mismatch = self.dvl.akit_reference_mismatch_std;
         if !(mismatch.is_finite() && mismatch >= 0.0) {
             return Err(format!(
-                "dvl.akit_reference_mismatch_std must be finite and >= 0, got {mismatch}"
+                "dvl.akit_reference_mismatch_std_mps must be finite and >= 0, got {mismatch}"
             ));
         }
         positive(
@@ -293,18 +451,29 @@ impl Config {
             ));
         }
         self.faults.check().map_err(|e| e.to_string())?;
+        self.columns.check()?;
         self.imu_spec().map(|_| ())
     }
 
-    /// The IMU spec: preset plus overrides, validated.
-    pub fn imu_spec(&self) -> std::result::Result<ImuSpec, String> {
-        let preset = match self.imu.preset.as_str() {
+    /// The preset named by `imu.preset`, without overrides.
+    fn preset_spec(&self) -> std::result::Result<ImuSpec, String> {
+        Ok(match self.imu.preset.as_str() {
             "akit_observed" => ImuSpec::akit_observed(),
             "tactical_mems" => ImuSpec::tactical_mems(),
             "navigation_grade_fog" => ImuSpec::navigation_grade_fog(),
             "consumer_mems" => ImuSpec::consumer_mems(),
-            other => return Err(format!("imu.preset: unknown preset {other:?}")),
-        };
+            other => {
+                return Err(format!(
+                    "imu.preset: unknown preset {other:?}; valid presets: {}",
+                    IMU_PRESETS.join(", ")
+                ))
+            }
+        })
+    }
+
+    /// The IMU spec: preset plus overrides, validated.
+    pub fn imu_spec(&self) -> std::result::Result<ImuSpec, String> {
+        let preset = self.preset_spec()?;
         let mut acc = self
             .imu
             .accelerometer
@@ -352,10 +521,100 @@ mod tests {
     }
 
     #[test]
+    fn print_config_comments_every_key_and_loads_back() {
+        let c = Config::default();
+        let text = c.to_commented_toml();
+        for section in [
+            "[mission]",
+            "[imu]",
+            "[imu.accelerometer]",
+            "[imu.gyroscope]",
+            "[dvl]",
+            "[filter]",
+            "[faults]",
+        ] {
+            assert!(text.contains(section), "{section} missing:\n{text}");
+        }
+        let lines: Vec<&str> = text.lines().collect();
+        for (i, line) in lines.iter().enumerate() {
+            if line.contains(" = ") && !line.starts_with(' ') && !line.starts_with('#') {
+                let above = lines[i - 1];
+                assert!(
+                    above.starts_with("# [") && above.contains(']'),
+                    "key without a unit comment: {line:?} (above: {above:?})"
+                );
+            }
+        }
+        // Loads back: the same IMU model and everything else unchanged.
+        let back = Config::from_toml(&text, Path::new("printed.toml")).expect("valid");
+        assert_eq!(back.imu_spec(), c.imu_spec());
+        let mut without_imu = back.clone();
+        without_imu.imu = c.imu.clone();
+        assert_eq!(without_imu, c);
+        // With listed outages and gaps, their tables are commented too.
+        let mut c = Config::default();
+        c.faults.dvl_outages.push(super::super::DvlOutage {
+            start_s: 1.0,
+            duration_s: 2.0,
+        });
+        let text = c.to_commented_toml();
+        assert!(text.contains("# [s] outage start"), "{text}");
+    }
+
+    #[test]
+    fn old_key_names_still_load() {
+        let c = Config::from_toml(
+            "[dvl]\nls_noise_std = 0.02\nakit_reference_mismatch_std = 0.01\n\
+             [imu.gyroscope]\nwhite_noise_density = 1e-4\nbias_instability = 1e-6\n\
+             bias_time_constant = 300.0\nturn_on_bias = 1e-5\nscale_factor = 0.0\n",
+            Path::new("old.toml"),
+        )
+        .expect("old names accepted");
+        assert_eq!(c.dvl.ls_noise_std, 0.02);
+        assert_eq!(c.dvl.akit_reference_mismatch_std, 0.01);
+        assert_eq!(c.imu.gyroscope.map(|g| g.bias_time_constant), Some(300.0));
+        let c = Config::from_toml(
+            "[dvl]\nls_noise_std_mps = 0.03\nakit_reference_mismatch_std_mps = 0.0\n",
+            Path::new("new.toml"),
+        )
+        .expect("new names");
+        assert_eq!(c.dvl.ls_noise_std, 0.03);
+        assert!(c.to_toml().contains("ls_noise_std_mps = 0.03"));
+    }
+
+    #[test]
+    fn unknown_preset_lists_the_valid_ones() {
+        let e = Config::from_toml("[imu]\npreset = \"tactical\"\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        for p in IMU_PRESETS {
+            assert!(e.contains(p), "{e}");
+        }
+        for p in IMU_PRESETS {
+            let c = Config::from_toml(&format!("[imu]\npreset = \"{p}\"\n"), Path::new("c"));
+            assert!(c.is_ok(), "{p}: {c:?}");
+        }
+    }
+
+    #[test]
     fn partial_file_keeps_other_defaults() {
         let c =
             Config::from_toml("[dvl]\nls_noise_std = 0.02\n", Path::new("c.toml")).expect("valid");
         assert_eq!(c.dvl.ls_noise_std, 0.02);
         assert_eq!(c.filter.rho, 0.42);
+        assert_eq!(c.filter.paper_m_basis, PaperMBasis::Accumulated);
+    }
+
+    #[test]
+    fn paper_m_basis_values() {
+        let c = Config::from_toml(
+            "[filter]\npaper_m_basis = \"per_step\"\n",
+            Path::new("c.toml"),
+        )
+        .expect("valid");
+        assert_eq!(c.filter.paper_m_basis, PaperMBasis::PerStep);
+        let e = Config::from_toml("[filter]\npaper_m_basis = \"daily\"\n", Path::new("c.toml"))
+            .unwrap_err();
+        assert!(e.to_string().contains("line 2"), "{e}");
     }
 }

@@ -2,9 +2,10 @@
 //! optionally, M_k from the network's sensitivity.
 
 use estim_core::nalgebra::{Vector3, Vector4};
+use estim_core::{ErrorStateKalmanFilter, FilterConfig, WindowedCrossCovariance};
 use estim_dvl::BeamGeometry;
-use estim_ins::InsErrorModel;
-use estim_learned::{BeamsNet, BeamsNetInput, ImuWindow, NetworkSensitivity, BEAMSNET_WINDOW};
+use estim_ins::{InsErrorModel, ERROR_STATES};
+use estim_learned::{BeamsNet, BeamsNetInput, NetworkSensitivity, BEAMSNET_WINDOW};
 
 use super::run::filter_imu_spec;
 use super::{LearnedInputs, Result, Scenario};
@@ -33,10 +34,13 @@ pub fn complete_beams(geometry: &BeamGeometry, beams: &Vector4<f64>) -> Option<V
 /// `with_sensitivity`, M_k per epoch from [`NetworkSensitivity`].
 ///
 /// The window of epoch k is the [`BEAMSNET_WINDOW`] IMU samples before the update (the
-/// samples integrated since the previous update at 1 Hz). M_k is linearised along the
-/// scenario's truth states over the window (the filter's nominal differs by its error,
-/// a second-order effect on M). Epochs with less than a full window or fewer than 3
-/// beams get no measurement.
+/// samples integrated since the previous update at 1 Hz). M_k is linearised along a
+/// nominal started from the scenario's truth at the window's first sample and
+/// integrated over the window by an error-state filter that records its steps
+/// (`window_capacity`); [`NetworkSensitivity`] reads that recorded window (the
+/// filter's own Phi, no transition recomputed here). The fusion filter's nominal
+/// differs by its error, a second-order effect on M. Epochs with less than a full
+/// window or fewer than 3 beams get no measurement.
 pub fn beamsnet_inputs(
     net: &BeamsNet,
     scenario: &Scenario,
@@ -44,12 +48,9 @@ pub fn beamsnet_inputs(
     with_sensitivity: bool,
 ) -> Result<LearnedInputs> {
     let n = BEAMSNET_WINDOW;
-    let sensitivity = with_sensitivity.then(|| {
-        NetworkSensitivity::new(
-            net.clone(),
-            InsErrorModel::new(filter_imu_spec(&scenario.imu_spec).unwrap_or(scenario.imu_spec)),
-        )
-    });
+    let error_model =
+        InsErrorModel::new(filter_imu_spec(&scenario.imu_spec).unwrap_or(scenario.imu_spec));
+    let recording = FilterConfig::builder().window_capacity(n).build()?;
     let mut inputs = Vec::new();
     let mut slots = Vec::with_capacity(scenario.dvl.len());
     let mut cross = Vec::with_capacity(scenario.dvl.len());
@@ -70,14 +71,24 @@ pub fn beamsnet_inputs(
         let rate: Vec<Vector3<f64>> = window.iter().map(|s| s.angular_rate).collect();
         slots.push(Some(inputs.len()));
         inputs.push(BeamsNetInput::from_samples(&force, &rate, beams));
-        if let Some(s) = &sensitivity {
-            let imu_window = ImuWindow {
-                states: scenario.truth[end - n..end].to_vec(),
-                imu: window.to_vec(),
-                beams,
-                dt: scenario.imu_dt,
-            };
-            cross.push(s.compute(&imu_window)?);
+        if with_sensitivity {
+            // The covariance of the recording filter plays no part in M.
+            let mut recorder = ErrorStateKalmanFilter::new(
+                error_model,
+                scenario.truth[end - n],
+                estim_core::nalgebra::SMatrix::<f64, ERROR_STATES, ERROR_STATES>::identity(),
+            )?
+            .with_config(recording.clone());
+            for sample in window {
+                recorder.predict(sample, scenario.imu_dt)?;
+            }
+            let steps = recorder.step_window(n)?;
+            let m = NetworkSensitivity::new(net, &error_model, beams)
+                .transported_cross_covariance(&steps)?
+                .ok_or_else(|| {
+                    super::PipelineError::Invalid("network sensitivity gave no M".into())
+                })?;
+            cross.push(m);
         }
     }
     let outputs = if inputs.is_empty() {

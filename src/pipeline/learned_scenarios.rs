@@ -9,13 +9,13 @@
 //! rho; a fifth variant receives no update during the loss (INS only; least squares
 //! needs three beams).
 
-use estim_core::chi_square_band;
 use estim_core::nalgebra::{Matrix3, SMatrix, Vector3};
+use estim_core::{chi_square_band, ErrorStateKalmanFilter, FilterConfig, WindowedCrossCovariance};
 use estim_dvl::BeamGeometry;
 use estim_ins::{InsErrorModel, ERROR_STATES};
 use estim_learned::{
-    BeamsNet, ImuNetworkEmpirical, ImuNetworkSensitivity, ImuNetworkWindow, TwoBeamsNet,
-    BEAMSNET_WINDOW,
+    driven_error_covariance, BeamsNet, Empirical, LearnedCrossCovariance, TwoBeamsNet,
+    BEAMSNET_WINDOW, IMU_CHANNELS,
 };
 use rayon::prelude::*;
 use serde::Serialize;
@@ -27,17 +27,30 @@ use super::{
     CrossSource, FilterRun, FilterSummary, MeasurementSet, PipelineError, Result, Scenario,
 };
 
-/// Two-beams network, M from its sensitivity.
-pub const TWO_BEAMS_NETWORK: &str = "two beams, M from network";
-/// Two-beams network, M by Monte Carlo over the IMU noise.
-pub const TWO_BEAMS_EMPIRICAL: &str = "two beams, M empirical";
-/// Two-beams network, M neglected.
-pub const TWO_BEAMS_NEGLECTED: &str = "two beams, M neglected";
-/// Two-beams network, the paper's M = rho sqrt(diag Q) sqrt(diag R)' at its largest
-/// valid rho.
-pub const TWO_BEAMS_SCALED: &str = "two beams, M = rho max (paper)";
-/// No update during the loss.
-pub const INS_ONLY_DURING_LOSS: &str = "INS only during the loss";
+/// Filter id: two-beams network, M from its sensitivity.
+pub const TWO_BEAMS_NETWORK: &str = "two_beams_m_network";
+/// Filter id: two-beams network, M by Monte Carlo over the IMU noise.
+pub const TWO_BEAMS_EMPIRICAL: &str = "two_beams_m_empirical";
+/// Filter id: two-beams network, M neglected.
+pub const TWO_BEAMS_NEGLECTED: &str = "two_beams_m_neglected";
+/// Filter id: two-beams network, the paper's M = rho sqrt(diag Q) sqrt(diag R)' at its
+/// largest valid rho.
+pub const TWO_BEAMS_SCALED: &str = "two_beams_m_rho";
+/// Filter id: no update during the loss (INS only).
+pub const INS_ONLY_DURING_LOSS: &str = "ins_only_during_loss";
+
+/// Human label of a learned-scenario filter id (`rho`: the one the scaled variant
+/// used); an unknown id is its own label.
+pub fn learned_filter_label(id: &str, rho: f64) -> String {
+    match id {
+        TWO_BEAMS_NETWORK => "two beams, M from network".into(),
+        TWO_BEAMS_EMPIRICAL => "two beams, M empirical".into(),
+        TWO_BEAMS_NEGLECTED => "two beams, M neglected".into(),
+        TWO_BEAMS_SCALED => format!("two beams, M = rho {rho:.3} (paper's form, largest valid)"),
+        INS_ONLY_DURING_LOSS => "INS only during the loss".into(),
+        other => other.into(),
+    }
+}
 
 /// The two-beams network's measurements over a scenario's beam-loss epochs.
 #[derive(Debug, Clone)]
@@ -58,8 +71,12 @@ pub struct TwoBeamsMeasurements {
 
 /// The two-beams network's outputs and M over the epochs `epochs` of `scenario`.
 ///
-/// Linearised along the scenario's truth over each window, as
-/// [`beamsnet_inputs`]. `empirical_realizations` = 0 skips the Monte Carlo M.
+/// As [`beamsnet_inputs`]: the window of epoch k is the [`BEAMSNET_WINDOW`] IMU samples
+/// before the update; M_k is the generic [`LearnedCrossCovariance`] over the steps of an
+/// error-state filter that starts from the scenario's truth at the window's first
+/// sample and records them (`window_capacity`), so the Phi and noise input are the
+/// filter's own. `empirical_realizations` = 0 skips the Monte Carlo M
+/// ([`Empirical::for_model`], same recorded window, seed `seed + k`).
 pub fn two_beams_measurements(
     net: &TwoBeamsNet,
     scenario: &Scenario,
@@ -70,23 +87,14 @@ pub fn two_beams_measurements(
     let n = BEAMSNET_WINDOW;
     let error_model =
         InsErrorModel::new(filter_imu_spec(&scenario.imu_spec).unwrap_or(scenario.imu_spec));
-    let sensitivity = ImuNetworkSensitivity::new(net.measurement().clone(), error_model.clone());
-    let empirical = (empirical_realizations > 0).then(|| {
-        ImuNetworkEmpirical::new(
-            net.measurement().clone(),
-            error_model,
-            empirical_realizations,
-            seed,
-        )
-    });
-    let r = estim_core::LearnedMeasurement::noise_covariance(net.measurement());
-    let [a, b] = net.beams_used();
+    let recording = FilterConfig::builder().window_capacity(n).build()?;
+    let model = net.measurement();
+    let r = estim_core::LearnedMeasurement::noise_covariance(model);
     let len = scenario.dvl.len();
     let mut velocities = vec![None; len];
     let mut network_m = vec![CrossMatrix::zeros(); len];
-    let mut empirical_m = empirical.as_ref().map(|_| vec![CrossMatrix::zeros(); len]);
+    let mut empirical_m = (empirical_realizations > 0).then(|| vec![CrossMatrix::zeros(); len]);
     let mut correlation = Vec::new();
-    let mut windows = Vec::new();
     for &k in epochs {
         let Some(epoch) = scenario.dvl.get(k) else {
             return Err(PipelineError::Invalid(format!(
@@ -94,35 +102,46 @@ pub fn two_beams_measurements(
             )));
         };
         let end = epoch.imu_index.min(scenario.imu.len());
-        let beams = [epoch.beams[a], epoch.beams[b]];
-        if end < n || beams.iter().any(|v| !v.is_finite()) {
+        let Some(extra) = net.beam_inputs(&epoch.beams) else {
+            continue;
+        };
+        if end < n {
             continue;
         }
-        windows.push((
-            k,
-            ImuNetworkWindow {
-                states: scenario.truth[end - n..end].to_vec(),
-                imu: scenario.imu[end - n..end].to_vec(),
-                others: vec![estim_core::nalgebra::DMatrix::from_column_slice(
-                    2, 1, &beams,
-                )],
-                dt: scenario.imu_dt,
-            },
-        ));
-    }
-    let batch: Vec<_> = windows.iter().map(|(_, w)| w.inputs_with(None)).collect();
-    let outputs = if batch.is_empty() {
-        Vec::new()
-    } else {
-        net.measurement().measure_batch(&batch)?
-    };
-    for ((k, window), y) in windows.iter().zip(outputs) {
-        velocities[*k] = Some(y);
-        let (m, q_w) = sensitivity.compute_with_window_noise(window)?;
-        network_m[*k] = m;
+        // The covariance of the recording filter plays no part in M.
+        let mut recorder = ErrorStateKalmanFilter::new(
+            error_model,
+            scenario.truth[end - n],
+            SMatrix::<f64, ERROR_STATES, ERROR_STATES>::identity(),
+        )?
+        .with_config(recording.clone());
+        for sample in &scenario.imu[end - n..end] {
+            recorder.predict(sample, scenario.imu_dt)?;
+        }
+        let steps = recorder.step_window(n)?;
+        let generic = LearnedCrossCovariance::<f64, _, _, IMU_CHANNELS>::new::<3>(
+            model,
+            &error_model,
+            &extra,
+        )?;
+        velocities[k] = Some(generic.measure::<ERROR_STATES, 3>(&steps)?);
+        let m = generic
+            .transported_cross_covariance(&steps)?
+            .ok_or_else(|| PipelineError::Invalid("network sensitivity gave no M".into()))?;
+        let q_w =
+            driven_error_covariance::<f64, _, ERROR_STATES, IMU_CHANNELS>(&error_model, &steps)?;
+        network_m[k] = m;
         correlation.push(max_correlation(&m, &q_w, &r));
-        if let (Some(e), Some(out)) = (&empirical, empirical_m.as_mut()) {
-            out[*k] = e.estimate(window)?.cross_covariance;
+        if let Some(out) = empirical_m.as_mut() {
+            out[k] = Empirical::for_model(
+                model,
+                &error_model,
+                extra.clone(),
+                empirical_realizations,
+                seed.wrapping_add(k as u64),
+            )
+            .estimate(&steps)?
+            .cross_covariance;
         }
     }
     Ok(TwoBeamsMeasurements {
@@ -273,6 +292,9 @@ pub fn two_beams_study(
     // Order: network, empirical (if any), neglected, paper, INS only.
     let at = if two.empirical_m.is_some() { 2 } else { 1 };
     runs.insert(at, neglected);
+    for run in &mut runs {
+        run.name = learned_filter_label(&run.id, paper_rho);
+    }
     let filters = runs.iter().map(summarise).collect::<Result<Vec<_>>>()?;
     let in_loss: Vec<usize> = epochs
         .iter()
@@ -326,7 +348,7 @@ fn loss_summary(run: &FilterRun, epochs: &[usize], set: &MeasurementSet) -> Loss
         nees_mean: finite_mean(&pick(&run.nees)),
         position_rmse_m: rms(pick(&run.position_error)),
         velocity_rmse_mps: rms(pick(&run.velocity_error)),
-        nis_mean: if run.name == INS_ONLY_DURING_LOSS {
+        nis_mean: if run.id == INS_ONLY_DURING_LOSS {
             f64::NAN
         } else {
             finite_mean(&nis)
@@ -374,6 +396,10 @@ impl MeanInterval {
 /// One variant over the Monte Carlo runs (`estim montecarlo --learned ... --json`).
 #[derive(Debug, Clone, Serialize)]
 pub struct LearnedVariant {
+    /// Stable filter id (e.g. `two_beams_m_network`).
+    pub id: String,
+    /// Human label (the scaled variant's states the median rho over the runs).
+    pub label: String,
     /// Mean over runs and loss epochs of the NEES (15 states).
     pub nees_mean: f64,
     /// 95 % band of the run-averaged NEES at one epoch.
@@ -401,8 +427,8 @@ pub struct LearnedMonteCarlo {
     pub first_seed: u64,
     /// What the statistics cover.
     pub note: String,
-    /// Per variant.
-    pub variants: std::collections::BTreeMap<String, LearnedVariant>,
+    /// Per variant, in a fixed order.
+    pub variants: Vec<LearnedVariant>,
 }
 
 /// `runs` simulated missions with the two-beams loss (seeds `first_seed..`).
@@ -428,7 +454,10 @@ pub fn two_beams_monte_carlo(
         })
         .collect::<Result<_>>()?;
     let band = chi_square_band(15, runs.max(1), 0.95)?;
-    let mut variants = std::collections::BTreeMap::new();
+    let mut rhos: Vec<f64> = studies.iter().map(|(s, _)| s.paper_rho).collect();
+    rhos.sort_by(f64::total_cmp);
+    let median_rho = rhos.get(rhos.len() / 2).copied().unwrap_or(f64::NAN);
+    let mut variants = Vec::new();
     let Some((first, epochs)) = studies.first() else {
         return Err(PipelineError::Invalid("--runs must be at least 1".into()));
     };
@@ -450,32 +479,31 @@ pub fn two_beams_monte_carlo(
             / per_epoch.len().max(1) as f64;
         let loss: Vec<&LossWindowSummary> =
             studies.iter().map(|(s, _)| &s.loss_window[v]).collect();
-        let uses_network = run0.name != INS_ONLY_DURING_LOSS;
-        variants.insert(
-            run0.name.clone(),
-            LearnedVariant {
-                nees_mean: finite_mean(&per_epoch),
-                nees_band: [band.lower, band.upper],
-                nees_in_band_fraction: in_band,
-                nis_mean: finite_mean(&loss.iter().map(|l| l.nis_mean).collect::<Vec<_>>()),
-                position_rmse: MeanInterval::of(
-                    &loss.iter().map(|l| l.position_rmse_m).collect::<Vec<_>>(),
-                ),
-                velocity_rmse: MeanInterval::of(
-                    &loss.iter().map(|l| l.velocity_rmse_mps).collect::<Vec<_>>(),
-                ),
-                output_imu_correlation: if uses_network {
-                    finite_mean(
-                        &studies
-                            .iter()
-                            .map(|(s, _)| s.output_imu_correlation)
-                            .collect::<Vec<_>>(),
-                    )
-                } else {
-                    f64::NAN
-                },
+        let uses_network = run0.id != INS_ONLY_DURING_LOSS;
+        variants.push(LearnedVariant {
+            id: run0.id.clone(),
+            label: learned_filter_label(&run0.id, median_rho),
+            nees_mean: finite_mean(&per_epoch),
+            nees_band: [band.lower, band.upper],
+            nees_in_band_fraction: in_band,
+            nis_mean: finite_mean(&loss.iter().map(|l| l.nis_mean).collect::<Vec<_>>()),
+            position_rmse: MeanInterval::of(
+                &loss.iter().map(|l| l.position_rmse_m).collect::<Vec<_>>(),
+            ),
+            velocity_rmse: MeanInterval::of(
+                &loss.iter().map(|l| l.velocity_rmse_mps).collect::<Vec<_>>(),
+            ),
+            output_imu_correlation: if uses_network {
+                finite_mean(
+                    &studies
+                        .iter()
+                        .map(|(s, _)| s.output_imu_correlation)
+                        .collect::<Vec<_>>(),
+                )
+            } else {
+                f64::NAN
             },
-        );
+        });
     }
     Ok(LearnedMonteCarlo {
         scenario: "two-beams".into(),

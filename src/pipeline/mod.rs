@@ -5,14 +5,18 @@ mod config;
 mod faults;
 mod learned;
 mod learned_scenarios;
+pub mod markdown;
 mod montecarlo;
 mod oracle;
 mod report;
 mod run;
 mod scenario;
+mod smooth;
 pub mod stats;
 
-pub use config::{Config, DvlSection, FilterSection, ImuSection, MissionSection, SensorSection};
+pub use config::{
+    Config, DvlSection, FilterSection, ImuSection, MissionSection, PaperMBasis, SensorSection,
+};
 pub use faults::{apply_faults, DvlOutage, FaultConfig, FaultLog, ImuGap};
 pub use learned::{beamsnet_inputs, complete_beams};
 pub use learned_scenarios::{
@@ -27,16 +31,20 @@ pub use montecarlo::{
 };
 pub use oracle::{oracle_measurements, OracleSensor};
 pub use report::{
-    analyse, least_squares_velocities, summarise, velocity_metrics, FilterSummary, Improvement,
-    ImprovementValues, LearnedInputs, TrajectoryReport, VelocityMetrics, BEAMSNET_NEGLECTED,
-    BEAMSNET_SCALED, BEAMSNET_SENSITIVITY, LS,
+    analyse, filter_label, least_squares_velocities, run_variant, summarise, velocity_metrics,
+    FilterFailure, FilterSummary, Improvement, ImprovementValues, LearnedInputs, TrajectoryReport,
+    VelocityMetrics, BEAMSNET, BEAMSNET_NEGLECTED, BEAMSNET_SCALED, BEAMSNET_SENSITIVITY, LS,
+    PAPER_RHO,
 };
 pub use run::{
     error_state, filter_imu_spec, initial_covariance, initial_nominal, run_filter,
     run_filter_per_epoch_noise, run_filter_with_observer, CrossMatrix, CrossSource, FilterRun,
-    MeasurementSet,
+    MeasurementSet, FILTER_BIAS_TIME_CONSTANT,
 };
 pub use scenario::{BeamLoss, DvlEpoch, Scenario};
+pub use smooth::{
+    least_squares_measurements, smooth_scenario, EstimateSeries, EstimateSummary, SmoothReport,
+};
 
 use std::path::PathBuf;
 
@@ -61,6 +69,20 @@ pub enum PipelineError {
     /// The filter core.
     #[error(transparent)]
     Core(#[from] estim_core::Error),
+    /// A filter run stopped on a numerical failure (e.g. an innovation covariance
+    /// that is not positive definite after P lost positive definiteness). This is a
+    /// property of the filter variant, not of the input: the pipeline reports it as a
+    /// [`FilterFailure`] and keeps the other variants' results.
+    #[error("DVL epoch {epoch} (t = {time_s:.2} s): {source}")]
+    FilterStopped {
+        /// Index of the DVL epoch being processed (0-based).
+        epoch: usize,
+        /// Time since the start of the scenario \[s\].
+        time_s: f64,
+        /// What the filter core reported.
+        #[source]
+        source: estim_core::Error,
+    },
     /// The INS crate.
     #[error(transparent)]
     Ins(#[from] estim_ins::Error),

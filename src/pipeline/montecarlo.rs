@@ -8,12 +8,12 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::report::{
-    least_squares_velocities, LearnedInputs, BEAMSNET_NEGLECTED, BEAMSNET_SCALED,
-    BEAMSNET_SENSITIVITY, LS,
+    filter_label, least_squares_velocities, run_variant, FilterFailure, LearnedInputs,
+    BEAMSNET_NEGLECTED, BEAMSNET_SCALED, BEAMSNET_SENSITIVITY, LS,
 };
 use super::stats::finite_mean;
 use super::{
-    apply_faults, oracle_measurements, run_filter, Config, CrossSource, FilterRun, MeasurementSet,
+    apply_faults, oracle_measurements, Config, CrossSource, FilterRun, MeasurementSet,
     OracleSensor, Result, Scenario,
 };
 use estim_core::nalgebra::Matrix3;
@@ -21,16 +21,24 @@ use estim_core::nalgebra::Matrix3;
 /// Produces a learned sensor's measurements (and optionally M) for a scenario.
 pub type LearnedSource = dyn Fn(&Scenario) -> Result<LearnedInputs> + Sync;
 
-/// Oracle sensor, M neglected.
-pub const ORACLE_NEGLECTED: &str = "oracle, M neglected";
-/// Oracle sensor, true M.
-pub const ORACLE_TRUE_M: &str = "oracle, true M";
-/// Oracle sensor, the paper's M = rho.
-pub const ORACLE_SCALED: &str = "oracle, M = rho (paper)";
+/// Filter id: oracle sensor, M neglected.
+pub const ORACLE_NEGLECTED: &str = "oracle_m_neglected";
+/// Filter id: oracle sensor, true M.
+pub const ORACLE_TRUE_M: &str = "oracle_m_true";
+/// Filter id: oracle sensor, the paper's M = rho.
+pub const ORACLE_SCALED: &str = "oracle_m_rho";
 
-/// Consistency of one variant over the runs.
+/// Consistency of one variant over the runs that completed.
 #[derive(Debug, Clone, Serialize)]
 pub struct VariantConsistency {
+    /// Stable filter id.
+    pub id: String,
+    /// Human label, stating the rho used.
+    pub label: String,
+    /// Runs of this variant that completed (the statistics are over these).
+    pub runs_completed: usize,
+    /// Runs of this variant that stopped, with seed, epoch and reason.
+    pub failures: Vec<FilterFailure>,
     /// Average over runs and epochs of the NEES (15 states).
     pub nees_average: f64,
     /// 95 % band of a run-average of chi-square(15) at one epoch.
@@ -44,10 +52,11 @@ pub struct VariantConsistency {
     /// Percentage of update epochs whose run-averaged NIS lies in `nis_band`.
     pub nis_epochs_in_band_percent: f64,
     /// Run-epochs at which P was not positive definite (excluded from the averages).
+    #[serde(rename = "covariance_not_positive_definite_epochs")]
     pub covariance_not_positive_definite: usize,
     /// Updates rejected by the gate, all runs.
     pub updates_rejected: usize,
-    /// Position error RMSE over runs and epochs [m].
+    /// Position error RMSE over runs and epochs \[m\].
     pub position_rmse_m: f64,
 }
 
@@ -58,16 +67,36 @@ pub struct MonteCarloReport {
     pub runs: usize,
     /// Seeds used: `first_seed .. first_seed + runs`.
     pub first_seed: u64,
-    /// Per variant.
+    /// DVL epochs per mission (of the first completed run; every mission has the same length).
+    pub epochs: usize,
+    /// Per variant, keyed by filter id; serialised as an array (each entry has its id).
+    #[serde(serialize_with = "variants_as_array")]
     pub variants: BTreeMap<String, VariantConsistency>,
 }
+
+impl MonteCarloReport {
+    /// Every failure of every variant.
+    pub fn failures(&self) -> impl Iterator<Item = &FilterFailure> {
+        self.variants.values().flat_map(|v| v.failures.iter())
+    }
+}
+
+fn variants_as_array<S: serde::Serializer>(
+    map: &BTreeMap<String, VariantConsistency>,
+    serializer: S,
+) -> std::result::Result<S::Ok, S::Error> {
+    serializer.collect_seq(map.values())
+}
+
+/// The outcome of one variant on one mission.
+type Outcome = (String, std::result::Result<FilterRun, FilterFailure>);
 
 /// One mission's runs of every variant.
 fn one_mission(
     config: &Config,
     seed: u64,
     learned: Option<&LearnedSource>,
-) -> Result<Vec<FilterRun>> {
+) -> Result<Vec<Outcome>> {
     let mut scenario = Scenario::simulated(config, seed)?;
     apply_faults(&mut scenario, &config.faults, seed)?;
     let ls = MeasurementSet {
@@ -82,7 +111,7 @@ fn one_mission(
         (
             ORACLE_SCALED,
             oracle,
-            CrossSource::Scaled(config.filter.rho),
+            CrossSource::paper(config.filter.rho, config.filter.paper_m_basis),
         ),
     ];
     if let Some(make) = learned {
@@ -95,14 +124,16 @@ fn one_mission(
         jobs.push((
             BEAMSNET_SCALED,
             set.clone(),
-            CrossSource::Scaled(config.filter.rho),
+            CrossSource::paper(config.filter.rho, config.filter.paper_m_basis),
         ));
         if let Some(m) = l.sensitivity {
             jobs.push((BEAMSNET_SENSITIVITY, set, CrossSource::PerEpoch(m)));
         }
     }
     jobs.iter()
-        .map(|(name, set, cross)| run_filter(name, &scenario, config, set, cross, seed))
+        .map(|(id, set, cross)| {
+            run_variant(id, &scenario, config, set, cross, seed).map(|r| (id.to_string(), r))
+        })
         .collect()
 }
 
@@ -114,7 +145,7 @@ pub fn monte_carlo(
     learned: Option<&LearnedSource>,
     tick: &(dyn Fn() + Sync),
 ) -> Result<MonteCarloReport> {
-    let all: Vec<Vec<FilterRun>> = (0..runs)
+    let all: Vec<Vec<Outcome>> = (0..runs)
         .into_par_iter()
         .map(|i| {
             let r = one_mission(config, first_seed + i as u64, learned);
@@ -122,54 +153,70 @@ pub fn monte_carlo(
             r
         })
         .collect::<Result<_>>()?;
-    let nees_band = chi_square_band(15, runs.max(1), 0.95)?;
-    let nis_band = chi_square_band(3, runs.max(1), 0.95)?;
+    // Variant ids in job order (the same on every mission).
+    let ids: Vec<String> = all
+        .first()
+        .map(|m| m.iter().map(|(id, _)| id.clone()).collect())
+        .unwrap_or_default();
     let mut variants = BTreeMap::new();
-    let Some(first) = all.first() else {
-        return Ok(MonteCarloReport {
-            runs,
-            first_seed,
-            variants,
-        });
-    };
-    for (v, run0) in first.iter().enumerate() {
-        let epochs = run0.nees.len();
+    for (v, id) in ids.iter().enumerate() {
+        let mut completed: Vec<&FilterRun> = Vec::new();
+        let mut failures = Vec::new();
+        for mission in &all {
+            match mission.get(v).map(|(_, r)| r) {
+                Some(Ok(run)) => completed.push(run),
+                Some(Err(f)) => failures.push(f.clone()),
+                None => {}
+            }
+        }
+        let n = completed.len();
+        // The bands are those of an average over the runs that completed.
+        let nees_band = chi_square_band(15, n.max(1), 0.95)?;
+        let nis_band = chi_square_band(3, n.max(1), 0.95)?;
         let per_epoch = |get: &dyn Fn(&FilterRun) -> &Vec<f64>, len: usize| -> Vec<f64> {
             (0..len)
                 .map(|k| {
-                    all.iter()
-                        .map(|runs| get(&runs[v]).get(k).copied().unwrap_or(f64::NAN))
+                    completed
+                        .iter()
+                        .map(|run| get(run).get(k).copied().unwrap_or(f64::NAN))
                         .sum::<f64>()
-                        / runs as f64
+                        / n as f64
                 })
                 .collect()
         };
+        let epochs = completed.iter().map(|r| r.nees.len()).min().unwrap_or(0);
         let nees = per_epoch(&|r| &r.nees, epochs);
-        let nis_len = all.iter().map(|r| r[v].nis.len()).min().unwrap_or(0);
+        let nis_len = completed.iter().map(|r| r.nis.len()).min().unwrap_or(0);
         let nis = per_epoch(&|r| &r.nis, nis_len);
         let in_band = |xs: &[f64], lo: f64, hi: f64| {
-            100.0 * xs.iter().filter(|x| **x >= lo && **x <= hi).count() as f64
-                / xs.len().max(1) as f64
+            if xs.is_empty() {
+                return f64::NAN;
+            }
+            100.0 * xs.iter().filter(|x| **x >= lo && **x <= hi).count() as f64 / xs.len() as f64
         };
         let mean = finite_mean;
-        let pos: Vec<f64> = all
+        let pos: Vec<f64> = completed
             .iter()
-            .flat_map(|r| r[v].position_error.iter().map(|e| e * e))
+            .flat_map(|r| r.position_error.iter().map(|e| e * e))
             .collect();
         variants.insert(
-            run0.name.clone(),
+            id.clone(),
             VariantConsistency {
+                id: id.clone(),
+                label: filter_label(id, config.filter.rho),
+                runs_completed: n,
+                failures,
                 nees_average: mean(&nees),
                 nees_band: [nees_band.lower, nees_band.upper],
                 nees_epochs_in_band_percent: in_band(&nees, nees_band.lower, nees_band.upper),
                 nis_average: mean(&nis),
                 nis_band: [nis_band.lower, nis_band.upper],
                 nis_epochs_in_band_percent: in_band(&nis, nis_band.lower, nis_band.upper),
-                covariance_not_positive_definite: all
+                covariance_not_positive_definite: completed
                     .iter()
-                    .map(|r| r[v].covariance_not_positive_definite)
+                    .map(|r| r.covariance_not_positive_definite)
                     .sum(),
-                updates_rejected: all.iter().map(|r| r[v].rejected).sum(),
+                updates_rejected: completed.iter().map(|r| r.rejected).sum(),
                 position_rmse_m: mean(&pos).sqrt(),
             },
         );
@@ -177,6 +224,11 @@ pub fn monte_carlo(
     Ok(MonteCarloReport {
         runs,
         first_seed,
+        epochs: all
+            .iter()
+            .flat_map(|m| m.iter())
+            .find_map(|(_, r)| r.as_ref().ok())
+            .map_or(0, |r| r.nees.len()),
         variants,
     })
 }

@@ -36,7 +36,7 @@ use super::{Config, CrossMatrix, MeasurementSet, Result, Scenario};
 pub struct OracleSensor {
     /// Gain on the integrated accelerometer noise.
     pub alpha: f64,
-    /// Std of the independent part of the error [m/s].
+    /// Std of the independent part of the error \[m/s\].
     pub independent_std: f64,
 }
 

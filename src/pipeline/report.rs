@@ -14,14 +14,102 @@ use super::{
     run_filter, Config, CrossMatrix, CrossSource, FilterRun, MeasurementSet, Result, Scenario,
 };
 
-/// Name of the least-squares variant.
-pub const LS: &str = "LS";
-/// BeamsNet with M neglected.
-pub const BEAMSNET_NEGLECTED: &str = "BeamsNet, M neglected";
-/// BeamsNet with the paper's M (rho).
-pub const BEAMSNET_SCALED: &str = "BeamsNet, M = rho (paper)";
-/// BeamsNet with M from the network's sensitivity.
-pub const BEAMSNET_SENSITIVITY: &str = "BeamsNet, M from network";
+/// Filter id of the least-squares DVL variant (ids are stable across commands and
+/// releases; scripts key on them, humans read [`filter_label`]).
+pub const LS: &str = "ls";
+/// Filter id: BeamsNet with M neglected.
+pub const BEAMSNET_NEGLECTED: &str = "beamsnet_m_neglected";
+/// Filter id: BeamsNet with the paper's M = rho sqrt(diag Q) sqrt(diag R)'.
+pub const BEAMSNET_SCALED: &str = "beamsnet_m_rho";
+/// Filter id: BeamsNet with M from the network's sensitivity.
+pub const BEAMSNET_SENSITIVITY: &str = "beamsnet_m_network";
+/// Velocity-source id of the BeamsNet output (velocity tables, `beamsnet eval`).
+pub const BEAMSNET: &str = "beamsnet";
+/// The paper's rho (Cohen & Klein); a label says "(paper)" only for this value.
+pub const PAPER_RHO: f64 = 0.42;
+
+/// Human label of a filter id, stating the rho actually used for the scaled-M
+/// variants ("BeamsNet, M = rho 0.42 (paper)" only when rho is the paper's 0.42).
+/// An unknown id is its own label.
+pub fn filter_label(id: &str, rho: f64) -> String {
+    let scaled = |sensor: &str| {
+        if rho == PAPER_RHO {
+            format!("{sensor}, M = rho {rho} (paper)")
+        } else {
+            format!("{sensor}, M = rho {rho}")
+        }
+    };
+    match id {
+        LS => "LS".into(),
+        BEAMSNET => "BeamsNet".into(),
+        BEAMSNET_NEGLECTED => "BeamsNet, M neglected".into(),
+        BEAMSNET_SCALED => scaled("BeamsNet"),
+        BEAMSNET_SENSITIVITY => "BeamsNet, M from network".into(),
+        super::ORACLE_NEGLECTED => "oracle, M neglected".into(),
+        super::ORACLE_TRUE_M => "oracle, true M".into(),
+        super::ORACLE_SCALED => scaled("oracle"),
+        other => other.into(),
+    }
+}
+
+/// A filter variant that stopped: which one, on which seed, where, and why. The
+/// other variants of the same run are unaffected and reported as usual.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FilterFailure {
+    /// Filter id.
+    pub id: String,
+    /// Human label.
+    pub label: String,
+    /// Seed of the run (initial error, simulated mission, faults).
+    pub seed: u64,
+    /// DVL epoch (0-based) at which it stopped, if the failure is tied to one.
+    pub epoch: Option<usize>,
+    /// Time since the start of the scenario \[s\], if known.
+    pub time_s: Option<f64>,
+    /// What went wrong.
+    pub reason: String,
+}
+
+impl FilterFailure {
+    /// Turn a [`super::PipelineError::FilterStopped`] into a failure record; any other
+    /// error (bad input, not specific to one filter) is handed back unchanged.
+    pub fn from_error(
+        id: &str,
+        label: &str,
+        seed: u64,
+        error: super::PipelineError,
+    ) -> Result<Self> {
+        match error {
+            super::PipelineError::FilterStopped {
+                epoch,
+                time_s,
+                source,
+            } => Ok(Self {
+                id: id.into(),
+                label: label.into(),
+                seed,
+                epoch: Some(epoch),
+                time_s: Some(time_s),
+                reason: source.to_string(),
+            }),
+            other => Err(other),
+        }
+    }
+}
+
+impl std::fmt::Display for FilterFailure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "filter {} ({}) failed, seed {}",
+            self.id, self.label, self.seed
+        )?;
+        if let (Some(e), Some(t)) = (self.epoch, self.time_s) {
+            write!(f, ", DVL epoch {e} (t = {t:.2} s)")?;
+        }
+        write!(f, ": {}", self.reason)
+    }
+}
 
 /// What a learned model produced for a scenario.
 #[derive(Debug, Clone)]
@@ -37,28 +125,36 @@ pub struct LearnedInputs {
 /// RMSE, MAE, R^2, VAF of the velocity norm (paper Tables I/II).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct VelocityMetrics {
-    /// Root-mean-square error [m/s].
+    /// Root-mean-square error \[m/s\].
+    #[serde(rename = "rmse_mps")]
     pub rmse: f64,
-    /// Mean absolute error [m/s].
+    /// Mean absolute error \[m/s\].
+    #[serde(rename = "mae_mps")]
     pub mae: f64,
     /// Coefficient of determination.
     pub r2: f64,
-    /// Variance accounted for [%].
+    /// Variance accounted for \[%\].
+    #[serde(rename = "vaf_percent")]
     pub vaf: f64,
 }
 
 /// Summary of one filter variant on one trajectory.
 #[derive(Debug, Clone, Serialize)]
 pub struct FilterSummary {
-    /// Variant name.
+    /// Stable filter id (`ls`, `beamsnet_m_rho`, ...).
+    pub id: String,
+    /// Human label, stating the rho used (serialised as `label`).
+    #[serde(rename = "label")]
     pub name: String,
-    /// Per state group: time-averaged and final std summed over the three axes.
+    /// Per state group: time-averaged and final std summed over the three axes
+    /// (serialised with the unit in each key: `position_m`, `velocity_mps`, ...).
+    #[serde(serialize_with = "super::stats::serialize_groups_with_units")]
     pub std: BTreeMap<String, StdSummary>,
-    /// |position error| against truth [m].
+    /// |position error| against truth \[m\].
     pub position_error_m: ErrorSummary,
-    /// |velocity error| against truth [m/s].
+    /// |velocity error| against truth \[m/s\].
     pub velocity_error_mps: ErrorSummary,
-    /// |attitude error| against truth [deg].
+    /// |attitude error| against truth \[deg\].
     pub attitude_error_deg: ErrorSummary,
     /// Time-averaged NEES (15 states) against truth, over the epochs where P was
     /// positive definite.
@@ -89,7 +185,10 @@ pub struct FilterSummary {
 /// % improvement of an M-aware variant over "M neglected", per group (paper Fig. 5).
 #[derive(Debug, Clone, Serialize)]
 pub struct Improvement {
-    /// The M-aware variant.
+    /// Filter id of the M-aware variant.
+    pub id: String,
+    /// Its label (serialised as `label`).
+    #[serde(rename = "label")]
     pub variant: String,
     /// Per group: (time-average %, final %).
     pub groups: BTreeMap<String, ImprovementValues>,
@@ -112,22 +211,53 @@ pub struct TrajectoryReport {
     /// A-KIT trajectory number, if any.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub trajectory: Option<u32>,
-    /// Duration [s].
+    /// Duration \[s\].
     pub duration_s: f64,
     /// DVL epochs.
     pub dvl_epochs: usize,
-    /// LS and learned velocity against the DVL reference (Tables I/II).
+    /// LS and learned velocity against the DVL reference (Tables I/II), keyed by
+    /// velocity-source id (`ls`, `beamsnet`); serialised as an array of objects with
+    /// `id` and `label`.
+    #[serde(serialize_with = "serialize_velocity")]
     pub velocity: BTreeMap<String, VelocityMetrics>,
-    /// Filter summaries.
+    /// Summaries of the filters that completed.
     pub filters: Vec<FilterSummary>,
+    /// Filters that stopped (their results are absent from `filters`).
+    pub failures: Vec<FilterFailure>,
     /// Improvements of the M-aware variants over M neglected.
     pub improvements: Vec<Improvement>,
     /// The raw time series (not serialised; for CSV and plots).
     #[serde(skip)]
     pub runs: Vec<FilterRun>,
-    /// Truth north/east relative to the start at the DVL epochs [m] (for plots).
+    /// Truth north/east relative to the start at the DVL epochs \[m\] (for plots).
     #[serde(skip)]
     pub truth_north_east: Vec<[f64; 2]>,
+}
+
+/// The velocity table as an array of `{id, label, rmse_mps, ...}` (order: LS first).
+fn serialize_velocity<S: serde::Serializer>(
+    map: &BTreeMap<String, VelocityMetrics>,
+    serializer: S,
+) -> std::result::Result<S::Ok, S::Error> {
+    use serde::ser::SerializeSeq;
+    #[derive(Serialize)]
+    struct Row<'a> {
+        id: &'a str,
+        label: String,
+        #[serde(flatten)]
+        metrics: &'a VelocityMetrics,
+    }
+    let mut keys: Vec<&String> = map.keys().collect();
+    keys.sort_by_key(|k| (k.as_str() != LS, k.as_str()));
+    let mut seq = serializer.serialize_seq(Some(map.len()))?;
+    for k in keys {
+        seq.serialize_element(&Row {
+            id: k,
+            label: filter_label(k, f64::NAN),
+            metrics: &map[k],
+        })?;
+    }
+    seq.end()
 }
 
 /// Velocity-norm metrics computed here (the learned crate has its own; tests compare).
@@ -180,6 +310,7 @@ pub fn summarise(run: &FilterRun) -> Result<FilterSummary> {
         .filter(|e| **e < -1e-12)
         .count();
     Ok(FilterSummary {
+        id: run.id.clone(),
         name: run.name.clone(),
         std,
         position_error_m: error_summary(&run.position_error),
@@ -226,7 +357,7 @@ pub fn analyse(
     seed: u64,
 ) -> Result<TrajectoryReport> {
     // On real data the DVL and the ground truth disagree beyond the sensor noise.
-    let mismatch = if scenario.trajectory.is_some() {
+    let mismatch = if scenario.is_recorded() {
         Matrix3::identity() * config.dvl.akit_reference_mismatch_std.powi(2)
     } else {
         Matrix3::zeros()
@@ -246,17 +377,26 @@ pub fn analyse(
         jobs.push((
             BEAMSNET_SCALED,
             set.clone(),
-            CrossSource::Scaled(config.filter.rho),
+            CrossSource::paper(config.filter.rho, config.filter.paper_m_basis),
         ));
         if let Some(m) = &l.sensitivity {
             jobs.push((BEAMSNET_SENSITIVITY, set, CrossSource::PerEpoch(m.clone())));
         }
     }
-    // Every variant starts from the same initial error (same seed).
-    let runs: Vec<FilterRun> = jobs
+    // Every variant starts from the same initial error (same seed). Each succeeds or
+    // fails on its own: a numerical failure of one is recorded, the others are kept.
+    let outcomes: Vec<Result<std::result::Result<FilterRun, FilterFailure>>> = jobs
         .par_iter()
-        .map(|(name, set, cross)| run_filter(name, scenario, config, set, cross, seed))
-        .collect::<Result<_>>()?;
+        .map(|(id, set, cross)| run_variant(id, scenario, config, set, cross, seed))
+        .collect();
+    let mut runs = Vec::new();
+    let mut failures = Vec::new();
+    for outcome in outcomes {
+        match outcome? {
+            Ok(run) => runs.push(run),
+            Err(failure) => failures.push(failure),
+        }
+    }
     let filters: Vec<FilterSummary> = runs.iter().map(summarise).collect::<Result<_>>()?;
 
     let mut velocity = BTreeMap::new();
@@ -277,14 +417,14 @@ pub fn analyse(
     };
     add(LS, &ls.velocities);
     if let Some(l) = learned {
-        add("BeamsNet", &l.velocities);
+        add(BEAMSNET, &l.velocities);
     }
 
     let mut improvements = Vec::new();
-    if let Some(neglected) = filters.iter().find(|f| f.name == BEAMSNET_NEGLECTED) {
+    if let Some(neglected) = filters.iter().find(|f| f.id == BEAMSNET_NEGLECTED) {
         for aware in filters
             .iter()
-            .filter(|f| f.name == BEAMSNET_SCALED || f.name == BEAMSNET_SENSITIVITY)
+            .filter(|f| f.id == BEAMSNET_SCALED || f.id == BEAMSNET_SENSITIVITY)
         {
             let groups = GROUPS
                 .iter()
@@ -303,6 +443,7 @@ pub fn analyse(
                 })
                 .collect();
             improvements.push(Improvement {
+                id: aware.id.clone(),
                 variant: aware.name.clone(),
                 groups,
             });
@@ -337,7 +478,29 @@ pub fn analyse(
         dvl_epochs: scenario.dvl.len(),
         velocity,
         filters,
+        failures,
         improvements,
         runs,
     })
+}
+
+/// Run one filter variant (id `id`, labelled with [`filter_label`]): `Ok(Ok(run))`
+/// when it completed, `Ok(Err(failure))` when it stopped on a numerical failure,
+/// `Err` for an error that is not the variant's own (bad input).
+pub fn run_variant(
+    id: &str,
+    scenario: &Scenario,
+    config: &Config,
+    set: &MeasurementSet,
+    cross: &CrossSource,
+    seed: u64,
+) -> Result<std::result::Result<FilterRun, FilterFailure>> {
+    let label = filter_label(id, config.filter.rho);
+    match run_filter(id, scenario, config, set, cross, seed) {
+        Ok(mut run) => {
+            run.name = label;
+            Ok(Ok(run))
+        }
+        Err(e) => FilterFailure::from_error(id, &label, seed, e).map(Err),
+    }
 }

@@ -3,8 +3,8 @@
 
 use estim_core::nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 use estim_core::{
-    nees, CrossCovariance, ErrorStateKalmanFilter, FilterConfig, Fixed, Gate, NoObserver, Observer,
-    ScaledCorrelation, Zero,
+    largest_valid_scale, nees, CrossCovariance, ErrorStateKalmanFilter, FilterConfig, Fixed, Gate,
+    NoObserver, Observer, ProcessModel, ScaledCorrelation, Zero,
 };
 use estim_dvl::DvlVelocityModel;
 use estim_ins::{
@@ -16,7 +16,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::Serialize;
 
-use super::{Config, PipelineError, Result, Scenario};
+use super::{Config, PaperMBasis, PipelineError, Result, Scenario};
 
 /// 15 x 3 cross-covariance of the INS/DVL filter.
 pub type CrossMatrix = SMatrix<f64, ERROR_STATES, 3>;
@@ -26,10 +26,24 @@ pub type CrossMatrix = SMatrix<f64, ERROR_STATES, 3>;
 pub enum CrossSource {
     /// M = 0 (correlation neglected).
     Zero,
-    /// The paper's heuristic M = rho sqrt(diag Q_acc) sqrt(diag R)'.
+    /// The paper's heuristic M = rho sqrt(diag Q_acc) sqrt(diag R)', Q_acc accumulated
+    /// since the previous update.
     Scaled(f64),
+    /// The paper's heuristic with the last IMU step's process noise:
+    /// M = rho sqrt(diag Q_k) sqrt(diag R)' (the paper's E[w_k v_j'] taken literally).
+    ScaledPerStep(f64),
     /// One precomputed M_k per DVL epoch (e.g. from the network's sensitivity).
     PerEpoch(Vec<CrossMatrix>),
+}
+
+impl CrossSource {
+    /// The paper's heuristic with `rho` on the configured basis (`filter.paper_m_basis`).
+    pub fn paper(rho: f64, basis: PaperMBasis) -> Self {
+        match basis {
+            PaperMBasis::Accumulated => Self::Scaled(rho),
+            PaperMBasis::PerStep => Self::ScaledPerStep(rho),
+        }
+    }
 }
 
 /// The velocity measurements of one variant, aligned with `Scenario::dvl`.
@@ -44,17 +58,24 @@ pub struct MeasurementSet {
 /// Time series of one run, sampled at the DVL epochs (after the update).
 #[derive(Debug, Clone, Serialize)]
 pub struct FilterRun {
-    /// Variant name.
+    /// Stable filter id (e.g. `ls`, `beamsnet_m_rho`; see `pipeline::filter_label`).
+    pub id: String,
+    /// Human label (serialised as `label`).
+    #[serde(rename = "label")]
     pub name: String,
-    /// Time since the start [s].
+    /// Time since the start \[s\].
     pub time: Vec<f64>,
     /// Diagonal of P.
     pub covariance_diagonal: Vec<[f64; 15]>,
-    /// |position error| [m].
+    /// Error against truth per axis (truth minus estimate): position N, E, D \[m\],
+    /// velocity N, E, D \[m/s\], misalignment about N, E, D \[rad\]; for the per-axis
+    /// error plots with their +-3 sigma bounds from `covariance_diagonal`.
+    pub axis_error: Vec<[f64; 9]>,
+    /// |position error| \[m\].
     pub position_error: Vec<f64>,
-    /// |velocity error| [m/s].
+    /// |velocity error| \[m/s\].
     pub velocity_error: Vec<f64>,
-    /// |attitude error| [deg].
+    /// |attitude error| \[deg\].
     pub attitude_error_deg: Vec<f64>,
     /// NEES of the 15-state error against truth.
     pub nees: Vec<f64>,
@@ -66,9 +87,13 @@ pub struct FilterRun {
     pub rejected: usize,
     /// Smallest eigenvalue of [[Q_acc, M], [M', R]] at each update.
     pub joint_min_eigenvalue: Vec<f64>,
-    /// Largest valid rho of the paper's heuristic at each update.
+    /// Largest valid rho of the paper's heuristic at each update (M built from the
+    /// accumulated process noise), against this run's Q_acc and R.
     pub largest_valid_rho: Vec<f64>,
-    /// North/east position of the estimate relative to the start [m].
+    /// The same with M built from the last IMU step's process noise Q_k (the joint
+    /// covariance is still [[Q_acc, M], [M', R]]).
+    pub largest_valid_rho_per_step: Vec<f64>,
+    /// North/east position of the estimate relative to the start \[m\].
     pub north_east: Vec<[f64; 2]>,
     /// Epochs at which P was not positive definite (NEES recorded as NaN).
     pub covariance_not_positive_definite: usize,
@@ -93,7 +118,7 @@ pub fn error_state(truth: &InsState, nominal: &InsState) -> SVector<f64, ERROR_S
     e
 }
 
-/// Correlation time the filter gives the bias states [s]: long enough that the
+/// Correlation time the filter gives the bias states \[s\]: long enough that the
 /// turn-on bias (a random constant in the simulator) is not forgotten.
 pub const FILTER_BIAS_TIME_CONSTANT: f64 = 1.0e6;
 
@@ -309,9 +334,11 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
         .build()?;
     let n = scenario.dvl.len();
     let mut run = FilterRun {
+        id: name.to_string(),
         name: name.to_string(),
         time: Vec::with_capacity(n),
         covariance_diagonal: Vec::with_capacity(n),
+        axis_error: Vec::with_capacity(n),
         position_error: Vec::with_capacity(n),
         velocity_error: Vec::with_capacity(n),
         attitude_error_deg: Vec::with_capacity(n),
@@ -321,6 +348,7 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
         rejected: 0,
         joint_min_eigenvalue: Vec::with_capacity(n),
         largest_valid_rho: Vec::with_capacity(n),
+        largest_valid_rho_per_step: Vec::with_capacity(n),
         north_east: Vec::with_capacity(n),
         covariance_not_positive_definite: 0,
     };
@@ -331,6 +359,9 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
     // Sample in effect and the filter's clock.
     let mut k = 0;
     let mut clock = truth0.time;
+    // The last propagation step (IMU sample index, dt): its Q_k is the per-step basis
+    // of the paper's heuristic M.
+    let mut last_step: Option<(usize, f64)> = None;
     for (epoch, dvl) in scenario.dvl.iter().enumerate() {
         let truth = scenario.truth.get(dvl.imu_index).ok_or_else(|| {
             PipelineError::Invalid(format!(
@@ -363,7 +394,10 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
             if (dt - period).abs() <= tolerance {
                 dt = period;
             }
-            filter.predict(sample, dt)?;
+            filter
+                .predict(sample, dt)
+                .map_err(|source| stopped(epoch, clock - truth0.time, source))?;
+            last_step = Some((k, dt));
             clock = end;
         }
         if let Some(y) = measurements.velocities.get(epoch).copied().flatten() {
@@ -383,6 +417,20 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
                     filter.accumulated_process_noise(),
                     &r,
                 )?);
+            // Q_k of the last step, at the nominal state after it (the attitude moves
+            // by one IMU period in between: negligible at the rounding of a heuristic).
+            let step_noise = match last_step {
+                Some((i, dt)) => filter
+                    .process()
+                    .process_noise(filter.nominal(), &imu[i], dt)?,
+                None => SMatrix::zeros(),
+            };
+            let step_unit = ScaledCorrelation::unit(&step_noise, &r);
+            run.largest_valid_rho_per_step.push(largest_valid_scale(
+                filter.accumulated_process_noise(),
+                &step_unit,
+                &r,
+            )?);
             let scaled;
             let fixed;
             let source: &dyn CrossCovariance<f64, InsState, ERROR_STATES, 3> = match cross {
@@ -391,12 +439,18 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
                     scaled = ScaledCorrelation { rho: *rho };
                     &scaled
                 }
+                CrossSource::ScaledPerStep(rho) => {
+                    fixed = Fixed(step_unit * *rho);
+                    &fixed
+                }
                 CrossSource::PerEpoch(ms) => {
                     fixed = Fixed(ms.get(epoch).copied().unwrap_or_else(CrossMatrix::zeros));
                     &fixed
                 }
             };
-            let report = filter.update(model, &y, source)?;
+            let report = filter
+                .update(model, &y, source)
+                .map_err(|source| stopped(epoch, target - truth0.time, source))?;
             run.nis.push(report.nis);
             if let Some(eig) = report.joint_min_eigenvalue {
                 run.joint_min_eigenvalue.push(eig);
@@ -413,6 +467,7 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
         run.time.push(truth.time - truth0.time);
         run.covariance_diagonal
             .push(std::array::from_fn(|i| p[(i, i)]));
+        run.axis_error.push(std::array::from_fn(|i| e[i]));
         run.position_error.push(e.fixed_rows::<3>(POS).norm());
         run.velocity_error.push(e.fixed_rows::<3>(VEL).norm());
         run.attitude_error_deg
@@ -432,6 +487,16 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
         ]);
     }
     Ok(run)
+}
+
+/// A numerical failure of the filter at a DVL epoch: a finding about this filter
+/// variant, reported with where it happened (the other variants are unaffected).
+fn stopped(epoch: usize, time_s: f64, source: estim_core::Error) -> PipelineError {
+    PipelineError::FilterStopped {
+        epoch,
+        time_s,
+        source,
+    }
 }
 
 /// Reject duplicate, backward and non-finite IMU timestamps, naming the sample.

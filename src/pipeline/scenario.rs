@@ -11,14 +11,21 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::{Config, PipelineError, Result};
-use crate::datasets::{load_dvl, load_gt, trajectory_files};
+use crate::datasets::{
+    check_spans, load_dvl_with, load_gt_with, trajectory_files, DatasetError, SpanCheck,
+    SPAN_TIME_OFFSET_ALLOWANCE_S,
+};
+
+/// Most IMU samples synthesized from a recorded trajectory (13.9 h at 100 Hz, about
+/// 1.4 GB of states and samples): a longer span is refused before allocating.
+pub const MAX_SYNTHESIZED_IMU_SAMPLES: f64 = 5e6;
 
 /// One DVL epoch: what the DVL measured and the beams simulated from it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DvlEpoch {
     /// The update is applied after IMU sample `imu_index - 1`, i.e. at `truth[imu_index]`.
     pub imu_index: usize,
-    /// Velocity at the DVL in its frame [m/s] (the real DVL's on A-KIT, exact in simulation).
+    /// Velocity at the DVL in its frame \[m/s\] (the real DVL's on A-KIT, exact in simulation).
     pub reference_velocity: Vector3<f64>,
     /// Beam velocities from the BeamsNet protocol (NaN for a missing beam).
     pub beams: Vector4<f64>,
@@ -37,12 +44,14 @@ pub struct Scenario {
     pub imu: Vec<ImuSample>,
     /// The error-free IMU (N samples), for oracle measurements and noise analysis.
     pub clean_imu: Vec<ImuSample>,
-    /// IMU period [s].
+    /// IMU period \[s\].
     pub imu_dt: f64,
     /// The IMU error model the samples were corrupted with (also the filter's model).
     pub imu_spec: ImuSpec,
     /// DVL epochs, increasing `imu_index`.
     pub dvl: Vec<DvlEpoch>,
+    /// Recorded data: the GT and DVL spans as read (before any trimming to the overlap).
+    pub span: Option<SpanCheck>,
 }
 
 fn protocol(config: &Config) -> BeamsNetProtocol {
@@ -102,19 +111,112 @@ impl Scenario {
             imu_dt: mission.imu_dt,
             imu_spec: spec,
             dvl,
+            span: None,
         })
     }
 
-    /// A-KIT trajectory `n` under `dir`: truth = GT, IMU synthesized from GT at the
+    /// Recorded data (A-KIT or a user's files), not a simulation.
+    pub fn is_recorded(&self) -> bool {
+        self.span.is_some()
+    }
+
+    /// A-KIT trajectory `n` under `dir` (see [`Scenario::recorded`]; the spans must agree).
+    ///
+    /// # Errors
+    /// As [`Scenario::recorded`], and [`DatasetError::Missing`] listing the
+    /// trajectories the folder holds.
+    pub fn akit(dir: &Path, n: u32, config: &Config, seed: u64) -> Result<Self> {
+        Self::akit_with(dir, n, config, seed, false)
+    }
+
+    /// [`Scenario::akit`], with `allow_partial` as in [`Scenario::recorded`].
+    ///
+    /// # Errors
+    /// As [`Scenario::akit`].
+    pub fn akit_with(
+        dir: &Path,
+        n: u32,
+        config: &Config,
+        seed: u64,
+        allow_partial: bool,
+    ) -> Result<Self> {
+        let files = trajectory_files(dir, n)?;
+        let mut scenario = Self::recorded(&files.gt, &files.dvl, config, seed, allow_partial)?;
+        scenario.name = format!("A-KIT trajectory {n}");
+        scenario.trajectory = Some(n);
+        Ok(scenario)
+    }
+
+    /// A recorded trajectory from a ground-truth and a DVL file (columns by name or by
+    /// the configuration's `[columns]` map): truth = GT, IMU synthesized from GT at the
     /// configured rate and corrupted with the configured error model, DVL = the real
     /// DVL velocity (time-shifted by the configured offset), beams by the protocol.
-    pub fn akit(dir: &Path, n: u32, config: &Config, seed: u64) -> Result<Self> {
-        let files = trajectory_files(dir, n)?;
-        let gt = load_gt(&files.gt)?;
-        let dvl_log = load_dvl(&files.dvl)?;
+    ///
+    /// The two files must cover the same time span (the rule of
+    /// [`crate::datasets::SpanCheck`], with an allowance of 1.5 s or the configured
+    /// offset's magnitude if larger). With `allow_partial` a mismatch is accepted and
+    /// the run covers the overlap only (the caller says so; [`Scenario::span`] holds
+    /// both spans).
+    ///
+    /// # Errors
+    /// Every loader error (file and line), [`DatasetError::SpanMismatch`] naming both
+    /// files and their spans, [`DatasetError::Unusable`] for a span too long to
+    /// synthesize or too short for one IMU step.
+    pub fn recorded(
+        gt_path: &Path,
+        dvl_path: &Path,
+        config: &Config,
+        seed: u64,
+        allow_partial: bool,
+    ) -> Result<Self> {
+        let gt = load_gt_with(gt_path, &config.columns)?;
+        let dvl_log = load_dvl_with(dvl_path, &config.columns)?;
+        let allowance = SPAN_TIME_OFFSET_ALLOWANCE_S.max(config.dvl.akit_time_offset_s.abs());
+        let span = check_spans(gt_path, &gt, dvl_path, &dvl_log, allowance, allow_partial)?;
+        let unusable = |message: String| {
+            PipelineError::Dataset(DatasetError::Unusable {
+                path: gt_path.to_path_buf(),
+                message,
+            })
+        };
+        // On a mismatch (only with allow_partial) the run covers the overlap.
+        let gt: Vec<_> = match span.overlap_s() {
+            Some([start, end]) if !span.agrees() => gt
+                .into_iter()
+                .filter(|g| g.time >= start && g.time <= end)
+                .collect(),
+            _ => gt,
+        };
+        let (first, last) = match (gt.first(), gt.last()) {
+            (Some(a), Some(b)) if gt.len() >= 2 => (*a, *b),
+            _ => {
+                return Err(unusable(format!(
+                    "fewer than 2 GT rows inside the overlap with {}",
+                    dvl_path.display()
+                )))
+            }
+        };
+        let samples = (last.time - first.time) * config.mission.imu_rate_hz;
+        if samples > MAX_SYNTHESIZED_IMU_SAMPLES {
+            return Err(unusable(format!(
+                "lines {}-{} span {} s, {samples:.0} IMU samples at {} Hz; at most {MAX_SYNTHESIZED_IMU_SAMPLES:.0} are synthesized",
+                first.line, last.line, last.time - first.time, config.mission.imu_rate_hz
+            )));
+        }
         let samples = gt.iter().map(|g| g.trajectory_sample()).collect();
-        let trajectory = Trajectory::new(samples)?;
-        let (mut truth, clean) = trajectory.simulate(config.mission.imu_rate_hz)?;
+        // The loader checked every value the trajectory checks; an error here still
+        // names the file.
+        let trajectory = Trajectory::new(samples).map_err(|e| unusable(e.to_string()))?;
+        let (mut truth, clean) = trajectory
+            .simulate(config.mission.imu_rate_hz)
+            .map_err(|e| {
+                unusable(format!(
+                    "lines {}-{} (span {} s): {e}",
+                    first.line,
+                    last.line,
+                    last.time - first.time
+                ))
+            })?;
         let dt = 1.0 / config.mission.imu_rate_hz;
         let spec = imu_spec(config)?;
         let mut errors = ImuErrorGenerator::new(spec, seed);
@@ -147,14 +249,15 @@ impl Scenario {
             });
         }
         Ok(Self {
-            name: format!("A-KIT trajectory {n}"),
-            trajectory: Some(n),
+            name: gt_path.display().to_string(),
+            trajectory: None,
             truth,
             imu,
             clean_imu: clean,
             imu_dt: dt,
             imu_spec: spec,
             dvl,
+            span: Some(span),
         })
     }
 }

@@ -12,6 +12,36 @@ pub const GROUPS: [(&str, usize); 5] = [
     ("gyro_bias", 12),
 ];
 
+/// Unit of each state group's standard deviation, as a key suffix.
+pub const GROUP_UNITS: [(&str, &str); 5] = [
+    ("position", "m"),
+    ("velocity", "mps"),
+    ("misalignment", "rad"),
+    ("acc_bias", "mps2"),
+    ("gyro_bias", "radps"),
+];
+
+/// The group key with its unit (`velocity` -> `velocity_mps`); unknown groups unchanged.
+pub fn group_key_with_unit(group: &str) -> String {
+    match GROUP_UNITS.iter().find(|(g, _)| *g == group) {
+        Some((g, u)) => format!("{g}_{u}"),
+        None => group.to_string(),
+    }
+}
+
+/// Serialise a per-group map with the unit in each key (JSON schema of the reports).
+pub fn serialize_groups_with_units<S: serde::Serializer, V: Serialize>(
+    map: &std::collections::BTreeMap<String, V>,
+    serializer: S,
+) -> Result<S::Ok, S::Error> {
+    use serde::ser::SerializeMap;
+    let mut m = serializer.serialize_map(Some(map.len()))?;
+    for (k, v) in map {
+        m.serialize_entry(&group_key_with_unit(k), v)?;
+    }
+    m.end()
+}
+
 /// One group's standard deviation summary, summed over its three axes.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct StdSummary {

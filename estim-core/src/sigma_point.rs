@@ -1,0 +1,295 @@
+//! Sigma-point (unscented) prediction and correlated-noise update.
+//!
+//! Scaled unscented transform (Julier & Uhlmann, "Unscented filtering and nonlinear
+//! estimation", Proc. IEEE 92(3), 2004; scaling and weights as in Van der Merwe,
+//! *Sigma-Point Kalman Filters for Probabilistic Inference in Dynamic State-Space
+//! Models*, PhD thesis, 2004, eq. 3.73-3.75): for a Gaussian of dimension L with
+//! factor S (S S' = covariance), lambda = alpha^2 (L + kappa) - L and
+//! gamma = sqrt(L + lambda),
+//!
+//! ```text
+//! chi_0 = mean, chi_i = mean + gamma S_i, chi_{L+i} = mean - gamma S_i   (S_i: column i)
+//! Wm_0 = lambda / (L + lambda), Wc_0 = Wm_0 + 1 - alpha^2 + beta, Wm_i = Wc_i = 1 / (2 (L + lambda))
+//! ```
+//!
+//! **Correlated noise.** The update draws its sigma points over the joint
+//! [x_k; v_k] with covariance [[P, M], [M', R]] (L = N + M) and pushes each through
+//! y = h(x) + v. This is exact in the one-step model x_k = f(x_{k-1}) + G w_{k-1},
+//! whatever f: x_{k-1} is independent of v_k, so Cov(x_k, v_k) = Cov(G w_{k-1}, v_k)
+//! = M. It is the augmented UKF over [x_{k-1}; w; v] (Julier & Uhlmann 2004,
+//! sec. V) with the prediction and the update split at x_k, so that any number of
+//! predictions can separate two updates (then M is the carried Cov(e_k, v_k)).
+//! On linear models the transform is exact and the update equals
+//! [`crate::correlated_update`]:
+//!
+//! ```text
+//! y_hat = sum Wm_i Y_i,  P_yy = sum Wc_i (Y_i - y_hat)(Y_i - y_hat)',
+//! P_xy  = sum Wc_i (X_i - x)(Y_i - y_hat)'      (= P H' + M when h is linear)
+//! K = P_xy P_yy^-1, x+ = x + K (y - y_hat), P+ = P - K P_yy K'
+//! ```
+//!
+//! The joint covariance must have a square root: an indefinite [[P, M], [M', R]]
+//! is refused with [`Error::InvalidJointCovariance`], never factored around. No
+//! sigma point is stored: sums are accumulated from deviations to the centre point,
+//! so nothing is allocated.
+
+use nalgebra::{SMatrix, SVector};
+
+use crate::gaussian::check_finite;
+use crate::scalar::{lit, to_f64};
+use crate::square_root::{covariance_factor, joint_factor};
+use crate::update::{check_innovation_conditioning, mul_static, spd_inverse};
+use crate::{Error, Result, Scalar, StateAndCovariance};
+
+/// Parameters of the scaled unscented transform (see the module docs), validated.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UnscentedTransform {
+    alpha: f64,
+    beta: f64,
+    kappa: f64,
+}
+
+impl Default for UnscentedTransform {
+    /// alpha = 1, beta = 2, kappa = 0: all weights but the centre's covariance weight
+    /// positive (Wm_0 = 0, Wc_0 = 2), so P_yy is a positive combination; beta = 2 is
+    /// optimal for Gaussian priors (Van der Merwe 2004, sec. 3.2.2).
+    fn default() -> Self {
+        Self {
+            alpha: 1.0,
+            beta: 2.0,
+            kappa: 0.0,
+        }
+    }
+}
+
+impl UnscentedTransform {
+    /// Transform with spread `alpha` (> 0), prior-knowledge weight `beta` (>= 0) and
+    /// secondary scaling `kappa` (>= 0, so the centre's mean weight is never
+    /// negative: a negative one can make the covariance indefinite).
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] naming the offending parameter.
+    pub fn new(alpha: f64, beta: f64, kappa: f64) -> Result<Self> {
+        if !(alpha.is_finite() && alpha > 0.0) {
+            return Err(Error::InvalidParameter {
+                name: "alpha",
+                reason: format!("must be finite and > 0, got {alpha}"),
+            });
+        }
+        if !(beta.is_finite() && beta >= 0.0) {
+            return Err(Error::InvalidParameter {
+                name: "beta",
+                reason: format!("must be finite and >= 0, got {beta}"),
+            });
+        }
+        if !(kappa.is_finite() && kappa >= 0.0) {
+            return Err(Error::InvalidParameter {
+                name: "kappa",
+                reason: format!("must be finite and >= 0, got {kappa}"),
+            });
+        }
+        Ok(Self { alpha, beta, kappa })
+    }
+
+    /// (gamma, Wm_0, Wc_0, W_i) for dimension `l`.
+    fn weights<T: Scalar>(&self, l: usize) -> (T, T, T, T) {
+        let l = l as f64;
+        let lambda = self.alpha * self.alpha * (l + self.kappa) - l;
+        let spread = l + lambda; // = alpha^2 (l + kappa) > 0
+        let wm0 = lambda / spread;
+        let wc0 = wm0 + 1.0 - self.alpha * self.alpha + self.beta;
+        (lit(spread.sqrt()), lit(wm0), lit(wc0), lit(0.5 / spread))
+    }
+}
+
+/// Sigma-point prediction x_k = f(x_{k-1}) + G w, Cov(G w) = `process_noise`:
+/// mean sum Wm_i f(chi_i), covariance sum Wc_i (f(chi_i) - mean)(...)' + Q_d.
+///
+/// # Errors
+/// [`Error::NonFinite`]; [`Error::InvalidCovariance`] if the prior covariance has
+/// no square root; the errors of `propagate`.
+pub fn unscented_predict<T, F, const N: usize>(
+    transform: &UnscentedTransform,
+    prior: &StateAndCovariance<T, N>,
+    propagate: F,
+    process_noise: &SMatrix<T, N, N>,
+) -> Result<StateAndCovariance<T, N>>
+where
+    T: Scalar,
+    F: Fn(&SVector<T, N>) -> Result<SVector<T, N>>,
+{
+    check_finite(process_noise.as_slice(), "process noise")?;
+    let s = covariance_factor(prior.covariance(), "prior covariance")?;
+    let (gamma, wm0, wc0, wi) = transform.weights::<T>(N);
+    let x = prior.state();
+    let centre = propagate(x)?;
+    check_finite(centre.as_slice(), "propagated sigma point")?;
+    // Deviations d_i = f(chi_i) - f(chi_0): mean = f(chi_0) + d_bar,
+    // covariance = sum Wm_i d_i d_i' - d_bar d_bar' + (Wc_0 - Wm_0) d_bar d_bar'.
+    let mut d_bar = SVector::<T, N>::zeros();
+    let mut second = SMatrix::<T, N, N>::zeros();
+    for i in 0..N {
+        for sign in [T::one(), -T::one()] {
+            let point = x + s.column(i) * (gamma * sign);
+            let d = propagate(&point)? - centre;
+            check_finite(d.as_slice(), "propagated sigma point")?;
+            d_bar += d * wi;
+            add_outer(&mut second, &d, &d, wi);
+        }
+    }
+    let mean = centre + d_bar;
+    let mut p = second;
+    add_outer(&mut p, &d_bar, &d_bar, wc0 - wm0 - T::one());
+    let p = symmetric_sum(&p, process_noise);
+    check_finite(mean.as_slice(), "predicted state")?;
+    check_finite(p.as_slice(), "predicted covariance")?;
+    StateAndCovariance::new(mean, p)
+}
+
+/// Everything a sigma-point update produced.
+#[derive(Debug, Clone, PartialEq)]
+pub struct UnscentedOutcome<T: Scalar, const N: usize, const M: usize> {
+    /// Posterior mean and covariance.
+    pub posterior: StateAndCovariance<T, N>,
+    /// Predicted measurement sum Wm_i Y_i.
+    pub predicted_measurement: SVector<T, M>,
+    /// Innovation y - predicted measurement.
+    pub innovation: SVector<T, M>,
+    /// Innovation covariance P_yy.
+    pub innovation_covariance: SMatrix<T, M, M>,
+    /// Cross-covariance P_xy of state and measurement.
+    pub state_measurement_covariance: SMatrix<T, N, M>,
+    /// Gain K = P_xy P_yy^-1.
+    pub gain: SMatrix<T, N, M>,
+    /// Normalised innovation squared.
+    pub nis: T,
+}
+
+/// Sigma-point update with correlated noise: sigma points over the joint
+/// [x; v] ~ N([x; 0], [[P, M], [M', R]]), each pushed through y = h(x) + v (see the
+/// module docs). `cross_covariance` is M = Cov(x_k, v_k).
+///
+/// # Errors
+/// [`Error::NonFinite`]; [`Error::InvalidJointCovariance`] if
+/// [[P, M], [M', R]] has no square root; [`Error::InnovationNotPositiveDefinite`] /
+/// [`Error::InnovationIllConditioned`] for P_yy as for
+/// [`crate::correlated_update`]; the errors of `predict_measurement`.
+pub fn unscented_update<T, H, const N: usize, const M: usize>(
+    transform: &UnscentedTransform,
+    prior: &StateAndCovariance<T, N>,
+    measurement: &SVector<T, M>,
+    predict_measurement: H,
+    measurement_noise: &SMatrix<T, M, M>,
+    cross_covariance: &SMatrix<T, N, M>,
+) -> Result<UnscentedOutcome<T, N, M>>
+where
+    T: Scalar,
+    H: Fn(&SVector<T, N>) -> Result<SVector<T, M>>,
+{
+    check_finite(measurement.as_slice(), "measurement")?;
+    check_finite(measurement_noise.as_slice(), "measurement noise covariance")?;
+    check_finite(cross_covariance.as_slice(), "cross-covariance")?;
+    let p = prior.covariance();
+    let Some(l) = joint_factor(p, cross_covariance, measurement_noise) else {
+        return Err(Error::InvalidJointCovariance {
+            min_eigenvalue: to_f64(crate::cross::joint_min_correlation_eigenvalue(
+                p,
+                cross_covariance,
+                measurement_noise,
+            )?),
+        });
+    };
+    let (gamma, wm0, wc0, wi) = transform.weights::<T>(N + M);
+    let x = prior.state();
+    let centre = predict_measurement(x)?;
+    check_finite(centre.as_slice(), "predicted measurement")?;
+    let mut d_bar = SVector::<T, M>::zeros();
+    let mut second = SMatrix::<T, M, M>::zeros();
+    let mut cross = SMatrix::<T, N, M>::zeros();
+    // Column j of the joint factor: state part (L11 or L21 rows) and noise part.
+    for j in 0..(N + M) {
+        let (dx, dv): (SVector<T, N>, SVector<T, M>) = if j < N {
+            (l.a.column(j).into_owned(), l.c.column(j).into_owned())
+        } else {
+            (SVector::zeros(), l.d.column(j - N).into_owned())
+        };
+        for sign in [T::one(), -T::one()] {
+            let g = gamma * sign;
+            let y = predict_measurement(&(x + dx * g))? + dv * g;
+            let d = y - centre;
+            check_finite(d.as_slice(), "predicted measurement")?;
+            d_bar += d * wi;
+            add_outer(&mut second, &d, &d, wi);
+            // sum W_i (X_i - x)(Y_i - y_hat)' = sum W_i g dx (d_i - d_bar)'; the
+            // d_bar part vanishes because the dx of each +/- pair cancel.
+            for c in 0..M {
+                for r in 0..N {
+                    cross[(r, c)] += dx[r] * g * d[c] * wi;
+                }
+            }
+        }
+    }
+    let predicted = centre + d_bar;
+    let mut pyy = second;
+    add_outer(&mut pyy, &d_bar, &d_bar, wc0 - wm0 - T::one());
+    let pyy = symmetric_sum(&pyy, &SMatrix::zeros());
+    check_finite(pyy.as_slice(), "innovation covariance")?;
+    let inverse = spd_inverse(&pyy).ok_or(Error::InnovationNotPositiveDefinite)?;
+    check_innovation_conditioning(&pyy, &inverse)?;
+    let innovation = measurement - predicted;
+    let nis = innovation.dot(&mul_static(&inverse, &innovation));
+    let gain = mul_static(&cross, &inverse);
+    let state = x + mul_static(&gain, &innovation);
+    // P+ = P - K P_yy K' = P - P_xy P_yy^-1 P_xy' (upper triangle, mirrored).
+    let kpxy = mul_static(&gain, &cross.transpose());
+    let mut post = SMatrix::<T, N, N>::zeros();
+    for j in 0..N {
+        for i in 0..=j {
+            let pij = (p[(i, j)] + p[(j, i)]) * lit::<T>(0.5);
+            let v = pij - (kpxy[(i, j)] + kpxy[(j, i)]) * lit::<T>(0.5);
+            post[(i, j)] = v;
+            post[(j, i)] = v;
+        }
+    }
+    check_finite(state.as_slice(), "posterior state")?;
+    check_finite(post.as_slice(), "posterior covariance")?;
+    if !nis.is_finite() {
+        return Err(Error::NonFinite {
+            what: "normalised innovation squared",
+        });
+    }
+    Ok(UnscentedOutcome {
+        posterior: StateAndCovariance::new(state, post)?,
+        predicted_measurement: predicted,
+        innovation,
+        innovation_covariance: pyy,
+        state_measurement_covariance: cross,
+        gain,
+        nis,
+    })
+}
+
+/// out += w a b'.
+#[inline(always)]
+fn add_outer<T: Scalar, const R: usize, const C: usize>(
+    out: &mut SMatrix<T, R, C>,
+    a: &SVector<T, R>,
+    b: &SVector<T, C>,
+    w: T,
+) {
+    for c in 0..C {
+        let bc = b[c] * w;
+        for r in 0..R {
+            out[(r, c)] += a[r] * bc;
+        }
+    }
+}
+
+/// (A + A')/2 + (B + B')/2, exactly symmetric.
+fn symmetric_sum<T: Scalar, const N: usize>(
+    a: &SMatrix<T, N, N>,
+    b: &SMatrix<T, N, N>,
+) -> SMatrix<T, N, N> {
+    let half = lit::<T>(0.5);
+    SMatrix::from_fn(|i, j| (a[(i, j)] + a[(j, i)]) * half + (b[(i, j)] + b[(j, i)]) * half)
+}

@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# The long runs the README quotes, one log per run in results/:
+# - tests/fuzz_parsers.rs, 1,000,000 cases, one property at a time (about 6-7 min in all);
+# - tests/long_mission.rs, the 10-hour mission (ignored test; about 4 min) and the 1-hour one.
+# Each log's first line is the commit it ran on and the command. Run from the repository
+# root on a clean work tree (the commit must be the code that ran), then
+# `cargo run --release -- report --write README.md` to quote the logs in the README.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if [ -n "$(git status --porcelain --untracked-files=no)" ]; then
+  echo "run_long.sh: the work tree has uncommitted changes; commit first" >&2
+  exit 1
+fi
+commit="$(git rev-parse HEAD)"
+
+run() { # run LOG COMMAND...
+  local log="results/$1"; shift
+  echo "$commit $*" > "$log"
+  echo "== $*"
+  # The command's own exit status is kept in the log ("test result:"); a failure stops here.
+  env "$@" >> "$log" 2>&1
+}
+
+# The missions run beside the fuzzing (two processes for the machine's two cores).
+(
+  run long_mission-10h.log cargo test --workspace --release --test long_mission -- --ignored --nocapture
+  run long_mission-1h.log cargo test --workspace --release --test long_mission -- --nocapture
+) &
+missions=$!
+
+cases="${ESTIM_FUZZ_CASES:-1000000}"
+properties=$(cargo test --workspace --release --test fuzz_parsers -- --list 2>/dev/null \
+  | sed -n 's/^\(.*survives_.*\): test$/\1/p')
+for p in $properties; do
+  run "fuzz_parsers-$p.log" ESTIM_FUZZ_CASES="$cases" cargo test --workspace --release --test fuzz_parsers -- --exact "$p"
+done
+wait "$missions"

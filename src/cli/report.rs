@@ -1,0 +1,84 @@
+//! `estim report`: regenerate the README's result tables from seeded runs.
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use estim::datasets::{akit_dir, data_root};
+use estim::pipeline::markdown::{
+    default_beamsnet, long_run_tables, monte_carlo_table, results_tables, splice, Table,
+};
+use estim::pipeline::Config;
+
+/// Arguments of `estim report`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Print every generated table as markdown between its README markers
+    /// (`<!-- estim-report:NAME begin -->` ... `end -->`); the default output.
+    #[arg(long)]
+    markdown: bool,
+    /// Folder holding A-KIT `TrajectoryN/` (or a data root holding `a-kit/`); default:
+    /// `ESTIM_DATA_DIR`, then `../shared/data`. Without data the A-KIT tables are
+    /// skipped (said on stderr).
+    #[arg(long, value_name = "DIR")]
+    data: Option<PathBuf>,
+    /// Folder of the long-run logs (fuzzing, 10-hour mission).
+    #[arg(long, value_name = "DIR", default_value = "results")]
+    results: PathBuf,
+    /// Replace the marked regions of this file (e.g. README.md) with the fresh tables;
+    /// nothing else in it changes.
+    #[arg(long, value_name = "FILE")]
+    write: Option<PathBuf>,
+}
+
+/// Run it.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    // The README's tables are the defaults' (no --config on purpose).
+    let config = Config::default();
+    let learned = default_beamsnet(&config)?;
+    let mut tables: Vec<Table> = Vec::new();
+    match &args.data {
+        Some(dir) => {
+            let dir = akit_dir(dir)?;
+            tables.extend(results_tables(&config, &dir, learned.as_ref())?);
+        }
+        None => match data_root(None).map(|d| akit_dir(&d)) {
+            Some(Ok(dir)) => tables.extend(results_tables(&config, &dir, learned.as_ref())?),
+            _ => eprintln!(
+                "note: A-KIT data not found (--data, ESTIM_DATA_DIR, ../shared/data): \
+                 velocity, filters, paper-std and rho tables skipped"
+            ),
+        },
+    }
+    tables.push(monte_carlo_table(&config, learned.as_ref())?);
+    if args.results.is_dir() {
+        tables.extend(long_run_tables(&args.results)?);
+    } else {
+        eprintln!(
+            "note: {} not found: fuzz and long-mission tables skipped",
+            args.results.display()
+        );
+    }
+    if let Some(path) = &args.write {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("{}: cannot read", path.display()))?;
+        let spliced = splice(&text, &tables).with_context(|| path.display().to_string())?;
+        // Write beside it and rename: the file is either the old or the new one.
+        let staging = path.with_extension(format!("partial-{}", std::process::id()));
+        std::fs::write(&staging, &spliced)
+            .with_context(|| format!("{}: cannot write", staging.display()))?;
+        std::fs::rename(&staging, path).with_context(|| {
+            let _ = std::fs::remove_file(&staging);
+            format!("{}: cannot replace", path.display())
+        })?;
+        let names: Vec<&str> = tables.iter().map(|t| t.name).collect();
+        eprintln!("{}: regions {} rewritten", path.display(), names.join(", "));
+    }
+    if args.markdown || args.write.is_none() {
+        let mut out = std::io::stdout().lock();
+        for t in &tables {
+            writeln!(out, "{}", t.with_markers())?;
+        }
+    }
+    Ok(())
+}

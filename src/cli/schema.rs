@@ -1,0 +1,81 @@
+//! The one JSON schema of every `--json` output, and the exit statuses.
+//!
+//! Every document is an object with
+//! - `schema_version` (integer, [`SCHEMA_VERSION`]), `estim_version` (the crate
+//!   version), `command` (e.g. `"reproduce"`),
+//! - `inputs`: the paths, seeds and configuration the result depends on,
+//! - `status`: `"ok"`, or `"filters_failed"` when at least one filter variant stopped
+//!   (its failure is listed; the other variants' results are complete),
+//! - the command's own fields. Filter variants are arrays of objects, each with a
+//!   stable `id` (`ls`, `beamsnet_m_neglected`, `beamsnet_m_rho`, `beamsnet_m_network`,
+//!   `oracle_m_neglected`, `oracle_m_true`, `oracle_m_rho`) and a human `label` that
+//!   states the rho actually used. Numeric fields carry their unit in the name
+//!   (`position_rmse_m`, `rmse_mps`, `time_s`, `vaf_percent`); a value that is not
+//!   defined is `null`.
+//!
+//! Exit statuses: 0 everything completed; 2 bad input or usage (nothing computed,
+//! nothing written); 3 some filter variant failed while the others completed (results
+//! written and printed, failures listed); 141 stdout was closed by the reader (quiet,
+//! as a process killed by SIGPIPE would appear in a shell).
+
+use serde_json::{json, Map, Value};
+
+/// Version of the JSON schema; bumped on any incompatible change.
+pub const SCHEMA_VERSION: u32 = 1;
+
+/// Exit status: everything completed.
+pub const EXIT_OK: u8 = 0;
+/// Exit status: bad input or usage.
+pub const EXIT_BAD_INPUT: u8 = 2;
+/// Exit status: at least one filter variant failed, the others completed.
+pub const EXIT_FILTERS_FAILED: u8 = 3;
+/// Exit status: stdout closed by the reader (128 + SIGPIPE).
+pub const EXIT_BROKEN_PIPE: u8 = 141;
+
+/// Returned by a command whose results are complete except for failed filter
+/// variants (already reported in its output): `main` exits with
+/// [`EXIT_FILTERS_FAILED`].
+#[derive(Debug, thiserror::Error)]
+#[error("{count} filter run(s) failed (listed above); the other results are complete")]
+pub struct FiltersFailed {
+    /// Number of failed filter runs.
+    pub count: usize,
+}
+
+/// `Ok(())`, or [`FiltersFailed`] when `count > 0`.
+pub fn status_result(count: usize) -> anyhow::Result<()> {
+    if count == 0 {
+        Ok(())
+    } else {
+        Err(FiltersFailed { count }.into())
+    }
+}
+
+/// The JSON document of `command`: the common header, then the fields of `body`
+/// (an object).
+pub fn document(command: &str, inputs: Value, failures: usize, body: Value) -> Value {
+    let mut out = Map::new();
+    out.insert("schema_version".into(), json!(SCHEMA_VERSION));
+    out.insert("estim_version".into(), json!(env!("CARGO_PKG_VERSION")));
+    out.insert("command".into(), json!(command));
+    out.insert("inputs".into(), inputs);
+    out.insert(
+        "status".into(),
+        json!(if failures == 0 {
+            "ok"
+        } else {
+            "filters_failed"
+        }),
+    );
+    if let Value::Object(fields) = body {
+        for (k, v) in fields {
+            out.insert(k, v);
+        }
+    }
+    Value::Object(out)
+}
+
+/// A path as JSON (lossy UTF-8), or `null`.
+pub fn path_json(path: Option<&std::path::Path>) -> Value {
+    path.map_or(Value::Null, |p| json!(p.to_string_lossy()))
+}

@@ -1,0 +1,212 @@
+//! `estim smooth` (and `estim reproduce --smooth`): the 15-state INS/DVL error-state
+//! filter, recorded and smoothed (RTS, exact with correlated noise), smoothed against
+//! filtered errors versus ground truth, plus NEES.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use estim::datasets::data_root;
+use estim::pipeline::{apply_faults, smooth_scenario, Config, CrossSource, Scenario, SmoothReport};
+use rayon::prelude::*;
+
+/// Arguments of `estim smooth`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Folder holding A-KIT `TrajectoryN/` (or a data root holding `a-kit/`); its
+    /// trajectories are smoothed besides the embedded simulated mission.
+    #[arg(long, value_name = "DIR")]
+    data: Option<PathBuf>,
+    /// A-KIT trajectories to run with --data (repeatable); default 4 and 13.
+    #[arg(long = "trajectory", value_name = "N")]
+    trajectories: Vec<u32>,
+    /// TOML configuration (as for `estim reproduce`).
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// Correlate the DVL noise with the process noise by the paper's heuristic
+    /// M = rho sqrt(diag Q_acc) sqrt(diag R)'; default M = 0.
+    #[arg(long, value_name = "RHO")]
+    rho: Option<f64>,
+    /// Machine-readable JSON on stdout instead of tables.
+    #[arg(long)]
+    json: bool,
+    /// Write CSV time series and plots (PNG, SVG) into this folder.
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+}
+
+/// Run it.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let config = match &args.config {
+        Some(path) => Config::from_file(path)?,
+        None => Config::default(),
+    };
+    let cross = match args.rho {
+        None => CrossSource::Zero,
+        Some(rho) if rho.is_finite() && (-1.0..=1.0).contains(&rho) => CrossSource::Scaled(rho),
+        Some(rho) => anyhow::bail!("--rho {rho}: a correlation must be finite and in [-1, 1]"),
+    };
+    let mut scenarios = vec![Scenario::simulated(&config, config.seed)?];
+    if let Some(dir) = &args.data {
+        let dir = data_root(Some(dir)).context("no data folder")?;
+        let list = if args.trajectories.is_empty() {
+            vec![4, 13]
+        } else {
+            args.trajectories.clone()
+        };
+        for n in list {
+            scenarios.push(Scenario::akit(&dir, n, &config, config.seed)?);
+        }
+    }
+    for s in &mut scenarios {
+        apply_faults(s, &config.faults, config.seed)?;
+    }
+    let reports = smooth_all(&scenarios, &config, &cross)?;
+    if let Some(dir) = &args.out {
+        write_outputs(dir, &reports)?;
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&reports)?);
+    } else {
+        print_reports(&reports);
+    }
+    Ok(())
+}
+
+/// Smooth every scenario (in parallel), M = 0 or the given cross-covariance.
+pub fn smooth_all(
+    scenarios: &[Scenario],
+    config: &Config,
+    cross: &CrossSource,
+) -> anyhow::Result<Vec<SmoothReport>> {
+    scenarios
+        .par_iter()
+        .map(|s| {
+            smooth_scenario(s, config, cross, config.seed)
+                .with_context(|| format!("smoothing {}", s.name))
+        })
+        .collect()
+}
+
+/// The filtered-against-smoothed tables.
+pub fn print_reports(reports: &[SmoothReport]) {
+    for r in reports {
+        println!(
+            "== {} (LS DVL, {}, {} epochs): filtered vs smoothed against ground truth",
+            r.name,
+            r.cross,
+            r.time.len()
+        );
+        println!(
+            "{:<10} {:>12} {:>12} {:>14} {:>14} {:>10}",
+            "", "pos RMSE m", "pos final m", "vel RMSE m/s", "att RMSE deg", "mean NEES"
+        );
+        for (name, s) in [
+            ("filtered", &r.filtered_summary),
+            ("smoothed", &r.smoothed_summary),
+        ] {
+            println!(
+                "{:<10} {:>12.3} {:>12.3} {:>14.4} {:>14.4} {:>10.2}",
+                name,
+                s.position_m.rmse,
+                s.position_m.final_value,
+                s.velocity_mps.rmse,
+                s.attitude_deg.rmse,
+                s.mean_nees
+            );
+        }
+        println!("(NEES of the 15-state error; 15 for a consistent estimate)");
+        println!();
+    }
+}
+
+/// File-name stem of a report.
+fn slug(r: &SmoothReport) -> String {
+    match r.trajectory {
+        Some(n) => format!("trajectory{n}"),
+        None => "simulated".to_string(),
+    }
+}
+
+/// CSV time series and the position-error plot of every report, into `dir`
+/// (complete or not at all).
+pub fn write_outputs(dir: &Path, reports: &[SmoothReport]) -> anyhow::Result<()> {
+    use crate::output::StagedDir;
+    use crate::plots::{line_chart, LineChart, Series};
+    use std::io::Write;
+
+    let staged = StagedDir::new(dir)?;
+    std::fs::write(
+        staged.path("smoothing.json"),
+        serde_json::to_string_pretty(reports)?,
+    )
+    .context("cannot write smoothing.json")?;
+    for r in reports {
+        let stem = slug(r);
+        let path = staged.path(&format!("{stem}_smoothing.csv"));
+        let mut w = std::io::BufWriter::new(
+            std::fs::File::create(&path)
+                .with_context(|| format!("{}: cannot create", path.display()))?,
+        );
+        writeln!(
+            w,
+            "time_s,filtered_position_error_m,filtered_position_3sigma_m,smoothed_position_error_m,smoothed_position_3sigma_m,filtered_velocity_error_mps,smoothed_velocity_error_mps,filtered_attitude_error_deg,smoothed_attitude_error_deg,filtered_nees,smoothed_nees"
+        )?;
+        let (f, s) = (&r.filtered, &r.smoothed);
+        for k in 0..r.time.len() {
+            writeln!(
+                w,
+                "{},{},{},{},{},{},{},{},{},{},{}",
+                r.time[k],
+                f.position_error[k],
+                f.position_3sigma[k],
+                s.position_error[k],
+                s.position_3sigma[k],
+                f.velocity_error[k],
+                s.velocity_error[k],
+                f.attitude_error_deg[k],
+                s.attitude_error_deg[k],
+                f.nees[k],
+                s.nees[k]
+            )?;
+        }
+        w.flush()?;
+        drop(w);
+        let chart = LineChart {
+            title: &format!("{}: position error, filtered and smoothed", r.name),
+            x_label: "time [s]",
+            y_label: "|position error| and 3 sqrt(trace P_pos) [m]",
+            series: vec![
+                Series {
+                    id: "smooth_filtered",
+                    label: "filtered error",
+                    x: &r.time,
+                    y: &f.position_error,
+                },
+                Series {
+                    id: "smooth_filtered_3sigma",
+                    label: "filtered 3-sigma",
+                    x: &r.time,
+                    y: &f.position_3sigma,
+                },
+                Series {
+                    id: "smooth_smoothed",
+                    label: "smoothed error",
+                    x: &r.time,
+                    y: &s.position_error,
+                },
+                Series {
+                    id: "smooth_smoothed_3sigma",
+                    label: "smoothed 3-sigma",
+                    x: &r.time,
+                    y: &s.position_3sigma,
+                },
+            ],
+            hlines: vec![],
+            log_y: false,
+            equal_axes: false,
+        };
+        line_chart(&staged.path(&format!("{stem}_smoothed_position")), &chart)
+            .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    }
+    staged.commit()
+}

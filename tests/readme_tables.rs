@@ -1,0 +1,97 @@
+//! Every generated table of README.md equals a fresh run of its generator, byte for
+//! byte (`estim report --markdown`; runs are seeded, rounding is stated in
+//! `estim::pipeline::markdown`). When a table differs, regenerate it with
+//! `cargo run --release -- report --write README.md` and commit the README with the
+//! change that moved it.
+//!
+//! The A-KIT tables need the data: they run when it is found and in CI
+//! (`ESTIM_REQUIRE_DATA=1`), and are skipped elsewhere with a printed reason. The
+//! Monte Carlo table runs everywhere (simulated missions; about 25 s in release on
+//! 2 cores). The long-run tables are rendered from the logs in `results/`.
+
+use std::path::PathBuf;
+
+use estim::pipeline::markdown::{
+    default_beamsnet, long_run_tables, monte_carlo_table, region, results_tables, splice, Table,
+};
+use estim::pipeline::Config;
+
+mod common;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn readme() -> String {
+    std::fs::read_to_string(root().join("README.md")).expect("README.md")
+}
+
+/// The README region of `table` equals the fresh markdown.
+fn assert_matches(readme: &str, table: &Table) {
+    let committed = region(readme, table.name)
+        .unwrap_or_else(|e| panic!("README.md: region {}: {e}", table.name));
+    assert!(
+        committed == table.markdown,
+        "README.md region {:?} differs from a fresh run \
+         (regenerate: cargo run --release -- report --write README.md)\n\
+         --- README ---\n{committed}--- fresh ---\n{}",
+        table.name,
+        table.markdown
+    );
+}
+
+#[test]
+fn every_region_is_marked_once() {
+    let text = readme();
+    let names = [
+        "velocity",
+        "filters",
+        "paper-std",
+        "rho",
+        "montecarlo",
+        "fuzz",
+        "long-mission",
+    ];
+    let tables: Vec<Table> = names
+        .iter()
+        .map(|n| Table {
+            name: n,
+            markdown: region(&text, n)
+                .unwrap_or_else(|e| panic!("README.md: {e}"))
+                .to_string(),
+        })
+        .collect();
+    // Splicing the README's own regions back in is the identity.
+    assert_eq!(splice(&text, &tables).expect("markers"), text);
+}
+
+#[test]
+fn akit_and_simulated_tables_match_a_fresh_run() {
+    let Some(data) = common::data_root() else {
+        return;
+    };
+    let config = Config::default();
+    let learned = default_beamsnet(&config).expect("committed BeamsNet model");
+    let tables = results_tables(&config, &data, learned.as_ref()).expect("tables");
+    let text = readme();
+    for t in &tables {
+        assert_matches(&text, t);
+    }
+}
+
+#[test]
+fn monte_carlo_table_matches_a_fresh_run() {
+    let config = Config::default();
+    let learned = default_beamsnet(&config).expect("committed BeamsNet model");
+    let table = monte_carlo_table(&config, learned.as_ref()).expect("Monte Carlo");
+    assert_matches(&readme(), &table);
+}
+
+#[test]
+fn long_run_tables_match_their_logs() {
+    let tables = long_run_tables(&root().join("results")).expect("logs in results/");
+    let text = readme();
+    for t in &tables {
+        assert_matches(&text, t);
+    }
+}
