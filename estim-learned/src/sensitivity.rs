@@ -533,6 +533,11 @@ fn error_state(reference: &InsState, nominal: &InsState) -> SMatrix<f64, ERROR_S
 /// and the network re-run on them; M = sample Cov(δx_k, y). Build one per update
 /// (it borrows the network and error model; nothing is kept between updates).
 ///
+/// For a network that is not linear at the noise scale this is not the first-order M:
+/// by Stein's lemma Cov(n, y(x + n)) = Σ E_n[J(x + n)], the Jacobian averaged over the
+/// noise, where [`LearnedCrossCovariance`] takes J at the window's samples (measured
+/// on the two-beams network: `estim-learned/tests/two_beams.rs`).
+///
 /// Any 3-output [`OnnxMeasurement`] laid out as [`LearnedCrossCovariance`] expects
 /// (leading streams \[f_b; ω_b\] over the window, then per-update inputs) works:
 /// [`Empirical::new`] for BeamsNet, [`Empirical::for_model`] for the others (e.g. the
