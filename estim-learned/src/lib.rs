@@ -8,6 +8,8 @@
 //! - [`synthesize`], [`dataset_row`], [`write_npy`]: BeamsNet training data;
 //! - [`TwoBeamsNet`]: IMU window + two beams -> body velocity (its M is the generic
 //!   [`LearnedCrossCovariance`], by Monte Carlo [`Empirical::for_model`]);
+//! - [`OutageNet`]: IMU window + last valid DVL velocity + time since it -> body
+//!   velocity (a full DVL outage; M as for the two-beams network);
 //! - [`RowOverlaps`]: rows shared between recorded trajectories (keeps windows that
 //!   touch a held-out trajectory out of training and validation);
 //! - [`metrics`](fn@metrics), [`speed_metrics`], [`evaluate`]: the paper's RMSE, MAE, R^2, VAF;
@@ -44,6 +46,7 @@ mod measurement;
 mod metadata;
 mod metrics;
 mod onnx;
+mod outage;
 mod overlap;
 mod sensitivity;
 mod two_beams;
@@ -60,6 +63,7 @@ pub use metadata::{
     BeamGeometryMetadata, InputMetadata, ModelMetadata, OutputMetadata, METADATA_FORMAT,
 };
 pub use metrics::{metrics, speed_metrics, Metrics};
+pub use outage::{default_outage_model_path, OutageNet};
 pub use overlap::{row_key, row_span, RowKey, RowOverlaps};
 pub use sensitivity::{
     driven_error_covariance, CrossMatrix, Empirical, EmpiricalEstimate, InputNoise,

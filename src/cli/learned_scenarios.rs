@@ -1,10 +1,10 @@
 //! `estim reproduce --scenario two-beams` and `estim montecarlo --learned two-beams`:
 //! learned sensors that must use the IMU.
 
-use estim::learned::{BeamsNet, TwoBeamsNet};
+use estim::learned::{BeamsNet, OutageNet, TwoBeamsNet};
 use estim::pipeline::{
-    two_beams_monte_carlo, two_beams_study, BeamLoss, Config, LearnedMonteCarlo, Scenario,
-    TwoBeamsStudy,
+    learned_monte_carlo, learned_study, BeamLoss, Config, DvlOutage, LearnedEvent,
+    LearnedMonteCarlo, LearnedStudy, Scenario,
 };
 
 use std::fmt::Write as _;
@@ -18,7 +18,8 @@ pub enum ScenarioKind {
     Paper,
     /// Beams 1 and 2 only for 120 s: the two-beams network (IMU window + 2 beams).
     TwoBeams,
-    /// A 60 s full DVL outage (not built yet: reported as an error).
+    /// No DVL for 60 s: the outage network (IMU window + last valid velocity + time
+    /// since it).
     Outage,
 }
 
@@ -29,35 +30,82 @@ pub enum LearnedKind {
     Beamsnet,
     /// The two-beams scenario.
     TwoBeams,
-    /// A 60 s full DVL outage (not built yet: reported as an error).
+    /// The outage scenario.
     Outage,
 }
 
 /// Realizations of the empirical M per update in `estim reproduce --scenario two-beams`.
 pub const EMPIRICAL_REALIZATIONS: usize = 400;
 
-fn models() -> anyhow::Result<(BeamsNet, TwoBeamsNet)> {
-    Ok((
-        BeamsNet::load_default().context("the committed BeamsNet model")?,
-        TwoBeamsNet::load_default().context("the committed two-beams model")?,
-    ))
+/// The scripted outage: no DVL from 200 s for 60 s (inside the 400 s A-KIT segments and
+/// the default simulated mission).
+pub fn outage() -> DvlOutage {
+    DvlOutage {
+        start_s: 200.0,
+        duration_s: 60.0,
+    }
 }
 
-/// The two-beams study on each scenario.
-pub fn reproduce_two_beams(
+/// The committed networks a learned scenario needs.
+pub struct Networks {
+    beamsnet: BeamsNet,
+    two_beams: Option<TwoBeamsNet>,
+    outage: Option<OutageNet>,
+}
+
+impl Networks {
+    /// BeamsNet and the network of `outage` (true) or the two-beams scenario.
+    pub fn load(outage: bool) -> anyhow::Result<Self> {
+        let beamsnet = BeamsNet::load_default().context("the committed BeamsNet model")?;
+        let (two_beams, outage) = if outage {
+            (
+                None,
+                Some(OutageNet::load_default().context("the committed outage model")?),
+            )
+        } else {
+            (
+                Some(TwoBeamsNet::load_default().context("the committed two-beams model")?),
+                None,
+            )
+        };
+        Ok(Self {
+            beamsnet,
+            two_beams,
+            outage,
+        })
+    }
+
+    fn event(&self) -> anyhow::Result<LearnedEvent<'_>> {
+        match (&self.two_beams, &self.outage) {
+            (Some(net), _) => Ok(LearnedEvent::TwoBeams {
+                net,
+                loss: BeamLoss::two_beams(),
+            }),
+            (None, Some(net)) => Ok(LearnedEvent::Outage {
+                net,
+                outage: outage(),
+            }),
+            (None, None) => anyhow::bail!("no learned network loaded"),
+        }
+    }
+}
+
+/// The learned study (`outage` or two-beams) on each scenario.
+pub fn reproduce_learned(
     scenarios: &[Scenario],
     config: &Config,
-) -> anyhow::Result<Vec<TwoBeamsStudy>> {
-    let (beamsnet, net) = models()?;
+    outage: bool,
+) -> anyhow::Result<Vec<LearnedStudy>> {
+    let nets = Networks::load(outage)?;
+    let event = nets.event()?;
     scenarios
         .iter()
         .map(|s| {
-            Ok(two_beams_study(
+            Ok(learned_study(
                 s,
                 config,
-                &beamsnet,
-                &net,
-                &BeamLoss::two_beams(),
+                &nets.beamsnet,
+                &event,
                 EMPIRICAL_REALIZATIONS,
                 config.seed,
             )?)
@@ -66,11 +114,11 @@ pub fn reproduce_two_beams(
 }
 
 /// A study as a table.
-pub fn print_study(out: &mut String, s: &TwoBeamsStudy) -> std::fmt::Result {
+pub fn print_study(out: &mut String, s: &LearnedStudy) -> std::fmt::Result {
     writeln!(
         out,
-        "== {}: beams 1-2 only for 120 s ({} two-beams updates); paper rho used {:.3}",
-        s.scenario, s.loss_epochs, s.paper_rho
+        "== {} ({}): {} ({} network updates); paper rho used {:.3}",
+        s.scenario, s.event, s.description, s.loss_epochs, s.paper_rho
     )?;
     writeln!(
         out,
@@ -86,7 +134,7 @@ pub fn print_study(out: &mut String, s: &TwoBeamsStudy) -> std::fmt::Result {
     writeln!(
         out,
         "   {:<56} {:>10} {:>10} {:>10} {:>10} | {:>9} {:>9} {:>9}",
-        "variant (loss window | whole run)",
+        "variant (event window | whole run)",
         "NEES",
         "NIS",
         "pos RMSE",
@@ -112,16 +160,25 @@ pub fn print_study(out: &mut String, s: &TwoBeamsStudy) -> std::fmt::Result {
     Ok(())
 }
 
-/// `estim montecarlo --learned two-beams`.
-pub fn monte_carlo_two_beams(
+/// `estim montecarlo --learned two-beams|outage`.
+pub fn monte_carlo_learned(
     config: &Config,
+    outage: bool,
     runs: usize,
     seed: u64,
+    empirical_realizations: usize,
     tick: &(dyn Fn() + Sync),
 ) -> anyhow::Result<LearnedMonteCarlo> {
-    let (beamsnet, net) = models()?;
-    Ok(two_beams_monte_carlo(
-        config, &beamsnet, &net, runs, seed, tick,
+    let nets = Networks::load(outage)?;
+    let event = nets.event()?;
+    Ok(learned_monte_carlo(
+        config,
+        &nets.beamsnet,
+        &event,
+        runs,
+        seed,
+        empirical_realizations,
+        tick,
     )?)
 }
 

@@ -48,7 +48,7 @@ pub struct Args {
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
     /// Scenario: `paper` (default), `two-beams` (beams 1-2 only for 120 s, the
-    /// two-beams network), `outage` (not built yet).
+    /// two-beams network), `outage` (no DVL for 60 s, the outage network).
     #[arg(long, value_enum, default_value = "paper")]
     scenario: crate::learned_scenarios::ScenarioKind,
     /// Also smooth each trajectory (RTS, LS DVL, M = 0): smoothed vs filtered errors
@@ -116,14 +116,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     match args.scenario {
         crate::learned_scenarios::ScenarioKind::Paper => {}
-        crate::learned_scenarios::ScenarioKind::TwoBeams => {
-            let studies = crate::learned_scenarios::reproduce_two_beams(&scenarios, &config)?;
+        kind => {
+            let outage = kind == crate::learned_scenarios::ScenarioKind::Outage;
+            let studies = crate::learned_scenarios::reproduce_learned(&scenarios, &config, outage)?;
             if args.json {
                 let inputs = serde_json::json!({
                     "data": path_json(args.data.as_deref()),
                     "trajectories": trajectories,
                     "config_file": path_json(args.config.as_deref()),
-                    "scenario": "two-beams",
+                    "scenario": if outage { "outage" } else { "two-beams" },
                     "seed": config.seed,
                     "config": config,
                 });
@@ -138,9 +139,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 emit(&text)?;
             }
             return Ok(());
-        }
-        crate::learned_scenarios::ScenarioKind::Outage => {
-            anyhow::bail!("--scenario outage is not built yet (estim issue 12, step 4)")
         }
     }
     let learned = crate::learned::sensor(&config, args.model.as_deref())?;

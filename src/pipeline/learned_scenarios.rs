@@ -1,6 +1,9 @@
 //! Learned sensors that must use the IMU: the two-beams scenario (a scripted loss of two
 //! of the four DVL beams, during which a network maps the IMU window plus the two
-//! remaining beams to the velocity), its filter variants, and their Monte Carlo.
+//! remaining beams to the velocity), the outage scenario (no DVL at all for up to 60 s,
+//! during which a network maps the IMU window, the last valid DVL velocity and the time
+//! since it to a velocity pseudo-measurement at 1 Hz), their filter variants, and their
+//! Monte Carlo.
 //!
 //! Outside the loss the filter is aided by BeamsNet (4 beams, M neglected: its
 //! network-derived M is about 1e-8, see README). During the loss the variants differ
@@ -9,13 +12,14 @@
 //! rho; a fifth variant receives no update during the loss (INS only; least squares
 //! needs three beams).
 
+use estim_core::nalgebra::DMatrix;
 use estim_core::nalgebra::{Matrix3, SMatrix, Vector3};
 use estim_core::{chi_square_band, ErrorStateKalmanFilter, FilterConfig, WindowedCrossCovariance};
 use estim_dvl::BeamGeometry;
 use estim_ins::{InsErrorModel, ERROR_STATES};
 use estim_learned::{
-    driven_error_covariance, BeamsNet, Empirical, LearnedCrossCovariance, TwoBeamsNet,
-    BEAMSNET_WINDOW, IMU_CHANNELS,
+    driven_error_covariance, BeamsNet, Empirical, LearnedCrossCovariance, OnnxMeasurement,
+    OutageNet, TwoBeamsNet, BEAMSNET_WINDOW, IMU_CHANNELS,
 };
 use rayon::prelude::*;
 use serde::Serialize;
@@ -24,7 +28,8 @@ use super::run::filter_imu_spec;
 use super::stats::finite_mean;
 use super::{
     beamsnet_inputs, run_filter_per_epoch_noise, summarise, BeamLoss, Config, CrossMatrix,
-    CrossSource, FilterRun, FilterSummary, MeasurementSet, PipelineError, Result, Scenario,
+    CrossSource, DvlOutage, FilterRun, FilterSummary, MeasurementSet, PipelineError, Result,
+    Scenario,
 };
 
 /// Filter id: two-beams network, M from its sensitivity.
@@ -39,6 +44,115 @@ pub const TWO_BEAMS_SCALED: &str = "two_beams_m_rho";
 /// Filter id: no update during the loss (INS only).
 pub const INS_ONLY_DURING_LOSS: &str = "ins_only_during_loss";
 
+/// Filter id: outage network, M from its sensitivity.
+pub const OUTAGE_NETWORK: &str = "outage_m_network";
+/// Filter id: outage network, M by Monte Carlo over the IMU noise.
+pub const OUTAGE_EMPIRICAL: &str = "outage_m_empirical";
+/// Filter id: outage network, M neglected.
+pub const OUTAGE_NEGLECTED: &str = "outage_m_neglected";
+/// Filter id: outage network, the paper's M at its largest valid rho.
+pub const OUTAGE_SCALED: &str = "outage_m_rho";
+/// Filter id: no update during the outage (INS only).
+pub const INS_ONLY_DURING_OUTAGE: &str = "ins_only_during_outage";
+
+/// The event of a learned-sensor study and the network that fills in during it.
+#[derive(Debug, Clone, Copy)]
+pub enum LearnedEvent<'a> {
+    /// Two beams lost; the two-beams network (IMU window + the two kept beams).
+    TwoBeams {
+        /// The network.
+        net: &'a TwoBeamsNet,
+        /// Which beams are kept, when and how long.
+        loss: BeamLoss,
+    },
+    /// A full DVL outage; the outage network (IMU window + last valid velocity + time
+    /// since it).
+    Outage {
+        /// The network.
+        net: &'a OutageNet,
+        /// When and how long.
+        outage: DvlOutage,
+    },
+}
+
+impl LearnedEvent<'_> {
+    /// Scenario name (`two-beams`, `outage`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::TwoBeams { .. } => "two-beams",
+            Self::Outage { .. } => "outage",
+        }
+    }
+
+    /// Filter ids: network M, empirical M, M neglected, the paper's M, INS only.
+    pub fn ids(&self) -> [&'static str; 5] {
+        match self {
+            Self::TwoBeams { .. } => [
+                TWO_BEAMS_NETWORK,
+                TWO_BEAMS_EMPIRICAL,
+                TWO_BEAMS_NEGLECTED,
+                TWO_BEAMS_SCALED,
+                INS_ONLY_DURING_LOSS,
+            ],
+            Self::Outage { .. } => [
+                OUTAGE_NETWORK,
+                OUTAGE_EMPIRICAL,
+                OUTAGE_NEGLECTED,
+                OUTAGE_SCALED,
+                INS_ONLY_DURING_OUTAGE,
+            ],
+        }
+    }
+
+    /// What happens, in words.
+    pub fn describe(&self) -> String {
+        match self {
+            Self::TwoBeams { loss, .. } => format!(
+                "beams {} and {} only from {} s for {} s",
+                loss.kept[0] + 1,
+                loss.kept[1] + 1,
+                loss.start_s,
+                loss.duration_s
+            ),
+            Self::Outage { outage, .. } => format!(
+                "no DVL from {} s for {} s",
+                outage.start_s, outage.duration_s
+            ),
+        }
+    }
+
+    /// Apply the event to `scenario`; the DVL epochs it affects.
+    fn apply(&self, scenario: &mut Scenario) -> Result<Vec<usize>> {
+        match self {
+            Self::TwoBeams { loss, .. } => scenario.lose_beams(loss),
+            Self::Outage { outage, .. } => scenario.lose_dvl(outage),
+        }
+    }
+
+    /// The network's measurements over `epochs` of the (modified) scenario.
+    fn measurements(
+        &self,
+        scenario: &Scenario,
+        geometry: &BeamGeometry,
+        epochs: &[usize],
+        empirical_realizations: usize,
+        seed: u64,
+    ) -> Result<LearnedMeasurements> {
+        match self {
+            Self::TwoBeams { net, .. } => {
+                two_beams_measurements(net, scenario, epochs, empirical_realizations, seed)
+            }
+            Self::Outage { net, .. } => learned_measurements(
+                net.measurement(),
+                scenario,
+                &outage_extras(net, scenario, geometry, epochs),
+                empirical_realizations,
+                seed,
+            ),
+        }
+    }
+}
+
 /// Human label of a learned-scenario filter id (`rho`: the one the scaled variant
 /// used); an unknown id is its own label.
 pub fn learned_filter_label(id: &str, rho: f64) -> String {
@@ -48,13 +162,18 @@ pub fn learned_filter_label(id: &str, rho: f64) -> String {
         TWO_BEAMS_NEGLECTED => "two beams, M neglected".into(),
         TWO_BEAMS_SCALED => format!("two beams, M = rho {rho:.3} (paper's form, largest valid)"),
         INS_ONLY_DURING_LOSS => "INS only during the loss".into(),
+        OUTAGE_NETWORK => "outage network, M from network".into(),
+        OUTAGE_EMPIRICAL => "outage network, M empirical".into(),
+        OUTAGE_NEGLECTED => "outage network, M neglected".into(),
+        OUTAGE_SCALED => format!("outage network, M = rho {rho:.3} (paper's form, largest valid)"),
+        INS_ONLY_DURING_OUTAGE => "INS only during the outage".into(),
         other => other.into(),
     }
 }
 
-/// The two-beams network's measurements over a scenario's beam-loss epochs.
+/// A learned network's measurements over a scenario's event epochs.
 #[derive(Debug, Clone)]
-pub struct TwoBeamsMeasurements {
+pub struct LearnedMeasurements {
     /// Velocity per DVL epoch (`None` outside the loss or without a full window).
     pub velocities: Vec<Option<Vector3<f64>>>,
     /// M per DVL epoch from the network's sensitivity (zero where no measurement).
@@ -69,7 +188,8 @@ pub struct TwoBeamsMeasurements {
     pub noise_covariance: Matrix3<f64>,
 }
 
-/// The two-beams network's outputs and M over the epochs `epochs` of `scenario`.
+/// A learned network's outputs and M over the epochs listed in `extras` (epoch index,
+/// the network's per-update inputs after the IMU window) of `scenario`.
 ///
 /// As [`beamsnet_inputs`]: the window of epoch k is the [`BEAMSNET_WINDOW`] IMU samples
 /// before the update; M_k is the generic [`LearnedCrossCovariance`] over the steps of an
@@ -77,34 +197,31 @@ pub struct TwoBeamsMeasurements {
 /// sample and records them (`window_capacity`), so the Phi and noise input are the
 /// filter's own. `empirical_realizations` = 0 skips the Monte Carlo M
 /// ([`Empirical::for_model`], same recorded window, seed `seed + k`).
-pub fn two_beams_measurements(
-    net: &TwoBeamsNet,
+pub fn learned_measurements(
+    model: &OnnxMeasurement<3>,
     scenario: &Scenario,
-    epochs: &[usize],
+    extras: &[(usize, Vec<DMatrix<f64>>)],
     empirical_realizations: usize,
     seed: u64,
-) -> Result<TwoBeamsMeasurements> {
+) -> Result<LearnedMeasurements> {
     let n = BEAMSNET_WINDOW;
     let error_model =
         InsErrorModel::new(filter_imu_spec(&scenario.imu_spec).unwrap_or(scenario.imu_spec));
     let recording = FilterConfig::builder().window_capacity(n).build()?;
-    let model = net.measurement();
     let r = estim_core::LearnedMeasurement::noise_covariance(model);
     let len = scenario.dvl.len();
     let mut velocities = vec![None; len];
     let mut network_m = vec![CrossMatrix::zeros(); len];
     let mut empirical_m = (empirical_realizations > 0).then(|| vec![CrossMatrix::zeros(); len]);
     let mut correlation = Vec::new();
-    for &k in epochs {
+    for (k, extra) in extras {
+        let k = *k;
         let Some(epoch) = scenario.dvl.get(k) else {
             return Err(PipelineError::Invalid(format!(
-                "beam-loss epoch {k} beyond the scenario's {len} DVL epochs"
+                "learned-sensor epoch {k} beyond the scenario's {len} DVL epochs"
             )));
         };
         let end = epoch.imu_index.min(scenario.imu.len());
-        let Some(extra) = net.beam_inputs(&epoch.beams) else {
-            continue;
-        };
         if end < n {
             continue;
         }
@@ -122,7 +239,7 @@ pub fn two_beams_measurements(
         let generic = LearnedCrossCovariance::<f64, _, _, IMU_CHANNELS>::new::<3>(
             model,
             &error_model,
-            &extra,
+            extra,
         )?;
         velocities[k] = Some(generic.measure::<ERROR_STATES, 3>(&steps)?);
         let m = generic
@@ -144,13 +261,76 @@ pub fn two_beams_measurements(
             .cross_covariance;
         }
     }
-    Ok(TwoBeamsMeasurements {
+    Ok(LearnedMeasurements {
         velocities,
         network_m,
         empirical_m,
         output_imu_correlation: correlation,
         noise_covariance: r,
     })
+}
+
+/// The two-beams network's outputs and M over the epochs `epochs` of `scenario`
+/// (epochs where a beam it reads is missing are skipped); see
+/// [`learned_measurements`].
+pub fn two_beams_measurements(
+    net: &TwoBeamsNet,
+    scenario: &Scenario,
+    epochs: &[usize],
+    empirical_realizations: usize,
+    seed: u64,
+) -> Result<LearnedMeasurements> {
+    let extras: Vec<(usize, Vec<DMatrix<f64>>)> = epochs
+        .iter()
+        .filter_map(|&k| {
+            let epoch = scenario.dvl.get(k)?;
+            Some((k, net.beam_inputs(&epoch.beams)?))
+        })
+        .collect();
+    learned_measurements(
+        net.measurement(),
+        scenario,
+        &extras,
+        empirical_realizations,
+        seed,
+    )
+}
+
+/// The outage network's per-update inputs over the epochs `epochs` (inside the outage)
+/// of `scenario`: the last valid velocity is the least-squares velocity
+/// ([`BeamGeometry::solve_nan`], three beams or more) of the last epoch before the
+/// first epoch of `epochs`, the elapsed time is measured from it. Epochs beyond the
+/// network's trained range, or with no valid epoch before, are left out.
+pub fn outage_extras(
+    net: &OutageNet,
+    scenario: &Scenario,
+    geometry: &BeamGeometry,
+    epochs: &[usize],
+) -> Vec<(usize, Vec<DMatrix<f64>>)> {
+    let Some(&first) = epochs.iter().min() else {
+        return Vec::new();
+    };
+    let time = |k: usize| {
+        scenario
+            .dvl
+            .get(k)
+            .and_then(|e| scenario.truth.get(e.imu_index))
+            .map(|s| s.time)
+    };
+    let last = (0..first).rev().find_map(|k| {
+        let v = geometry.solve_nan(&scenario.dvl[k].beams).velocity()?;
+        Some((time(k)?, v))
+    });
+    let Some((t_last, v_last)) = last else {
+        return Vec::new();
+    };
+    epochs
+        .iter()
+        .filter_map(|&k| {
+            let extra = net.extra_inputs(&v_last, time(k)? - t_last)?;
+            Some((k, extra))
+        })
+        .collect()
 }
 
 /// max over velocity and attitude rows i and outputs j of |M_ij| / sqrt(Q_ii R_jj).
@@ -184,12 +364,16 @@ pub struct LossWindowSummary {
     pub nis_mean: f64,
 }
 
-/// Everything reported for one scenario of the two-beams study.
+/// Everything reported for one scenario of a learned-sensor study.
 #[derive(Debug, Clone, Serialize)]
-pub struct TwoBeamsStudy {
+pub struct LearnedStudy {
+    /// The event (`two-beams`, `outage`).
+    pub event: String,
+    /// What happens, in words.
+    pub description: String,
     /// Scenario name.
     pub scenario: String,
-    /// DVL epochs of the loss with a two-beams measurement.
+    /// DVL epochs of the event with a network measurement.
     pub loss_epochs: usize,
     /// rho used by the paper's variant (largest valid over the run, times 0.99).
     pub paper_rho: f64,
@@ -217,17 +401,38 @@ pub fn two_beams_study(
     loss: &BeamLoss,
     empirical_realizations: usize,
     seed: u64,
-) -> Result<TwoBeamsStudy> {
+) -> Result<LearnedStudy> {
+    learned_study(
+        scenario,
+        config,
+        beamsnet,
+        &LearnedEvent::TwoBeams { net, loss: *loss },
+        empirical_realizations,
+        seed,
+    )
+}
+
+/// Run a learned-sensor study on `scenario` (the event is applied here): BeamsNet
+/// outside the event, the event's network during it, with the five variants.
+pub fn learned_study(
+    scenario: &Scenario,
+    config: &Config,
+    beamsnet: &BeamsNet,
+    event: &LearnedEvent<'_>,
+    empirical_realizations: usize,
+    seed: u64,
+) -> Result<LearnedStudy> {
+    let [id_network, id_empirical, id_neglected, id_scaled, id_ins_only] = event.ids();
     let mut scenario = scenario.clone();
-    let epochs = scenario.lose_beams(loss)?;
+    let epochs = event.apply(&mut scenario)?;
     let geometry: BeamGeometry = if config.dvl.protocol == "v2" {
         estim_dvl::BeamsNetProtocol::v2().geometry().clone()
     } else {
         estim_dvl::BeamsNetProtocol::v1().geometry().clone()
     };
-    // BeamsNet outside the loss (fewer than 3 beams give no BeamsNet measurement).
+    // BeamsNet outside the event (fewer than 3 beams give no BeamsNet measurement).
     let four = beamsnet_inputs(beamsnet, &scenario, &geometry, false)?;
-    let two = two_beams_measurements(net, &scenario, &epochs, empirical_realizations, seed)?;
+    let two = event.measurements(&scenario, &geometry, &epochs, empirical_realizations, seed)?;
     let mismatch = if scenario.trajectory.is_some() {
         Matrix3::identity() * config.dvl.akit_reference_mismatch_std.powi(2)
     } else {
@@ -252,7 +457,7 @@ pub fn two_beams_study(
         noise_covariance: r_four,
     };
     let neglected = run_filter_per_epoch_noise(
-        TWO_BEAMS_NEGLECTED,
+        id_neglected,
         &scenario,
         config,
         &set,
@@ -270,18 +475,15 @@ pub fn two_beams_study(
             .fold(1.0_f64, f64::min);
     let mut jobs: Vec<(&str, &MeasurementSet, CrossSource)> = vec![
         (
-            TWO_BEAMS_NETWORK,
+            id_network,
             &set,
             CrossSource::PerEpoch(two.network_m.clone()),
         ),
-        (TWO_BEAMS_SCALED, &set, CrossSource::Scaled(paper_rho)),
-        (INS_ONLY_DURING_LOSS, &ins_only, CrossSource::Zero),
+        (id_scaled, &set, CrossSource::Scaled(paper_rho)),
+        (id_ins_only, &ins_only, CrossSource::Zero),
     ];
     if let Some(m) = &two.empirical_m {
-        jobs.insert(
-            1,
-            (TWO_BEAMS_EMPIRICAL, &set, CrossSource::PerEpoch(m.clone())),
-        );
+        jobs.insert(1, (id_empirical, &set, CrossSource::PerEpoch(m.clone())));
     }
     let mut runs: Vec<FilterRun> = jobs
         .par_iter()
@@ -313,7 +515,9 @@ pub fn two_beams_study(
         }
         diff / scale
     });
-    Ok(TwoBeamsStudy {
+    Ok(LearnedStudy {
+        event: event.name().into(),
+        description: event.describe(),
         scenario: scenario.name.clone(),
         loss_epochs: in_loss.len(),
         paper_rho,
@@ -348,7 +552,7 @@ fn loss_summary(run: &FilterRun, epochs: &[usize], set: &MeasurementSet) -> Loss
         nees_mean: finite_mean(&pick(&run.nees)),
         position_rmse_m: rms(pick(&run.position_error)),
         velocity_rmse_mps: rms(pick(&run.velocity_error)),
-        nis_mean: if run.id == INS_ONLY_DURING_LOSS {
+        nis_mean: if run.id == INS_ONLY_DURING_LOSS || run.id == INS_ONLY_DURING_OUTAGE {
             f64::NAN
         } else {
             finite_mean(&nis)
@@ -419,36 +623,46 @@ pub struct LearnedVariant {
 /// The Monte Carlo of a learned scenario.
 #[derive(Debug, Clone, Serialize)]
 pub struct LearnedMonteCarlo {
-    /// Scenario (`two-beams`).
+    /// Scenario (`two-beams`, `outage`).
     pub scenario: String,
     /// Runs.
     pub runs: usize,
     /// Seeds `first_seed..first_seed + runs`.
     pub first_seed: u64,
+    /// Monte Carlo draws of the empirical M per update (0: variant left out).
+    pub empirical_realizations: usize,
     /// What the statistics cover.
     pub note: String,
     /// Per variant, in a fixed order.
     pub variants: Vec<LearnedVariant>,
 }
 
-/// `runs` simulated missions with the two-beams loss (seeds `first_seed..`).
-pub fn two_beams_monte_carlo(
+/// `runs` simulated missions with the event (seeds `first_seed..`); the empirical M
+/// with `empirical_realizations` draws per update (0: left out).
+pub fn learned_monte_carlo(
     config: &Config,
     beamsnet: &BeamsNet,
-    net: &TwoBeamsNet,
+    event: &LearnedEvent<'_>,
     runs: usize,
     first_seed: u64,
+    empirical_realizations: usize,
     tick: &(dyn Fn() + Sync),
 ) -> Result<LearnedMonteCarlo> {
-    let loss = BeamLoss::two_beams();
-    let studies: Vec<(TwoBeamsStudy, Vec<usize>)> = (0..runs)
+    let studies: Vec<(LearnedStudy, Vec<usize>)> = (0..runs)
         .into_par_iter()
         .map(|i| {
             let seed = first_seed + i as u64;
             let scenario = Scenario::simulated(config, seed)?;
             let mut probe = scenario.clone();
-            let epochs = probe.lose_beams(&loss)?;
-            let study = two_beams_study(&scenario, config, beamsnet, net, &loss, 0, seed)?;
+            let epochs = event.apply(&mut probe)?;
+            let study = learned_study(
+                &scenario,
+                config,
+                beamsnet,
+                event,
+                empirical_realizations,
+                seed,
+            )?;
             tick();
             Ok((study, epochs))
         })
@@ -479,7 +693,7 @@ pub fn two_beams_monte_carlo(
             / per_epoch.len().max(1) as f64;
         let loss: Vec<&LossWindowSummary> =
             studies.iter().map(|(s, _)| &s.loss_window[v]).collect();
-        let uses_network = run0.id != INS_ONLY_DURING_LOSS;
+        let uses_network = run0.id != event.ids()[4];
         variants.push(LearnedVariant {
             id: run0.id.clone(),
             label: learned_filter_label(&run0.id, median_rho),
@@ -506,16 +720,15 @@ pub fn two_beams_monte_carlo(
         });
     }
     Ok(LearnedMonteCarlo {
-        scenario: "two-beams".into(),
+        scenario: event.name().into(),
         runs,
         first_seed,
+        empirical_realizations,
         note: format!(
-            "simulated missions; beams {} and {} only from {} s for {} s; NEES, NIS and RMSE over the DVL epochs of the loss; \
-             intervals are the 2.5/97.5 percentiles of the per-run values; M empirical is not run here (cost), see estim reproduce --scenario two-beams",
-            loss.kept[0] + 1,
-            loss.kept[1] + 1,
-            loss.start_s,
-            loss.duration_s
+            "simulated missions; {}; NEES, NIS and RMSE over the DVL epochs of the event; \
+             intervals are the 2.5/97.5 percentiles of the per-run values; output_imu_correlation: \
+             mean over runs of the per-run mean over the event of max |M_ij| / sqrt(Q_w,ii R_jj)",
+            event.describe()
         ),
         variants,
     })
@@ -574,5 +787,67 @@ mod tests {
             ..loss
         };
         assert!(s.lose_beams(&bad).is_err());
+    }
+
+    #[test]
+    fn dvl_outage_blanks_every_beam_inside_the_window_only() {
+        let config = Config::default();
+        let mut s = Scenario::simulated(&config, 4).unwrap();
+        let before = s.clone();
+        let outage = DvlOutage {
+            start_s: 200.0,
+            duration_s: 60.0,
+        };
+        let affected = s.lose_dvl(&outage).unwrap();
+        // 1 Hz DVL: epochs at t = 200 .. 259 s.
+        assert_eq!(affected.len(), 60);
+        let t0 = s.truth[0].time;
+        for (k, (a, b)) in s.dvl.iter().zip(&before.dvl).enumerate() {
+            let t = s.truth[a.imu_index].time - t0;
+            let inside = (200.0..260.0).contains(&t);
+            assert_eq!(affected.contains(&k), inside, "epoch {k} at {t} s");
+            if inside {
+                assert!(a.beams.iter().all(|v| v.is_nan()));
+            } else {
+                assert_eq!(a.beams, b.beams);
+            }
+        }
+        let bad = DvlOutage {
+            start_s: f64::NAN,
+            duration_s: 1.0,
+        };
+        assert!(s.lose_dvl(&bad).is_err());
+    }
+
+    #[test]
+    fn outage_extras_hold_the_last_least_squares_velocity_and_the_elapsed_time() {
+        let Ok(net) = OutageNet::load_default() else {
+            panic!("the committed outage model must load");
+        };
+        let config = Config::default();
+        let mut s = Scenario::simulated(&config, 5).unwrap();
+        let epochs = s
+            .lose_dvl(&DvlOutage {
+                start_s: 200.0,
+                duration_s: 70.0,
+            })
+            .unwrap();
+        let geometry = estim_dvl::BeamsNetProtocol::v1().geometry().clone();
+        let extras = outage_extras(&net, &s, &geometry, &epochs);
+        // Elapsed 1 .. 60 s are used, 61 .. 70 s are beyond the trained range.
+        assert_eq!(extras.len(), 60);
+        let last = epochs[0] - 1;
+        let t_last = s.truth[s.dvl[last].imu_index].time;
+        // Independent reference: four-beam least squares, pinv(A) b.
+        let a = geometry.matrix();
+        let pinv = (a.transpose() * a).try_inverse().unwrap() * a.transpose();
+        let v_last = pinv * s.dvl[last].beams;
+        for (k, extra) in &extras {
+            let elapsed = s.truth[s.dvl[*k].imu_index].time - t_last;
+            assert!((extra[1][0] - elapsed).abs() < 1e-9);
+            for i in 0..3 {
+                assert!((extra[0][i] - v_last[i]).abs() < 1e-12);
+            }
+        }
     }
 }

@@ -20,10 +20,12 @@ pub use config::{
 pub use faults::{apply_faults, DvlOutage, FaultConfig, FaultLog, ImuGap};
 pub use learned::{beamsnet_inputs, complete_beams};
 pub use learned_scenarios::{
-    max_correlation, two_beams_measurements, two_beams_monte_carlo, two_beams_study,
-    LearnedMonteCarlo, LearnedVariant, LossWindowSummary, MeanInterval, TwoBeamsMeasurements,
-    TwoBeamsStudy, INS_ONLY_DURING_LOSS, TWO_BEAMS_EMPIRICAL, TWO_BEAMS_NEGLECTED,
-    TWO_BEAMS_NETWORK, TWO_BEAMS_SCALED,
+    learned_filter_label, learned_measurements, learned_monte_carlo, learned_study,
+    max_correlation, outage_extras, two_beams_measurements, two_beams_study, LearnedEvent,
+    LearnedMeasurements, LearnedMonteCarlo, LearnedStudy, LearnedVariant, LossWindowSummary,
+    MeanInterval, INS_ONLY_DURING_LOSS, INS_ONLY_DURING_OUTAGE, OUTAGE_EMPIRICAL, OUTAGE_NEGLECTED,
+    OUTAGE_NETWORK, OUTAGE_SCALED, TWO_BEAMS_EMPIRICAL, TWO_BEAMS_NEGLECTED, TWO_BEAMS_NETWORK,
+    TWO_BEAMS_SCALED,
 };
 pub use montecarlo::{
     monte_carlo, LearnedSource, MonteCarloReport, VariantConsistency, ORACLE_NEGLECTED,

@@ -321,4 +321,32 @@ impl Scenario {
         }
         Ok(affected)
     }
+
+    /// Apply a scripted full DVL outage (every beam NaN from `start_s` for
+    /// `duration_s`); returns the indices of the DVL epochs affected.
+    ///
+    /// # Errors
+    /// Non-finite or negative times.
+    pub fn lose_dvl(&mut self, outage: &super::DvlOutage) -> Result<Vec<usize>> {
+        if !(outage.start_s.is_finite() && outage.duration_s.is_finite())
+            || outage.start_s < 0.0
+            || outage.duration_s < 0.0
+        {
+            return Err(PipelineError::Invalid(format!(
+                "invalid DVL outage {outage:?}"
+            )));
+        }
+        let t0 = self.truth.first().map_or(0.0, |s| s.time);
+        let mut affected = Vec::new();
+        for (k, epoch) in self.dvl.iter_mut().enumerate() {
+            let Some(t) = self.truth.get(epoch.imu_index).map(|s| s.time - t0) else {
+                continue;
+            };
+            if t >= outage.start_s && t < outage.start_s + outage.duration_s {
+                epoch.beams = Vector4::from_element(f64::NAN);
+                affected.push(k);
+            }
+        }
+        Ok(affected)
+    }
 }
