@@ -12,7 +12,8 @@
 use std::path::PathBuf;
 
 use estim::pipeline::markdown::{
-    default_beamsnet, long_run_tables, monte_carlo_table, region, results_tables, splice, Table,
+    default_beamsnet, long_run_tables, monte_carlo_table, region, results_tables,
+    seed_interval_table, splice, Table,
 };
 use estim::pipeline::Config;
 
@@ -46,6 +47,7 @@ fn every_region_is_marked_once() {
     let names = [
         "velocity",
         "filters",
+        "filters-seeds",
         "paper-std",
         "rho",
         "montecarlo",
@@ -77,6 +79,18 @@ fn akit_and_simulated_tables_match_a_fresh_run() {
     for t in &tables {
         assert_matches(&text, t);
     }
+}
+
+/// The 20-seed intervals of the filters table (about 40 s in release on 2 cores).
+#[test]
+fn seed_interval_table_matches_a_fresh_run() {
+    let Some(data) = common::data_root() else {
+        return;
+    };
+    let config = Config::default();
+    let learned = default_beamsnet(&config).expect("committed BeamsNet model");
+    let table = seed_interval_table(&config, &data, learned.as_ref()).expect("table");
+    assert_matches(&readme(), &table);
 }
 
 #[test]

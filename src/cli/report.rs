@@ -6,7 +6,8 @@ use std::path::PathBuf;
 use anyhow::Context;
 use estim::datasets::{akit_dir, data_root};
 use estim::pipeline::markdown::{
-    default_beamsnet, long_run_tables, monte_carlo_table, results_tables, splice, Table,
+    default_beamsnet, long_run_tables, monte_carlo_table, results_tables, seed_interval_table,
+    splice, Table,
 };
 use estim::pipeline::Config;
 
@@ -41,12 +42,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(dir) => {
             let dir = akit_dir(dir)?;
             tables.extend(results_tables(&config, &dir, learned.as_ref())?);
+            tables.push(seed_interval_table(&config, &dir, learned.as_ref())?);
         }
         None => match data_root(None).map(|d| akit_dir(&d)) {
-            Some(Ok(dir)) => tables.extend(results_tables(&config, &dir, learned.as_ref())?),
+            Some(Ok(dir)) => {
+                tables.extend(results_tables(&config, &dir, learned.as_ref())?);
+                tables.push(seed_interval_table(&config, &dir, learned.as_ref())?);
+            }
             _ => eprintln!(
                 "note: A-KIT data not found (--data, ESTIM_DATA_DIR, ../shared/data): \
-                 velocity, filters, paper-std and rho tables skipped"
+                 velocity, filters, filters-seeds, paper-std and rho tables skipped"
             ),
         },
     }

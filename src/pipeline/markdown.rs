@@ -10,6 +10,10 @@
 //!   configuration on A-KIT trajectories 4 and 13 and the embedded simulated mission
 //!   (what `estim reproduce` runs), the paper's heuristic M on both bases
 //!   ([`PaperMBasis`]). Needs the A-KIT data.
+//! - [`seed_interval_table`]: `filters-seeds`: the rows of `filters` over
+//!   [`SEED_INTERVAL_SEEDS`] seeds from [`SEED_INTERVAL_FIRST_SEED`] (IMU synthesis,
+//!   initial error and beam noise redrawn per seed): mean and 95 % interval (2.5 / 97.5
+//!   percentiles, linear interpolation). Needs the A-KIT data.
 //! - [`monte_carlo_table`]: `montecarlo`, [`MONTE_CARLO_RUNS`] simulated missions from
 //!   seed [`MONTE_CARLO_FIRST_SEED`] (what `estim montecarlo --runs 20` runs).
 //! - [`long_run_tables`]: `fuzz` and `long-mission`, rendered from the committed logs
@@ -35,6 +39,10 @@ use super::{
 pub const MONTE_CARLO_RUNS: usize = 20;
 /// Seed of its first mission (missions use seeds 1000..1019).
 pub const MONTE_CARLO_FIRST_SEED: u64 = 1000;
+/// Seeds of the README's `filters-seeds` table.
+pub const SEED_INTERVAL_SEEDS: usize = 20;
+/// Its first seed (seeds 2000..2019).
+pub const SEED_INTERVAL_FIRST_SEED: u64 = 2000;
 /// A-KIT trajectories of the README (the paper's "Trajectory #1" and "#2").
 pub const AKIT_TRAJECTORIES: [u32; 2] = [4, 13];
 
@@ -301,6 +309,109 @@ fn velocity_table(sets: &[DataSet]) -> Result<Table> {
     }
     Ok(Table {
         name: "velocity",
+        markdown: s,
+    })
+}
+
+/// The rows of the `filters` table (label, filter id, on the per-step basis).
+fn filter_rows(rho: f64) -> [(String, &'static str, bool); 5] {
+    [
+        ("LS".to_string(), LS, false),
+        (
+            "BeamsNet, M neglected".to_string(),
+            BEAMSNET_NEGLECTED,
+            false,
+        ),
+        (
+            format!("BeamsNet, M = rho {rho} (Q accumulated over the interval)"),
+            BEAMSNET_SCALED,
+            false,
+        ),
+        (
+            format!("BeamsNet, M = rho {rho} (per-step Q_k)"),
+            BEAMSNET_SCALED,
+            true,
+        ),
+        (
+            "BeamsNet, M from network".to_string(),
+            BEAMSNET_SENSITIVITY,
+            false,
+        ),
+    ]
+}
+
+/// The `filters-seeds` table: every row of `filters` (A-KIT 4 and 13 under `data`, the
+/// simulated mission) over [`SEED_INTERVAL_SEEDS`] seeds from
+/// [`SEED_INTERVAL_FIRST_SEED`]: position and velocity RMSE and the time-averaged NEES,
+/// each as mean [2.5 %, 97.5 %] over the seeds.
+///
+/// # Errors
+/// Missing or bad data files; the pipeline's errors.
+pub fn seed_interval_table(config: &Config, data: &Path, learned: &LearnedSource) -> Result<Table> {
+    use rayon::prelude::*;
+    let rho = config.filter.rho;
+    let labels: Vec<String> = AKIT_TRAJECTORIES
+        .iter()
+        .map(|n| format!("A-KIT {n}"))
+        .chain(std::iter::once("simulated".to_string()))
+        .collect();
+    // per seed: per data set: per row: [position RMSE, velocity RMSE, NEES]
+    let per_seed: Vec<Vec<Vec<[f64; 3]>>> = (0..SEED_INTERVAL_SEEDS)
+        .into_par_iter()
+        .map(|i| {
+            let mut c = config.clone();
+            c.seed = SEED_INTERVAL_FIRST_SEED + i as u64;
+            let mut scenarios = Vec::new();
+            for n in AKIT_TRAJECTORIES {
+                scenarios.push(Scenario::akit(data, n, &c, c.seed)?);
+            }
+            scenarios.push(Scenario::simulated(&c, c.seed)?);
+            scenarios
+                .iter_mut()
+                .zip(&labels)
+                .map(|(scenario, label)| {
+                    let set = data_set(label.clone(), scenario, &c, learned)?;
+                    filter_rows(rho)
+                        .iter()
+                        .map(|(_, id, per_step)| {
+                            let report = if *per_step {
+                                &set.per_step
+                            } else {
+                                &set.accumulated
+                            };
+                            let f = filter(report, id)?;
+                            Ok([
+                                f.position_error_m.rmse,
+                                f.velocity_error_mps.rmse,
+                                f.nees_average,
+                            ])
+                        })
+                        .collect::<Result<Vec<_>>>()
+                })
+                .collect::<Result<Vec<_>>>()
+        })
+        .collect::<Result<_>>()?;
+    let mut s = String::from(
+        "| data | filter | position RMSE [m] | velocity RMSE [m/s] | NEES (15) |\n\
+         |---|---|---|---|---|\n",
+    );
+    let cell = |xs: Vec<f64>, fmt: &dyn Fn(f64) -> String| {
+        let m = super::MeanInterval::of(&xs);
+        format!("{} [{}, {}]", fmt(m.mean), fmt(m.lo), fmt(m.hi))
+    };
+    for (d, label) in labels.iter().enumerate() {
+        for (r, (name, _, _)) in filter_rows(rho).iter().enumerate() {
+            let column = |k: usize| -> Vec<f64> { per_seed.iter().map(|p| p[d][r][k]).collect() };
+            s.push_str(&format!(
+                "| {label} | {name} | {} | {} | {} |\n",
+                cell(column(0), &|x| format!("{x:.2}")),
+                cell(column(1), &|x| format!("{x:.3}")),
+                cell(column(2), &|x| significant(x, 3)),
+            ));
+        }
+    }
+    Ok(Table {
+        name: "filters-seeds",
         markdown: s,
     })
 }
