@@ -5,6 +5,7 @@ mod config;
 mod faults;
 mod learned;
 pub mod markdown;
+mod mismatch;
 mod montecarlo;
 mod oracle;
 mod report;
@@ -18,6 +19,10 @@ pub use config::{
 };
 pub use faults::{apply_faults, DvlOutage, FaultConfig, FaultLog, ImuGap};
 pub use learned::{beamsnet_inputs, complete_beams};
+pub use mismatch::{
+    fit_reference_mismatch, MismatchFit, TrajectoryMismatch, AKIT_TEST_TRAJECTORIES,
+    CHI_SQUARE_1_MEDIAN,
+};
 pub use montecarlo::{
     monte_carlo, LearnedSource, MonteCarloReport, VariantConsistency, ORACLE_NEGLECTED,
     ORACLE_SCALED, ORACLE_TRUE_M,
