@@ -24,6 +24,7 @@ use crate::{
 };
 
 /// Everything one update attempt produced, accepted or rejected.
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, PartialEq)]
 pub struct UpdateReport<T: Scalar, const N: usize, const M: usize> {
     /// Accepted, or rejected by the innovation gate (state untouched).

@@ -244,6 +244,7 @@ pub trait CrossCovariance<T: Scalar, S, const N: usize, const M: usize> {
 
 /// One input stream of a learned measurement: which sensor, how many channels,
 /// over what window.
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, PartialEq)]
 pub struct InputSpec {
     /// Name of the stream (e.g. `"acc"`, `"gyro"`, `"beams"`).
