@@ -40,7 +40,8 @@ use estim_core::{ErrorStateModel, ProcessModel};
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 
 use crate::earth::{
-    normal_gravity_gradient, radii_of_curvature, EARTH_RATE, ECCENTRICITY_SQUARED, SEMI_MAJOR_AXIS,
+    normal_gravity_gradient_at, radii_of_curvature, EARTH_RATE, ECCENTRICITY_SQUARED,
+    SEMI_MAJOR_AXIS,
 };
 use crate::imu_spec::ImuSpec;
 use crate::mechanization::{ImuSample, Mechanization};
@@ -161,7 +162,7 @@ impl InsErrorModel {
             Vector3::new(-v.y / (re * re), v.x / (rn * rn), v.y * t / (re * re)),
         );
         let w_en_v = M3::new(0.0, 1.0 / re, 0.0, -1.0 / rn, 0.0, 0.0, 0.0, -t / re, 0.0);
-        let (dg_dl, dg_dh) = normal_gravity_gradient(lat, h);
+        let (dg_dl, dg_dh) = normal_gravity_gradient_at(s, c, h);
         let mut gravity_p = M3::zeros();
         gravity_p[(2, 0)] = dg_dl / rn;
         gravity_p[(2, 2)] = -dg_dh;
@@ -260,9 +261,19 @@ impl InsErrorModel {
         let a = ScaledBlocks::new(&self.system_blocks(state, imu), dt);
         let mut phi = [[0.0f64; ERROR_STATES]; ERROR_STATES];
         a.write_transition(&mut phi);
-        let mut q = [[0.0f64; ERROR_STATES]; ERROR_STATES];
-        self.write_noise(&a, dt, &mut q);
-        propagate_structured(&mut covariance.data.0, &phi, &q);
+        let p = &mut covariance.data.0;
+        propagate_upper(p, &phi);
+        // Q_d's blocks added to the upper triangle only. Q_d is exactly symmetric, so this
+        // equals the trait path's mean of its two triangles ((q + q) / 2 = q exactly).
+        for (r, c, b) in &self.noise_blocks(&a, dt) {
+            for j in 0..3 {
+                let rows = if r == c { j + 1 } else { 3 };
+                for i in 0..rows {
+                    p[3 * c + j][3 * r + i] += b[(i, j)];
+                }
+            }
+        }
+        mirror_upper(p);
     }
 
     /// Q_d = dt \[Q_1 + (A Q_1 + Q_1 A')/2 + A Q_1 A'/3\], A = F dt, Q_1 = G Σ G' =
@@ -287,6 +298,16 @@ impl InsErrorModel {
         dt: f64,
         out: &mut [[f64; ERROR_STATES]; ERROR_STATES],
     ) {
+        for (r, c, b) in &self.noise_blocks(a, dt) {
+            put_symmetric_block(out, *r, *c, b);
+        }
+    }
+
+    /// The nonzero blocks (row block, column block, block) of Q_d's upper block
+    /// triangle; each diagonal block is exactly symmetric (sums of X X' products, whose
+    /// (i, j) and (j, i) entries are the same sums in the same order).
+    #[inline(always)]
+    fn noise_blocks(&self, a: &ScaledBlocks, dt: f64) -> [(usize, usize, M3); 10] {
         let psd = self.spec.continuous_noise_psd();
         let (wv, wpsi, wa, wg) = (psd[0] * dt, psd[3] * dt, psd[6] * dt, psd[9] * dt);
         let third = 1.0 / 3.0;
@@ -314,20 +335,18 @@ impl InsErrorModel {
         let psig = a.psig * (wg * (0.5 + a.kg * third));
         let aa = id * (wa * (1.0 + a.ka + a.ka * a.ka * third));
         let gg = id * (wg * (1.0 + a.kg + a.kg * a.kg * third));
-        for (r, c, b) in [
-            (0, 0, &pp),
-            (0, 1, &pv),
-            (0, 2, &ppsi),
-            (1, 1, &vv),
-            (1, 2, &vpsi),
-            (1, 3, &va),
-            (2, 2, &psipsi),
-            (2, 4, &psig),
-            (3, 3, &aa),
-            (4, 4, &gg),
-        ] {
-            put_symmetric_block(out, r, c, b);
-        }
+        [
+            (0, 0, pp),
+            (0, 1, pv),
+            (0, 2, ppsi),
+            (1, 1, vv),
+            (1, 2, vpsi),
+            (1, 3, va),
+            (2, 2, psipsi),
+            (2, 4, psig),
+            (3, 3, aa),
+            (4, 4, gg),
+        ]
     }
 
     /// Exact discretisation by Van Loan's method (Van Loan 1978, "Computing integrals
@@ -604,6 +623,24 @@ fn propagate_structured(
     phi: &[[f64; ERROR_STATES]; ERROR_STATES],
     q: &[[f64; ERROR_STATES]; ERROR_STATES],
 ) {
+    propagate_upper(covariance, phi);
+    // The upper triangle (out[j][i], i <= j) plus Q's mean triangle, mirrored.
+    for j in 0..ERROR_STATES {
+        for i in 0..=j {
+            let v = covariance[j][i] + (q[j][i] + q[i][j]) * 0.5;
+            covariance[j][i] = v;
+            covariance[i][j] = v;
+        }
+    }
+}
+
+/// The upper triangle (column j, rows i <= j) of Phi P Phi' over P's, for a Phi of the
+/// model's structure (see [`propagate_structured`]); the lower triangle is left as it was.
+#[inline(always)]
+fn propagate_upper(
+    covariance: &mut [[f64; ERROR_STATES]; ERROR_STATES],
+    phi: &[[f64; ERROR_STATES]; ERROR_STATES],
+) {
     const N: usize = ERROR_STATES;
     // Column arrays (nalgebra stores column-major: `data.0[column][row]`), so every loop
     // below has a length known at compile time and runs down contiguous memory.
@@ -618,27 +655,17 @@ fn propagate_structured(
             combine_columns::<N, N>(p, |k| phi[k][i])
         };
     }
-    // Written over P, upper triangle first (column j, rows i <= j), plus Q's mean
-    // triangle, then mirrored.
     let out = covariance;
     // Navigation block, upper half: out[i, j] = sum_k Phi[i, k] Y[k, j], i <= j (the
     // full 9-row column costs little more than its upper part and vectorises; only rows
-    // i <= j are kept). Rows 0..3 of the gyro-bias columns of Phi are zero.
+    // i <= j are kept; computing only those, per column, measured slower).
     for (j, yj) in y.iter().enumerate() {
-        let mut acc = [0.0f64; NAV];
-        for (k, phik) in phi.iter().enumerate().take(GYRO_BIAS) {
-            let w = yj[k];
-            for (a, f) in acc.iter_mut().zip(&phik[..NAV]) {
-                *a += f * w;
-            }
+        match j {
+            0..=3 => out[j][..=j].copy_from_slice(&navigation_column::<4>(phi, yj)[..=j]),
+            4 | 5 => out[j][..=j].copy_from_slice(&navigation_column::<6>(phi, yj)[..=j]),
+            6 | 7 => out[j][..=j].copy_from_slice(&navigation_column::<8>(phi, yj)[..=j]),
+            _ => out[j][..=j].copy_from_slice(&navigation_column::<NAV>(phi, yj)[..=j]),
         }
-        for (k, phik) in phi.iter().enumerate().skip(GYRO_BIAS) {
-            let w = yj[k];
-            for (a, f) in acc[VEL..].iter_mut().zip(&phik[VEL..NAV]) {
-                *a += f * w;
-            }
-        }
-        out[j][..=j].copy_from_slice(&acc[..=j]);
     }
     // Bias rows: d_b Y[9 + b, j] against the navigation columns, d_a P d_b among
     // themselves (column 9 + b, rows <= 9 + b of the upper triangle).
@@ -653,12 +680,37 @@ fn propagate_structured(
             out[row][col] = phi[col][col] * out[row][col] * d;
         }
     }
-    // out holds the upper triangle (out[j][i], i <= j); add Q's mean triangle and mirror.
-    for j in 0..N {
-        for i in 0..=j {
-            let v = out[j][i] + (q[j][i] + q[i][j]) * 0.5;
-            out[j][i] = v;
-            out[i][j] = v;
+}
+
+/// Rows 0..R of sum_k Phi[:, k] Y[k, j] (3 < R <= 9; `y_column` = Y[:, j]). Rows 0..3
+/// of the gyro-bias columns of Phi are zero and skipped.
+#[inline(always)]
+fn navigation_column<const R: usize>(
+    phi: &[[f64; ERROR_STATES]; ERROR_STATES],
+    y_column: &[f64; ERROR_STATES],
+) -> [f64; R] {
+    let mut acc = [0.0f64; R];
+    for (k, phik) in phi.iter().enumerate().take(GYRO_BIAS) {
+        let w = y_column[k];
+        for (a, f) in acc.iter_mut().zip(&phik[..R]) {
+            *a += f * w;
+        }
+    }
+    for (k, phik) in phi.iter().enumerate().skip(GYRO_BIAS) {
+        let w = y_column[k];
+        for (a, f) in acc[VEL..].iter_mut().zip(&phik[VEL..R]) {
+            *a += f * w;
+        }
+    }
+    acc
+}
+
+/// Copy the upper triangle (out[j][i], i <= j) onto the lower one.
+#[inline(always)]
+fn mirror_upper(out: &mut [[f64; ERROR_STATES]; ERROR_STATES]) {
+    for j in 0..ERROR_STATES {
+        for i in 0..j {
+            out[i][j] = out[j][i];
         }
     }
 }
