@@ -298,14 +298,14 @@ impl InsErrorModel {
         propagate_upper(p, &phi);
         // Q_d's blocks added to the upper triangle only. Q_d is exactly symmetric, so this
         // equals the trait path's mean of its two triangles ((q + q) / 2 = q exactly).
-        for (r, c, b) in &self.noise_blocks(&a, dt) {
+        self.noise_blocks(&a, dt, |r, c, b| {
             for j in 0..3 {
                 let rows = if r == c { j + 1 } else { 3 };
                 for i in 0..rows {
                     p[3 * c + j][3 * r + i] += b[(i, j)];
                 }
             }
-        }
+        });
         mirror_upper(p);
     }
 
@@ -331,16 +331,15 @@ impl InsErrorModel {
         dt: f64,
         out: &mut [[f64; ERROR_STATES]; ERROR_STATES],
     ) {
-        for (r, c, b) in &self.noise_blocks(a, dt) {
-            put_symmetric_block(out, *r, *c, b);
-        }
+        self.noise_blocks(a, dt, |r, c, b| put_symmetric_block(out, r, c, b));
     }
 
     /// The nonzero blocks (row block, column block, block) of Q_d's upper block
-    /// triangle; each diagonal block is exactly symmetric (sums of X X' products, whose
-    /// (i, j) and (j, i) entries are the same sums in the same order).
+    /// triangle, handed to `sink` one by one (no array of blocks to copy); each diagonal
+    /// block is exactly symmetric (sums of X X' products, whose (i, j) and (j, i)
+    /// entries are the same sums in the same order).
     #[inline(always)]
-    fn noise_blocks(&self, a: &ScaledBlocks, dt: f64) -> [(usize, usize, M3); 10] {
+    fn noise_blocks(&self, a: &ScaledBlocks, dt: f64, mut sink: impl FnMut(usize, usize, &M3)) {
         let psd = self.spec.continuous_noise_psd();
         let (wv, wpsi, wa, wg) = (psd[0] * dt, psd[3] * dt, psd[6] * dt, psd[9] * dt);
         let third = 1.0 / 3.0;
@@ -368,18 +367,16 @@ impl InsErrorModel {
         let psig = a.psig * (wg * (0.5 + a.kg * third));
         let aa = id * (wa * (1.0 + a.ka + a.ka * a.ka * third));
         let gg = id * (wg * (1.0 + a.kg + a.kg * a.kg * third));
-        [
-            (0, 0, pp),
-            (0, 1, pv),
-            (0, 2, ppsi),
-            (1, 1, vv),
-            (1, 2, vpsi),
-            (1, 3, va),
-            (2, 2, psipsi),
-            (2, 4, psig),
-            (3, 3, aa),
-            (4, 4, gg),
-        ]
+        sink(0, 0, &pp);
+        sink(0, 1, &pv);
+        sink(0, 2, &ppsi);
+        sink(1, 1, &vv);
+        sink(1, 2, &vpsi);
+        sink(1, 3, &va);
+        sink(2, 2, &psipsi);
+        sink(2, 4, &psig);
+        sink(3, 3, &aa);
+        sink(4, 4, &gg);
     }
 
     /// Exact discretisation by Van Loan's method (Van Loan 1978, "Computing integrals
@@ -618,9 +615,80 @@ impl ProcessModel<f64, ERROR_STATES> for InsErrorModel {
             return transition * covariance * transition.transpose() + process_noise;
         }
         let mut out = *covariance;
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked on the line above).
+            unsafe {
+                propagate_structured_avx2(
+                    &mut out.data.0,
+                    &transition.data.0,
+                    &process_noise.data.0,
+                )
+            };
+            return out;
+        }
         propagate_structured(&mut out.data.0, &transition.data.0, &process_noise.data.0);
         out
     }
+
+    /// Phi_later Phi_earlier from the structure of `later` (see `compose_structured`);
+    /// the dense product when it lacks that structure. Equal to the default's values
+    /// (tested over a 400 s mission).
+    fn compose_transitions(&self, later: &ErrorMatrix, earlier: &ErrorMatrix) -> ErrorMatrix {
+        if !has_model_structure(later) {
+            return later * earlier;
+        }
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked on the line above).
+            return unsafe { compose_structured_avx2(&later.data.0, &earlier.data.0) };
+        }
+        compose_structured(&later.data.0, &earlier.data.0)
+    }
+}
+
+/// Phi_later Phi_earlier for a `later` of the model's structure (checked by
+/// [`has_model_structure`]): its bias rows are diagonal, so the bias rows of the product
+/// are those of `earlier` scaled (6 x 15 multiplies), and its position x gyro-bias block
+/// is zero. The navigation rows are the dense sums, term by term in the order of the
+/// dense product (so the same values): 1,980 multiply-adds instead of 3,375.
+#[inline(always)]
+fn compose_structured(
+    later: &[[f64; ERROR_STATES]; ERROR_STATES],
+    earlier: &[[f64; ERROR_STATES]; ERROR_STATES],
+) -> ErrorMatrix {
+    let mut out = ErrorMatrix::zeros();
+    for (column, earlier_column) in out.data.0.iter_mut().zip(earlier) {
+        let navigation = navigation_column::<NAV>(later, earlier_column);
+        column[..NAV].copy_from_slice(&navigation);
+        for r in NAV..ERROR_STATES {
+            column[r] = later[r][r] * earlier_column[r];
+        }
+    }
+    out
+}
+
+/// [`compose_structured`] compiled for AVX2 (bit-identical, as
+/// [`propagate_structured_avx2`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn compose_structured_avx2(
+    later: &[[f64; ERROR_STATES]; ERROR_STATES],
+    earlier: &[[f64; ERROR_STATES]; ERROR_STATES],
+) -> ErrorMatrix {
+    compose_structured(later, earlier)
+}
+
+/// [`propagate_structured`] compiled for AVX2 (same operations, bit-identical; see
+/// [`InsErrorModel::predict_covariance`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn propagate_structured_avx2(
+    covariance: &mut [[f64; ERROR_STATES]; ERROR_STATES],
+    phi: &[[f64; ERROR_STATES]; ERROR_STATES],
+    q: &[[f64; ERROR_STATES]; ERROR_STATES],
+) {
+    propagate_structured(covariance, phi, q);
 }
 
 /// Navigation rows (position, velocity, misalignment) of the error state.
@@ -740,6 +808,7 @@ fn navigation_column<const R: usize>(
 
 /// Copy the upper triangle (out[j][i], i <= j) onto the lower one.
 #[inline(always)]
+#[allow(clippy::needless_range_loop)] // a transpose: both indices address `out`
 fn mirror_upper(out: &mut [[f64; ERROR_STATES]; ERROR_STATES]) {
     for j in 0..ERROR_STATES {
         for i in 0..j {
