@@ -21,3 +21,9 @@ pub use estim_core as core;
 pub use estim_dvl as dvl;
 pub use estim_ins as ins;
 pub use estim_learned as learned;
+
+/// The README's Rust code blocks, compiled and run as doc-tests (`cargo test` runs
+/// them; nothing of it is part of the API).
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

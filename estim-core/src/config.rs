@@ -7,6 +7,7 @@ use crate::{CovarianceUpdate, Error, Result};
 
 /// Innovation gate: reject a measurement whose normalised innovation squared (NIS)
 /// is implausibly large for its size.
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 #[non_exhaustive]
 pub enum Gate {
@@ -90,6 +91,7 @@ fn chi_square_quantile(_m: usize, _probability: f64) -> Result<f64> {
 /// the smallest LDL' pivot of the correlation matrix (0 when singular, at most 1; an
 /// upper bound on its smallest eigenvalue), for an invalid one the smallest eigenvalue.
 /// `Skip` avoids even the factorisation and reports `None`.
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[non_exhaustive]
 pub enum JointCheck {
@@ -106,7 +108,17 @@ pub enum JointCheck {
 
 /// Checked configuration shared by the runners. Build with [`FilterConfig::builder`];
 /// [`FilterConfig::default`] is the square-root form, no gate, joint covariance reported.
+///
+/// With the `serde` feature it serializes as its settings (those of
+/// [`FilterConfigBuilder`]; missing keys take the defaults, unknown keys are refused)
+/// and deserializes through [`FilterConfigBuilder::build`], so an invalid gate is
+/// refused and the gate thresholds are recomputed.
 #[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(try_from = "FilterConfigBuilder", into = "FilterConfigBuilder")
+)]
 pub struct FilterConfig {
     form: CovarianceUpdate,
     gate: Gate,
@@ -181,6 +193,11 @@ impl FilterConfig {
 
 /// Builder of [`FilterConfig`] (consuming setters, validated by [`FilterConfigBuilder::build`]).
 #[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(default, deny_unknown_fields)
+)]
 #[must_use]
 pub struct FilterConfigBuilder {
     form: CovarianceUpdate,
@@ -188,6 +205,35 @@ pub struct FilterConfigBuilder {
     joint_check: JointCheck,
     track_accumulated_noise: bool,
     window_capacity: usize,
+}
+
+impl Default for FilterConfigBuilder {
+    /// [`FilterConfig::builder`].
+    fn default() -> Self {
+        FilterConfig::builder()
+    }
+}
+
+impl From<FilterConfig> for FilterConfigBuilder {
+    /// The settings a configuration was built from.
+    fn from(config: FilterConfig) -> Self {
+        Self {
+            form: config.form,
+            gate: config.gate,
+            joint_check: config.joint_check,
+            track_accumulated_noise: config.track_accumulated_noise,
+            window_capacity: config.window_capacity,
+        }
+    }
+}
+
+impl TryFrom<FilterConfigBuilder> for FilterConfig {
+    type Error = Error;
+
+    /// [`FilterConfigBuilder::build`].
+    fn try_from(builder: FilterConfigBuilder) -> Result<Self> {
+        builder.build()
+    }
 }
 
 impl FilterConfigBuilder {

@@ -59,6 +59,7 @@ fn quadratic_form<T: Scalar, const N: usize>(
 
 /// Two-sided probability interval of an average of chi-square variables.
 #[cfg(feature = "consistency")]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ChiSquareBand {
     /// Lower bound.

@@ -7,6 +7,7 @@ use crate::scalar::{lit, to_f64};
 use crate::{CrossCovariance, CrossCovarianceContext, Error, Result, Scalar};
 
 /// M = 0: process and measurement noise uncorrelated (the standard filter).
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Zero;
 
@@ -20,6 +21,7 @@ impl<T: Scalar, S, const N: usize, const M: usize> CrossCovariance<T, S, N, M> f
 }
 
 /// A fixed, known M.
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Fixed<T: Scalar, const N: usize, const M: usize>(pub SMatrix<T, N, M>);
 
@@ -37,6 +39,7 @@ impl<T: Scalar, S, const N: usize, const M: usize> CrossCovariance<T, S, N, M> f
 /// Valid (joint covariance PSD) only when rho^2 * q * m <= 1 for diagonal Q_acc and R,
 /// q = nonzero diagonal entries of Q_acc, m = measurement size; see
 /// [`ScaledCorrelation::largest_valid_rho`].
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ScaledCorrelation<T: Scalar> {
     /// Correlation coefficient, in [-1, 1].

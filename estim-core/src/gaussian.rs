@@ -9,10 +9,45 @@ use crate::{Error, Result, Scalar};
 /// Fields are private so the pair stays consistent: the constructor checks that
 /// every value is finite and the covariance is symmetric (to a relative
 /// [`crate::relative_tolerance`]).
+///
+/// With the `serde` feature it serializes as `{ "state": [...], "covariance": [...] }`
+/// (nalgebra's column-major arrays); deserialization goes through
+/// [`StateAndCovariance::new`], so a non-finite or asymmetric covariance is refused.
 #[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(
+        try_from = "UncheckedStateAndCovariance<T, N>",
+        bound(
+            serialize = "T: serde::Serialize",
+            deserialize = "T: serde::Deserialize<'de>"
+        )
+    )
+)]
 pub struct StateAndCovariance<T: Scalar, const N: usize> {
     state: SVector<T, N>,
     covariance: SMatrix<T, N, N>,
+}
+
+/// The serialized form of [`StateAndCovariance`], checked by `TryFrom`.
+#[cfg(feature = "serde")]
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields, bound(deserialize = "T: serde::Deserialize<'de>"))]
+struct UncheckedStateAndCovariance<T: Scalar, const N: usize> {
+    state: SVector<T, N>,
+    covariance: SMatrix<T, N, N>,
+}
+
+#[cfg(feature = "serde")]
+impl<T: Scalar, const N: usize> TryFrom<UncheckedStateAndCovariance<T, N>>
+    for StateAndCovariance<T, N>
+{
+    type Error = Error;
+
+    fn try_from(u: UncheckedStateAndCovariance<T, N>) -> Result<Self> {
+        Self::new(u.state, u.covariance)
+    }
 }
 
 impl<T: Scalar, const N: usize> StateAndCovariance<T, N> {

@@ -220,6 +220,12 @@ pub use update::{
 pub use window::{ProcessStep, StepWindow, WindowedCrossCovariance};
 
 pub use nalgebra;
+
+/// The README's Rust code blocks, compiled and run as doc-tests (`cargo test` runs
+/// them; nothing of it is part of the API).
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;
 /// The generator [`monte_carlo`] hands each run (re-exported so callers need not
 /// guess its version).
 #[cfg(feature = "consistency")]

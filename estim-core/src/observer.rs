@@ -23,6 +23,7 @@ pub struct PredictEvent<'a, T: Scalar, S, const N: usize> {
 }
 
 /// Whether an update was applied.
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[non_exhaustive]
 pub enum UpdateStatus {

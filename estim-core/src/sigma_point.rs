@@ -42,11 +42,38 @@ use crate::update::{check_innovation_conditioning, mul_static, spd_inverse};
 use crate::{Error, Result, Scalar, StateAndCovariance};
 
 /// Parameters of the scaled unscented transform (see the module docs), validated.
+///
+/// With the `serde` feature: `{ "alpha": .., "beta": .., "kappa": .. }`, checked by
+/// [`UnscentedTransform::new`] on deserialization.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(try_from = "UncheckedUnscentedTransform")
+)]
 pub struct UnscentedTransform {
     alpha: f64,
     beta: f64,
     kappa: f64,
+}
+
+/// The serialized form of [`UnscentedTransform`], checked by `TryFrom`.
+#[cfg(feature = "serde")]
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct UncheckedUnscentedTransform {
+    alpha: f64,
+    beta: f64,
+    kappa: f64,
+}
+
+#[cfg(feature = "serde")]
+impl TryFrom<UncheckedUnscentedTransform> for UnscentedTransform {
+    type Error = Error;
+
+    fn try_from(u: UncheckedUnscentedTransform) -> Result<Self> {
+        Self::new(u.alpha, u.beta, u.kappa)
+    }
 }
 
 impl Default for UnscentedTransform {
@@ -147,6 +174,7 @@ where
 }
 
 /// Everything a sigma-point update produced.
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, PartialEq)]
 pub struct UnscentedOutcome<T: Scalar, const N: usize, const M: usize> {
     /// Posterior mean and covariance.

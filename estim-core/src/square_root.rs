@@ -416,6 +416,7 @@ fn lower_triangularize_pair<T: Scalar, const R: usize, const C1: usize, const C2
 }
 
 /// Everything a square-root update produced.
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, PartialEq)]
 pub struct SquareRootOutcome<T: Scalar, const N: usize, const M: usize> {
     /// Posterior mean.

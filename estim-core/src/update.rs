@@ -26,6 +26,7 @@ use crate::{Error, Result, Scalar, StateAndCovariance};
 /// ill-conditioned priors (`estim-core/tests/numerical_forms.rs`, table in the crate
 /// README), [`CovarianceUpdate::SquareRoot`] is the only form whose posteriors never
 /// had an eigenvalue below -1e-12 ||P||; it is the default.
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[non_exhaustive]
 pub enum CovarianceUpdate {
@@ -55,6 +56,7 @@ pub enum CovarianceUpdate {
 }
 
 /// Everything an update produced.
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, PartialEq)]
 pub struct UpdateOutcome<T: Scalar, const N: usize, const M: usize> {
     /// Posterior mean and covariance.

@@ -16,7 +16,11 @@ const DEG_PER_HOUR: f64 = DEG / 3600.0;
 const DEG_PER_ROOT_HOUR: f64 = DEG / 60.0;
 
 /// Error parameters of one sensor triad (same values on the three axes).
+///
+/// With the `serde` feature an infinite `bias_time_constant` (a random-constant bias)
+/// is written as `null`, which JSON can hold, and read back as infinity.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct SensorSpec {
     /// White-noise density (VRW for accelerometers \[m/s/√s\], ARW for gyroscopes \[rad/√s\]).
     pub white_noise_density: f64,
@@ -25,6 +29,7 @@ pub struct SensorSpec {
     pub bias_instability: f64,
     /// Correlation time τ of the Gauss-Markov bias drift \[s\]; `f64::INFINITY` makes the
     /// drift a random constant (driving noise 0).
+    #[cfg_attr(feature = "serde", serde(with = "infinite_as_null"))]
     pub bias_time_constant: f64,
     /// Standard deviation of the constant turn-on bias \[m/s^2 or rad/s\].
     pub turn_on_bias: f64,
@@ -78,7 +83,15 @@ impl SensorSpec {
 }
 
 /// A checked IMU error specification (build it with [`ImuSpec::builder`] or a preset).
+///
+/// With the `serde` feature: `{ "accelerometer": SensorSpec, "gyroscope": SensorSpec }`,
+/// validated by [`ImuSpecBuilder::build`] on deserialization.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(try_from = "ImuSpecBuilder")
+)]
 pub struct ImuSpec {
     accelerometer: SensorSpec,
     gyroscope: SensorSpec,
@@ -86,6 +99,11 @@ pub struct ImuSpec {
 
 /// Builder of [`ImuSpec`]; [`ImuSpecBuilder::build`] validates.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct ImuSpecBuilder {
     accelerometer: SensorSpec,
     gyroscope: SensorSpec,
@@ -98,6 +116,34 @@ const ZERO_SENSOR: SensorSpec = SensorSpec {
     turn_on_bias: 0.0,
     scale_factor: 0.0,
 };
+
+impl TryFrom<ImuSpecBuilder> for ImuSpec {
+    type Error = Error;
+
+    /// [`ImuSpecBuilder::build`].
+    fn try_from(builder: ImuSpecBuilder) -> Result<Self> {
+        builder.build()
+    }
+}
+
+/// serde for a time constant that may be infinite: JSON has no infinity (serde_json
+/// writes it as `null`), so infinity is written as `null` and `null` read as infinity.
+#[cfg(feature = "serde")]
+mod infinite_as_null {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub(super) fn serialize<S: Serializer>(value: &f64, serializer: S) -> Result<S::Ok, S::Error> {
+        if value.is_infinite() && *value > 0.0 {
+            serializer.serialize_none()
+        } else {
+            serializer.serialize_some(value)
+        }
+    }
+
+    pub(super) fn deserialize<'de, D: Deserializer<'de>>(deserializer: D) -> Result<f64, D::Error> {
+        Ok(Option::<f64>::deserialize(deserializer)?.unwrap_or(f64::INFINITY))
+    }
+}
 
 impl ImuSpecBuilder {
     /// Set the accelerometer triad's errors (SI units, see [`SensorSpec`]).

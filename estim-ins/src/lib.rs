@@ -47,3 +47,9 @@ pub use mechanization::{navigation_rates, ImuSample, Mechanization, NavigationRa
 pub use mission::{Mission, MissionConfig, MissionConfigBuilder, SimulatedMission};
 pub use simulator::{ImuErrorGenerator, Kinematics, Trajectory, TrajectorySample};
 pub use state::{InsState, ACC_BIAS, ATT, ERROR_STATES, GYRO_BIAS, POS, VEL};
+
+/// The README's Rust code blocks, compiled and run as doc-tests (`cargo test` runs
+/// them; nothing of it is part of the API).
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

@@ -40,6 +40,7 @@ use crate::InsState;
 
 /// One IMU sample: raw (bias-including) mean specific force and angular rate over the
 /// interval [`time`, `time` + dt], body frame (x forward, y right, z down).
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ImuSample {
     /// Start of the interval the sample covers \[s\].

@@ -15,7 +15,15 @@ use crate::InsState;
 const G0: f64 = 9.806_65;
 
 /// A checked mission configuration (build with [`MissionConfig::builder`]).
+///
+/// With the `serde` feature it serializes as its fields (angles in rad, as the
+/// builder's setters) and deserializes through [`MissionConfigBuilder::build`].
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(try_from = "UncheckedMissionConfig")
+)]
 pub struct MissionConfig {
     duration: f64,
     imu_rate_hz: f64,
@@ -28,6 +36,48 @@ pub struct MissionConfig {
     max_turn_rate: f64,
     max_vertical_speed: f64,
     imu_spec: ImuSpec,
+}
+
+/// The serialized form of [`MissionConfig`], checked by `TryFrom`.
+#[cfg(feature = "serde")]
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct UncheckedMissionConfig {
+    duration: f64,
+    imu_rate_hz: f64,
+    start_latitude: f64,
+    start_longitude: f64,
+    mean_depth: f64,
+    depth_excursion: f64,
+    speed_range: (f64, f64),
+    leg_duration_range: (f64, f64),
+    max_turn_rate: f64,
+    max_vertical_speed: f64,
+    imu_spec: ImuSpec,
+}
+
+#[cfg(feature = "serde")]
+impl TryFrom<UncheckedMissionConfig> for MissionConfig {
+    type Error = Error;
+
+    fn try_from(u: UncheckedMissionConfig) -> Result<Self> {
+        MissionConfigBuilder {
+            config: MissionConfig {
+                duration: u.duration,
+                imu_rate_hz: u.imu_rate_hz,
+                start_latitude: u.start_latitude,
+                start_longitude: u.start_longitude,
+                mean_depth: u.mean_depth,
+                depth_excursion: u.depth_excursion,
+                speed_range: u.speed_range,
+                leg_duration_range: u.leg_duration_range,
+                max_turn_rate: u.max_turn_rate,
+                max_vertical_speed: u.max_vertical_speed,
+                imu_spec: u.imu_spec,
+            },
+        }
+        .build()
+    }
 }
 
 /// Builder of [`MissionConfig`]; defaults: 400 s at 100 Hz off Haifa (32.85° N, 34.89° E),

@@ -29,6 +29,7 @@ pub const ACC_BIAS: usize = 9;
 pub const GYRO_BIAS: usize = 12;
 
 /// The INS nominal (whole) state.
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InsState {
     /// Time \[s\].

@@ -21,19 +21,24 @@
 //!
 //! ```
 //! use estim_core::LearnedMeasurement;
+//! use estim_dvl::BeamGeometry;
 //! use estim_learned::{default_model_path, OnnxMeasurement};
-//! use nalgebra::DMatrix;
+//! use nalgebra::{DMatrix, Vector3};
 //!
 //! // BeamsNet through the generic wrapper: inputs as declared by its metadata.
 //! let model = OnnxMeasurement::<3>::from_model_path(&default_model_path())?;
 //! let names: Vec<&str> = model.input_specs().iter().map(|s| s.name.as_str()).collect();
 //! assert_eq!(names, ["acc", "gyro", "beams"]);
+//! // A level vehicle moving forward at 2 m/s, steady: f_b = -g on z, no rotation, and
+//! // the beams that velocity gives with the geometry BeamsNet was trained on.
+//! let forward = Vector3::new(2.0, 0.0, 0.0);
 //! let mut acc = DMatrix::zeros(3, 100);
 //! acc.row_mut(2).fill(-9.8);
 //! let gyro = DMatrix::zeros(3, 100);
-//! let beams = DMatrix::from_column_slice(4, 1, &[0.75, 0.69, 0.69, 0.75]);
+//! let beams = BeamGeometry::beamsnet().beams(&forward);
+//! let beams = DMatrix::from_column_slice(4, 1, beams.as_slice());
 //! let velocity = model.measure(&[acc, gyro, beams])?;
-//! assert!(velocity.x > 0.0);
+//! assert!((velocity - forward).norm() < 0.1, "{velocity}");
 //! # Ok::<(), estim_learned::Error>(())
 //! ```
 #![warn(missing_docs)]
@@ -70,3 +75,9 @@ pub use sensitivity::{
     LearnedCrossCovariance, NetworkSensitivity, IMU_CHANNELS,
 };
 pub use two_beams::{default_two_beams_model_path, TwoBeamsNet};
+
+/// The README's Rust code blocks, compiled and run as doc-tests (`cargo test` runs
+/// them; nothing of it is part of the API).
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

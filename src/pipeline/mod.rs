@@ -6,6 +6,7 @@ mod faults;
 mod learned;
 mod learned_scenarios;
 pub mod markdown;
+mod mismatch;
 mod montecarlo;
 mod oracle;
 mod report;
@@ -26,6 +27,10 @@ pub use learned_scenarios::{
     MeanInterval, INS_ONLY_DURING_LOSS, INS_ONLY_DURING_OUTAGE, OUTAGE_EMPIRICAL, OUTAGE_NEGLECTED,
     OUTAGE_NETWORK, OUTAGE_SCALED, TWO_BEAMS_EMPIRICAL, TWO_BEAMS_NEGLECTED, TWO_BEAMS_NETWORK,
     TWO_BEAMS_SCALED,
+};
+pub use mismatch::{
+    fit_reference_mismatch, MismatchFit, TrajectoryMismatch, AKIT_TEST_TRAJECTORIES,
+    CHI_SQUARE_1_MEDIAN,
 };
 pub use montecarlo::{
     monte_carlo, LearnedSource, MonteCarloReport, VariantConsistency, ORACLE_NEGLECTED,
