@@ -757,9 +757,9 @@ fn propagate_upper(
         };
     }
     let out = covariance;
-    // Navigation block, upper half: out[i, j] = sum_k Phi[i, k] Y[k, j], i <= j (the
-    // full 9-row column costs little more than its upper part and vectorises; only rows
-    // i <= j are kept; computing only those, per column, measured slower).
+    // Navigation block, upper half: out[i, j] = sum_k Phi[i, k] Y[k, j], i <= j, each
+    // column computed to its row j rounded up to 4, 6, 8 or 9 rows (fixed lengths, so the
+    // loops still unroll and vectorise; exact per-column lengths measured slower).
     for (j, yj) in y.iter().enumerate() {
         match j {
             0..=3 => out[j][..=j].copy_from_slice(&navigation_column::<4>(phi, yj)[..=j]),
