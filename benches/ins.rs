@@ -1,6 +1,9 @@
 //! estim-ins throughput: strapdown mechanization, mechanization + 15x15 covariance
 //! propagation, a whole 400 s / 100 Hz mission, and the peer crate `eskf` 0.2 predicting
-//! at the same rate (18-state, f32, flat Earth, dense covariance).
+//! at the same rate (18-state, f32, flat Earth, dense covariance). Then the same mission
+//! through the error-state filter with a learned-style DVL velocity update every second:
+//! M = 0 (default configuration, and without the Q_acc / Phi_acc accumulation) and the
+//! exact windowed M over the last 100 predicts.
 //!
 //! Run: `cargo bench --bench ins`.
 //!

@@ -15,52 +15,16 @@ use std::time::Duration;
 use criterion::{criterion_group, criterion_main, Criterion};
 use estim_core::nalgebra::{SMatrix, SVector};
 use estim_core::{
-    ExtendedKalmanFilter, Fixed, FixedLagSmoother, ForwardRecorder, MeasurementModel, NoObserver,
-    Observer, ProcessModel, RecordAt, Result, StateAndCovariance,
+    ExtendedKalmanFilter, Fixed, FixedLagSmoother, ForwardRecorder, NoObserver, Observer, RecordAt,
+    StateAndCovariance,
 };
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-const N: usize = 15;
-const M: usize = 3;
 const EPOCHS: usize = 200;
 
-struct Linear {
-    f: SMatrix<f64, N, N>,
-    q: SMatrix<f64, N, N>,
-}
-
-impl ProcessModel<f64, N> for Linear {
-    type State = SVector<f64, N>;
-    type Input = ();
-    fn propagate(&self, x: &Self::State, _: &(), _: f64) -> Result<Self::State> {
-        Ok(self.f * x)
-    }
-    fn transition(&self, _: &Self::State, _: &(), _: f64) -> Result<SMatrix<f64, N, N>> {
-        Ok(self.f)
-    }
-    fn process_noise(&self, _: &Self::State, _: &(), _: f64) -> Result<SMatrix<f64, N, N>> {
-        Ok(self.q)
-    }
-}
-
-struct Observe {
-    h: SMatrix<f64, M, N>,
-    r: SMatrix<f64, M, M>,
-}
-
-impl MeasurementModel<f64, N, M> for Observe {
-    type State = SVector<f64, N>;
-    fn predict(&self, x: &Self::State) -> Result<SVector<f64, M>> {
-        Ok(self.h * x)
-    }
-    fn jacobian(&self, _: &Self::State) -> Result<SMatrix<f64, M, N>> {
-        Ok(self.h)
-    }
-    fn noise_covariance(&self, _: &Self::State) -> Result<SMatrix<f64, M, M>> {
-        Ok(self.r)
-    }
-}
+mod common;
+use common::{Dense as Linear, Sensor as Observe, M, N};
 
 struct Setup {
     process_f: SMatrix<f64, N, N>,
@@ -96,7 +60,7 @@ fn setup() -> Setup {
 
 fn forward<O: Observer<f64, SVector<f64, N>, N>>(s: &Setup, predicts: usize, observer: O) -> O {
     let process = Linear {
-        f: s.process_f,
+        phi: s.process_f,
         q: s.process_q,
     };
     let mut ekf = ExtendedKalmanFilter::new(process, s.initial.clone()).with_observer(observer);
