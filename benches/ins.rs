@@ -1,6 +1,9 @@
 //! estim-ins throughput: strapdown mechanization, mechanization + 15x15 covariance
 //! propagation, a whole 400 s / 100 Hz mission, and the peer crate `eskf` 0.2 predicting
-//! at the same rate (18-state, f32, flat Earth, dense covariance).
+//! at the same rate (18-state, f32, flat Earth, dense covariance). Then the same mission
+//! through the error-state filter with a learned-style DVL velocity update every second:
+//! M = 0 (default configuration, and without the Q_acc / Phi_acc accumulation) and the
+//! exact windowed M over the last 100 predicts.
 //!
 //! Run: `cargo bench --bench ins`.
 //!
@@ -15,8 +18,54 @@ mod common;
 use common::ThreadCpuTime;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use estim_core::ProcessModel;
-use estim_ins::{ErrorMatrix, ImuSpec, InsErrorModel, Mechanization, Mission, MissionConfig};
+use estim_core::nalgebra::SMatrix;
+use estim_core::{
+    ErrorStateKalmanFilter, FilterConfig, MeasurementModel, ProcessModel, StepWindow,
+    WindowedCrossCovariance, Zero,
+};
+use estim_dvl::DvlVelocityModel;
+use estim_ins::{
+    ErrorMatrix, ImuSample, ImuSpec, InsErrorModel, InsState, Mechanization, Mission,
+    MissionConfig, ERROR_STATES,
+};
+
+/// Predicts per learned-style update (1 Hz against the 100 Hz IMU) and the window its
+/// noise shares with the process noise.
+const WINDOW: usize = 100;
+
+/// A learned-style body-velocity measurement whose error contains β times the mean
+/// accelerometer noise of the last `WINDOW` IMU samples it was computed from (as a
+/// network fed with the raw IMU window would): v = β/L Σ_j w_a,j + independent part.
+/// The velocity error of step j gains -C_b^n,j w_a,j dt, and w_a,j has per-sample
+/// covariance q_a/dt I, so D_j = Cov(G_j w_j, v) = -(β q_a / L) C_b^n,j in the velocity
+/// rows (state recorded by the filter before step j).
+struct SharedAccelerometerNoise {
+    /// β q_a / L.
+    weight: f64,
+}
+
+impl WindowedCrossCovariance<f64, InsState, ImuSample, ERROR_STATES, 3>
+    for SharedAccelerometerNoise
+{
+    fn window_steps(&self) -> usize {
+        WINDOW
+    }
+
+    fn step_cross_covariances(
+        &self,
+        window: &StepWindow<'_, f64, InsState, ImuSample, ERROR_STATES>,
+        sink: &mut dyn FnMut(&SMatrix<f64, ERROR_STATES, 3>) -> estim_core::Result<()>,
+    ) -> estim_core::Result<()> {
+        for step in window.iter() {
+            let c_bn = step.state.attitude.to_rotation_matrix().into_inner();
+            let mut d = SMatrix::<f64, ERROR_STATES, 3>::zeros();
+            d.fixed_view_mut::<3, 3>(3, 0)
+                .copy_from(&(c_bn * -self.weight));
+            sink(&d)?;
+        }
+        Ok(())
+    }
+}
 
 fn benches(c: &mut Criterion<ThreadCpuTime>) {
     let mission = Mission::generate(&MissionConfig::default(), 7).expect("default mission");
@@ -59,6 +108,16 @@ fn benches(c: &mut Criterion<ThreadCpuTime>) {
     g.bench_function("propagate_covariance (dense Phi P Phi' + Q)", |b| {
         b.iter(|| black_box(black_box(phi) * p_full * phi.transpose() + q));
     });
+    g.bench_function(
+        "predict_covariance (in place: Phi, Q, structured propagation)",
+        |b| {
+            let mut p = p_full;
+            b.iter(|| {
+                model.predict_covariance(black_box(&s100), &imu0, dt, &mut p);
+                black_box(&p);
+            });
+        },
+    );
     g.bench_function("mechanization+covariance (sparse)", |b| {
         let (mut s, mut p, mut k) = (start, p0, 0);
         b.iter(|| {
@@ -123,13 +182,28 @@ fn benches(c: &mut Criterion<ThreadCpuTime>) {
         b.iter(|| {
             let (mut s, mut p) = (start, p0);
             for imu in &mission.imu {
-                let (phi, q) = model.transition_and_noise(&s, imu, dt);
-                p = model.propagate_covariance(&p, &phi, &q);
+                model.predict_covariance(&s, imu, dt, &mut p);
                 s = mech.step_unchecked(&s, imu, dt);
             }
             black_box((s, p))
         });
     });
+    // The same through the two trait calls a runner makes (Phi and Q_d returned, P
+    // returned by value): bit-for-bit the same P.
+    g.bench_function(
+        "mechanization+covariance every step (transition_and_noise + propagate_covariance)",
+        |b| {
+            b.iter(|| {
+                let (mut s, mut p) = (start, p0);
+                for imu in &mission.imu {
+                    let (phi, q) = model.transition_and_noise(&s, imu, dt);
+                    p = model.propagate_covariance(&p, &phi, &q);
+                    s = mech.step_unchecked(&s, imu, dt);
+                }
+                black_box((s, p))
+            });
+        },
+    );
     g.bench_function("mechanization 100 Hz + covariance 10 Hz", |b| {
         b.iter(|| {
             let (mut s, mut p) = (start, p0);
@@ -166,6 +240,71 @@ fn benches(c: &mut Criterion<ThreadCpuTime>) {
             black_box(filter)
         });
     });
+    g.finish();
+
+    // The error-state filter over the same mission with a learned-style DVL velocity
+    // update every second (WINDOW predicts), without and with the exact windowed M.
+    let spec = ImuSpec::akit_observed();
+    let dvl = DvlVelocityModel::builder()
+        .lever_arm(nalgebra::Vector3::new(0.5, 0.0, 0.3))
+        .noise_std(0.02)
+        .build()
+        .expect("DVL model");
+    // β = 1: the whole mean accelerometer noise of the window (variance q_a/(L dt) =
+    // 9e-6 (m/s)^2, inside R = 4e-4, so the joint covariance is valid).
+    let cross = SharedAccelerometerNoise {
+        weight: spec.continuous_noise_psd()[0] / WINDOW as f64,
+    };
+    let measurements: Vec<_> = (1..=n / WINDOW)
+        .map(|u| dvl.predict(&mission.truth[u * WINDOW]).expect("DVL"))
+        .collect();
+    let filter = |config: FilterConfig| {
+        ErrorStateKalmanFilter::new(InsErrorModel::new(spec), start, p0)
+            .expect("filter")
+            .with_config(config)
+    };
+    let mut g = c.benchmark_group("ins_filter_mission_400s_100hz_dvl_1hz");
+    g.sample_size(10);
+    for (name, config, windowed) in [
+        ("default config, M = 0", FilterConfig::default(), false),
+        (
+            "no accumulation, M = 0",
+            FilterConfig::builder()
+                .track_accumulated_noise(false)
+                .build()
+                .expect("config"),
+            false,
+        ),
+        (
+            "exact windowed M (100-sample window)",
+            FilterConfig::builder()
+                .track_accumulated_noise(false)
+                .window_capacity(WINDOW)
+                .build()
+                .expect("config"),
+            true,
+        ),
+    ] {
+        let proto = filter(config);
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                let mut f = proto.clone();
+                for (k, imu) in mission.imu.iter().enumerate() {
+                    f.predict(imu, dt).expect("predict");
+                    if (k + 1) % WINDOW == 0 {
+                        let y = &measurements[k / WINDOW];
+                        let report = if windowed {
+                            f.update_windowed(&dvl, y, &cross)
+                        } else {
+                            f.update(&dvl, y, &Zero)
+                        };
+                        black_box(report.expect("update"));
+                    }
+                }
+                black_box(f.covariance()[(0, 0)])
+            });
+        });
+    }
     g.finish();
 }
 

@@ -2,6 +2,7 @@
 # The long runs the README quotes, one log per run in results/:
 # - tests/fuzz_parsers.rs, 1,000,000 cases, one property at a time (about 6-7 min in all);
 # - tests/long_mission.rs, the 10-hour mission (ignored test; about 4 min) and the 1-hour one.
+# - tests/square_root_ins.rs, the 10-hour mission in square-root form (ignored test).
 # Each log's first line is the commit it ran on and the command. Run from the repository
 # root on a clean work tree (the commit must be the code that ran), then
 # `cargo run --release -- report --write README.md` to quote the logs in the README.
@@ -25,6 +26,7 @@ run() { # run LOG COMMAND...
 (
   run long_mission-10h.log cargo test --workspace --release --test long_mission -- --ignored --nocapture
   run long_mission-1h.log cargo test --workspace --release --test long_mission -- --nocapture
+  run long_mission-10h-square-root.log cargo test --workspace --release --test square_root_ins -- --ignored --nocapture
 ) &
 missions=$!
 

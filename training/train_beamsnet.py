@@ -38,6 +38,37 @@ def parse_args():
     return p.parse_args()
 
 
+def measure_imu_dependence(model, va, a):
+    """How much the trained network uses the IMU, on the validation split.
+
+    - `imu_replaced_rms_mps`: RMS change of the output velocity (per axis, m/s) when
+      both IMU windows are replaced by the training mean (zeros after normalisation);
+    - `imu_feature_term_std_mps`: std over the validation examples of the IMU features'
+      contribution to the output (head IMU columns times the two features);
+    - `beam_columns_vs_pinv`: max |head beam columns - pinv(A)| and the ratio of their
+      norms (the least-squares solution is the reference);
+    - `head_imu_column_norm`: Frobenius norm of the head's two IMU columns.
+    """
+    with torch.no_grad():
+        out = model(va[0], va[1], va[2])
+        blank = model(torch.zeros_like(va[0]), torch.zeros_like(va[1]), va[2])
+        x = torch.cat((torch.tanh(model.conv(va[0])).flatten(1), torch.tanh(model.conv(va[1])).flatten(1)), dim=1)
+        x = torch.relu(model.fc1(x))
+        x = torch.relu(model.fc2(x))
+        x = torch.relu(model.fc3(x))
+        feats = model.fc4(x)
+        w = model.head.weight.double().numpy()
+        term = (feats.double() @ torch.tensor(w[:, :2]).T).numpy()
+    pinv = np.linalg.pinv(a)
+    return {
+        "imu_replaced_rms_mps": (out - blank).double().pow(2).mean(dim=0).sqrt().tolist(),
+        "imu_feature_term_std_mps": term.std(axis=0).tolist(),
+        "beam_columns_vs_pinv_max_abs": float(np.abs(w[:, 2:] - pinv).max()),
+        "beam_columns_norm_over_pinv_norm": float(np.linalg.norm(w[:, 2:]) / np.linalg.norm(pinv)),
+        "head_imu_column_norm": float(np.linalg.norm(w[:, :2])),
+    }
+
+
 def main():
     args = parse_args()
     t0 = time.time()
@@ -56,6 +87,17 @@ def main():
         if np.any(traj == forbidden):
             sys.exit(f"dataset holds trajectory {forbidden}: held-out test data, refusing to train")
     val_set = [int(x) for x in args.validation.split(",") if x]
+    # Trajectories linked by shared rows (found by `estim dataset beamsnet`) stay on one
+    # side of the split; rows shared with a held-out trajectory are already left out.
+    groups = meta.get("overlap_groups")
+    if groups is None:
+        sys.exit(f"{args.dataset}: metadata has no overlap_groups; rebuild it with `estim dataset beamsnet`")
+    present = set(int(t) for t in np.unique(traj))
+    for g in groups:
+        members = [t for t in g if t in present]
+        in_val = [t for t in members if t in val_set]
+        if in_val and len(in_val) != len(members):
+            sys.exit(f"validation {val_set} splits trajectories {members}, which share rows")
     is_val = np.isin(traj, val_set)
     train, val = data[~is_val], data[is_val]
     print(f"samples: train {len(train)}, validation {len(val)} (trajectories {val_set})")
@@ -125,6 +167,8 @@ def main():
     with torch.no_grad():
         res = (model(va[0], va[1], va[2]) - va[3]).double().numpy()
     r = np.cov(res, rowvar=False)
+    imu_dependence = measure_imu_dependence(model, va, a)
+    print(f"IMU dependence (validation): {imu_dependence}")
 
     os.makedirs(args.out_dir, exist_ok=True)
     onnx_path = os.path.join(args.out_dir, "beamsnet.onnx")
@@ -176,6 +220,7 @@ def main():
             "python": platform.python_version(),
             "duration_s": round(time.time() - t0, 1),
         },
+        "imu_dependence": imu_dependence,
     }
     with open(os.path.join(args.out_dir, "beamsnet.json"), "w") as f:
         json.dump(meta_out, f, indent=1)

@@ -6,51 +6,15 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use estim_core::nalgebra::{SMatrix, SVector};
 use estim_core::{
-    ExtendedKalmanFilter, FilterConfig, JointCheck, MeasurementModel, ProcessModel, Result,
-    StateAndCovariance, StepWindow, WindowedCrossCovariance, Zero,
+    ExtendedKalmanFilter, FilterConfig, JointCheck, Result, StateAndCovariance, StepWindow,
+    WindowedCrossCovariance, Zero,
 };
 use std::hint::black_box;
 
-const N: usize = 15;
-const M: usize = 3;
 const STEPS: usize = 100;
 
-struct Dense {
-    phi: SMatrix<f64, N, N>,
-    q: SMatrix<f64, N, N>,
-}
-
-impl ProcessModel<f64, N> for Dense {
-    type State = SVector<f64, N>;
-    type Input = ();
-    fn propagate(&self, x: &Self::State, _: &(), _: f64) -> Result<Self::State> {
-        Ok(self.phi * x)
-    }
-    fn transition(&self, _: &Self::State, _: &(), _: f64) -> Result<SMatrix<f64, N, N>> {
-        Ok(self.phi)
-    }
-    fn process_noise(&self, _: &Self::State, _: &(), _: f64) -> Result<SMatrix<f64, N, N>> {
-        Ok(self.q)
-    }
-}
-
-struct Sensor {
-    h: SMatrix<f64, M, N>,
-    r: SMatrix<f64, M, M>,
-}
-
-impl MeasurementModel<f64, N, M> for Sensor {
-    type State = SVector<f64, N>;
-    fn predict(&self, x: &Self::State) -> Result<SVector<f64, M>> {
-        Ok(self.h * x)
-    }
-    fn jacobian(&self, _: &Self::State) -> Result<SMatrix<f64, M, N>> {
-        Ok(self.h)
-    }
-    fn noise_covariance(&self, _: &Self::State) -> Result<SMatrix<f64, M, M>> {
-        Ok(self.r)
-    }
-}
+mod common;
+use common::{Dense, Sensor, M, N};
 
 struct PerStep(SMatrix<f64, N, M>);
 

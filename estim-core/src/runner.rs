@@ -90,8 +90,9 @@ impl<T: Scalar, const N: usize> Accumulator<T, N> {
         }
     }
 
-    /// Add one propagation; `propagate` is the model's covariance propagation
-    /// (the same structure as P's, so a sparse override speeds up both).
+    /// Add one propagation; `propagate` is the model's covariance propagation and
+    /// `compose` its product of transitions (the same structure as P's, so a sparse
+    /// override speeds up both).
     fn push(
         &mut self,
         transition: &SMatrix<T, N, N>,
@@ -101,13 +102,14 @@ impl<T: Scalar, const N: usize> Accumulator<T, N> {
             &SMatrix<T, N, N>,
             &SMatrix<T, N, N>,
         ) -> SMatrix<T, N, N>,
+        compose: impl FnOnce(&SMatrix<T, N, N>, &SMatrix<T, N, N>) -> SMatrix<T, N, N>,
     ) {
         if self.steps == 0 {
             self.noise = *process_noise;
             self.transition = *transition;
         } else {
             self.noise = propagate(&self.noise, transition, process_noise);
-            self.transition = mul_static(transition, &self.transition);
+            self.transition = compose(transition, &self.transition);
         }
         self.steps += 1;
     }
@@ -206,6 +208,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
     }
 
     /// Record a committed predict: accumulation (if tracked) and window (if kept).
+    #[allow(clippy::too_many_arguments)]
     fn record_predict(
         &mut self,
         state_before: &S,
@@ -218,12 +221,14 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
             &SMatrix<T, N, N>,
             &SMatrix<T, N, N>,
         ) -> SMatrix<T, N, N>,
+        compose: impl FnOnce(&SMatrix<T, N, N>, &SMatrix<T, N, N>) -> SMatrix<T, N, N>,
     ) where
         S: Clone,
         U: Clone,
     {
         if self.config.track_accumulated_noise() {
-            self.accumulated.push(transition, process_noise, propagate);
+            self.accumulated
+                .push(transition, process_noise, propagate, compose);
         } else {
             self.accumulated.steps += 1;
         }
@@ -630,6 +635,7 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             f,
             &self.process_noise,
             |q, phi, qd| propagate_symmetric(phi, q, qd),
+            |later, earlier| mul_static(later, earlier),
         );
         self.shared.notify_predict(
             None,
@@ -829,10 +835,15 @@ where
             StateAndCovariance::new_unchecked(state, covariance),
         );
         let process = &self.process;
-        self.shared
-            .record_predict(before.state(), input, Some(dt), &phi, &qd, |q, phi, qd| {
-                process.propagate_covariance(q, phi, qd)
-            });
+        self.shared.record_predict(
+            before.state(),
+            input,
+            Some(dt),
+            &phi,
+            &qd,
+            |q, phi, qd| process.propagate_covariance(q, phi, qd),
+            |later, earlier| process.compose_transitions(later, earlier),
+        );
         self.shared.notify_predict(
             Some(dt),
             self.estimate.state(),
@@ -1061,10 +1072,15 @@ where
         let before = std::mem::replace(&mut self.nominal, nominal);
         self.covariance = covariance;
         let process = &self.process;
-        self.shared
-            .record_predict(&before, input, Some(dt), &phi, &qd, |q, phi, qd| {
-                process.propagate_covariance(q, phi, qd)
-            });
+        self.shared.record_predict(
+            &before,
+            input,
+            Some(dt),
+            &phi,
+            &qd,
+            |q, phi, qd| process.propagate_covariance(q, phi, qd),
+            |later, earlier| process.compose_transitions(later, earlier),
+        );
         self.shared
             .notify_predict(Some(dt), &self.nominal, &self.covariance, &phi, &qd)
     }

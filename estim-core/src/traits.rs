@@ -92,6 +92,19 @@ pub trait ProcessModel<T: Scalar, const N: usize> {
     ) -> SMatrix<T, N, N> {
         transition * covariance * transition.transpose() + process_noise
     }
+
+    /// Phi_later Phi_earlier, the transition over two consecutive intervals: the
+    /// runners' accumulated transition Phi_acc <- Phi Phi_acc between updates (when
+    /// [`crate::FilterConfig::track_accumulated_noise`] is on). Override to exploit the
+    /// structure of Phi (as [`ProcessModel::propagate_covariance`]); the result must
+    /// equal this default, the dense product.
+    fn compose_transitions(
+        &self,
+        later: &SMatrix<T, N, N>,
+        earlier: &SMatrix<T, N, N>,
+    ) -> SMatrix<T, N, N> {
+        crate::update::mul_static(later, earlier)
+    }
 }
 
 /// A process model whose filter estimates an error around a nominal state.

@@ -8,7 +8,6 @@
 //! callgrind_annotate --inclusive=yes cg.out
 //! ```
 
-use estim_core::ProcessModel;
 use estim_ins::{ErrorMatrix, ImuSpec, InsErrorModel, Mechanization, Mission, MissionConfig};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -21,8 +20,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }));
     let mut s = mission.truth[0];
     for imu in &mission.imu {
-        let (phi, q) = model.transition_and_noise(&s, imu, dt);
-        p = model.propagate_covariance(&p, &phi, &q);
+        model.predict_covariance(&s, imu, dt, &mut p);
         s = mech.step_unchecked(&s, imu, dt);
     }
     println!(

@@ -80,6 +80,13 @@ pub fn normal_gravity(latitude: f64, height: f64) -> f64 {
 /// Partial derivatives (∂g/∂latitude \[m/s^2/rad\], ∂g/∂height \[1/s^2\]) of [`normal_gravity`].
 pub fn normal_gravity_gradient(latitude: f64, height: f64) -> (f64, f64) {
     let (s, c) = latitude.sin_cos();
+    normal_gravity_gradient_at(s, c, height)
+}
+
+/// [`normal_gravity_gradient`] from sin L and cos L already at hand (the error model
+/// evaluates them once per step for all its Earth terms).
+#[inline]
+pub(crate) fn normal_gravity_gradient_at(s: f64, c: f64, height: f64) -> (f64, f64) {
     let d = 1.0 - ECCENTRICITY_SQUARED * s * s;
     let dg0 = GRAVITY_EQUATOR
         * (2.0 * SOMIGLIANA_K * s * c / d.sqrt()

@@ -367,7 +367,12 @@ fn correlation_scaled_error(a: &SMatrix<f64, 15, 15>, b: &SMatrix<f64, 15, 15>) 
 
 /// The structured propagation (the one the runners use) against the dense reference over
 /// the whole 400 s default mission at 100 Hz: at every step on the same prior, and as two
-/// chains run side by side for 40 000 steps.
+/// chains run side by side for 40 000 steps. The in-place path
+/// (`InsErrorModel::predict_covariance`, a third chain) must equal the structured one to
+/// the last bit at every step, so the bounds hold for it too. The structured product of
+/// transitions (`compose_transitions`, the runners' Phi_acc between updates, here reset
+/// every 100 steps as with 1 Hz updates) must equal an explicitly looped dense product
+/// of the same factors at every step.
 #[test]
 fn structured_propagation_equals_dense_reference_over_a_400_s_mission() {
     let mission = estim_ins::Mission::generate(&estim_ins::MissionConfig::default(), 7).unwrap();
@@ -377,9 +382,10 @@ fn structured_propagation_equals_dense_reference_over_a_400_s_mission() {
     let p0 = SMatrix::<f64, 15, 15>::from_diagonal(&V15::from_fn(|i, _| {
         [1.0, 1e-2, 1e-6, 1e-6, 1e-10][i / 3]
     }));
-    let (mut s, mut structured, mut dense) = (mission.truth[0], p0, p0);
+    let (mut s, mut structured, mut dense, mut in_place) = (mission.truth[0], p0, p0, p0);
+    let mut accumulated = SMatrix::<f64, 15, 15>::identity();
     let (mut worst_step, mut worst_chain) = (0.0f64, 0.0f64);
-    for imu in &mission.imu {
+    for (step, imu) in mission.imu.iter().enumerate() {
         let (phi, q) = model.transition_and_noise(&s, imu, dt);
         let next = model.propagate_covariance(&structured, &phi, &q);
         // Exactly symmetric, and equal to the dense product of the same prior.
@@ -389,6 +395,18 @@ fn structured_propagation_equals_dense_reference_over_a_400_s_mission() {
             &dense_reference(&structured, &phi, &q),
         ));
         structured = next;
+        model.predict_covariance(&s, imu, dt, &mut in_place);
+        assert_eq!(in_place, structured);
+        let composed = model.compose_transitions(&phi, &accumulated);
+        let looped = SMatrix::<f64, 15, 15>::from_fn(|i, j| {
+            (0..15).fold(0.0, |sum, k| sum + phi[(i, k)] * accumulated[(k, j)])
+        });
+        assert_eq!(composed, looped);
+        accumulated = if (step + 1) % 100 == 0 {
+            SMatrix::identity()
+        } else {
+            composed
+        };
         dense = dense_reference(&dense, &phi, &q);
         worst_chain = worst_chain.max(correlation_scaled_error(&structured, &dense));
         s = mech.step(&s, imu, dt).unwrap();

@@ -6,6 +6,12 @@
 //!   Jacobian-vector products);
 //! - [`BeamsNet`]: BeamsNetV1 (IMU windows + 4 beams -> body velocity);
 //! - [`synthesize`], [`dataset_row`], [`write_npy`]: BeamsNet training data;
+//! - [`TwoBeamsNet`]: IMU window + two beams -> body velocity (its M is the generic
+//!   [`LearnedCrossCovariance`], by Monte Carlo [`Empirical::for_model`]);
+//! - [`OutageNet`]: IMU window + last valid DVL velocity + time since it -> body
+//!   velocity (a full DVL outage; M as for the two-beams network);
+//! - [`RowOverlaps`]: rows shared between recorded trajectories (keeps windows that
+//!   touch a held-out trajectory out of training and validation);
 //! - [`metrics`](fn@metrics), [`speed_metrics`], [`evaluate`]: the paper's RMSE, MAE, R^2, VAF;
 //! - [`NetworkSensitivity`], [`Empirical`]: the cross-covariance M between the INS
 //!   process noise and the network's output error, from the network's own sensitivity
@@ -45,7 +51,10 @@ mod measurement;
 mod metadata;
 mod metrics;
 mod onnx;
+mod outage;
+mod overlap;
 mod sensitivity;
+mod two_beams;
 
 pub use beamsnet::{default_model_path, BeamsNet, BeamsNetInput, BEAMSNET_WINDOW};
 pub use dataset::{
@@ -59,10 +68,13 @@ pub use metadata::{
     BeamGeometryMetadata, InputMetadata, ModelMetadata, OutputMetadata, METADATA_FORMAT,
 };
 pub use metrics::{metrics, speed_metrics, Metrics};
+pub use outage::{default_outage_model_path, OutageNet};
+pub use overlap::{row_key, row_span, RowKey, RowOverlaps};
 pub use sensitivity::{
-    CrossMatrix, Empirical, EmpiricalEstimate, InputNoise, LearnedCrossCovariance,
-    NetworkSensitivity, IMU_CHANNELS,
+    driven_error_covariance, CrossMatrix, Empirical, EmpiricalEstimate, InputNoise,
+    LearnedCrossCovariance, NetworkSensitivity, IMU_CHANNELS,
 };
+pub use two_beams::{default_two_beams_model_path, TwoBeamsNet};
 
 /// The README's Rust code blocks, compiled and run as doc-tests (`cargo test` runs
 /// them; nothing of it is part of the API).

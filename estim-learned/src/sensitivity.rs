@@ -42,7 +42,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 
-use crate::beamsnet::{BeamsNet, BeamsNetInput};
+use crate::beamsnet::BeamsNet;
 use crate::measurement::OnnxMeasurement;
 use crate::{Error, Result};
 
@@ -359,6 +359,36 @@ where
     }
 }
 
+/// Q_w = sum_j Phi(k, j+1) A_j Σ_j A_j' Phi(k, j+1)': the covariance of the error
+/// state at the update that the window's input noise alone drives (the process side
+/// of the joint covariance of [`LearnedCrossCovariance`]; no other update inside the
+/// window). With M and R it gives the correlation between the model's output error and
+/// that input-driven error, M_ij / sqrt(Q_w,ii R_jj).
+///
+/// # Errors
+/// A step without dt (only the EKF and error-state runners record it).
+pub fn driven_error_covariance<T, P, const N: usize, const K: usize>(
+    process: &P,
+    window: &StepWindow<'_, T, P::State, P::Input, N>,
+) -> estim_core::Result<SMatrix<T, N, N>>
+where
+    T: Scalar,
+    P: InputNoise<T, N, K> + ?Sized,
+{
+    let mut q = SMatrix::<T, N, N>::zeros();
+    window.for_each_transport(|step, transport| {
+        let dt = step.dt.ok_or_else(|| {
+            estim_core::Error::Model(
+                "the input-driven error covariance needs each step's dt".into(),
+            )
+        })?;
+        let b = transport * process.input_noise_jacobian(step.state, step.input, dt);
+        q += b * process.input_noise_covariance(dt) * b.transpose();
+        Ok(())
+    })?;
+    Ok(q)
+}
+
 // ---------------------------------------------------------------------------------
 // The INS/DVL instance: BeamsNet fed with the IMU samples the error-state filter
 // integrates.
@@ -503,15 +533,25 @@ fn error_state(reference: &InsState, nominal: &InsState) -> SMatrix<f64, ERROR_S
 /// and the network re-run on them; M = sample Cov(δx_k, y). Build one per update
 /// (it borrows the network and error model; nothing is kept between updates).
 ///
+/// For a network that is not linear at the noise scale this is not the first-order M:
+/// by Stein's lemma Cov(n, y(x + n)) = Σ E_n[J(x + n)], the Jacobian averaged over the
+/// noise, where [`LearnedCrossCovariance`] takes J at the window's samples (measured
+/// on the two-beams network: `estim-learned/tests/two_beams.rs`).
+///
+/// Any 3-output [`OnnxMeasurement`] laid out as [`LearnedCrossCovariance`] expects
+/// (leading streams \[f_b; ω_b\] over the window, then per-update inputs) works:
+/// [`Empirical::new`] for BeamsNet, [`Empirical::for_model`] for the others (e.g. the
+/// two-beams network).
+///
 /// As a [`WindowedCrossCovariance`]: the transported M is the full nonlinear Monte
 /// Carlo; the per-step D_j (used only when other updates lie inside the window) are
 /// sample Cov(A_j n_j, y) with A_j the linear noise input of
 /// [`InputNoise::input_noise_jacobian`].
 #[derive(Debug, Clone)]
 pub struct Empirical<'a> {
-    beamsnet: &'a BeamsNet,
+    model: &'a OnnxMeasurement<3>,
     error_model: &'a InsErrorModel,
-    beams: Vector4<f64>,
+    extra: Vec<DMatrix<f64>>,
     realizations: usize,
     seed: u64,
 }
@@ -541,13 +581,49 @@ impl<'a> Empirical<'a> {
         realizations: usize,
         seed: u64,
     ) -> Self {
-        Self {
-            beamsnet,
+        Self::for_model(
+            beamsnet.measurement(),
             error_model,
-            beams,
+            beams_input(&beams).to_vec(),
+            realizations,
+            seed,
+        )
+    }
+
+    /// The same for any 3-output model whose leading input streams read the IMU
+    /// (\[f_b; ω_b\], one column per window step) and whose remaining streams are
+    /// `extra` (this update's values, one matrix per stream, e.g. two beams).
+    pub fn for_model(
+        model: &'a OnnxMeasurement<3>,
+        error_model: &'a InsErrorModel,
+        extra: Vec<DMatrix<f64>>,
+        realizations: usize,
+        seed: u64,
+    ) -> Self {
+        Self {
+            model,
+            error_model,
+            extra,
             realizations,
             seed,
         }
+    }
+
+    /// Window L the model reads.
+    ///
+    /// # Errors
+    /// [`Error::InvalidInput`] if the model's inputs do not split into IMU streams and
+    /// the given per-update inputs.
+    fn generic(
+        &self,
+    ) -> Result<LearnedCrossCovariance<'_, f64, OnnxMeasurement<3>, InsErrorModel, IMU_CHANNELS>>
+    {
+        LearnedCrossCovariance::new::<3>(self.model, self.error_model, &self.extra).map_err(|e| {
+            Error::InvalidInput {
+                what: "learned model inputs",
+                reason: e.to_string(),
+            }
+        })
     }
 
     fn draw(
@@ -560,16 +636,18 @@ impl<'a> Empirical<'a> {
                 reason: format!("{} < 2", self.realizations),
             });
         }
-        if window.len() != crate::BEAMSNET_WINDOW {
+        let generic = self.generic()?;
+        if window.len() != generic.window() {
             return Err(Error::InvalidInput {
                 what: "IMU window",
                 reason: format!(
-                    "{} steps, BeamsNet reads {}",
+                    "{} steps, the model reads {}",
                     window.len(),
-                    crate::BEAMSNET_WINDOW
+                    generic.window()
                 ),
             });
         }
+        let base = generic.inputs::<ERROR_STATES, 3>(window)?;
         let steps: Vec<_> = window.iter().collect();
         let dts = steps
             .iter()
@@ -625,20 +703,15 @@ impl<'a> Empirical<'a> {
                 })
                 .collect();
             errors.push(error_state(&reference, &integrate(Some(&n))));
-            let force: Vec<Vector3<f64>> = steps
-                .iter()
-                .zip(&n)
-                .map(|(s, n)| s.input.specific_force + n.fixed_rows::<3>(0))
-                .collect();
-            let rate: Vec<Vector3<f64>> = steps
-                .iter()
-                .zip(&n)
-                .map(|(s, n)| s.input.angular_rate + n.fixed_rows::<3>(3))
-                .collect();
-            inputs.push(BeamsNetInput::from_samples(&force, &rate, self.beams));
+            let mut noisy = base.clone();
+            for (step, n) in steps.iter().zip(&n) {
+                let channels = self.error_model.input_channels(step.input) + n;
+                generic.scatter(&mut noisy, step.position, &channels);
+            }
+            inputs.push(noisy);
             noise.push(n);
         }
-        let outputs = self.beamsnet.velocities(&inputs)?;
+        let outputs = self.model.measure_batch(&inputs)?;
         Ok(Draws {
             noise,
             errors,
@@ -649,8 +722,8 @@ impl<'a> Empirical<'a> {
     /// Run the Monte Carlo over `window` (its IMU taken as noise-free).
     ///
     /// # Errors
-    /// [`Error::InvalidInput`] for fewer than 2 realizations or a window that is not
-    /// BeamsNet's; the network's errors.
+    /// [`Error::InvalidInput`] for fewer than 2 realizations, a window that is not the
+    /// model's or per-update inputs that do not fit its streams; the network's errors.
     pub fn estimate(
         &self,
         window: &StepWindow<'_, f64, InsState, ImuSample, ERROR_STATES>,
@@ -681,7 +754,7 @@ impl<'a> Empirical<'a> {
 
 impl WindowedCrossCovariance<f64, InsState, ImuSample, ERROR_STATES, 3> for Empirical<'_> {
     fn window_steps(&self) -> usize {
-        crate::BEAMSNET_WINDOW
+        self.model.input_specs().first().map_or(0, |s| s.window)
     }
 
     fn step_cross_covariances(

@@ -114,40 +114,34 @@ fn network_sensitivity_matches_monte_carlo() {
 }
 
 /// The adjoint form (15 JVP directions, each spanning the window) and the per-step
-/// form (600 unit directions, one IMU channel of one sample each) are the same first-
-/// order M; their finite-difference JVPs differ by the float32 network's round-off and
-/// curvature over the steps. Measured on this window (max |adjoint - per step| /
-/// max |M|): 0.47 at the default step 1e-2 (the x-output column sits at float32
-/// resolution: a 1e-2 normalised perturbation moves it by a few ulps; the y and z
-/// columns agree to 1e-3), 0.085 at 1e-1, 0.45 at 1.0 (curvature).
+/// form (600 unit directions, one IMU channel of one sample each) of BeamsNet's M.
+///
+/// BeamsNet retrained under the beam protocol (estim issue 12) does not use the IMU:
+/// both forms give an M at the float32 resolution of the network's output (measured
+/// on this window at the default step: max |M| 1.1e-8 adjoint; the forms differ by
+/// 0.85 of that, 0.24 at step 1e-3: round-off, not signal). What is checked here is
+/// that both forms say so, far below the resolved M of a network that does use the
+/// IMU (two-beams network, 2e-6 to 1e-5 on simulated windows, `tests/two_beams.rs`,
+/// where the two forms are compared). The threshold 1e-7 is 9x the measured value.
 #[test]
 fn adjoint_and_per_step_forms_agree() {
     let (filter, beams) = recorded(12);
     let window = filter.step_window(BEAMSNET_WINDOW).unwrap();
     let extra = [DMatrix::from_column_slice(4, 1, beams.as_slice())];
-    let compare = |step: f64| {
-        let model = OnnxMeasurement::<3>::from_model_path(&default_model_path())
-            .unwrap()
-            .with_sensitivity_step(step);
-        let generic = LearnedCrossCovariance::new::<3>(&model, filter.process(), &extra).unwrap();
-        let adjoint = generic
-            .transported_cross_covariance(&window)
-            .unwrap()
-            .unwrap();
-        (adjoint, per_step_sum(&generic, &window))
-    };
-    // Default step: the resolved columns (y, z outputs) within 1% of max |M|.
-    let (adjoint, per_step) = compare(estim_learned::DEFAULT_SENSITIVITY_STEP);
-    let diff = (adjoint - per_step).columns(1, 2).amax() / adjoint.amax();
-    assert!(diff <= 0.01, "y, z columns differ by {diff:.2e} of max |M|");
-    // Step 1e-1 (above the float32 floor of the x column): every entry within 15%
-    // of max |M| (measured 8.5e-2).
-    let (adjoint, per_step) = compare(0.1);
-    let diff = (adjoint - per_step).amax() / adjoint.amax();
-    assert!(
-        diff <= 0.15,
-        "adjoint\n{adjoint}per step\n{per_step}differ by {diff:.2e}"
+    let model = OnnxMeasurement::<3>::from_model_path(&default_model_path()).unwrap();
+    let generic = LearnedCrossCovariance::new::<3>(&model, filter.process(), &extra).unwrap();
+    let adjoint = generic
+        .transported_cross_covariance(&window)
+        .unwrap()
+        .unwrap();
+    let per_step = per_step_sum(&generic, &window);
+    println!(
+        "max |M|: adjoint {:.3e}, per step {:.3e}",
+        adjoint.amax(),
+        per_step.amax()
     );
+    assert!(adjoint.amax() < 1e-7, "adjoint M\n{adjoint}");
+    assert!(per_step.amax() < 1e-7, "per-step M\n{per_step}");
     let beamsnet = BeamsNet::load_default().unwrap();
     let ns = NetworkSensitivity::new(&beamsnet, filter.process(), beams);
     // The network reads exactly the samples the filter integrated.

@@ -4,12 +4,15 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use estim::datasets::{
-    check_spans, data_root, load_dvl, load_gt, trajectory_files, SPAN_TIME_OFFSET_ALLOWANCE_S,
+    akit_overlaps, check_spans, data_root, load_dvl, load_gt, touches_held_out, trajectory_files,
+    SPAN_TIME_OFFSET_ALLOWANCE_S, WINDOW_MARGIN_ROWS,
 };
 use estim_core::nalgebra::Vector3;
 use estim_dvl::BeamsNetProtocol;
 use estim_ins::{ImuSpec, Trajectory};
-use estim_learned::{dataset_row, synthesize, write_npy, DATASET_COLUMNS, IMU_RATE_HZ};
+use estim_learned::{
+    dataset_row, synthesize, write_npy, BEAMSNET_WINDOW, DATASET_COLUMNS, IMU_RATE_HZ,
+};
 
 /// Trajectories BeamsNet is trained on: A-KIT 1-3 and 5-12 (4 and 13 are held out).
 pub const TRAINING_TRAJECTORIES: [u32; 11] = [1, 2, 3, 5, 6, 7, 8, 9, 10, 11, 12];
@@ -94,23 +97,61 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
     }
     let protocol = BeamsNetProtocol::v1();
     let spec = imu_spec();
+    // Rows shared between trajectories (identical GT and DVL values): every example
+    // whose window touches a row shared with a held-out trajectory is left out, and the
+    // groups of trajectories linked by shared rows are recorded so that the training
+    // script keeps each group on one side of its train / validation split.
+    let all: Vec<u32> = TRAINING_TRAJECTORIES
+        .iter()
+        .chain(&TEST_TRAJECTORIES)
+        .copied()
+        .collect();
+    let overlaps = akit_overlaps(&root, &all)
+        .context("finding rows shared with the held-out trajectories (all 13 are needed)")?;
+    let window_s = BEAMSNET_WINDOW as f64 / IMU_RATE_HZ;
     let mut data = Vec::new();
     let mut counts = Vec::new();
     for n in TRAINING_TRAJECTORIES {
         let (trajectory, dvl) = load_akit(&root, n)?;
+        let gt_times: Vec<f64> = load_gt(&trajectory_files(&root, n)?.gt)?
+            .iter()
+            .map(|g| g.time)
+            .collect();
         let mut rows = 0;
+        let mut excluded = 0;
         for r in 0..args.realizations {
             let seed = args.seed + 1000 * u64::from(n) + u64::from(r);
             let run = synthesize(&trajectory, &dvl, &spec, &protocol, seed)
                 .with_context(|| format!("trajectory {n}"))?;
             for s in &run.samples {
+                let start = s.time - window_s;
+                if touches_held_out(&overlaps, n, &gt_times, start, s.time, &TEST_TRAJECTORIES) {
+                    excluded += 1;
+                    continue;
+                }
                 data.extend(dataset_row(s, n, r));
                 rows += 1;
             }
         }
-        counts.push(serde_json::json!({"trajectory": n, "rows": rows}));
-        eprintln!("trajectory {n}: {rows} rows");
+        counts.push(serde_json::json!({
+            "trajectory": n, "rows": rows, "excluded_touching_held_out": excluded
+        }));
+        eprintln!("trajectory {n}: {rows} rows ({excluded} left out: they touch rows of a held-out trajectory)");
     }
+    let shared_pairs: Vec<serde_json::Value> = overlaps
+        .pairs()
+        .iter()
+        .map(|&(a, b, count)| {
+            let span = |x: u32, y: u32| {
+                let rows = overlaps.rows_shared_with(x, y);
+                serde_json::json!([rows.first(), rows.last()])
+            };
+            serde_json::json!({
+                "trajectories": [a, b], "rows": count,
+                "rows_of_first": span(a, b), "rows_of_second": span(b, a)
+            })
+        })
+        .collect();
     write_npy(&args.out, DATASET_COLUMNS, &data)?;
     let geometry = protocol.geometry();
     let a = spec.accelerometer();
@@ -157,6 +198,15 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
             "bias": BeamsNetProtocol::BIAS_V1
         },
         "trajectories": counts,
+        "held_out_trajectories": TEST_TRAJECTORIES,
+        "shared_rows": shared_pairs,
+        "overlap_groups": overlaps.groups(),
+        "overlap_rule": format!(
+            "rows identical (GT and DVL values, time excluded) across trajectories are found in the files; \
+             an example whose GT row span (IMU window + DVL sample, widened by {WINDOW_MARGIN_ROWS} rows each side) \
+             touches a row shared with a held-out trajectory is left out; a validation split must keep \
+             each overlap group on one side"
+        ),
         "realizations": args.realizations,
         "seed": args.seed,
         "seed_rule": "IMU errors: seed + 1000 n + r; beam noise: that + 1000003",

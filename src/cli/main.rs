@@ -8,6 +8,7 @@ mod beamsnet;
 mod dataset;
 mod dvl;
 mod learned;
+mod learned_scenarios;
 mod montecarlo;
 mod output;
 mod plots;

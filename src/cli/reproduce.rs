@@ -47,6 +47,10 @@ pub struct Args {
     /// Write CSV time series and plots (PNG, SVG) into this folder.
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
+    /// Scenario: `paper` (default), `two-beams` (beams 1-2 only for 120 s, the
+    /// two-beams network), `outage` (no DVL for 60 s, the outage network).
+    #[arg(long, value_enum, default_value = "paper")]
+    scenario: crate::learned_scenarios::ScenarioKind,
     /// Also smooth each trajectory (RTS, LS DVL, M = 0): smoothed vs filtered errors
     /// and NEES (files in `--out DIR/smoothing`).
     #[arg(long)]
@@ -109,6 +113,33 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut scenarios = scenarios;
     for s in &mut scenarios {
         apply_faults(s, &config.faults, config.seed)?;
+    }
+    match args.scenario {
+        crate::learned_scenarios::ScenarioKind::Paper => {}
+        kind => {
+            let outage = kind == crate::learned_scenarios::ScenarioKind::Outage;
+            let studies = crate::learned_scenarios::reproduce_learned(&scenarios, &config, outage)?;
+            if args.json {
+                let inputs = serde_json::json!({
+                    "data": path_json(args.data.as_deref()),
+                    "trajectories": trajectories,
+                    "config_file": path_json(args.config.as_deref()),
+                    "scenario": if outage { "outage" } else { "two-beams" },
+                    "seed": config.seed,
+                    "config": config,
+                });
+                let payload = serde_json::json!({ "studies": studies });
+                let doc = document("reproduce", inputs, 0, payload);
+                emit(&format!("{}\n", serde_json::to_string_pretty(&doc)?))?;
+            } else {
+                let mut text = String::new();
+                for s in &studies {
+                    crate::learned_scenarios::print_study(&mut text, s)?;
+                }
+                emit(&text)?;
+            }
+            return Ok(());
+        }
     }
     let learned = crate::learned::sensor(&config, args.model.as_deref())?;
     let reports: Vec<TrajectoryReport> = scenarios

@@ -11,6 +11,7 @@ mod akit;
 mod beams;
 mod columns;
 mod locate;
+mod overlaps;
 mod span;
 
 pub use akit::{
@@ -23,6 +24,7 @@ pub use columns::ColumnMap;
 pub use locate::{
     akit_dir, data_root, trajectories_in, trajectory_files, TrajectoryFiles, DATA_DIR_ENV,
 };
+pub use overlaps::{akit_overlaps, akit_row_keys, touches_held_out, WINDOW_MARGIN_ROWS};
 pub use span::{check_spans, span_tolerance, SpanCheck, SPAN_TIME_OFFSET_ALLOWANCE_S};
 
 use std::path::PathBuf;

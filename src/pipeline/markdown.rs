@@ -691,6 +691,9 @@ fn long_mission_model(name: &str) -> String {
             "`Fixed(M)`, a valid M (half the largest valid scaled correlation)".into()
         }
         "ScaledCorrelation{0.42}" => "`ScaledCorrelation { rho: 0.42 }` (the paper)".into(),
+        "SquareRoot Fixed(valid M)" => {
+            "the same valid `Fixed(M)`, square-root form (Cholesky factor held; tests/square_root_ins.rs; run time includes the covariance-form filter run beside it)".into()
+        }
         other => format!("`{other}`"),
     }
 }

@@ -4,7 +4,9 @@
 mod config;
 mod faults;
 mod learned;
+mod learned_scenarios;
 pub mod markdown;
+mod mismatch;
 mod montecarlo;
 mod oracle;
 mod report;
@@ -18,6 +20,18 @@ pub use config::{
 };
 pub use faults::{apply_faults, DvlOutage, FaultConfig, FaultLog, ImuGap};
 pub use learned::{beamsnet_inputs, complete_beams};
+pub use learned_scenarios::{
+    learned_filter_label, learned_measurements, learned_monte_carlo, learned_study,
+    max_correlation, outage_extras, two_beams_measurements, two_beams_study, LearnedEvent,
+    LearnedMeasurements, LearnedMonteCarlo, LearnedStudy, LearnedVariant, LossWindowSummary,
+    MeanInterval, INS_ONLY_DURING_LOSS, INS_ONLY_DURING_OUTAGE, OUTAGE_EMPIRICAL, OUTAGE_NEGLECTED,
+    OUTAGE_NETWORK, OUTAGE_SCALED, TWO_BEAMS_EMPIRICAL, TWO_BEAMS_NEGLECTED, TWO_BEAMS_NETWORK,
+    TWO_BEAMS_SCALED,
+};
+pub use mismatch::{
+    fit_reference_mismatch, MismatchFit, TrajectoryMismatch, AKIT_TEST_TRAJECTORIES,
+    CHI_SQUARE_1_MEDIAN,
+};
 pub use montecarlo::{
     monte_carlo, LearnedSource, MonteCarloReport, VariantConsistency, ORACLE_NEGLECTED,
     ORACLE_SCALED, ORACLE_TRUE_M,
@@ -31,10 +45,10 @@ pub use report::{
 };
 pub use run::{
     error_state, filter_imu_spec, initial_covariance, initial_nominal, run_filter,
-    run_filter_with_observer, CrossMatrix, CrossSource, FilterRun, MeasurementSet,
-    FILTER_BIAS_TIME_CONSTANT,
+    run_filter_per_epoch_noise, run_filter_with_observer, CrossMatrix, CrossSource, FilterRun,
+    MeasurementSet, FILTER_BIAS_TIME_CONSTANT,
 };
-pub use scenario::{DvlEpoch, Scenario};
+pub use scenario::{BeamLoss, DvlEpoch, Scenario};
 pub use smooth::{
     least_squares_measurements, smooth_scenario, EstimateSeries, EstimateSummary, SmoothReport,
 };

@@ -258,6 +258,56 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
     seed: u64,
     observer: &mut O,
 ) -> Result<FilterRun> {
+    run_filter_inner(
+        name,
+        scenario,
+        config,
+        measurements,
+        None,
+        cross,
+        seed,
+        observer,
+    )
+}
+
+/// [`run_filter`] with R chosen per DVL epoch: `noise_per_epoch[k]` (when `Some`)
+/// replaces `measurements.noise_covariance` at epoch k (e.g. two learned sensors of
+/// different accuracy sharing one run).
+///
+/// # Errors
+/// As [`run_filter_with_observer`]; a non-finite or invalid R.
+pub fn run_filter_per_epoch_noise(
+    name: &str,
+    scenario: &Scenario,
+    config: &Config,
+    measurements: &MeasurementSet,
+    noise_per_epoch: &[Option<Matrix3<f64>>],
+    cross: &CrossSource,
+    seed: u64,
+) -> Result<FilterRun> {
+    run_filter_inner(
+        name,
+        scenario,
+        config,
+        measurements,
+        Some(noise_per_epoch),
+        cross,
+        seed,
+        &mut NoObserver,
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
+    name: &str,
+    scenario: &Scenario,
+    config: &Config,
+    measurements: &MeasurementSet,
+    noise_per_epoch: Option<&[Option<Matrix3<f64>>]>,
+    cross: &CrossSource,
+    seed: u64,
+    observer: &mut O,
+) -> Result<FilterRun> {
     check_imu_timestamps(scenario)?;
     let truth0 = scenario
         .truth
@@ -351,6 +401,17 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
             clock = end;
         }
         if let Some(y) = measurements.velocities.get(epoch).copied().flatten() {
+            let epoch_model;
+            let (model, r) = match noise_per_epoch.and_then(|v| v.get(epoch).copied().flatten()) {
+                Some(r_k) => {
+                    epoch_model = DvlVelocityModel::builder()
+                        .lever_arm(Vector3::from(config.dvl.lever_arm_m))
+                        .noise_covariance(r_k)
+                        .build()?;
+                    (&epoch_model, r_k)
+                }
+                None => (&model, r),
+            };
             run.largest_valid_rho
                 .push(ScaledCorrelation::largest_valid_rho(
                     filter.accumulated_process_noise(),
@@ -388,7 +449,7 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
                 }
             };
             let report = filter
-                .update(&model, &y, source)
+                .update(model, &y, source)
                 .map_err(|source| stopped(epoch, target - truth0.time, source))?;
             run.nis.push(report.nis);
             if let Some(eig) = report.joint_min_eigenvalue {

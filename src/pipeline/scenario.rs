@@ -261,3 +261,92 @@ impl Scenario {
         })
     }
 }
+
+/// A scripted beam loss: from `start_s` (after the scenario's start) for `duration_s`,
+/// only the beams `kept` (0-based) are received; the others are NaN.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BeamLoss {
+    /// Start, seconds after the first truth sample.
+    pub start_s: f64,
+    /// Duration [s].
+    pub duration_s: f64,
+    /// The beams still received (0-based, distinct, < 4).
+    pub kept: [usize; 2],
+}
+
+impl BeamLoss {
+    /// The two-beams scenario: beams 1 and 2 only, for 120 s from 200 s (inside the
+    /// 400 s A-KIT segments and the default simulated mission).
+    pub fn two_beams() -> Self {
+        Self {
+            start_s: 200.0,
+            duration_s: 120.0,
+            kept: [0, 1],
+        }
+    }
+}
+
+impl Scenario {
+    /// Apply a scripted beam loss; returns the indices of the DVL epochs affected.
+    ///
+    /// # Errors
+    /// Non-finite or negative times, or `kept` not two distinct beams below 4.
+    pub fn lose_beams(&mut self, loss: &BeamLoss) -> Result<Vec<usize>> {
+        let [a, b] = loss.kept;
+        if !(loss.start_s.is_finite() && loss.duration_s.is_finite())
+            || loss.start_s < 0.0
+            || loss.duration_s < 0.0
+            || a == b
+            || a > 3
+            || b > 3
+        {
+            return Err(PipelineError::Invalid(format!(
+                "invalid beam loss {loss:?}"
+            )));
+        }
+        let t0 = self.truth.first().map_or(0.0, |s| s.time);
+        let mut affected = Vec::new();
+        for (k, epoch) in self.dvl.iter_mut().enumerate() {
+            let Some(t) = self.truth.get(epoch.imu_index).map(|s| s.time - t0) else {
+                continue;
+            };
+            if t >= loss.start_s && t < loss.start_s + loss.duration_s {
+                for i in 0..4 {
+                    if i != a && i != b {
+                        epoch.beams[i] = f64::NAN;
+                    }
+                }
+                affected.push(k);
+            }
+        }
+        Ok(affected)
+    }
+
+    /// Apply a scripted full DVL outage (every beam NaN from `start_s` for
+    /// `duration_s`); returns the indices of the DVL epochs affected.
+    ///
+    /// # Errors
+    /// Non-finite or negative times.
+    pub fn lose_dvl(&mut self, outage: &super::DvlOutage) -> Result<Vec<usize>> {
+        if !(outage.start_s.is_finite() && outage.duration_s.is_finite())
+            || outage.start_s < 0.0
+            || outage.duration_s < 0.0
+        {
+            return Err(PipelineError::Invalid(format!(
+                "invalid DVL outage {outage:?}"
+            )));
+        }
+        let t0 = self.truth.first().map_or(0.0, |s| s.time);
+        let mut affected = Vec::new();
+        for (k, epoch) in self.dvl.iter_mut().enumerate() {
+            let Some(t) = self.truth.get(epoch.imu_index).map(|s| s.time - t0) else {
+                continue;
+            };
+            if t >= outage.start_s && t < outage.start_s + outage.duration_s {
+                epoch.beams = Vector4::from_element(f64::NAN);
+                affected.push(k);
+            }
+        }
+        Ok(affected)
+    }
+}

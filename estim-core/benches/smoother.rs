@@ -1,0 +1,121 @@
+//! Cost of the RTS smoother beside the filter it records: a 15-state model with a
+//! 3-dimensional correlated measurement (M != 0), 200 epochs of
+//! (a) one predict + one update, (b) 100 predicts + one update (the INS pattern,
+//! recorded at updates).
+//!
+//! Lines: the forward EKF alone; the forward EKF with a `ForwardRecorder`; the
+//! fixed-interval smoother over the recording; fixed lag 10 over the recording; the
+//! forward EKF with the online `FixedLagSmoother` (lag 10).
+//!
+//! Run: `cargo bench -p estim-core --bench smoother`.
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use estim_core::nalgebra::{SMatrix, SVector};
+use estim_core::{
+    ExtendedKalmanFilter, Fixed, FixedLagSmoother, ForwardRecorder, NoObserver, Observer, RecordAt,
+    StateAndCovariance,
+};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+const EPOCHS: usize = 200;
+
+mod common;
+use common::{Dense as Linear, Sensor as Observe, M, N};
+
+struct Setup {
+    process_f: SMatrix<f64, N, N>,
+    process_q: SMatrix<f64, N, N>,
+    measurement: Observe,
+    cross: Fixed<f64, N, M>,
+    initial: StateAndCovariance<f64, N>,
+    ys: Vec<SVector<f64, M>>,
+}
+
+fn setup() -> Setup {
+    let mut rng = ChaCha8Rng::seed_from_u64(15);
+    let mut draw = || rng.random_range(-1.0..1.0);
+    let f = SMatrix::<f64, N, N>::identity() + SMatrix::from_fn(|_, _| draw()) * (0.1 / N as f64);
+    let g = SMatrix::<f64, N, N>::from_fn(|_, _| draw()) * 0.1;
+    let q = g * g.transpose() + SMatrix::identity() * 1e-4;
+    let h = SMatrix::<f64, M, N>::from_fn(|_, _| draw());
+    // v = B w + e: a valid joint covariance with M = Q B'.
+    let b = SMatrix::<f64, M, N>::from_fn(|_, _| draw()) * 0.2;
+    let r = b * q * b.transpose() + SMatrix::identity() * 0.01;
+    let ys = (0..EPOCHS)
+        .map(|_| SVector::from_fn(|_, _| draw()))
+        .collect();
+    Setup {
+        process_f: f,
+        process_q: q,
+        measurement: Observe { h, r },
+        cross: Fixed(q * b.transpose()),
+        initial: StateAndCovariance::new(SVector::zeros(), SMatrix::identity()).expect("initial"),
+        ys,
+    }
+}
+
+fn forward<O: Observer<f64, SVector<f64, N>, N>>(s: &Setup, predicts: usize, observer: O) -> O {
+    let process = Linear {
+        phi: s.process_f,
+        q: s.process_q,
+    };
+    let mut ekf = ExtendedKalmanFilter::new(process, s.initial.clone()).with_observer(observer);
+    for y in &s.ys {
+        for _ in 0..predicts {
+            ekf.predict(&(), 0.01).expect("predict");
+        }
+        ekf.update(&s.measurement, y, &s.cross).expect("update");
+    }
+    ekf.into_observer()
+}
+
+fn bench(c: &mut Criterion) {
+    let s = setup();
+    for (predicts, label) in [(1usize, "1 predict"), (100, "100 predicts")] {
+        let mode = if predicts == 1 {
+            RecordAt::EveryStep
+        } else {
+            RecordAt::Updates
+        };
+        c.bench_function(
+            &format!("EKF (15,3) forward, 200 x ({label} + 1 update)"),
+            |b| b.iter(|| black_box(forward(&s, predicts, NoObserver))),
+        );
+        c.bench_function(
+            &format!("EKF (15,3) forward + ForwardRecorder, 200 x ({label} + 1 update)"),
+            |b| b.iter(|| black_box(forward(&s, predicts, ForwardRecorder::new(mode)).len())),
+        );
+        let recorder = forward(&s, predicts, ForwardRecorder::new(mode));
+        c.bench_function(
+            &format!("RTS smooth (15,3), 200 epochs ({label} per update)"),
+            |b| b.iter(|| black_box(recorder.smooth().expect("smooth").len())),
+        );
+        c.bench_function(
+            &format!("fixed lag 10 over the recording (15,3), 200 epochs ({label} per update)"),
+            |b| b.iter(|| black_box(recorder.fixed_lag(10).expect("lag").len())),
+        );
+        c.bench_function(
+            &format!("EKF (15,3) forward + online FixedLagSmoother lag 10 ({label} + 1 update)"),
+            |b| {
+                b.iter(|| {
+                    let online = forward(&s, predicts, FixedLagSmoother::new(mode, 10));
+                    black_box(online.finish().expect("finish").len())
+                })
+            },
+        );
+    }
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default()
+        .measurement_time(Duration::from_secs(2))
+        .warm_up_time(Duration::from_millis(500))
+        .sample_size(20);
+    targets = bench
+}
+criterion_main!(benches);

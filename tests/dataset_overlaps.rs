@@ -1,0 +1,146 @@
+//! Data hygiene on the real A-KIT files: rows shared between trajectories are found, and
+//! `estim dataset beamsnet` keeps every example touching a held-out trajectory (4, 13)
+//! out of the training set and records the overlap groups for the split.
+//!
+//! Data rule: if the data is absent the tests print why and return, unless
+//! `ESTIM_REQUIRE_DATA=1`.
+
+use std::process::Command;
+
+use estim::datasets::{akit_overlaps, load_gt, touches_held_out, trajectory_files};
+
+mod common;
+use common::data_root;
+
+const ALL: [u32; 13] = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13];
+
+#[test]
+fn shared_rows_are_found_in_the_files() {
+    let Some(root) = data_root() else { return };
+    let o = akit_overlaps(&root, &ALL).unwrap();
+    // The published facts (shared/data/README.md): 13's first 101 rows are 10's last
+    // 101 rows; 1 and 8 share 102 rows.
+    let gt10 = load_gt(&trajectory_files(&root, 10).unwrap().gt).unwrap();
+    let n10 = gt10.len();
+    assert_eq!(
+        o.rows_shared_with(10, 13),
+        (n10 - 101..n10).collect::<Vec<_>>()
+    );
+    assert_eq!(o.rows_shared_with(13, 10), (0..101).collect::<Vec<_>>());
+    assert_eq!(o.rows_shared_with(1, 8).len(), 102);
+    assert_eq!(o.rows_shared_with(8, 1).len(), 102);
+    // Nothing shared with trajectory 4, and no pair beyond those two.
+    for n in ALL {
+        assert!(
+            o.rows_shared_with(4, n).is_empty(),
+            "4 shares rows with {n}"
+        );
+    }
+    let pairs: Vec<(u32, u32)> = o.pairs().iter().map(|p| (p.0, p.1)).collect();
+    assert_eq!(pairs, vec![(1, 8), (10, 13)]);
+    assert_eq!(o.groups(), vec![vec![1, 8], vec![10, 13]]);
+    // The split rule: 1 and 8 on one side; 10 may be validated without 13 (13 is not
+    // in the dataset, its shared rows are removed from 10).
+    let dataset = [1, 2, 3, 5, 6, 7, 8, 9, 10, 11, 12];
+    assert!(o.check_split(&dataset, &[3, 10]).is_ok());
+    assert!(o.check_split(&dataset, &[1, 8]).is_ok());
+    assert!(o.check_split(&dataset, &[8]).is_err());
+    // A window ending at 10's first shared row touches 13; one 5 rows earlier does not
+    // (margin 2 rows each side); every window of 4 and 13 touches.
+    let t: Vec<f64> = gt10.iter().map(|g| g.time).collect();
+    let first_shared = n10 - 101;
+    let end = t[first_shared];
+    assert!(touches_held_out(&o, 10, &t, end - 1.0, end, &[4, 13]));
+    let end = t[first_shared - 4];
+    assert!(!touches_held_out(&o, 10, &t, end - 1.0, end, &[4, 13]));
+    assert!(touches_held_out(&o, 4, &t, t[5], t[6], &[4, 13]));
+}
+
+/// Rows and metadata of an `.npy` written by `estim dataset beamsnet`.
+fn read_npy(path: &std::path::Path) -> (usize, usize, Vec<f64>) {
+    let bytes = std::fs::read(path).unwrap();
+    let hlen = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+    let header = std::str::from_utf8(&bytes[10..10 + hlen]).unwrap();
+    let shape = header.split("'shape': (").nth(1).unwrap();
+    let dims: Vec<usize> = shape
+        .split(')')
+        .next()
+        .unwrap()
+        .split(',')
+        .filter_map(|s| s.trim().parse().ok())
+        .collect();
+    let data: Vec<f64> = bytes[10 + hlen..]
+        .chunks_exact(8)
+        .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
+        .collect();
+    (dims[0], dims[1], data)
+}
+
+#[test]
+fn dataset_command_leaves_out_windows_touching_held_out_rows() {
+    let Some(root) = data_root() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("d.npy");
+    let status = Command::new(env!("CARGO_BIN_EXE_estim"))
+        .args(["dataset", "beamsnet", "--realizations", "1", "--data"])
+        .arg(&root)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(status.status.success(), "{status:?}");
+    let (rows, cols, data) = read_npy(&out);
+    assert_eq!(cols, 610);
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.with_extension("json")).unwrap())
+            .unwrap();
+    assert_eq!(
+        meta["overlap_groups"],
+        serde_json::json!([[1, 8], [10, 13]])
+    );
+    // Independent of the builder: the DVL time of 10's first row shared with 13 (it is
+    // 13's row 0), found by comparing the GT files value by value.
+    let gt10 = load_gt(&trajectory_files(&root, 10).unwrap().gt).unwrap();
+    let gt13 = load_gt(&trajectory_files(&root, 13).unwrap().gt).unwrap();
+    let same = |a: &estim::datasets::GtSample, b: &estim::datasets::GtSample| {
+        (
+            a.longitude,
+            a.latitude,
+            a.altitude,
+            a.velocity_ned,
+            a.roll_pitch_yaw,
+        ) == (
+            b.longitude,
+            b.latitude,
+            b.altitude,
+            b.velocity_ned,
+            b.roll_pitch_yaw,
+        )
+    };
+    let first_shared = gt10.iter().position(|g| same(g, &gt13[0])).unwrap();
+    let shared_time = gt10[first_shared].time;
+    let mut last10 = f64::NEG_INFINITY;
+    let mut per_trajectory = [0usize; 14];
+    for r in 0..rows {
+        let row = &data[r * cols..(r + 1) * cols];
+        let n = row[607] as usize;
+        assert!(n != 4 && n != 13, "row {r} is from held-out trajectory {n}");
+        per_trajectory[n] += 1;
+        if n == 10 {
+            last10 = last10.max(row[608]);
+        }
+    }
+    // Every kept example of 10 ends more than 2 rows (margin) before the shared part.
+    assert!(
+        last10 < gt10[first_shared - 2].time,
+        "trajectory 10 keeps an example at {last10} s; shared rows start at {shared_time} s"
+    );
+    // and the rule costs only the shared part plus the margin: 10's DVL rows 1 ..
+    // first_shared - 3 keep their examples (row 0 has no full IMU window before it).
+    assert!(
+        per_trajectory[10] >= first_shared - 3,
+        "{} examples of 10 kept, shared rows start at row {first_shared}",
+        per_trajectory[10]
+    );
+    assert!(per_trajectory[1] > 0 && per_trajectory[8] > 0);
+}
