@@ -1,6 +1,8 @@
-//! A new learned sensor in about twenty lines: a delayed position fix dead-reckoned
-//! with the same odometry that drives the filter, its cross-covariance derived by the
-//! generic `LearnedCrossCovariance` (no hand derivation).
+//! A new learned sensor in about twenty-five lines (its `InputNoise` 11, its
+//! `Observation` 10, four per update, as rustfmt lays them out): a delayed position
+//! fix dead-reckoned with the same odometry that drives the filter, its
+//! cross-covariance derived by the generic `LearnedCrossCovariance` (no hand
+//! derivation).
 //!
 //! A robot on a plane integrates measured velocity (odometry) at 10 Hz. Once a second a
 //! position fix arrives, taken `WINDOW` = 6 odometry samples (0.6 s) earlier. The
@@ -123,7 +125,7 @@ impl LearnedMeasurement<f64, 2> for DeadReckonedFix {
 }
 
 // ------------------------------------------------------------------------------------
-// The user's code for the new sensor, beyond its model (about twenty lines).
+// The user's code for the new sensor, beyond its model (about twenty-five lines).
 // ------------------------------------------------------------------------------------
 
 /// How an odometry sample's noise n enters the error (true = estimate + error; the

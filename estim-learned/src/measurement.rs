@@ -97,63 +97,106 @@ impl<const M: usize> OnnxMeasurement<M> {
         &self.metadata
     }
 
-    /// Check one set of input windows against the specs and append their normalised
-    /// `f32` values to `tensors[k]`.
-    fn append_normalised(&self, inputs: &[DMatrix<f64>], tensors: &mut [Vec<f32>]) -> Result<()> {
-        let expected = || {
-            self.metadata
-                .inputs
-                .iter()
-                .map(|i| format!("{} ({}): {} x {}", i.stream, i.name, i.channels, i.window))
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
-        let given = || {
-            inputs
-                .iter()
-                .map(|m| format!("{} x {}", m.nrows(), m.ncols()))
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
-        if inputs.len() != self.metadata.inputs.len()
-            || inputs
+    /// Check one set of input windows against the specs (count, shapes).
+    fn check_inputs(&self, inputs: &[DMatrix<f64>]) -> Result<()> {
+        if inputs.len() == self.metadata.inputs.len()
+            && inputs
                 .iter()
                 .zip(&self.metadata.inputs)
-                .any(|(m, i)| m.nrows() != i.channels || m.ncols() != i.window)
+                .all(|(m, i)| m.nrows() == i.channels && m.ncols() == i.window)
         {
-            return Err(Error::InputMismatch {
-                expected: format!("{} inputs [{}]", self.metadata.inputs.len(), expected()),
-                given: format!("{} inputs [{}]", inputs.len(), given()),
-            });
+            return Ok(());
         }
-        for ((m, meta), out) in inputs.iter().zip(&self.metadata.inputs).zip(tensors) {
-            for c in 0..meta.channels {
-                for s in 0..meta.window {
-                    let raw = m[(c, s)];
-                    if !raw.is_finite() {
-                        return Err(Error::InputMismatch {
-                            expected: format!("finite samples in {}", meta.stream),
-                            given: format!("{raw} at channel {c}, sample {s}"),
-                        });
-                    }
-                    out.push(((raw - meta.mean[c]) / meta.std[c]) as f32);
+        let expected = self
+            .metadata
+            .inputs
+            .iter()
+            .map(|i| format!("{} ({}): {} x {}", i.stream, i.name, i.channels, i.window))
+            .collect::<Vec<_>>()
+            .join(", ");
+        let given = inputs
+            .iter()
+            .map(|m| format!("{} x {}", m.nrows(), m.ncols()))
+            .collect::<Vec<_>>()
+            .join(", ");
+        Err(Error::InputMismatch {
+            expected: format!("{} inputs [{expected}]", self.metadata.inputs.len()),
+            given: format!("{} inputs [{given}]", inputs.len()),
+        })
+    }
+
+    /// Write input `k` of one batch element, normalised, into `out` (its
+    /// `channels * window` values, channel-major): `raw + scale * direction` when a
+    /// direction is given. Inputs checked by [`Self::check_inputs`].
+    fn write_normalised(
+        &self,
+        k: usize,
+        raw: &DMatrix<f64>,
+        perturbation: Option<(&DMatrix<f64>, f64)>,
+        out: &mut [f32],
+    ) -> Result<()> {
+        let meta = &self.metadata.inputs[k];
+        for c in 0..meta.channels {
+            for s in 0..meta.window {
+                let x = match perturbation {
+                    Some((d, scale)) => raw[(c, s)] + scale * d[(c, s)],
+                    None => raw[(c, s)],
+                };
+                if !x.is_finite() {
+                    return Err(Error::InputMismatch {
+                        expected: format!("finite samples in {}", meta.stream),
+                        given: format!("{x} at channel {c}, sample {s}"),
+                    });
                 }
+                out[c * meta.window + s] = ((x - meta.mean[c]) / meta.std[c]) as f32;
             }
         }
         Ok(())
     }
 
+    /// Values per batch element of input `k`.
+    fn element_size(&self, k: usize) -> usize {
+        let meta = &self.metadata.inputs[k];
+        meta.channels * meta.window
+    }
+
     /// Run the model on several sets of inputs in one batched inference.
     pub fn measure_batch(&self, batch: &[Vec<DMatrix<f64>>]) -> Result<Vec<SVector<f64, M>>> {
-        let mut tensors = vec![Vec::new(); self.metadata.inputs.len()];
         for inputs in batch {
-            self.append_normalised(inputs, &mut tensors)?;
+            self.check_inputs(inputs)?;
         }
-        let out = self.model.run(batch.len(), &tensors)?;
-        Ok(out
-            .chunks_exact(M)
-            .map(|c| SVector::<f64, M>::from_iterator(c.iter().map(|&v| f64::from(v))))
-            .collect())
+        let mut out = Vec::with_capacity(batch.len());
+        self.model.run_with(
+            batch.len(),
+            |k, values| {
+                let size = self.element_size(k);
+                for (inputs, chunk) in batch.iter().zip(values.chunks_exact_mut(size)) {
+                    self.write_normalised(k, &inputs[k], None, chunk)?;
+                }
+                Ok(())
+            },
+            |values| {
+                out.extend(values.chunks_exact(M).map(to_output::<M>));
+                Ok(())
+            },
+        )?;
+        Ok(out)
+    }
+
+    /// Run the model on one set of inputs: nothing copied but the normalised values
+    /// written into the model's (reused) input tensors.
+    fn measure_one(&self, inputs: &[DMatrix<f64>]) -> Result<SVector<f64, M>> {
+        self.check_inputs(inputs)?;
+        let mut y = SVector::<f64, M>::zeros();
+        self.model.run_with(
+            1,
+            |k, values| self.write_normalised(k, &inputs[k], None, values),
+            |values| {
+                y = to_output::<M>(values);
+                Ok(())
+            },
+        )?;
+        Ok(y)
     }
 
     /// Run the model on already-normalised `f32` tensors (`batch x shape` each, in the
@@ -164,16 +207,14 @@ impl<const M: usize> OnnxMeasurement<M> {
         tensors: &[Vec<f32>],
     ) -> Result<Vec<SVector<f64, M>>> {
         let out = self.model.run(batch, tensors)?;
-        Ok(out
-            .chunks_exact(M)
-            .map(|c| SVector::<f64, M>::from_iterator(c.iter().map(|&v| f64::from(v))))
-            .collect())
+        Ok(out.chunks_exact(M).map(to_output::<M>).collect())
     }
 
     /// Jacobian-vector products by forward finite differences, all in ONE batched
     /// inference of `1 + directions.len()` elements: for each direction d (one matrix
     /// per input, raw units), (f(x + s d) - f(x)) / s with s chosen so that the largest
-    /// normalised component of s d equals the sensitivity step.
+    /// normalised component of s d equals the sensitivity step. The perturbed inputs are
+    /// written straight into the model's input tensors (no copy of x or d).
     pub fn jacobian_vector_products(
         &self,
         inputs: &[DMatrix<f64>],
@@ -185,9 +226,7 @@ impl<const M: usize> OnnxMeasurement<M> {
                 reason: format!("{} must be positive", self.sensitivity_step),
             });
         }
-        let mut batch = Vec::with_capacity(directions.len() + 1);
-        batch.push(inputs.to_vec());
-        let mut scales = Vec::with_capacity(directions.len());
+        self.check_inputs(inputs)?;
         for d in directions {
             if d.len() != inputs.len() || d.iter().zip(inputs).any(|(a, b)| a.shape() != b.shape())
             {
@@ -202,39 +241,60 @@ impl<const M: usize> OnnxMeasurement<M> {
                     ),
                 });
             }
-            // Largest component in normalised units.
-            let largest = d
-                .iter()
-                .zip(&self.metadata.inputs)
-                .flat_map(|(m, meta)| {
-                    m.row_iter().enumerate().flat_map(move |(c, row)| {
-                        row.iter()
-                            .map(move |v| (v / meta.std[c]).abs())
-                            .collect::<Vec<_>>()
-                    })
-                })
-                .fold(0.0, f64::max);
-            let s = if largest > 0.0 {
-                self.sensitivity_step / largest
-            } else {
-                0.0
-            };
-            scales.push(s);
-            batch.push(inputs.iter().zip(d).map(|(x, dx)| x + dx * s).collect());
         }
-        let out = self.measure_batch(&batch)?;
-        Ok(out[1..]
-            .iter()
-            .zip(&scales)
-            .map(|(y, &s)| {
-                if s > 0.0 {
-                    (y - out[0]) / s
-                } else {
-                    SVector::zeros()
+        // Once per direction (the fill below visits each direction once per input).
+        let scales: Vec<f64> = directions.iter().map(|d| self.direction_scale(d)).collect();
+        let mut jvp = Vec::with_capacity(directions.len());
+        self.model.run_with(
+            1 + directions.len(),
+            |k, values| {
+                let mut chunks = values.chunks_exact_mut(self.element_size(k));
+                if let Some(first) = chunks.next() {
+                    self.write_normalised(k, &inputs[k], None, first)?;
                 }
-            })
-            .collect())
+                for ((d, &s), chunk) in directions.iter().zip(&scales).zip(chunks) {
+                    self.write_normalised(k, &inputs[k], Some((&d[k], s)), chunk)?;
+                }
+                Ok(())
+            },
+            |values| {
+                let mut outputs = values.chunks_exact(M).map(to_output::<M>);
+                let base = outputs.next().unwrap_or_else(SVector::zeros);
+                for (y, &s) in outputs.zip(&scales) {
+                    jvp.push(if s > 0.0 {
+                        (y - base) / s
+                    } else {
+                        SVector::zeros()
+                    });
+                }
+                Ok(())
+            },
+        )?;
+        Ok(jvp)
     }
+
+    /// The finite-difference scale s of a direction: the largest normalised component
+    /// of s d equals the sensitivity step (0 for a zero direction).
+    fn direction_scale(&self, direction: &[DMatrix<f64>]) -> f64 {
+        let mut largest = 0.0_f64;
+        for (m, meta) in direction.iter().zip(&self.metadata.inputs) {
+            for (c, row) in m.row_iter().enumerate() {
+                for v in row.iter() {
+                    largest = largest.max((v / meta.std[c]).abs());
+                }
+            }
+        }
+        if largest > 0.0 {
+            self.sensitivity_step / largest
+        } else {
+            0.0
+        }
+    }
+}
+
+/// One batch element's `f32` output as an `f64` vector.
+fn to_output<const M: usize>(values: &[f32]) -> SVector<f64, M> {
+    SVector::<f64, M>::from_fn(|i, _| f64::from(values[i]))
 }
 
 impl<const M: usize> LearnedMeasurement<f64, M> for OnnxMeasurement<M> {
@@ -243,9 +303,7 @@ impl<const M: usize> LearnedMeasurement<f64, M> for OnnxMeasurement<M> {
     }
 
     fn measure(&self, inputs: &[DMatrix<f64>]) -> estim_core::Result<SVector<f64, M>> {
-        let mut out = self.measure_batch(&[inputs.to_vec()])?;
-        out.pop()
-            .ok_or_else(|| estim_core::Error::Model("model produced no output".into()))
+        Ok(self.measure_one(inputs)?)
     }
 
     fn noise_covariance(&self) -> SMatrix<f64, M, M> {

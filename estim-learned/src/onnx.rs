@@ -3,7 +3,7 @@
 //! runnable once, and run it many times (the tract pattern).
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use tract_onnx::prelude::*;
 use tract_onnx::tract_hir::infer::Factoid;
@@ -13,13 +13,72 @@ use crate::{Error, Result};
 
 /// A loaded, optimised, runnable ONNX model with `f32` inputs `[batch, shape...]` and one
 /// `f32` output `[batch, size]`.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub(crate) struct OnnxModel {
     path: PathBuf,
     plan: Arc<TypedRunnableModel>,
     input_names: Vec<String>,
     input_shapes: Vec<Vec<usize>>,
     output_size: usize,
+    /// What [`OnnxModel::run_with`] reuses from one call to the next, so that a
+    /// repeated call copies nothing and allocates nothing of its own.
+    scratch: Mutex<Scratch>,
+}
+
+impl Clone for OnnxModel {
+    /// The plan is shared; the clone gets its own (empty) scratch.
+    fn clone(&self) -> Self {
+        Self {
+            path: self.path.clone(),
+            plan: Arc::clone(&self.plan),
+            input_names: self.input_names.clone(),
+            input_shapes: self.input_shapes.clone(),
+            output_size: self.output_size,
+            scratch: Mutex::new(Scratch::default()),
+        }
+    }
+}
+
+/// Batch sizes whose input tensors are kept (e.g. 1 for a measurement, 1 + N for a
+/// sensitivity batch); the least recently used set is replaced beyond this.
+const KEPT_BATCH_SIZES: usize = 4;
+
+/// The spawned tract state and, per batch size, one input tensor per model input.
+/// A tensor is handed to tract as a shared reference (`TValue::from_const`); once
+/// tract has dropped its reference after the run, the next call refills it in place.
+#[derive(Debug, Default)]
+struct Scratch {
+    state: Option<TypedSimpleState>,
+    inputs: Vec<(usize, Vec<Arc<Tensor>>)>,
+}
+
+impl Scratch {
+    /// The input tensors for `batch`, most recently used first.
+    fn inputs_for(
+        &mut self,
+        batch: usize,
+        shapes: &[Vec<usize>],
+    ) -> TractResult<&mut Vec<Arc<Tensor>>> {
+        match self.inputs.iter().position(|(b, _)| *b == batch) {
+            Some(i) => self.inputs[..=i].rotate_right(1),
+            None => {
+                let tensors = shapes
+                    .iter()
+                    .map(|shape| {
+                        let mut dims = Vec::with_capacity(shape.len() + 1);
+                        dims.push(batch);
+                        dims.extend_from_slice(shape);
+                        Tensor::zero::<f32>(&dims).map(Arc::new)
+                    })
+                    .collect::<TractResult<Vec<_>>>()?;
+                if self.inputs.len() == KEPT_BATCH_SIZES {
+                    self.inputs.pop();
+                }
+                self.inputs.insert(0, (batch, tensors));
+            }
+        }
+        Ok(&mut self.inputs[0].1)
+    }
 }
 
 fn describe(name: &str, shape: &[usize]) -> String {
@@ -139,7 +198,74 @@ impl OnnxModel {
             input_names: inputs.iter().map(|m| m.name.clone()).collect(),
             input_shapes: inputs.iter().map(|m| m.shape.clone()).collect(),
             output_size: output.size,
+            scratch: Mutex::new(Scratch::default()),
         })
+    }
+
+    /// Run one batch, writing the inputs in place and reading the output in place.
+    ///
+    /// `fill(k, values)` writes input k: `values` holds `batch * prod(shape_k)` values
+    /// in row-major order (batch first). `read(values)` receives the `batch *
+    /// output_size` output values. The input tensors and tract's state are kept from
+    /// one call to the next (see [`Scratch`]); when another thread holds them, this
+    /// call uses fresh ones instead of waiting.
+    pub(crate) fn run_with(
+        &self,
+        batch: usize,
+        mut fill: impl FnMut(usize, &mut [f32]) -> Result<()>,
+        read: impl FnOnce(&[f32]) -> Result<()>,
+    ) -> Result<()> {
+        if batch == 0 {
+            return Err(Error::InputMismatch {
+                expected: "batch >= 1".into(),
+                given: "batch 0".into(),
+            });
+        }
+        let inference = |e: TractError| Error::Inference(format!("{}: {e:#}", self.path.display()));
+        let mut local;
+        let mut guard = self.scratch.try_lock();
+        let scratch: &mut Scratch = match guard.as_deref_mut() {
+            Ok(s) => s,
+            Err(_) => {
+                local = Scratch::default();
+                &mut local
+            }
+        };
+        let mut values: TVec<TValue> = TVec::new();
+        {
+            let tensors = scratch
+                .inputs_for(batch, &self.input_shapes)
+                .map_err(inference)?;
+            for (k, tensor) in tensors.iter_mut().enumerate() {
+                // Unique after the previous run (tract dropped its reference); if not,
+                // make_mut copies it once and the copy is kept.
+                let mut view = Arc::make_mut(tensor)
+                    .try_as_plain_ram_mut()
+                    .map_err(inference)?;
+                fill(k, view.as_slice_mut::<f32>().map_err(inference)?)?;
+                values.push(TValue::from_const(Arc::clone(tensor)));
+            }
+        }
+        if scratch.state.is_none() {
+            scratch.state = Some(self.plan.spawn().map_err(inference)?);
+        }
+        let state = scratch
+            .state
+            .as_mut()
+            .ok_or_else(|| Error::Inference("tract state unavailable".into()))?;
+        let out = state.run(values).map_err(inference)?;
+        let first = out
+            .first()
+            .ok_or_else(|| Error::Inference("model produced no output".into()))?;
+        if first.shape() != [batch, self.output_size] {
+            return Err(Error::Inference(format!(
+                "output shape {:?}, expected [{batch}, {}]",
+                first.shape(),
+                self.output_size
+            )));
+        }
+        let view = first.try_as_plain_ram().map_err(inference)?;
+        read(view.as_slice::<f32>().map_err(inference)?)
     }
 
     /// Run one batch. `inputs[k]` holds `batch * prod(shape_k)` values in row-major
@@ -155,38 +281,27 @@ impl OnnxModel {
                 given: format!("{} tensors with batch {batch}", inputs.len()),
             });
         }
-        let mut tensors: TVec<TValue> = TVec::new();
         for ((data, shape), name) in inputs.iter().zip(&self.input_shapes).zip(&self.input_names) {
-            let mut dims = vec![batch];
-            dims.extend_from_slice(shape);
-            let want: usize = dims.iter().product();
+            let want = batch * shape.iter().product::<usize>();
             if data.len() != want {
                 return Err(Error::InputMismatch {
-                    expected: format!("{name}: {want} values ({dims:?})"),
+                    expected: format!("{name}: {want} values ([{batch}, {shape:?}])"),
                     given: format!("{name}: {} values", data.len()),
                 });
             }
-            let t =
-                Tensor::from_shape(&dims, data).map_err(|e| Error::Inference(format!("{e:#}")))?;
-            tensors.push(t.into_tvalue());
         }
-        let out = self
-            .plan
-            .run(tensors)
-            .map_err(|e| Error::Inference(format!("{}: {e:#}", self.path.display())))?;
-        let first = out
-            .first()
-            .ok_or_else(|| Error::Inference("model produced no output".into()))?;
-        let view = first
-            .to_plain_array_view::<f32>()
-            .map_err(|e| Error::Inference(format!("{e:#}")))?;
-        if view.shape() != [batch, self.output_size] {
-            return Err(Error::Inference(format!(
-                "output shape {:?}, expected [{batch}, {}]",
-                view.shape(),
-                self.output_size
-            )));
-        }
-        Ok(view.iter().copied().collect())
+        let mut out = Vec::new();
+        self.run_with(
+            batch,
+            |k, values| {
+                values.copy_from_slice(&inputs[k]);
+                Ok(())
+            },
+            |values| {
+                out.extend_from_slice(values);
+                Ok(())
+            },
+        )?;
+        Ok(out)
     }
 }

@@ -356,7 +356,7 @@ pub fn max_correlation(
 pub struct LossWindowSummary {
     /// Mean NEES over the DVL epochs of the loss (NaN epochs skipped).
     pub nees_mean: f64,
-    /// Position error RMSE over the loss epochs [m].
+    /// Position error RMSE over the loss epochs \[m\].
     pub position_rmse_m: f64,
     /// Velocity error RMSE over the loss epochs [m/s].
     pub velocity_rmse_mps: f64,
@@ -612,7 +612,7 @@ pub struct LearnedVariant {
     pub nees_in_band_fraction: f64,
     /// Mean over runs and loss updates of the NIS (3 dof; NaN without updates).
     pub nis_mean: f64,
-    /// Per-run position RMSE over the loss epochs [m].
+    /// Per-run position RMSE over the loss epochs \[m\].
     pub position_rmse: MeanInterval,
     /// Per-run velocity RMSE over the loss epochs [m/s].
     pub velocity_rmse: MeanInterval,

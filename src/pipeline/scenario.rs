@@ -268,7 +268,7 @@ impl Scenario {
 pub struct BeamLoss {
     /// Start, seconds after the first truth sample.
     pub start_s: f64,
-    /// Duration [s].
+    /// Duration \[s\].
     pub duration_s: f64,
     /// The beams still received (0-based, distinct, < 4).
     pub kept: [usize; 2],
