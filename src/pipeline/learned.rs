@@ -5,7 +5,10 @@ use estim_core::nalgebra::{Vector3, Vector4};
 use estim_core::{ErrorStateKalmanFilter, FilterConfig, WindowedCrossCovariance};
 use estim_dvl::BeamGeometry;
 use estim_ins::{InsErrorModel, ERROR_STATES};
-use estim_learned::{BeamsNet, BeamsNetInput, NetworkSensitivity, BEAMSNET_WINDOW};
+use estim_learned::{
+    driven_error_covariance, BeamsNet, BeamsNetInput, NetworkSensitivity, BEAMSNET_WINDOW,
+    IMU_CHANNELS,
+};
 
 use super::run::filter_imu_spec;
 use super::{LearnedInputs, Result, Scenario};
@@ -54,6 +57,8 @@ pub fn beamsnet_inputs(
     let mut inputs = Vec::new();
     let mut slots = Vec::with_capacity(scenario.dvl.len());
     let mut cross = Vec::with_capacity(scenario.dvl.len());
+    let mut correlation = Vec::new();
+    let r = net.noise_covariance();
     for epoch in &scenario.dvl {
         let end = epoch.imu_index.min(scenario.imu.len());
         let beams = if end >= n {
@@ -88,6 +93,11 @@ pub fn beamsnet_inputs(
                 .ok_or_else(|| {
                     super::PipelineError::Invalid("network sensitivity gave no M".into())
                 })?;
+            let q_w = driven_error_covariance::<f64, _, ERROR_STATES, IMU_CHANNELS>(
+                &error_model,
+                &steps,
+            )?;
+            correlation.push(super::max_correlation(&m, &q_w, &r));
             cross.push(m);
         }
     }
@@ -102,7 +112,8 @@ pub fn beamsnet_inputs(
         .collect();
     Ok(LearnedInputs {
         velocities,
-        noise_covariance: net.noise_covariance(),
+        noise_covariance: r,
         sensitivity: with_sensitivity.then_some(cross),
+        output_imu_correlation: with_sensitivity.then_some(correlation),
     })
 }

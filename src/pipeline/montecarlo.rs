@@ -7,6 +7,7 @@ use estim_core::chi_square_band;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::learned_scenarios::MeanInterval;
 use super::report::{
     filter_label, least_squares_velocities, run_variant, FilterFailure, LearnedInputs,
     BEAMSNET_NEGLECTED, BEAMSNET_SCALED, BEAMSNET_SENSITIVITY, LS,
@@ -58,6 +59,19 @@ pub struct VariantConsistency {
     pub updates_rejected: usize,
     /// Position error RMSE over runs and epochs \[m\].
     pub position_rmse_m: f64,
+    /// `nees_average` under the name the learned Monte Carlo uses.
+    pub nees_mean: f64,
+    /// `nees_epochs_in_band_percent` / 100.
+    pub nees_in_band_fraction: f64,
+    /// Per-run position RMSE over the epochs: mean over the runs and 2.5 / 97.5
+    /// percentiles \[m\].
+    pub position_rmse: MeanInterval,
+    /// Per-run velocity RMSE over the epochs, as `position_rmse` \[m/s\].
+    pub velocity_rmse: MeanInterval,
+    /// For the learned (BeamsNet) variants, when the network's sensitivity is computed:
+    /// the mean over runs and epochs of the largest output / IMU-error correlation
+    /// coefficient (see [`LearnedInputs::output_imu_correlation`]); `None` otherwise.
+    pub output_imu_correlation: Option<f64>,
 }
 
 /// The Monte Carlo report.
@@ -91,12 +105,12 @@ fn variants_as_array<S: serde::Serializer>(
 /// The outcome of one variant on one mission.
 type Outcome = (String, std::result::Result<FilterRun, FilterFailure>);
 
+/// One mission's outcomes and, with a learned sensor's sensitivity, the mean of its
+/// output / IMU-error correlation over the epochs.
+type Mission = (Vec<Outcome>, Option<f64>);
+
 /// One mission's runs of every variant.
-fn one_mission(
-    config: &Config,
-    seed: u64,
-    learned: Option<&LearnedSource>,
-) -> Result<Vec<Outcome>> {
+fn one_mission(config: &Config, seed: u64, learned: Option<&LearnedSource>) -> Result<Mission> {
     let mut scenario = Scenario::simulated(config, seed)?;
     apply_faults(&mut scenario, &config.faults, seed)?;
     let ls = MeasurementSet {
@@ -114,8 +128,14 @@ fn one_mission(
             CrossSource::paper(config.filter.rho, config.filter.paper_m_basis),
         ),
     ];
+    let mut correlation = None;
     if let Some(make) = learned {
         let l = make(&scenario)?;
+        correlation = l
+            .output_imu_correlation
+            .as_deref()
+            .map(finite_mean)
+            .filter(|c| c.is_finite());
         let set = MeasurementSet {
             velocities: l.velocities,
             noise_covariance: l.noise_covariance,
@@ -130,11 +150,19 @@ fn one_mission(
             jobs.push((BEAMSNET_SENSITIVITY, set, CrossSource::PerEpoch(m)));
         }
     }
-    jobs.iter()
+    let outcomes = jobs
+        .iter()
         .map(|(id, set, cross)| {
             run_variant(id, &scenario, config, set, cross, seed).map(|r| (id.to_string(), r))
         })
-        .collect()
+        .collect::<Result<_>>()?;
+    Ok((outcomes, correlation))
+}
+
+/// RMSE of the finite values of `xs` (NaN if none).
+fn rmse(xs: &[f64]) -> f64 {
+    let squares: Vec<f64> = xs.iter().map(|x| x * x).collect();
+    finite_mean(&squares).sqrt()
 }
 
 /// Run `runs` missions (seeds `first_seed..`) in parallel; `tick` is called after each.
@@ -145,7 +173,7 @@ pub fn monte_carlo(
     learned: Option<&LearnedSource>,
     tick: &(dyn Fn() + Sync),
 ) -> Result<MonteCarloReport> {
-    let all: Vec<Vec<Outcome>> = (0..runs)
+    let missions: Vec<Mission> = (0..runs)
         .into_par_iter()
         .map(|i| {
             let r = one_mission(config, first_seed + i as u64, learned);
@@ -153,6 +181,8 @@ pub fn monte_carlo(
             r
         })
         .collect::<Result<_>>()?;
+    let correlations: Vec<f64> = missions.iter().filter_map(|(_, c)| *c).collect();
+    let all: Vec<Vec<Outcome>> = missions.into_iter().map(|(o, _)| o).collect();
     // Variant ids in job order (the same on every mission).
     let ids: Vec<String> = all
         .first()
@@ -218,6 +248,22 @@ pub fn monte_carlo(
                     .sum(),
                 updates_rejected: completed.iter().map(|r| r.rejected).sum(),
                 position_rmse_m: mean(&pos).sqrt(),
+                nees_mean: mean(&nees),
+                nees_in_band_fraction: in_band(&nees, nees_band.lower, nees_band.upper) / 100.0,
+                position_rmse: MeanInterval::of(
+                    &completed
+                        .iter()
+                        .map(|r| rmse(&r.position_error))
+                        .collect::<Vec<_>>(),
+                ),
+                velocity_rmse: MeanInterval::of(
+                    &completed
+                        .iter()
+                        .map(|r| rmse(&r.velocity_error))
+                        .collect::<Vec<_>>(),
+                ),
+                output_imu_correlation: (id.starts_with("beamsnet") && !correlations.is_empty())
+                    .then(|| finite_mean(&correlations)),
             },
         );
     }

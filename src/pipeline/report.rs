@@ -120,6 +120,11 @@ pub struct LearnedInputs {
     pub noise_covariance: Matrix3<f64>,
     /// M_k per epoch from the network's sensitivity, if computed.
     pub sensitivity: Option<Vec<CrossMatrix>>,
+    /// With the sensitivity: per epoch with a measurement, the largest correlation
+    /// coefficient |M_ij| / sqrt(Q_w,ii R_jj) between the output error and the
+    /// IMU-driven INS error (velocity and attitude rows; Q_w the INS error covariance
+    /// driven by the window's IMU white noise).
+    pub output_imu_correlation: Option<Vec<f64>>,
 }
 
 /// RMSE, MAE, R^2, VAF of the velocity norm (paper Tables I/II).
