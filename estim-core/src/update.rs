@@ -208,25 +208,20 @@ fn square_root_form<T: Scalar, const N: usize, const M: usize>(
     }
     let b1 = l.a - mul_static(gain, &hl);
     let b2 = mul_lower_static(gain, &l.d);
-    // P+ = B1 B1' + B2 B2' over the upper triangle, mirrored. Each entry sums its
-    // products in the order k = 0..N then 0..M (as a dot product would), but the loops
-    // run down the contiguous columns of B1 and B2 (axpy order), which vectorises.
+    // Transposed so that the Gram products below run down contiguous columns.
+    let (b1, b2) = (b1.transpose(), b2.transpose());
     let mut out = SMatrix::<T, N, N>::zeros();
     for j in 0..N {
-        for k in 0..N {
-            let bjk = b1[(j, k)];
-            for i in 0..=j {
-                out[(i, j)] += b1[(i, k)] * bjk;
+        for i in 0..=j {
+            let mut v = T::zero();
+            for k in 0..N {
+                v += b1[(k, i)] * b1[(k, j)];
             }
-        }
-        for k in 0..M {
-            let bjk = b2[(j, k)];
-            for i in 0..=j {
-                out[(i, j)] += b2[(i, k)] * bjk;
+            for k in 0..M {
+                v += b2[(k, i)] * b2[(k, j)];
             }
-        }
-        for i in 0..j {
-            out[(j, i)] = out[(i, j)];
+            out[(i, j)] = v;
+            out[(j, i)] = v;
         }
     }
     Some(out)
