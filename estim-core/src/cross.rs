@@ -223,12 +223,29 @@ pub fn joint_tolerance<T: Scalar>() -> T {
 /// zero pivot with a nonzero row: invalid, or too close to call without an eigen
 /// decomposition).
 fn certify_psd<T: Scalar, const N: usize, const M: usize>(
+    a: SMatrix<T, N, N>,
+    b: SMatrix<T, N, M>,
+    c: SMatrix<T, M, M>,
+    tol: T,
+) -> Option<T> {
+    let correlated = b.iter().any(|v| !v.is_zero());
+    certify_psd_with(a, b, c, tol, correlated)
+}
+
+/// [`certify_psd`]; `correlated` false skips the eliminations involving B (only
+/// valid when B = 0).
+#[inline(always)]
+fn certify_psd_with<T: Scalar, const N: usize, const M: usize>(
     mut a: SMatrix<T, N, N>,
     mut b: SMatrix<T, N, M>,
     mut c: SMatrix<T, M, M>,
     tol: T,
+    correlated: bool,
 ) -> Option<T> {
     // Only the upper triangles of the symmetric blocks A and C are read and updated.
+    // With B = 0 (M = 0, the common case) the eliminations that involve B subtract
+    // only zero products (B stays 0, C_ij - 0 = C_ij), so they are skipped: the
+    // result is the same bit for bit (up to the sign of exact zeros).
     let mut smallest = T::one();
     for k in 0..N {
         let d = a[(k, k)];
@@ -241,6 +258,9 @@ fn certify_psd<T: Scalar, const N: usize, const M: usize>(
                     let v = a[(k, i)] * f;
                     a[(i, j)] -= v;
                 }
+            }
+            if !correlated {
+                continue;
             }
             for j in 0..M {
                 let f = b[(k, j)] * inv;
@@ -436,6 +456,44 @@ mod tests {
     use nalgebra::{Matrix2, SMatrix};
     use rand::{RngExt, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    /// The M = 0 shortcut of the LDL' certificate (eliminations involving B skipped)
+    /// gives exactly what the full elimination gives on B = 0: valid, rank-deficient
+    /// and indefinite symmetric blocks, sizes (6, 3), seeded.
+    #[test]
+    fn certificate_skips_a_zero_cross_block_exactly() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let mut draw = |n: usize, m: usize| -> SMatrix<f64, 9, 9> {
+            // G G' of rank `m` (<= 9) shifted by a diagonal that may make it indefinite.
+            let g = SMatrix::<f64, 9, 9>::from_fn(|_, j| {
+                if j < m {
+                    rng.random_range(-1.0..1.0)
+                } else {
+                    0.0
+                }
+            });
+            let shift = if n % 3 == 0 { -0.05 } else { 0.0 };
+            g * g.transpose() + SMatrix::identity() * shift
+        };
+        let (mut certified, mut refused) = (0, 0);
+        for case in 0..300 {
+            let j = draw(case, 1 + case % 9);
+            let a = j.fixed_view::<6, 6>(0, 0).into_owned();
+            let c = j.fixed_view::<3, 3>(6, 6).into_owned();
+            let b = SMatrix::<f64, 6, 3>::zeros();
+            let tol = joint_tolerance::<f64>();
+            let full = certify_psd_with(a, b, c, tol, true);
+            let fast = certify_psd_with(a, b, c, tol, false);
+            assert_eq!(full, fast, "case {case}");
+            assert_eq!(certify_psd(a, b, c, tol), full, "case {case}");
+            match full {
+                Some(_) => certified += 1,
+                None => refused += 1,
+            }
+        }
+        // Both branches were exercised.
+        assert!(certified > 20 && refused > 20, "{certified} / {refused}");
+    }
 
     /// NaN or infinity on the diagonal of a 15x15 Q is a typed error everywhere an eigen
     /// decomposition could be reached (it used to give 0.154 and NaN).

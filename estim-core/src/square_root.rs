@@ -277,6 +277,39 @@ pub(crate) fn joint_factor<T: Scalar, const N: usize, const M: usize>(
     if !semidefinite_cholesky_sized(N, tol_size, 0, |i, k| covariance[(i, k)], &mut l11) {
         return None;
     }
+    if cross_covariance.iter().all(|v| v.is_zero()) {
+        // M = 0: the joint is block diagonal, L21 = 0 and L22 = chol(R). The general
+        // elimination below would subtract only zero products from R's entries
+        // (R_ij - 0 = R_ij exactly) before the same operations in the same order, and
+        // its zero-pivot test on the rows of M' reads zeros, so this gives the same
+        // factor (bit for bit, up to the sign of exact zeros in L21) without touching
+        // the zero block.
+        let mut l = Blocks::<T, N, M, N, M>::zeros();
+        l.a = l11;
+        return semidefinite_cholesky_sized(
+            M,
+            tol_size,
+            0,
+            |i, k| measurement_noise[(i, k)],
+            &mut l.d,
+        )
+        .then_some(l);
+    }
+    joint_factor_from(&l11, cross_covariance, measurement_noise)
+}
+
+/// [`joint_factor`] without the block-diagonal shortcut for M = 0 (the reference the
+/// shortcut is tested against).
+#[cfg(test)]
+pub(crate) fn joint_factor_general<T: Scalar, const N: usize, const M: usize>(
+    covariance: &SMatrix<T, N, N>,
+    cross_covariance: &SMatrix<T, N, M>,
+    measurement_noise: &SMatrix<T, M, M>,
+) -> Option<Blocks<T, N, M, N, M>> {
+    let mut l11 = SMatrix::<T, N, N>::zeros();
+    if !semidefinite_cholesky_sized(N, N + M, 0, |i, k| covariance[(i, k)], &mut l11) {
+        return None;
+    }
     joint_factor_from(&l11, cross_covariance, measurement_noise)
 }
 
@@ -750,5 +783,54 @@ impl<T: Scalar, const N: usize, const M: usize> SquareRootKalmanFilter<T, N, M> 
     {
         self.predict()?;
         measurement.map(|y| self.update(y, cross)).transpose()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// A symmetric N x N matrix G G' (rank `rank`) plus `shift` I (indefinite when
+    /// `shift` < 0), seeded.
+    fn gram<const N: usize>(rng: &mut ChaCha8Rng, rank: usize, shift: f64) -> SMatrix<f64, N, N> {
+        let g = SMatrix::<f64, N, N>::from_fn(|_, j| {
+            if j < rank {
+                rng.random_range(-1.0..1.0)
+            } else {
+                0.0
+            }
+        });
+        g * g.transpose() + SMatrix::identity() * shift
+    }
+
+    /// The block-diagonal shortcut of `joint_factor` for M = 0 equals the general
+    /// elimination entry for entry (== : only the sign of exact zeros is free), and
+    /// refuses exactly what it refuses: full-rank, rank-deficient (zero pivots) and
+    /// indefinite P and R, sizes (7, 3), seeded.
+    #[test]
+    fn zero_cross_covariance_factor_equals_the_general_elimination() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let (mut factored, mut refused) = (0, 0);
+        for case in 0..400 {
+            let shift = |c: usize| if c % 5 == 0 { -1e-3 } else { 0.0 };
+            let p = gram::<7>(&mut rng, 1 + case % 7, shift(case));
+            let r = gram::<3>(&mut rng, 1 + case % 3, shift(case / 2)) * 0.1;
+            let m = SMatrix::<f64, 7, 3>::zeros();
+            let fast = joint_factor(&p, &m, &r);
+            let general = joint_factor_general(&p, &m, &r);
+            match (fast, general) {
+                (Some(f), Some(g)) => {
+                    assert_eq!(f.a, g.a, "case {case}");
+                    assert_eq!(f.c, g.c, "case {case}");
+                    assert_eq!(f.d, g.d, "case {case}");
+                    factored += 1;
+                }
+                (None, None) => refused += 1,
+                (f, g) => panic!("case {case}: {:?} vs {:?}", f.is_some(), g.is_some()),
+            }
+        }
+        assert!(factored > 50 && refused > 50, "{factored} / {refused}");
     }
 }
