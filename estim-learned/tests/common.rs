@@ -26,3 +26,12 @@ pub fn model_copy(edit: impl FnOnce(&mut serde_json::Value)) -> (tempfile::TempD
     let model = dir.path().join("beamsnet.onnx");
     (dir, model)
 }
+
+/// The numbers of a (nested) JSON array, flattened in order, as f32 (parity files).
+pub fn flatten(v: &serde_json::Value) -> Vec<f32> {
+    match v {
+        serde_json::Value::Array(a) => a.iter().flat_map(flatten).collect(),
+        serde_json::Value::Number(n) => vec![n.as_f64().unwrap() as f32],
+        other => panic!("unexpected {other}"),
+    }
+}

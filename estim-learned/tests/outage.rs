@@ -6,6 +6,7 @@
 //! error.
 
 mod common;
+use common::flatten;
 
 use estim_core::{ErrorStateKalmanFilter, FilterConfig, WindowedCrossCovariance};
 use estim_ins::{ImuSpec, InsErrorModel, Mission, MissionConfig, ERROR_STATES};
@@ -14,14 +15,6 @@ use estim_learned::{
     IMU_CHANNELS,
 };
 use nalgebra::{SMatrix, Vector3};
-
-fn flatten(v: &serde_json::Value) -> Vec<f32> {
-    match v {
-        serde_json::Value::Array(a) => a.iter().flat_map(flatten).collect(),
-        serde_json::Value::Number(n) => vec![n.as_f64().unwrap() as f32],
-        other => panic!("unexpected {other}"),
-    }
-}
 
 #[test]
 fn tract_matches_pytorch_within_1e_5() {

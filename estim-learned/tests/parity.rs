@@ -1,16 +1,9 @@
 //! tract reproduces PyTorch on the parity vectors exported by training/train_beamsnet.py.
 
 mod common;
+use common::flatten;
 
 use estim_learned::OnnxMeasurement;
-
-fn flatten(v: &serde_json::Value) -> Vec<f32> {
-    match v {
-        serde_json::Value::Array(a) => a.iter().flat_map(flatten).collect(),
-        serde_json::Value::Number(n) => vec![n.as_f64().unwrap() as f32],
-        other => panic!("unexpected {other}"),
-    }
-}
 
 #[test]
 fn tract_matches_pytorch_within_1e_5() {

@@ -7,6 +7,7 @@
 //! covariance matches its recursion.
 
 mod common;
+use common::flatten;
 
 use estim_core::{ErrorStateKalmanFilter, FilterConfig, StepWindow, WindowedCrossCovariance};
 use estim_ins::{
@@ -20,14 +21,6 @@ use estim_learned::{
 use nalgebra::{DMatrix, SMatrix, Vector3, Vector4};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
-
-fn flatten(v: &serde_json::Value) -> Vec<f32> {
-    match v {
-        serde_json::Value::Array(a) => a.iter().flat_map(flatten).collect(),
-        serde_json::Value::Number(n) => vec![n.as_f64().unwrap() as f32],
-        other => panic!("unexpected {other}"),
-    }
-}
 
 #[test]
 fn tract_matches_pytorch_within_1e_5() {
