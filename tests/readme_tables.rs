@@ -7,13 +7,15 @@
 //! The A-KIT tables need the data: they run when it is found and in CI
 //! (`ESTIM_REQUIRE_DATA=1`), and are skipped elsewhere with a printed reason. The
 //! Monte Carlo table runs everywhere (simulated missions; about 25 s in release on
-//! 2 cores). The long-run tables are rendered from the logs in `results/`.
+//! 2 cores). The 20-seed twins of the A-KIT tables (`*-seeds`) run with the A-KIT
+//! tables; the learned-scenario ones cost about 110 s of CPU (about 55 s wall on 2
+//! cores). The long-run tables are rendered from the logs in `results/`.
 
 use std::path::PathBuf;
 
 use estim::pipeline::markdown::{
-    default_beamsnet, long_run_tables, monte_carlo_table, region, results_tables,
-    seed_interval_table, splice, Table,
+    default_beamsnet, learned_seed_tables, long_run_tables, monte_carlo_table, region,
+    results_tables, seed_interval_tables, splice, Table,
 };
 use estim::pipeline::Config;
 
@@ -48,8 +50,13 @@ fn every_region_is_marked_once() {
         "velocity",
         "filters",
         "filters-seeds",
+        "velocity-seeds",
         "paper-std",
+        "paper-std-seeds",
         "rho",
+        "rho-seeds",
+        "two-beams-seeds",
+        "outage-seeds",
         "montecarlo",
         "fuzz",
         "long-mission",
@@ -81,16 +88,34 @@ fn akit_and_simulated_tables_match_a_fresh_run() {
     }
 }
 
-/// The 20-seed intervals of the filters table (about 40 s in release on 2 cores).
+/// The 20-seed intervals of the filters, velocity, paper-std and rho tables (about 40 s
+/// in release on 2 cores).
 #[test]
-fn seed_interval_table_matches_a_fresh_run() {
+fn seed_interval_tables_match_a_fresh_run() {
     let Some(data) = common::data_root() else {
         return;
     };
     let config = Config::default();
     let learned = default_beamsnet(&config).expect("committed BeamsNet model");
-    let table = seed_interval_table(&config, &data, learned.as_ref()).expect("table");
-    assert_matches(&readme(), &table);
+    let tables = seed_interval_tables(&config, &data, learned.as_ref()).expect("tables");
+    let text = readme();
+    for t in &tables {
+        assert_matches(&text, t);
+    }
+}
+
+/// The 20-seed intervals of the two-beams and outage scenarios on A-KIT (about 60 s in
+/// release on 2 cores; the empirical M's 400 draws per update are most of it).
+#[test]
+fn learned_seed_tables_match_a_fresh_run() {
+    let Some(data) = common::data_root() else {
+        return;
+    };
+    let tables = learned_seed_tables(&Config::default(), &data).expect("tables");
+    let text = readme();
+    for t in &tables {
+        assert_matches(&text, t);
+    }
 }
 
 #[test]

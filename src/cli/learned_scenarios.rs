@@ -35,15 +35,12 @@ pub enum LearnedKind {
 }
 
 /// Realizations of the empirical M per update in `estim reproduce --scenario two-beams`.
-pub const EMPIRICAL_REALIZATIONS: usize = 400;
+pub const EMPIRICAL_REALIZATIONS: usize = estim::pipeline::STUDY_EMPIRICAL_REALIZATIONS;
 
 /// The scripted outage: no DVL from 200 s for 60 s (inside the 400 s A-KIT segments and
 /// the default simulated mission).
 pub fn outage() -> DvlOutage {
-    DvlOutage {
-        start_s: 200.0,
-        duration_s: 60.0,
-    }
+    DvlOutage::scripted()
 }
 
 /// The committed networks a learned scenario needs.

@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use anyhow::Context;
 use estim::datasets::{akit_dir, data_root};
 use estim::pipeline::markdown::{
-    default_beamsnet, long_run_tables, monte_carlo_table, results_tables, seed_interval_table,
-    splice, Table,
+    default_beamsnet, learned_seed_tables, long_run_tables, monte_carlo_table, results_tables,
+    seed_interval_tables, splice, Table,
 };
 use estim::pipeline::Config;
 
@@ -38,22 +38,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let config = Config::default();
     let learned = default_beamsnet(&config)?;
     let mut tables: Vec<Table> = Vec::new();
-    match &args.data {
+    let akit = match &args.data {
+        Some(dir) => Some(akit_dir(dir)?),
+        None => data_root(None).and_then(|d| akit_dir(&d).ok()),
+    };
+    match akit {
         Some(dir) => {
-            let dir = akit_dir(dir)?;
             tables.extend(results_tables(&config, &dir, learned.as_ref())?);
-            tables.push(seed_interval_table(&config, &dir, learned.as_ref())?);
+            tables.extend(seed_interval_tables(&config, &dir, learned.as_ref())?);
+            tables.extend(learned_seed_tables(&config, &dir)?);
         }
-        None => match data_root(None).map(|d| akit_dir(&d)) {
-            Some(Ok(dir)) => {
-                tables.extend(results_tables(&config, &dir, learned.as_ref())?);
-                tables.push(seed_interval_table(&config, &dir, learned.as_ref())?);
-            }
-            _ => eprintln!(
-                "note: A-KIT data not found (--data, ESTIM_DATA_DIR, ../shared/data): \
-                 velocity, filters, filters-seeds, paper-std and rho tables skipped"
-            ),
-        },
+        None => eprintln!(
+            "note: A-KIT data not found (--data, ESTIM_DATA_DIR, ../shared/data): \
+             velocity, filters, paper-std, rho and their -seeds tables and \
+             two-beams-seeds, outage-seeds skipped"
+        ),
     }
     tables.push(monte_carlo_table(&config, learned.as_ref())?);
     if args.results.is_dir() {

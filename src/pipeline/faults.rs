@@ -34,6 +34,17 @@ pub struct DvlOutage {
     pub duration_s: f64,
 }
 
+impl DvlOutage {
+    /// The scripted outage of the outage scenario: no DVL from 200 s for 60 s (inside
+    /// the 400 s A-KIT segments and the default simulated mission).
+    pub fn scripted() -> Self {
+        Self {
+            start_s: 200.0,
+            duration_s: 60.0,
+        }
+    }
+}
+
 /// A deterministic IMU gap: `samples` consecutive IMU samples removed from `start_s`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -55,6 +55,10 @@ pub const OUTAGE_SCALED: &str = "outage_m_rho";
 /// Filter id: no update during the outage (INS only).
 pub const INS_ONLY_DURING_OUTAGE: &str = "ins_only_during_outage";
 
+/// Realizations of the empirical M per update in `estim reproduce --scenario
+/// two-beams|outage` and the README's learned-scenario tables.
+pub const STUDY_EMPIRICAL_REALIZATIONS: usize = 400;
+
 /// The event of a learned-sensor study and the network that fills in during it.
 #[derive(Debug, Clone, Copy)]
 pub enum LearnedEvent<'a> {

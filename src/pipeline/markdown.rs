@@ -10,28 +10,39 @@
 //!   configuration on A-KIT trajectories 4 and 13 and the embedded simulated mission
 //!   (what `estim reproduce` runs), the paper's heuristic M on both bases
 //!   ([`PaperMBasis`]). Needs the A-KIT data.
-//! - [`seed_interval_table`]: `filters-seeds`: the rows of `filters` over
+//! - [`seed_interval_tables`]: `filters-seeds`, `velocity-seeds`, `paper-std-seeds`,
+//!   `rho-seeds`: the rows of `filters`, `velocity`, `paper-std` and `rho` over
 //!   [`SEED_INTERVAL_SEEDS`] seeds from [`SEED_INTERVAL_FIRST_SEED`] (IMU synthesis,
 //!   initial error and beam noise redrawn per seed): mean and 95 % interval (2.5 / 97.5
 //!   percentiles, linear interpolation). Needs the A-KIT data.
+//! - [`learned_seed_tables`]: `two-beams-seeds`, `outage-seeds`: the A-KIT rows of
+//!   `estim reproduce --scenario two-beams|outage` over the same seeds. Needs the A-KIT
+//!   data.
 //! - [`monte_carlo_table`]: `montecarlo`, [`MONTE_CARLO_RUNS`] simulated missions from
 //!   seed [`MONTE_CARLO_FIRST_SEED`] (what `estim montecarlo --runs 20` runs).
 //! - [`long_run_tables`]: `fuzz` and `long-mission`, rendered from the committed logs
 //!   of the long runs in `results/` (those runs take minutes; their logs carry the
 //!   commit they ran on).
 //!
-//! Rounding (stated once, used everywhere): velocity metrics with 6 decimals (VAF 4);
+//! Rounding (stated once, used everywhere): velocity metrics with 6 decimals (VAF 4;
+//! in the seed table RMSE and MAE in mm/s with 3 decimals, the same digits);
 //! position errors 2 decimals \[m\], velocity errors 3 decimals \[m/s\]; NEES and NIS
 //! averages of filters with 3 significant digits, of the Monte Carlo with 2 decimals;
-//! percentages with 1 decimal; rho with 3 decimals; counts exact. Log figures are
+//! percentages with 1 decimal; rho with 3 decimals; counts exact (their mean over seeds
+//! with 1 decimal); learned-scenario tables: NEES and NIS 2 decimals, position error 3,
+//! velocity error 4. Log figures are
 //! quoted as the log prints them.
 
 use std::path::Path;
 
+mod seeds;
+
+pub use seeds::{interval_cell, interval_seeds, learned_seed_tables, seed_interval_tables};
+
 use super::report::{BEAMSNET, BEAMSNET_NEGLECTED, BEAMSNET_SCALED, BEAMSNET_SENSITIVITY, LS};
 use super::{
-    analyse, apply_faults, beamsnet_inputs, monte_carlo, Config, FilterSummary, LearnedInputs,
-    LearnedSource, PaperMBasis, PipelineError, Result, Scenario, TrajectoryReport,
+    analyse, apply_faults, beamsnet_inputs, monte_carlo, Config, FilterSummary, Improvement,
+    LearnedInputs, LearnedSource, PaperMBasis, PipelineError, Result, Scenario, TrajectoryReport,
     ORACLE_NEGLECTED, ORACLE_SCALED, ORACLE_TRUE_M,
 };
 
@@ -284,26 +295,41 @@ pub fn results_tables(config: &Config, data: &Path, learned: &LearnedSource) -> 
     ])
 }
 
+/// The rows of the `velocity` table of one data set: LS, then BeamsNet if present, each
+/// with [RMSE, MAE, R^2, VAF, RMSE change against LS in %] (NaN for LS itself).
+fn velocity_rows(set: &DataSet) -> Result<Vec<(&'static str, [f64; 5])>> {
+    let v = &set.accumulated.velocity;
+    let ls = v.get(LS).ok_or_else(|| {
+        PipelineError::Invalid(format!("{}: no least-squares velocity", set.label))
+    })?;
+    let mut rows = Vec::new();
+    for (method, m) in [("LS", Some(ls)), ("BeamsNet", v.get(BEAMSNET))] {
+        let Some(m) = m else { continue };
+        let versus = if method == "LS" {
+            f64::NAN
+        } else {
+            100.0 * (m.rmse - ls.rmse) / ls.rmse
+        };
+        rows.push((method, [m.rmse, m.mae, m.r2, m.vaf, versus]));
+    }
+    Ok(rows)
+}
+
 fn velocity_table(sets: &[DataSet]) -> Result<Table> {
     let mut s = String::from(
         "| data | method | RMSE [m/s] | MAE [m/s] | R^2 | VAF [%] | RMSE vs LS |\n\
          |---|---|---|---|---|---|---|\n",
     );
     for set in sets {
-        let v = &set.accumulated.velocity;
-        let ls = v.get(LS).ok_or_else(|| {
-            PipelineError::Invalid(format!("{}: no least-squares velocity", set.label))
-        })?;
-        for (method, m) in [("LS", Some(ls)), ("BeamsNet", v.get(BEAMSNET))] {
-            let Some(m) = m else { continue };
-            let versus = if method == "LS" {
-                String::new()
+        for (method, [rmse, mae, r2, vaf, versus]) in velocity_rows(set)? {
+            let versus = if versus.is_finite() {
+                format!("{} %", one_decimal(versus))
             } else {
-                format!("{} %", one_decimal(100.0 * (m.rmse - ls.rmse) / ls.rmse))
+                String::new()
             };
             s.push_str(&format!(
-                "| {} | {method} | {:.6} | {:.6} | {:.6} | {:.4} | {versus} |\n",
-                set.label, m.rmse, m.mae, m.r2, m.vaf
+                "| {} | {method} | {rmse:.6} | {mae:.6} | {r2:.6} | {vaf:.4} | {versus} |\n",
+                set.label
             ));
         }
     }
@@ -338,82 +364,6 @@ fn filter_rows(rho: f64) -> [(String, &'static str, bool); 5] {
             false,
         ),
     ]
-}
-
-/// The `filters-seeds` table: every row of `filters` (A-KIT 4 and 13 under `data`, the
-/// simulated mission) over [`SEED_INTERVAL_SEEDS`] seeds from
-/// [`SEED_INTERVAL_FIRST_SEED`]: position and velocity RMSE and the time-averaged NEES,
-/// each as mean [2.5 %, 97.5 %] over the seeds.
-///
-/// # Errors
-/// Missing or bad data files; the pipeline's errors.
-pub fn seed_interval_table(config: &Config, data: &Path, learned: &LearnedSource) -> Result<Table> {
-    use rayon::prelude::*;
-    let rho = config.filter.rho;
-    let labels: Vec<String> = AKIT_TRAJECTORIES
-        .iter()
-        .map(|n| format!("A-KIT {n}"))
-        .chain(std::iter::once("simulated".to_string()))
-        .collect();
-    // per seed: per data set: per row: [position RMSE, velocity RMSE, NEES]
-    let per_seed: Vec<Vec<Vec<[f64; 3]>>> = (0..SEED_INTERVAL_SEEDS)
-        .into_par_iter()
-        .map(|i| {
-            let mut c = config.clone();
-            c.seed = SEED_INTERVAL_FIRST_SEED + i as u64;
-            let mut scenarios = Vec::new();
-            for n in AKIT_TRAJECTORIES {
-                scenarios.push(Scenario::akit(data, n, &c, c.seed)?);
-            }
-            scenarios.push(Scenario::simulated(&c, c.seed)?);
-            scenarios
-                .iter_mut()
-                .zip(&labels)
-                .map(|(scenario, label)| {
-                    let set = data_set(label.clone(), scenario, &c, learned)?;
-                    filter_rows(rho)
-                        .iter()
-                        .map(|(_, id, per_step)| {
-                            let report = if *per_step {
-                                &set.per_step
-                            } else {
-                                &set.accumulated
-                            };
-                            let f = filter(report, id)?;
-                            Ok([
-                                f.position_error_m.rmse,
-                                f.velocity_error_mps.rmse,
-                                f.nees_average,
-                            ])
-                        })
-                        .collect::<Result<Vec<_>>>()
-                })
-                .collect::<Result<Vec<_>>>()
-        })
-        .collect::<Result<_>>()?;
-    let mut s = String::from(
-        "| data | filter | position RMSE [m] | velocity RMSE [m/s] | NEES (15) |\n\
-         |---|---|---|---|---|\n",
-    );
-    let cell = |xs: Vec<f64>, fmt: &dyn Fn(f64) -> String| {
-        let m = super::MeanInterval::of(&xs);
-        format!("{} [{}, {}]", fmt(m.mean), fmt(m.lo), fmt(m.hi))
-    };
-    for (d, label) in labels.iter().enumerate() {
-        for (r, (name, _, _)) in filter_rows(rho).iter().enumerate() {
-            let column = |k: usize| -> Vec<f64> { per_seed.iter().map(|p| p[d][r][k]).collect() };
-            s.push_str(&format!(
-                "| {label} | {name} | {} | {} | {} |\n",
-                cell(column(0), &|x| format!("{x:.2}")),
-                cell(column(1), &|x| format!("{x:.3}")),
-                cell(column(2), &|x| significant(x, 3)),
-            ));
-        }
-    }
-    Ok(Table {
-        name: "filters-seeds",
-        markdown: s,
-    })
 }
 
 fn filters_table(sets: &[DataSet], rho: f64) -> Result<Table> {
@@ -469,52 +419,69 @@ fn meets_paper(percent: f64) -> bool {
     percent > 10.0
 }
 
+/// The rows of the `paper-std` table of one data set: (M label, its improvement over
+/// M neglected).
+fn paper_rows(set: &DataSet, rho: f64) -> Result<Vec<(String, Improvement)>> {
+    let find = |report: &TrajectoryReport, variant: &str| {
+        report
+            .improvements
+            .iter()
+            .find(|i| i.id == variant)
+            .cloned()
+            .ok_or_else(|| {
+                PipelineError::Invalid(format!("{}: no improvement of {variant}", set.label))
+            })
+    };
+    Ok(vec![
+        (
+            format!("rho {rho}, Q accumulated over the interval"),
+            find(&set.accumulated, BEAMSNET_SCALED)?,
+        ),
+        (
+            format!("rho {rho}, per-step Q_k"),
+            find(&set.per_step, BEAMSNET_SCALED)?,
+        ),
+        (
+            "from the network's sensitivity".to_string(),
+            find(&set.accumulated, BEAMSNET_SENSITIVITY)?,
+        ),
+    ])
+}
+
+/// Improvement of `group` (time average, final) in %.
+fn group_improvement(set: &DataSet, imp: &Improvement, group: &str) -> Result<[f64; 2]> {
+    let v = imp
+        .groups
+        .get(group)
+        .ok_or_else(|| PipelineError::Invalid(format!("{}: no group {group}", set.label)))?;
+    Ok([v.time_average_percent, v.final_percent])
+}
+
+/// Whether `imp` meets the paper's claim: > 10 % on the time-averaged velocity and
+/// misalignment std.
+fn meets_paper_claim(imp: &Improvement) -> bool {
+    ["velocity", "misalignment"].iter().all(|g| {
+        imp.groups
+            .get(*g)
+            .is_some_and(|v| meets_paper(v.time_average_percent))
+    })
+}
+
 fn paper_std_table(sets: &[DataSet], rho: f64) -> Result<Table> {
     let mut s = String::from(
         "| data | M | velocity | misalignment | acc bias | gyro bias | > 10 % on velocity and misalignment |\n\
          |---|---|---|---|---|---|---|\n",
     );
     for set in sets {
-        let find = |report: &TrajectoryReport, variant: &str| {
-            report
-                .improvements
-                .iter()
-                .find(|i| i.id == variant)
-                .cloned()
-                .ok_or_else(|| {
-                    PipelineError::Invalid(format!("{}: no improvement of {variant}", set.label))
-                })
-        };
-        let rows = [
-            (
-                format!("rho {rho}, Q accumulated over the interval"),
-                find(&set.accumulated, BEAMSNET_SCALED)?,
-            ),
-            (
-                format!("rho {rho}, per-step Q_k"),
-                find(&set.per_step, BEAMSNET_SCALED)?,
-            ),
-            (
-                "from the network's sensitivity".to_string(),
-                find(&set.accumulated, BEAMSNET_SENSITIVITY)?,
-            ),
-        ];
-        for (name, imp) in rows {
+        for (name, imp) in paper_rows(set, rho)? {
             let cell = |group: &str| -> Result<String> {
-                let v = imp.groups.get(group).ok_or_else(|| {
-                    PipelineError::Invalid(format!("{}: no group {group}", set.label))
-                })?;
+                let [average, last] = group_improvement(set, &imp, group)?;
                 Ok(format!(
                     "{} % / {} %",
-                    one_decimal(v.time_average_percent),
-                    one_decimal(v.final_percent)
+                    one_decimal(average),
+                    one_decimal(last)
                 ))
             };
-            let meets = ["velocity", "misalignment"].iter().all(|g| {
-                imp.groups
-                    .get(*g)
-                    .is_some_and(|v| meets_paper(v.time_average_percent))
-            });
             s.push_str(&format!(
                 "| {} | {name} | {} | {} | {} | {} | {} |\n",
                 set.label,
@@ -522,7 +489,7 @@ fn paper_std_table(sets: &[DataSet], rho: f64) -> Result<Table> {
                 cell("misalignment")?,
                 cell("acc_bias")?,
                 cell("gyro_bias")?,
-                if meets { "yes" } else { "no" },
+                if meets_paper_claim(&imp) { "yes" } else { "no" },
             ));
         }
     }
@@ -542,20 +509,25 @@ pub fn median_min_max(values: &[f64]) -> [f64; 3] {
     [v[v.len() / 2], v[0], v[v.len() - 1]]
 }
 
+/// The run the `rho` table reads: BeamsNet with M neglected (R enters the largest
+/// valid rho only through its correlations).
+fn rho_run(set: &DataSet) -> Result<&super::FilterRun> {
+    set.accumulated
+        .runs
+        .iter()
+        .find(|r| r.id == BEAMSNET_NEGLECTED)
+        .ok_or_else(|| {
+            PipelineError::Invalid(format!("{}: no run {BEAMSNET_NEGLECTED:?}", set.label))
+        })
+}
+
 fn rho_table(sets: &[DataSet], rho: f64) -> Result<Table> {
     let mut s = format!(
         "| data | updates | largest valid rho, M from Q accumulated: median / min / max | from per-step Q_k: median / min / max | rho = {rho} valid at (accumulated / per-step) |\n\
          |---|---|---|---|---|\n"
     );
     for set in sets {
-        let run = set
-            .accumulated
-            .runs
-            .iter()
-            .find(|r| r.id == BEAMSNET_NEGLECTED)
-            .ok_or_else(|| {
-                PipelineError::Invalid(format!("{}: no run {BEAMSNET_NEGLECTED:?}", set.label))
-            })?;
+        let run = rho_run(set)?;
         let acc = median_min_max(&run.largest_valid_rho);
         let step = median_min_max(&run.largest_valid_rho_per_step);
         let valid = |v: &[f64]| v.iter().filter(|x| **x >= rho.abs()).count();

@@ -25,8 +25,8 @@ pub use learned_scenarios::{
     max_correlation, outage_extras, two_beams_measurements, two_beams_study, LearnedEvent,
     LearnedMeasurements, LearnedMonteCarlo, LearnedStudy, LearnedVariant, LossWindowSummary,
     MeanInterval, INS_ONLY_DURING_LOSS, INS_ONLY_DURING_OUTAGE, OUTAGE_EMPIRICAL, OUTAGE_NEGLECTED,
-    OUTAGE_NETWORK, OUTAGE_SCALED, TWO_BEAMS_EMPIRICAL, TWO_BEAMS_NEGLECTED, TWO_BEAMS_NETWORK,
-    TWO_BEAMS_SCALED,
+    OUTAGE_NETWORK, OUTAGE_SCALED, STUDY_EMPIRICAL_REALIZATIONS, TWO_BEAMS_EMPIRICAL,
+    TWO_BEAMS_NEGLECTED, TWO_BEAMS_NETWORK, TWO_BEAMS_SCALED,
 };
 pub use mismatch::{
     fit_reference_mismatch, MismatchFit, TrajectoryMismatch, AKIT_TEST_TRAJECTORIES,
