@@ -19,7 +19,7 @@ use super::{
 };
 use crate::pipeline::{
     apply_faults, learned_study, BeamLoss, Config, DvlOutage, LearnedEvent, LearnedSource,
-    MeanInterval, PipelineError, Result, Scenario, STUDY_EMPIRICAL_REALIZATIONS,
+    LearnedStudy, MeanInterval, PipelineError, Result, Scenario, STUDY_EMPIRICAL_REALIZATIONS,
 };
 
 /// The seeds of every `*-seeds` table.
@@ -362,6 +362,37 @@ pub fn learned_seed_tables(config: &Config, data: &Path) -> Result<Vec<Table>> {
         .collect()
 }
 
+/// Per variant of `ids` (INS only last, as [`LearnedEvent::ids`]): NEES, NIS, position
+/// and velocity RMSE over the event, NEES over the run, and whether its position RMSE
+/// over the event is below INS only's in the same study (1 or 0; NaN for INS only).
+fn study_values(study: &LearnedStudy, ids: &[&str; 5]) -> Result<SeedValues> {
+    let mut rows = ids
+        .iter()
+        .map(|id| {
+            let v = study
+                .filters
+                .iter()
+                .position(|f| f.id == *id)
+                .ok_or_else(|| PipelineError::Invalid(format!("no variant {id:?}")))?;
+            let (f, l) = (&study.filters[v], &study.loss_window[v]);
+            Ok(vec![
+                l.nees_mean,
+                l.nis_mean,
+                l.position_rmse_m,
+                l.velocity_rmse_mps,
+                f.nees_average,
+            ])
+        })
+        .collect::<Result<SeedValues>>()?;
+    let ins_only = rows.len() - 1;
+    let ins_only_position = rows[ins_only][2];
+    for (v, row) in rows.iter_mut().enumerate() {
+        let below = f64::from(u8::from(row[2] < ins_only_position));
+        row.push(if v == ins_only { f64::NAN } else { below });
+    }
+    Ok(rows)
+}
+
 fn learned_seed_table(
     name: &'static str,
     config: &Config,
@@ -385,39 +416,9 @@ fn learned_seed_table(
                     STUDY_EMPIRICAL_REALIZATIONS,
                     c.seed,
                 )?;
-                let mut rows =
-                    ids.iter()
-                        .map(|id| {
-                            let v = study.filters.iter().position(|f| f.id == *id).ok_or_else(
-                                || {
-                                    PipelineError::Invalid(format!(
-                                        "{name}: A-KIT {n}, seed {}: no variant {id:?}",
-                                        c.seed
-                                    ))
-                                },
-                            )?;
-                            let (f, l) = (&study.filters[v], &study.loss_window[v]);
-                            Ok(vec![
-                                l.nees_mean,
-                                l.nis_mean,
-                                l.position_rmse_m,
-                                l.velocity_rmse_mps,
-                                f.nees_average,
-                            ])
-                        })
-                        .collect::<Result<SeedValues>>()?;
-                // Paired with INS only (the last id) in the same seed: is the position
-                // RMSE over the event lower? (Not asked of INS only itself.)
-                let ins_only_position = rows[ids.len() - 1][2];
-                let last = rows.len() - 1;
-                for (v, row) in rows.iter_mut().enumerate() {
-                    let below = row[2] < ins_only_position;
-                    row.push(if v == last {
-                        f64::NAN
-                    } else {
-                        f64::from(u8::from(below))
-                    });
-                }
+                let rows = study_values(&study, &ids).map_err(|e| {
+                    PipelineError::Invalid(format!("{name}: A-KIT {n}, seed {}: {e}", c.seed))
+                })?;
                 Ok((study.paper_rho, rows))
             })
             .collect::<Result<Vec<_>>>()
