@@ -24,6 +24,41 @@ pub enum Gate {
     NisThreshold(f64),
 }
 
+/// What the innovation gate does after a run of rejections.
+///
+/// A filter whose covariance has become smaller than its actual error rejects exactly
+/// the measurements that would correct it, and stays locked out: its error grows while
+/// every update is gated. A recovery rule lets such a filter admit it is lost.
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub enum GateRecovery {
+    /// Keep rejecting (default).
+    #[default]
+    None,
+    /// After `after` consecutive rejections (by any measurement model of this filter),
+    /// the next measurement the gate would reject is accepted with the prior covariance
+    /// inflated, P -> lambda P, by the smallest lambda >= 1 that brings its NIS down to
+    /// the gate threshold: one fading-memory step (Fagin 1964; Sorenson & Sacks 1971,
+    /// "Recursive fading memory filtering"), sized so the measurement lies on the gate's
+    /// boundary. lambda is at most [`GateRecovery::MAX_INFLATION`]; a measurement that
+    /// still fails the gate there (its innovation lies where H P H' is zero) stays
+    /// rejected. The update report gives lambda in `covariance_inflation`.
+    ///
+    /// The inflation is a deliberate change of the model, not a Kalman step: a later
+    /// windowed cross-covariance whose window contains it is exact for the inflated
+    /// covariance the filter carried, not for the original model.
+    Inflate {
+        /// Consecutive rejections before the rule applies, at least 1.
+        after: usize,
+    },
+}
+
+impl GateRecovery {
+    /// The largest covariance inflation factor the [`GateRecovery::Inflate`] rule uses.
+    pub const MAX_INFLATION: f64 = 1e6;
+}
+
 /// Measurement sizes whose gate threshold is precomputed by [`FilterConfig::build`].
 const CACHED_SIZES: usize = 16;
 
@@ -122,6 +157,7 @@ pub enum JointCheck {
 pub struct FilterConfig {
     form: CovarianceUpdate,
     gate: Gate,
+    gate_recovery: GateRecovery,
     joint_check: JointCheck,
     track_accumulated_noise: bool,
     window_capacity: usize,
@@ -135,6 +171,7 @@ impl Default for FilterConfig {
         Self {
             form: CovarianceUpdate::default(),
             gate: Gate::None,
+            gate_recovery: GateRecovery::None,
             joint_check: JointCheck::default(),
             track_accumulated_noise: true,
             window_capacity: 0,
@@ -149,6 +186,7 @@ impl FilterConfig {
         FilterConfigBuilder {
             form: CovarianceUpdate::default(),
             gate: Gate::None,
+            gate_recovery: GateRecovery::None,
             joint_check: JointCheck::default(),
             track_accumulated_noise: true,
             window_capacity: 0,
@@ -163,6 +201,11 @@ impl FilterConfig {
     /// The innovation gate.
     pub fn gate(&self) -> Gate {
         self.gate
+    }
+
+    /// What the gate does after a run of rejections.
+    pub fn gate_recovery(&self) -> GateRecovery {
+        self.gate_recovery
     }
 
     /// The joint-covariance policy.
@@ -202,6 +245,7 @@ impl FilterConfig {
 pub struct FilterConfigBuilder {
     form: CovarianceUpdate,
     gate: Gate,
+    gate_recovery: GateRecovery,
     joint_check: JointCheck,
     track_accumulated_noise: bool,
     window_capacity: usize,
@@ -220,6 +264,7 @@ impl From<FilterConfig> for FilterConfigBuilder {
         Self {
             form: config.form,
             gate: config.gate,
+            gate_recovery: config.gate_recovery,
             joint_check: config.joint_check,
             track_accumulated_noise: config.track_accumulated_noise,
             window_capacity: config.window_capacity,
@@ -245,6 +290,14 @@ impl FilterConfigBuilder {
     /// Innovation gate (none by default).
     pub fn gate(self, gate: Gate) -> Self {
         Self { gate, ..self }
+    }
+
+    /// What the gate does after a run of rejections (none by default; needs a gate).
+    pub fn gate_recovery(self, gate_recovery: GateRecovery) -> Self {
+        Self {
+            gate_recovery,
+            ..self
+        }
     }
 
     /// Joint-covariance policy (report by default).
@@ -283,15 +336,32 @@ impl FilterConfigBuilder {
     /// Validate and precompute the gate thresholds.
     ///
     /// # Errors
-    /// [`Error::InvalidParameter`] for an invalid gate.
+    /// [`Error::InvalidParameter`] for an invalid gate, and for a
+    /// [`GateRecovery::Inflate`] with `after = 0` or without a gate.
     pub fn build(self) -> Result<FilterConfig> {
         let mut thresholds = [None; CACHED_SIZES];
         for (i, t) in thresholds.iter_mut().enumerate() {
             *t = self.gate.threshold(i + 1)?;
         }
+        if let GateRecovery::Inflate { after } = self.gate_recovery {
+            if after == 0 {
+                return Err(Error::InvalidParameter {
+                    name: "gate recovery",
+                    reason: "`after` must be at least 1 consecutive rejection".into(),
+                });
+            }
+            if matches!(self.gate, Gate::None) {
+                return Err(Error::InvalidParameter {
+                    name: "gate recovery",
+                    reason: "a recovery rule needs an innovation gate (Gate::None rejects nothing)"
+                        .into(),
+                });
+            }
+        }
         Ok(FilterConfig {
             form: self.form,
             gate: self.gate,
+            gate_recovery: self.gate_recovery,
             joint_check: self.joint_check,
             track_accumulated_noise: self.track_accumulated_noise,
             window_capacity: self.window_capacity,
@@ -346,5 +416,31 @@ mod tests {
                 Err(Error::InvalidParameter { .. })
             ));
         }
+    }
+
+    #[test]
+    fn invalid_gate_recoveries_are_typed_errors() {
+        for (gate, after) in [
+            (Gate::NisThreshold(9.0), 0),
+            (Gate::None, 1),
+            (Gate::None, 5),
+        ] {
+            assert!(matches!(
+                FilterConfig::builder()
+                    .gate(gate)
+                    .gate_recovery(GateRecovery::Inflate { after })
+                    .build(),
+                Err(Error::InvalidParameter {
+                    name: "gate recovery",
+                    ..
+                })
+            ));
+        }
+        let ok = FilterConfig::builder()
+            .gate(Gate::NisThreshold(9.0))
+            .gate_recovery(GateRecovery::Inflate { after: 3 })
+            .build()
+            .unwrap();
+        assert_eq!(ok.gate_recovery(), GateRecovery::Inflate { after: 3 });
     }
 }

@@ -105,7 +105,9 @@
 //! attempt returns an [`UpdateReport`] (NIS, S, M, the joint eigenvalue, the gain);
 //! an innovation [`Gate`] (chi-square quantile of the measurement size) can reject a
 //! measurement, which leaves the state untouched and is reported as
-//! [`UpdateStatus::RejectedByGate`], not as an error. [`Observer`]s receive every
+//! [`UpdateStatus::RejectedByGate`], not as an error; [`GateRecovery`] says what the
+//! gate does after a run of rejections (a filter locked out by its own gate).
+//! [`Observer`]s receive every
 //! prediction and update (argmin's executor pattern), so writers and plots stay out
 //! of the numerical code; the events carry Phi, Q_d, H, R, M, S and K, so a smoother
 //! can record the forward pass. Commit rule: a predict or update either fails before
@@ -189,7 +191,7 @@ mod traits;
 mod update;
 pub mod window;
 
-pub use config::{FilterConfig, FilterConfigBuilder, Gate, JointCheck};
+pub use config::{FilterConfig, FilterConfigBuilder, Gate, GateRecovery, JointCheck};
 pub use consistency::{average_over_runs, nees, nis};
 #[cfg(feature = "consistency")]
 pub use consistency::{chi_square_band, monte_carlo, ChiSquareBand};

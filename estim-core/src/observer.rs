@@ -51,6 +51,9 @@ pub struct UpdateEvent<'a, T: Scalar, S, const N: usize> {
     /// Smallest eigenvalue of the correlation matrix of [[Q_acc, M], [M', R]], if the
     /// configuration computes it (valid iff >= 0, tolerance 1e-9).
     pub joint_min_eigenvalue: Option<T>,
+    /// The factor lambda the prior covariance was inflated by before an update the
+    /// gate would have rejected ([`crate::GateRecovery::Inflate`]); `None` otherwise.
+    pub covariance_inflation: Option<T>,
     /// Accepted or rejected.
     pub status: UpdateStatus,
     /// The covariance before the update (the prior of this update).

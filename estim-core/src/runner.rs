@@ -11,12 +11,14 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use crate::config::JointCheck;
+use crate::config::{GateRecovery, JointCheck};
 use crate::cross::{check_joint_covariance, joint_validity_margin};
 use crate::gaussian::{check_finite, check_symmetric, symmetrize};
 use crate::observer::{NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
 use crate::scalar::lit;
-use crate::update::{factor_innovation, finish_update, mul_static};
+use crate::update::{
+    factor_innovation, finish_update, mul_static, spd_inverse, FactoredInnovation,
+};
 use crate::window::{exact_terms, History};
 use crate::{
     CrossCovariance, CrossCovarianceContext, Error, ErrorStateModel, FilterConfig,
@@ -55,6 +57,11 @@ pub struct UpdateReport<T: Scalar, const N: usize, const M: usize> {
     /// augmented with v) for a windowed one. `None` with [`JointCheck::Skip`], or when
     /// a one-step update has M != 0 but Q_acc is not tracked.
     pub joint_min_eigenvalue: Option<T>,
+    /// The factor lambda >= 1 the prior covariance was inflated by before this update,
+    /// which the gate would otherwise have rejected ([`GateRecovery::Inflate`] after a
+    /// run of rejections); `None` for an ordinary update or a rejection. `nis` and
+    /// `innovation_covariance` are those the gate saw, before the inflation.
+    pub covariance_inflation: Option<T>,
     /// The gain K (`None` if rejected).
     pub gain: Option<SMatrix<T, N, M>>,
     /// The state correction K * innovation (`None` if rejected); for the error-state
@@ -179,6 +186,8 @@ struct Shared<T: Scalar, S, U, const N: usize, O> {
     history: History<T, S, U, N>,
     config: FilterConfig,
     observer: O,
+    /// Gate rejections since the last accepted update (for [`GateRecovery`]).
+    rejections_in_a_row: usize,
 }
 
 impl<T: Scalar, S, U, const N: usize> Shared<T, S, U, N, NoObserver> {
@@ -189,6 +198,7 @@ impl<T: Scalar, S, U, const N: usize> Shared<T, S, U, N, NoObserver> {
             history: History::new(config.window_capacity()),
             config,
             observer: NoObserver,
+            rejections_in_a_row: 0,
         }
     }
 }
@@ -198,6 +208,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
     fn set_config(&mut self, config: FilterConfig) {
         self.history = History::new(config.window_capacity());
         self.config = config;
+        self.rejections_in_a_row = 0;
     }
 
     fn with_observer<O2>(self, observer: O2) -> Shared<T, S, U, N, O2> {
@@ -206,6 +217,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
             history: self.history,
             config: self.config,
             observer,
+            rejections_in_a_row: self.rejections_in_a_row,
         }
     }
 
@@ -352,19 +364,47 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
             noise_covariance,
             noise_mean,
             joint_min_eigenvalue,
+            covariance_inflation: None,
             gain: None,
             correction: None,
         };
+        let mut inflated_prior = None;
         if let Some(threshold) = gate_threshold {
             if factored.nis > threshold {
-                report.status = UpdateStatus::RejectedByGate;
-                return Ok(Attempt {
-                    report,
-                    posterior: None,
-                    information: None,
-                });
+                let inflation = match self.config.gate_recovery() {
+                    GateRecovery::Inflate { after } if self.rejections_in_a_row >= after => {
+                        recovery_inflation(&factored, &innovation, threshold)
+                    }
+                    _ => None,
+                };
+                let Some(lambda) = inflation else {
+                    report.status = UpdateStatus::RejectedByGate;
+                    return Ok(Attempt {
+                        report,
+                        posterior: None,
+                        information: None,
+                    });
+                };
+                report.covariance_inflation = Some(lambda);
+                inflated_prior = Some(StateAndCovariance::new_unchecked(
+                    *prior.state(),
+                    prior.covariance() * lambda,
+                ));
             }
         }
+        let (prior, factored) = match inflated_prior.as_ref() {
+            Some(inflated) => (
+                inflated,
+                factor_innovation(
+                    inflated,
+                    &innovation,
+                    jacobian,
+                    &noise_covariance,
+                    &cross_covariance,
+                )?,
+            ),
+            None => (prior, factored),
+        };
         let information = self.history.is_enabled().then(|| {
             // H' S^-1 H and H' S^-1 nu: what a later windowed update needs of this one.
             let hs = mul_static(&jacobian.transpose(), &factored.inverse);
@@ -407,6 +447,11 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
             let correlated = attempt.report.cross_covariance.iter().any(|v| !v.is_zero());
             self.history
                 .push_update(transform, *information, *weighted, correlated);
+        }
+        if attempt.report.is_accepted() {
+            self.rejections_in_a_row = 0;
+        } else {
+            self.rejections_in_a_row += 1;
         }
         self.accumulated.reset();
     }
@@ -462,6 +507,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
             nis: report.nis,
             gate_threshold: report.gate_threshold,
             joint_min_eigenvalue: report.joint_min_eigenvalue,
+            covariance_inflation: report.covariance_inflation,
             status: report.status,
         };
         match report.status {
@@ -469,6 +515,43 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
             UpdateStatus::RejectedByGate => self.observer.on_rejected(&event),
         }
     }
+}
+
+/// The smallest lambda in [1, [`GateRecovery::MAX_INFLATION`]] with
+/// nu' (S + (lambda - 1) H P H')^-1 nu <= `threshold` (S = H P H' + H M + M' H' + R,
+/// so the bracket is S with P -> lambda P), or `None` when even the largest factor
+/// leaves the NIS above the threshold. The NIS is non-increasing in lambda (H P H' is
+/// positive semidefinite), so bisection on log lambda brackets the boundary; the upper
+/// end of the final bracket is returned, so the inflated update passes the gate.
+fn recovery_inflation<T: Scalar, const N: usize, const M: usize>(
+    factored: &FactoredInnovation<T, N, M>,
+    innovation: &SVector<T, M>,
+    threshold: T,
+) -> Option<T> {
+    let hph = symmetrize(&mul_static(&factored.jacobian, &factored.pht));
+    let nis = |lambda: T| -> Option<T> {
+        let s = factored.covariance + hph * (lambda - T::one());
+        let inverse = spd_inverse(&s)?;
+        Some(innovation.dot(&mul_static(&inverse, innovation)))
+    };
+    let mut low = T::one();
+    let mut high = lit::<T>(GateRecovery::MAX_INFLATION);
+    if nis(high)? > threshold {
+        return None;
+    }
+    // 64 halvings of the log-bracket (width ln 1e6 = 13.8) leave it below 1e-18:
+    // the returned factor is the boundary to the scalar's precision.
+    for _ in 0..64 {
+        let middle = (low * high).sqrt();
+        if middle <= low || middle >= high {
+            break;
+        }
+        match nis(middle) {
+            Some(v) if v <= threshold => high = middle,
+            _ => low = middle,
+        }
+    }
+    Some(high)
 }
 
 /// The joint check of `config` on [[A, M], [M', B]].
@@ -1271,6 +1354,108 @@ mod tests {
         assert!(ok.is_accepted());
         let rec = kf.into_observer();
         assert_eq!((rec.accepted(), rec.rejected()), (1, 1));
+    }
+
+    /// A filter that a far measurement locks out: x = 0, P = I, gate at NIS 9.
+    fn locked_out(after: Option<usize>) -> KalmanFilter<f64, 2, 1> {
+        let mut builder = FilterConfig::builder().gate(Gate::NisThreshold(9.0));
+        if let Some(after) = after {
+            builder = builder.gate_recovery(GateRecovery::Inflate { after });
+        }
+        cv_filter().with_config(builder.build().unwrap())
+    }
+
+    #[test]
+    fn gate_recovery_inflates_p_onto_the_gate_boundary_after_a_run_of_rejections() {
+        let mut kf = locked_out(Some(3));
+        let y = Vector1::new(100.0);
+        for _ in 0..3 {
+            kf.predict().unwrap();
+            let before = kf.estimate().clone();
+            let report = kf.update(&y, &Zero).unwrap();
+            assert_eq!(report.status, UpdateStatus::RejectedByGate);
+            assert_eq!(report.covariance_inflation, None);
+            assert_eq!(*kf.estimate(), before);
+        }
+        kf.predict().unwrap();
+        let prior = kf.estimate().clone();
+        let report = kf.update(&y, &Zero).unwrap();
+        assert!(report.is_accepted());
+        let lambda = report.covariance_inflation.unwrap();
+        // Independent reference, scalar measurement of the first state (H = [1 0],
+        // R = 0.1): nu^2 / (lambda P00 + R) = 9 gives lambda = (nu^2 / 9 - R) / P00.
+        let p = prior.covariance();
+        let nu = 100.0 - prior.state()[0];
+        let expected = (nu * nu / 9.0 - 0.1) / p[(0, 0)];
+        assert!(expected > 1.0);
+        assert!(
+            (lambda - expected).abs() <= 1e-12 * expected,
+            "{lambda} vs {expected}"
+        );
+        // The NIS the gate saw is the uninflated one.
+        assert!((report.nis - nu * nu / (p[(0, 0)] + 0.1)).abs() < 1e-9 * report.nis);
+        // The posterior is the textbook update of the prior with P -> lambda P.
+        let pl = p * lambda;
+        let s = pl[(0, 0)] + 0.1;
+        let k = Vector2::new(pl[(0, 0)] / s, pl[(1, 0)] / s);
+        let x = prior.state() + k * nu;
+        let h = nalgebra::Matrix1x2::new(1.0, 0.0);
+        let posterior = (Matrix2::identity() - k * h) * pl;
+        assert!((kf.estimate().state() - x).norm() < 1e-12 * x.norm());
+        assert!((kf.estimate().covariance() - posterior).norm() < 1e-12 * posterior.norm());
+        // The run is over: the next gated measurement is rejected again.
+        kf.predict().unwrap();
+        let far = Vector1::new(kf.estimate().state()[0] + 50.0);
+        assert_eq!(
+            kf.update(&far, &Zero).unwrap().status,
+            UpdateStatus::RejectedByGate
+        );
+    }
+
+    #[test]
+    fn without_recovery_a_locked_out_filter_stays_locked_out() {
+        let mut kf = locked_out(None);
+        for _ in 0..50 {
+            kf.predict().unwrap();
+            let report = kf.update(&Vector1::new(1e4), &Zero).unwrap();
+            assert_eq!(report.status, UpdateStatus::RejectedByGate);
+        }
+        // With the rule, the same sequence is accepted at the 4th attempt.
+        let mut kf = locked_out(Some(3));
+        let statuses: Vec<_> = (0..5)
+            .map(|_| {
+                kf.predict().unwrap();
+                kf.update(&Vector1::new(1e4), &Zero).unwrap().status
+            })
+            .collect();
+        assert_eq!(statuses[..3], [UpdateStatus::RejectedByGate; 3]);
+        assert_eq!(statuses[3], UpdateStatus::Accepted);
+    }
+
+    #[test]
+    fn gate_recovery_leaves_rejected_what_no_inflation_can_explain() {
+        // State 2 is known exactly (zero variance, no process noise) and measured
+        // directly: an innovation there is not explained by any lambda P.
+        let config = FilterConfig::builder()
+            .gate(Gate::NisThreshold(9.0))
+            .gate_recovery(GateRecovery::Inflate { after: 1 })
+            .build()
+            .unwrap();
+        let mut kf = KalmanFilter::<f64, 2, 2>::new(
+            Matrix2::identity(),
+            Matrix2::new(0.01, 0.0, 0.0, 0.0),
+            Matrix2::identity(),
+            Matrix2::identity() * 0.01,
+            StateAndCovariance::new(Vector2::zeros(), Matrix2::new(1.0, 0.0, 0.0, 0.0)).unwrap(),
+        )
+        .unwrap()
+        .with_config(config);
+        for _ in 0..4 {
+            kf.predict().unwrap();
+            let report = kf.update(&Vector2::new(0.0, 5.0), &Zero).unwrap();
+            assert_eq!(report.status, UpdateStatus::RejectedByGate);
+            assert_eq!(report.covariance_inflation, None);
+        }
     }
 
     #[test]

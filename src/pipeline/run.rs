@@ -4,7 +4,7 @@
 use estim_core::nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 use estim_core::{
     largest_valid_scale, nees, CrossCovariance, ErrorStateKalmanFilter, FilterConfig, Fixed, Gate,
-    NoObserver, Observer, ProcessModel, ScaledCorrelation, Zero,
+    GateRecovery, NoObserver, Observer, ProcessModel, ScaledCorrelation, Zero,
 };
 use estim_dvl::DvlVelocityModel;
 use estim_ins::{
@@ -322,7 +322,17 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
     } else {
         Gate::None
     };
-    let filter_config = FilterConfig::builder().gate(gate).build()?;
+    // The rule acts on the gate's rejections: nothing to recover from without a gate.
+    let recovery = match config.filter.gate_recovery_after {
+        after if after > 0 && config.filter.gate_probability > 0.0 => {
+            GateRecovery::Inflate { after }
+        }
+        _ => GateRecovery::None,
+    };
+    let filter_config = FilterConfig::builder()
+        .gate(gate)
+        .gate_recovery(recovery)
+        .build()?;
     let process = InsErrorModel::new(filter_imu_spec(&scenario.imu_spec)?);
     let mut filter = ErrorStateKalmanFilter::new(process, nominal0, p0)?
         .with_config(filter_config)
