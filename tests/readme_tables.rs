@@ -8,7 +8,7 @@
 //! (`ESTIM_REQUIRE_DATA=1`), and are skipped elsewhere with a printed reason. The
 //! Monte Carlo table runs everywhere (simulated missions; about 25 s in release on
 //! 2 cores). The 20-seed twins of the A-KIT tables (`*-seeds`) run with the A-KIT
-//! tables; the learned-scenario ones cost about 110 s of CPU (about 55 s wall on 2
+//! tables; the learned-scenario ones cost 110-145 s of CPU (about 55-75 s wall on 2
 //! cores). The long-run tables are rendered from the logs in `results/`.
 
 use std::path::PathBuf;
