@@ -111,16 +111,18 @@ impl LearnedMeasurement<f64, 2> for DeadReckonedFix {
     fn noise_covariance(&self) -> Matrix2<f64> {
         Matrix2::identity() * (FIX_VARIANCE + WINDOW as f64 * DT * DT * ODOMETRY_VARIANCE)
     }
+    /// Jacobian-vector products: the model is linear, so each is the model applied to
+    /// the direction (one odometry and one fix matrix per direction).
     fn sensitivity(
         &self,
         _: &[DMatrix<f64>],
-        directions: &[Vec<DMatrix<f64>>],
-    ) -> Result<Option<Vec<Vector2<f64>>>> {
-        directions
-            .iter()
-            .map(|d| carry_forward(d))
-            .collect::<Result<_>>()
-            .map(Some)
+        directions: &[DMatrix<f64>],
+        products: &mut [Vector2<f64>],
+    ) -> Result<bool> {
+        for (d, product) in directions.chunks_exact(2).zip(products) {
+            *product = carry_forward(d)?;
+        }
+        Ok(true)
     }
 }
 
@@ -156,19 +158,19 @@ impl Observation<f64, 2, 2> for Position {
 }
 
 /// One fix: the model reads the filter's recorded window (the odometry it integrated)
-/// and the fix; M comes from `LearnedCrossCovariance`, or is neglected.
+/// and the fix; M comes from `LearnedCrossCovariance` (built once per run, its
+/// workspace reused), or is neglected.
 fn fuse(
     filter: &mut ExtendedKalmanFilter<f64, Odometry, 2>,
-    model: &DeadReckonedFix,
+    cross: &mut LearnedCrossCovariance<'_, f64, DeadReckonedFix, Odometry, 2, 2>,
     fix: Vector2<f64>,
     with_m: bool,
 ) -> Result<()> {
-    let fix = [DMatrix::from_column_slice(2, 1, fix.as_slice())];
-    let cross = LearnedCrossCovariance::new::<2>(model, &Odometry, &fix)?;
+    cross.set_update_input(0, fix.as_slice())?;
     let y = cross.measure(&filter.step_window(WINDOW)?)?;
-    let sensor = LearnedSensor::new(model, Position);
+    let sensor = LearnedSensor::new(cross.model(), Position);
     if with_m {
-        filter.update_windowed(&sensor, &y, &cross)?;
+        filter.update_windowed(&sensor, &y, cross)?;
     } else {
         filter.update(&sensor, &y, &Zero)?;
     }
@@ -186,6 +188,7 @@ fn run(rng: &mut ChaCha8Rng, block: u64, with_m: bool) -> Result<Vec<f64>> {
     rng.set_stream(block);
     let mut normal = || -> f64 { StandardNormal.sample(&mut *rng) };
     let model = DeadReckonedFix::new();
+    let mut cross = LearnedCrossCovariance::new(&model, &Odometry, &[DMatrix::zeros(2, 1)])?;
     let p0 = Matrix2::identity() * 0.01;
     let mut truth = Vector2::zeros();
     let start = truth + Vector2::new(normal(), normal()) * 0.1;
@@ -206,7 +209,7 @@ fn run(rng: &mut ChaCha8Rng, block: u64, with_m: bool) -> Result<Vec<f64>> {
             truth = Odometry.propagate(&truth, &velocity, DT)?;
             filter.predict(&(velocity + noise), DT)?;
         }
-        fuse(&mut filter, &model, fix, with_m)?;
+        fuse(&mut filter, &mut cross, fix, with_m)?;
         out.push(nees(
             &(truth - filter.estimate().state()),
             filter.estimate().covariance(),
@@ -305,7 +308,7 @@ mod tests {
         }
         let model = DeadReckonedFix::new();
         let fix = [DMatrix::from_column_slice(2, 1, &[3.0, -1.0])];
-        let cross = LearnedCrossCovariance::new::<2>(&model, &Odometry, &fix).unwrap();
+        let cross = LearnedCrossCovariance::new(&model, &Odometry, &fix).unwrap();
         let window = filter.step_window(WINDOW).unwrap();
         let m: Matrix2<f64> = cross
             .transported_cross_covariance(&window)

@@ -211,15 +211,23 @@ impl<const M: usize> OnnxMeasurement<M> {
     }
 
     /// Jacobian-vector products by forward finite differences, all in ONE batched
-    /// inference of `1 + directions.len()` elements: for each direction d (one matrix
-    /// per input, raw units), (f(x + s d) - f(x)) / s with s chosen so that the largest
-    /// normalised component of s d equals the sensitivity step. The perturbed inputs are
-    /// written straight into the model's input tensors (no copy of x or d).
+    /// inference of `1 + products.len()` elements: for each direction d (one matrix
+    /// per input, raw units; the directions one after another in `directions`, as in
+    /// [`LearnedMeasurement::sensitivity`]), product = (f(x + s d) - f(x)) / s with s
+    /// chosen so that the largest normalised component of s d equals the sensitivity
+    /// step. The perturbed inputs are written straight into the model's input tensors
+    /// and the products into `products` (no copy of x or d, nothing allocated here).
+    ///
+    /// # Errors
+    /// [`Error::InvalidInput`] for a non-positive step; [`Error::InputMismatch`] for
+    /// inputs or directions not shaped as the metadata declares, or
+    /// `directions.len() != products.len() * inputs.len()`; the inference's errors.
     pub fn jacobian_vector_products(
         &self,
         inputs: &[DMatrix<f64>],
-        directions: &[Vec<DMatrix<f64>>],
-    ) -> Result<Vec<SVector<f64, M>>> {
+        directions: &[DMatrix<f64>],
+        products: &mut [SVector<f64, M>],
+    ) -> Result<()> {
         if !(self.sensitivity_step.is_finite() && self.sensitivity_step > 0.0) {
             return Err(Error::InvalidInput {
                 what: "sensitivity step",
@@ -227,32 +235,45 @@ impl<const M: usize> OnnxMeasurement<M> {
             });
         }
         self.check_inputs(inputs)?;
-        for d in directions {
-            if d.len() != inputs.len() || d.iter().zip(inputs).any(|(a, b)| a.shape() != b.shape())
-            {
-                return Err(Error::InputMismatch {
-                    expected: "one direction matrix per input, same shapes as the inputs".into(),
-                    given: format!(
-                        "[{}]",
-                        d.iter()
-                            .map(|m| format!("{} x {}", m.nrows(), m.ncols()))
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    ),
-                });
-            }
+        let streams = inputs.len();
+        if directions.len() != products.len() * streams
+            || directions
+                .iter()
+                .enumerate()
+                .any(|(i, d)| d.shape() != inputs[i % streams].shape())
+        {
+            return Err(Error::InputMismatch {
+                expected: format!(
+                    "{} directions of one matrix per input each ({} matrices), shaped as the \
+                     inputs",
+                    products.len(),
+                    products.len() * streams
+                ),
+                given: format!(
+                    "[{}]",
+                    directions
+                        .iter()
+                        .map(|m| format!("{} x {}", m.nrows(), m.ncols()))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            });
         }
-        // Once per direction (the fill below visits each direction once per input).
-        let scales: Vec<f64> = directions.iter().map(|d| self.direction_scale(d)).collect();
-        let mut jvp = Vec::with_capacity(directions.len());
+        if products.is_empty() {
+            return Ok(());
+        }
+        // The scale of each direction is recomputed where it is needed (once per input
+        // and once to read) rather than stored, so that nothing is allocated: a scan of
+        // the direction, cheap against the inference.
         self.model.run_with(
-            1 + directions.len(),
+            1 + products.len(),
             |k, values| {
                 let mut chunks = values.chunks_exact_mut(self.element_size(k));
                 if let Some(first) = chunks.next() {
                     self.write_normalised(k, &inputs[k], None, first)?;
                 }
-                for ((d, &s), chunk) in directions.iter().zip(&scales).zip(chunks) {
+                for (d, chunk) in directions.chunks_exact(streams).zip(chunks) {
+                    let s = self.direction_scale(d);
                     self.write_normalised(k, &inputs[k], Some((&d[k], s)), chunk)?;
                 }
                 Ok(())
@@ -260,17 +281,20 @@ impl<const M: usize> OnnxMeasurement<M> {
             |values| {
                 let mut outputs = values.chunks_exact(M).map(to_output::<M>);
                 let base = outputs.next().unwrap_or_else(SVector::zeros);
-                for (y, &s) in outputs.zip(&scales) {
-                    jvp.push(if s > 0.0 {
+                for ((y, d), product) in outputs
+                    .zip(directions.chunks_exact(streams))
+                    .zip(products.iter_mut())
+                {
+                    let s = self.direction_scale(d);
+                    *product = if s > 0.0 {
                         (y - base) / s
                     } else {
                         SVector::zeros()
-                    });
+                    };
                 }
                 Ok(())
             },
-        )?;
-        Ok(jvp)
+        )
     }
 
     /// The finite-difference scale s of a direction: the largest normalised component
@@ -313,9 +337,11 @@ impl<const M: usize> LearnedMeasurement<f64, M> for OnnxMeasurement<M> {
     fn sensitivity(
         &self,
         inputs: &[DMatrix<f64>],
-        directions: &[Vec<DMatrix<f64>>],
-    ) -> estim_core::Result<Option<Vec<SVector<f64, M>>>> {
-        Ok(Some(self.jacobian_vector_products(inputs, directions)?))
+        directions: &[DMatrix<f64>],
+        products: &mut [SVector<f64, M>],
+    ) -> estim_core::Result<bool> {
+        self.jacobian_vector_products(inputs, directions, products)?;
+        Ok(true)
     }
 }
 
