@@ -2,6 +2,7 @@
 //! estim-core [`LearnedMeasurement`].
 
 use std::path::Path;
+use std::sync::Mutex;
 
 use estim_core::{InputSpec, LearnedMeasurement};
 use nalgebra::{DMatrix, SMatrix, SVector};
@@ -21,13 +22,30 @@ pub const DEFAULT_SENSITIVITY_STEP: f64 = 1e-2;
 /// columns are samples, oldest first), in the order of the metadata's `inputs`. They
 /// are normalised per channel with the metadata's mean/std, converted to `f32`, and run
 /// through the model loaded once at construction.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct OnnxMeasurement<const M: usize> {
     metadata: ModelMetadata,
     model: OnnxModel,
     specs: Vec<InputSpec>,
     noise_covariance: SMatrix<f64, M, M>,
     sensitivity_step: f64,
+    /// The finite-difference scale of each direction of the last JVP batch, kept so
+    /// that a repeated batch allocates nothing (see `jacobian_vector_products`).
+    scales: Mutex<Vec<f64>>,
+}
+
+impl<const M: usize> Clone for OnnxMeasurement<M> {
+    /// The clone gets its own (empty) scratch.
+    fn clone(&self) -> Self {
+        Self {
+            metadata: self.metadata.clone(),
+            model: self.model.clone(),
+            specs: self.specs.clone(),
+            noise_covariance: self.noise_covariance,
+            sensitivity_step: self.sensitivity_step,
+            scales: Mutex::new(Vec::new()),
+        }
+    }
 }
 
 impl<const M: usize> OnnxMeasurement<M> {
@@ -81,6 +99,7 @@ impl<const M: usize> OnnxMeasurement<M> {
             specs,
             noise_covariance: r,
             sensitivity_step: DEFAULT_SENSITIVITY_STEP,
+            scales: Mutex::new(Vec::new()),
         })
     }
 
@@ -216,7 +235,8 @@ impl<const M: usize> OnnxMeasurement<M> {
     /// [`LearnedMeasurement::sensitivity`]), product = (f(x + s d) - f(x)) / s with s
     /// chosen so that the largest normalised component of s d equals the sensitivity
     /// step. The perturbed inputs are written straight into the model's input tensors
-    /// and the products into `products` (no copy of x or d, nothing allocated here).
+    /// and the products into `products` (no copy of x or d; the scales go to a buffer
+    /// kept between calls, so a repeated batch allocates nothing here).
     ///
     /// # Errors
     /// [`Error::InvalidInput`] for a non-positive step; [`Error::InputMismatch`] for
@@ -262,9 +282,24 @@ impl<const M: usize> OnnxMeasurement<M> {
         if products.is_empty() {
             return Ok(());
         }
-        // The scale of each direction is recomputed where it is needed (once per input
-        // and once to read) rather than stored, so that nothing is allocated: a scan of
-        // the direction, cheap against the inference.
+        // One scale per direction, in a buffer kept between calls (a fresh one when
+        // another thread holds it).
+        let mut local;
+        let mut guard = self.scales.try_lock();
+        let scales: &mut Vec<f64> = match guard.as_deref_mut() {
+            Ok(kept) => kept,
+            Err(_) => {
+                local = Vec::new();
+                &mut local
+            }
+        };
+        scales.clear();
+        scales.extend(
+            directions
+                .chunks_exact(streams)
+                .map(|d| self.direction_scale(d)),
+        );
+        let scales = &*scales;
         self.model.run_with(
             1 + products.len(),
             |k, values| {
@@ -272,8 +307,7 @@ impl<const M: usize> OnnxMeasurement<M> {
                 if let Some(first) = chunks.next() {
                     self.write_normalised(k, &inputs[k], None, first)?;
                 }
-                for (d, chunk) in directions.chunks_exact(streams).zip(chunks) {
-                    let s = self.direction_scale(d);
+                for ((d, &s), chunk) in directions.chunks_exact(streams).zip(scales).zip(chunks) {
                     self.write_normalised(k, &inputs[k], Some((&d[k], s)), chunk)?;
                 }
                 Ok(())
@@ -281,11 +315,7 @@ impl<const M: usize> OnnxMeasurement<M> {
             |values| {
                 let mut outputs = values.chunks_exact(M).map(to_output::<M>);
                 let base = outputs.next().unwrap_or_else(SVector::zeros);
-                for ((y, d), product) in outputs
-                    .zip(directions.chunks_exact(streams))
-                    .zip(products.iter_mut())
-                {
-                    let s = self.direction_scale(d);
+                for ((y, &s), product) in outputs.zip(scales).zip(products.iter_mut()) {
                     *product = if s > 0.0 {
                         (y - base) / s
                     } else {
