@@ -394,6 +394,49 @@ pub trait Observation<T: estim_core::Scalar, const N: usize, const M: usize> {
     fn jacobian(&self, state: &Self::State) -> estim_core::Result<SMatrix<T, M, N>>;
 }
 
+/// The common case of an [`Observation`]: the learned output measures a linear
+/// function of a vector state, h(x) = H x with a constant H (e.g. a position fix, H =
+/// I; a velocity out of \[position; velocity\], H = \[0 I\]). For a state that is not
+/// an `SVector` (an error-state filter's nominal state), or a nonlinear h, implement
+/// [`Observation`].
+///
+/// ```
+/// use estim_core::nalgebra::{Matrix1x2, Vector1, Vector2};
+/// use estim_learned::{LinearObservation, Observation};
+///
+/// // The velocity of a [position; velocity] state.
+/// let velocity = LinearObservation::new(Matrix1x2::new(0.0, 1.0));
+/// let x = Vector2::new(3.0, -0.5);
+/// assert_eq!(velocity.predict(&x)?, Vector1::new(-0.5));
+/// assert_eq!(velocity.jacobian(&x)?, Matrix1x2::new(0.0, 1.0));
+/// # Ok::<(), estim_core::Error>(())
+/// ```
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LinearObservation<T: estim_core::Scalar, const N: usize, const M: usize> {
+    jacobian: SMatrix<T, M, N>,
+}
+
+impl<T: estim_core::Scalar, const N: usize, const M: usize> LinearObservation<T, N, M> {
+    /// h(x) = `jacobian` x.
+    pub fn new(jacobian: SMatrix<T, M, N>) -> Self {
+        Self { jacobian }
+    }
+}
+
+impl<T: estim_core::Scalar, const N: usize, const M: usize> Observation<T, N, M>
+    for LinearObservation<T, N, M>
+{
+    type State = SVector<T, N>;
+
+    fn predict(&self, state: &SVector<T, N>) -> estim_core::Result<SVector<T, M>> {
+        Ok(self.jacobian * state)
+    }
+
+    fn jacobian(&self, _state: &SVector<T, N>) -> estim_core::Result<SMatrix<T, M, N>> {
+        Ok(self.jacobian)
+    }
+}
+
 /// A [`LearnedMeasurement`] plus the user's [`Observation`] (h(x), H) as an estim-core
 /// [`MeasurementModel`](estim_core::MeasurementModel), with R from the learned model.
 ///
