@@ -180,8 +180,8 @@ impl InsErrorModel {
             0.0,
         );
         let v_skew = skew(&v);
-        let vp = v_skew * (2.0 * w_ie_p + w_en_p) + gravity_p;
-        let vv = v_skew * w_en_v - skew(&(2.0 * w_ie + w_en));
+        let vp = block_product::<SKEW, NO_EAST>(&v_skew, &(2.0 * w_ie_p + w_en_p)) + gravity_p;
+        let vv = block_product::<SKEW, PSI_V>(&v_skew, &w_en_v) - skew(&(2.0 * w_ie + w_en));
         let vpsi = -skew(&specific_force_ned);
         let psip = -(w_ie_p + w_en_p);
         let psiv = -w_en_v;
@@ -351,20 +351,24 @@ impl InsErrorModel {
         let pp = id * (alpha * alpha * wv * third);
         let pv = id * (0.5 * alpha * wv) + a.vv.transpose() * (alpha * wv * third);
         let ppsi = a.psiv.transpose() * (alpha * wv * third);
+        // Products with the zero patterns of the blocks (see `block_product`).
+        let psiv_t = a.psiv.transpose();
         let vv = id * wv
             + (a.vv + a.vv.transpose()) * (0.5 * wv)
-            + (a.vv * a.vv.transpose() * wv
-                + a.vpsi * a.vpsi.transpose() * wpsi
-                + a.va * a.va.transpose() * wa)
+            + (block_product::<FULL, FULL>(&a.vv, &a.vv.transpose()) * wv
+                + block_product::<SKEW, SKEW>(&a.vpsi, &a.vpsi.transpose()) * wpsi
+                + block_product::<FULL, FULL>(&a.va, &a.va.transpose()) * wa)
                 * third;
-        let vpsi = a.psiv.transpose() * (0.5 * wv)
+        let vpsi = psiv_t * (0.5 * wv)
             + a.vpsi * (0.5 * wpsi)
-            + (a.vv * a.psiv.transpose() * wv + a.vpsi * a.psipsi.transpose() * wpsi) * third;
+            + (block_product::<FULL, PSI_V_T>(&a.vv, &psiv_t) * wv
+                + block_product::<SKEW, SKEW>(&a.vpsi, &a.psipsi.transpose()) * wpsi)
+                * third;
         let va = a.va * (wa * (0.5 + a.ka * third));
         let psipsi = id * wpsi
-            + (a.psiv * a.psiv.transpose() * wv
-                + a.psipsi * a.psipsi.transpose() * wpsi
-                + a.psig * a.psig.transpose() * wg)
+            + (block_product::<PSI_V, PSI_V_T>(&a.psiv, &psiv_t) * wv
+                + block_product::<SKEW, SKEW>(&a.psipsi, &a.psipsi.transpose()) * wpsi
+                + block_product::<FULL, FULL>(&a.psig, &a.psig.transpose()) * wg)
                 * third;
         let psig = a.psig * (wg * (0.5 + a.kg * third));
         let aa = id * (wa * (1.0 + a.ka + a.ka * a.ka * third));
@@ -475,31 +479,124 @@ impl ScaledBlocks {
                 phi[3 * j + c][3 * i..3 * i + 3].copy_from_slice(&b.data.0[c]);
             }
         };
-        for (i, j, b) in [
-            (0, 0, id + pp + (pp * pp + vp * alpha) * 0.5),
-            (0, 1, (id + (pp + vv) * 0.5) * alpha),
-            (0, 2, vpsi * (0.5 * alpha)),
-            (0, 3, va * (0.5 * alpha)),
-            (1, 0, vp + (vp * pp + vv * vp + vpsi * psip) * 0.5),
-            (1, 1, id + vv + (vp * alpha + vv * vv + vpsi * psiv) * 0.5),
-            (1, 2, vpsi + (vv * vpsi + vpsi * psipsi) * 0.5),
-            (1, 3, va + (vv * va + va * ka) * 0.5),
-            (1, 4, vpsi * psig * 0.5),
-            (2, 0, psip + (psip * pp + psiv * vp + psipsi * psip) * 0.5),
-            (
-                2,
-                1,
-                psiv + (psip * alpha + psiv * vv + psipsi * psiv) * 0.5,
-            ),
-            (2, 2, id + psipsi + (psiv * vpsi + psipsi * psipsi) * 0.5),
-            (2, 3, psiv * va * 0.5),
-            (2, 4, psig + (psipsi * psig + psig * kg) * 0.5),
-            (3, 3, id * (1.0 + ka + 0.5 * ka * ka)),
-            (4, 4, id * (1.0 + kg + 0.5 * kg * kg)),
-        ] {
-            put(i, j, b);
+        // Each block written as soon as it is formed (no array of 16 blocks to copy). The
+        // block products skip the entries that F's formulas make exactly zero (see
+        // `block_product`), so they are the dense products' values with fewer multiplies.
+        put(
+            0,
+            0,
+            id + pp + (block_product::<PP, PP>(&pp, &pp) + vp * alpha) * 0.5,
+        );
+        put(0, 1, (id + (pp + vv) * 0.5) * alpha);
+        put(0, 2, vpsi * (0.5 * alpha));
+        put(0, 3, va * (0.5 * alpha));
+        put(
+            1,
+            0,
+            vp + (block_product::<NO_EAST, PP>(&vp, &pp)
+                + block_product::<FULL, NO_EAST>(&vv, &vp)
+                + block_product::<SKEW, NO_EAST>(&vpsi, &psip))
+                * 0.5,
+        );
+        put(
+            1,
+            1,
+            id + vv
+                + (vp * alpha
+                    + block_product::<FULL, FULL>(&vv, &vv)
+                    + block_product::<SKEW, PSI_V>(&vpsi, &psiv))
+                    * 0.5,
+        );
+        put(
+            1,
+            2,
+            vpsi + (block_product::<FULL, SKEW>(&vv, &vpsi)
+                + block_product::<SKEW, SKEW>(&vpsi, &psipsi))
+                * 0.5,
+        );
+        put(
+            1,
+            3,
+            va + (block_product::<FULL, FULL>(&vv, &va) + va * ka) * 0.5,
+        );
+        put(1, 4, block_product::<SKEW, FULL>(&vpsi, &psig) * 0.5);
+        put(
+            2,
+            0,
+            psip + (block_product::<NO_EAST, PP>(&psip, &pp)
+                + block_product::<PSI_V, NO_EAST>(&psiv, &vp)
+                + block_product::<SKEW, NO_EAST>(&psipsi, &psip))
+                * 0.5,
+        );
+        put(
+            2,
+            1,
+            psiv + (psip * alpha
+                + block_product::<PSI_V, FULL>(&psiv, &vv)
+                + block_product::<SKEW, PSI_V>(&psipsi, &psiv))
+                * 0.5,
+        );
+        put(
+            2,
+            2,
+            id + psipsi
+                + (block_product::<PSI_V, SKEW>(&psiv, &vpsi)
+                    + block_product::<SKEW, SKEW>(&psipsi, &psipsi))
+                    * 0.5,
+        );
+        put(2, 3, block_product::<PSI_V, FULL>(&psiv, &va) * 0.5);
+        put(
+            2,
+            4,
+            psig + (block_product::<SKEW, FULL>(&psipsi, &psig) + psig * kg) * 0.5,
+        );
+        put(3, 3, id * (1.0 + ka + 0.5 * ka * ka));
+        put(4, 4, id * (1.0 + kg + 0.5 * kg * kg));
+    }
+}
+
+/// Zero patterns of F's 3x3 blocks: bit 3 i + j is set where entry (i, j) can be nonzero.
+/// All nine entries.
+const FULL: u16 = 0b111_111_111;
+/// A skew-symmetric block (\[ω×\] dt, \[f×\] dt): zero diagonal.
+const SKEW: u16 = 0b011_101_110;
+/// F_pp dt: its down row is zero (ḣ = -v_D has no position term) and so is its (N, E)
+/// entry (L̇ does not depend on the longitude).
+const PP: u16 = 0b000_111_101;
+/// F_vp dt and F_ψp dt: the east column is zero (nothing depends on the longitude).
+const NO_EAST: u16 = 0b101_101_101;
+/// F_ψv dt = -∂ω_en/∂v dt: entries (N, E), (E, N) and (D, E) only.
+const PSI_V: u16 = 0b010_001_010;
+/// The transpose of `PSI_V`: entries (E, N), (N, E) and (E, D).
+const PSI_V_T: u16 = 0b000_101_010;
+
+/// a b for 3x3 blocks whose entries outside the patterns `A` and `B` are exactly zero:
+/// each entry is the sum over k of a_ik b_kj in increasing k, the terms that are zero by
+/// pattern left out (adding an exact zero changes nothing, so the value is the dense
+/// product's). The patterns are constants, so the loops unroll into the nonzero terms
+/// only. Debug builds check the patterns.
+#[inline(always)]
+fn block_product<const A: u16, const B: u16>(a: &M3, b: &M3) -> M3 {
+    debug_assert!(has_pattern(a, A) && has_pattern(b, B));
+    let mut out = M3::zeros();
+    for j in 0..3 {
+        for i in 0..3 {
+            let mut sum: Option<f64> = None;
+            for k in 0..3 {
+                if A & (1 << (3 * i + k)) != 0 && B & (1 << (3 * k + j)) != 0 {
+                    let term = a[(i, k)] * b[(k, j)];
+                    sum = Some(sum.map_or(term, |s| s + term));
+                }
+            }
+            out[(i, j)] = sum.unwrap_or(0.0);
         }
     }
+    out
+}
+
+/// Whether every entry of `m` outside `pattern` is zero.
+fn has_pattern(m: &M3, pattern: u16) -> bool {
+    (0..9).all(|e| pattern & (1 << e) != 0 || m[(e / 3, e % 3)] == 0.0)
 }
 
 /// Write block `b` at block position (r, c) of a column-array matrix and, when r != c,
