@@ -871,14 +871,10 @@ fn propagate_upper(
     let p = &*covariance;
     // Y[:, i] = sum_k Phi[i, k] P[:, k]; navigation rows of Phi, skipping the zero
     // position x gyro-bias block.
-    let mut y = [[0.0f64; N]; NAV];
-    for (i, column) in y.iter_mut().enumerate() {
-        *column = if i < VEL {
-            combine_columns::<N, GYRO_BIAS>(p, |k| phi[k][i])
-        } else {
-            combine_columns::<N, N>(p, |k| phi[k][i])
-        };
-    }
+    let [y0, y1, y2] = combine_three_columns::<GYRO_BIAS>(p, phi, POS);
+    let [y3, y4, y5] = combine_three_columns::<N>(p, phi, VEL);
+    let [y6, y7, y8] = combine_three_columns::<N>(p, phi, ATT);
+    let y = [y0, y1, y2, y3, y4, y5, y6, y7, y8];
     let out = covariance;
     // Navigation block, upper half: out[i, j] = sum_k Phi[i, k] Y[k, j], i <= j, each
     // column computed to its row j rounded up to 4, 6, 8 or 9 rows (fixed lengths, so the
@@ -944,21 +940,26 @@ fn mirror_upper(out: &mut [[f64; ERROR_STATES]; ERROR_STATES]) {
     }
 }
 
-/// sum_{k < K} weight(k) columns[k], a column of R entries (fixed lengths, so the loops
-/// unroll and the sum stays in registers).
+/// Y[:, i..i + 3] = sum_{k < K} Phi[i.., k] P[:, k]: three columns at once, so
+/// that three independent sums are in flight (one column's sum over k is a chain of
+/// dependent additions) and each column of P is loaded once for the three. Every entry is
+/// summed over k in increasing order from zero, as one column at a time would be.
 #[inline(always)]
-fn combine_columns<const R: usize, const K: usize>(
-    columns: &[[f64; R]; ERROR_STATES],
-    weight: impl Fn(usize) -> f64,
-) -> [f64; R] {
-    let mut sum = [0.0f64; R];
-    for (k, column) in columns.iter().enumerate().take(K) {
-        let w = weight(k);
-        for (s, c) in sum.iter_mut().zip(column) {
-            *s += w * c;
+fn combine_three_columns<const K: usize>(
+    p: &[[f64; ERROR_STATES]; ERROR_STATES],
+    phi: &[[f64; ERROR_STATES]; ERROR_STATES],
+    i: usize,
+) -> [[f64; ERROR_STATES]; 3] {
+    let [mut s0, mut s1, mut s2] = [[0.0f64; ERROR_STATES]; 3];
+    for (column, phik) in p.iter().zip(phi).take(K) {
+        let (w0, w1, w2) = (phik[i], phik[i + 1], phik[i + 2]);
+        for r in 0..ERROR_STATES {
+            s0[r] += w0 * column[r];
+            s1[r] += w1 * column[r];
+            s2[r] += w2 * column[r];
         }
     }
-    sum
+    [s0, s1, s2]
 }
 
 fn check_dt(dt: f64) -> estim_core::Result<()> {
