@@ -132,49 +132,68 @@ impl InsErrorModel {
         let h = state.height;
         let v = state.velocity_ned;
         let (s, c) = lat.sin_cos();
-        let t = s / c;
+        // Reciprocals once, then products: the Earth terms below need 1/cos L, 1/d,
+        // 1/(R_N+h) and 1/(R_E+h) many times, and each division is a slow instruction.
+        let inverse_cos = 1.0 / c;
+        let t = s * inverse_cos;
         // Radii, their latitude derivatives and gravity from one sin/cos (Groves eqs.
         // 2.105, 2.106, 2.134, 2.139; same formulas as crate::earth).
         let e2 = ECCENTRICITY_SQUARED;
         let d = 1.0 - e2 * s * s;
-        let root = d.sqrt();
-        let re0 = SEMI_MAJOR_AXIS / root;
-        let rn0 = re0 * (1.0 - e2) / d;
-        let dre = re0 * e2 * s * c / d;
-        let drn = 3.0 * rn0 * e2 * s * c / d;
+        let inverse_root = 1.0 / d.sqrt();
+        let inverse_d = inverse_root * inverse_root;
+        let re0 = SEMI_MAJOR_AXIS * inverse_root;
+        let rn0 = re0 * (1.0 - e2) * inverse_d;
+        let e2sc_d = e2 * s * c * inverse_d;
+        let dre = re0 * e2sc_d;
+        let drn = 3.0 * rn0 * e2sc_d;
         let (rn, re) = (rn0 + h, re0 + h);
-        let lat_rate = v.x / rn;
+        // 1/(R_N+h) and 1/(R_E+h) from one division.
+        let inverse_product = 1.0 / (rn * re);
+        let (inverse_rn, inverse_re) = (re * inverse_product, rn * inverse_product);
+        let (inverse_rn2, inverse_re2) = (inverse_rn * inverse_rn, inverse_re * inverse_re);
+        let lat_rate = v.x * inverse_rn;
         let c_bn = state.attitude.to_rotation_matrix().into_inner();
         let specific_force_ned = c_bn * (imu.specific_force - state.acc_bias);
         let w_ie = Vector3::new(EARTH_RATE * c, 0.0, -EARTH_RATE * s);
-        let w_en = Vector3::new(v.y / re, -v.x / rn, -v.y * t / re);
+        let w_en = Vector3::new(v.y * inverse_re, -v.x * inverse_rn, -v.y * t * inverse_re);
         let zero = Vector3::zeros();
         // ∂ω/∂δp = [∂ω/∂L / (R_N + h), 0, -∂ω/∂h] since δL = δp_N/(R_N+h), δh = -δp_D.
         let position_jacobian =
-            |dl: Vector3<f64>, dh: Vector3<f64>| M3::from_columns(&[dl / rn, zero, -dh]);
+            |dl: Vector3<f64>, dh: Vector3<f64>| M3::from_columns(&[dl * inverse_rn, zero, -dh]);
         let w_ie_p = position_jacobian(Vector3::new(-EARTH_RATE * s, 0.0, -EARTH_RATE * c), zero);
         let w_en_p = position_jacobian(
             Vector3::new(
-                -v.y * dre / (re * re),
-                v.x * drn / (rn * rn),
-                -v.y * (1.0 / (c * c * re) - t * dre / (re * re)),
+                -v.y * dre * inverse_re2,
+                v.x * drn * inverse_rn2,
+                -v.y * (inverse_cos * inverse_cos * inverse_re - t * dre * inverse_re2),
             ),
-            Vector3::new(-v.y / (re * re), v.x / (rn * rn), v.y * t / (re * re)),
+            Vector3::new(-v.y * inverse_re2, v.x * inverse_rn2, v.y * t * inverse_re2),
         );
-        let w_en_v = M3::new(0.0, 1.0 / re, 0.0, -1.0 / rn, 0.0, 0.0, 0.0, -t / re, 0.0);
-        let (dg_dl, dg_dh) = normal_gravity_gradient_at(s, c, h);
+        let w_en_v = M3::new(
+            0.0,
+            inverse_re,
+            0.0,
+            -inverse_rn,
+            0.0,
+            0.0,
+            0.0,
+            -t * inverse_re,
+            0.0,
+        );
+        let (dg_dl, dg_dh) = normal_gravity_gradient_at(s, c, inverse_root, h);
         let mut gravity_p = M3::zeros();
-        gravity_p[(2, 0)] = dg_dl / rn;
+        gravity_p[(2, 0)] = dg_dl * inverse_rn;
         gravity_p[(2, 2)] = -dg_dh;
 
         // Position rows (derived from L̇ = v_N/(R_N+h), λ̇ = v_E/((R_E+h) cos L), ḣ = -v_D).
         let pp = M3::new(
-            -v.z / rn,
+            -v.z * inverse_rn,
             0.0,
-            v.x / rn,
-            (v.y * t - v.y * dre / re) / rn,
-            (dre * lat_rate - v.z) / re - t * lat_rate,
-            v.y / re,
+            v.x * inverse_rn,
+            (v.y * t - v.y * dre * inverse_re) * inverse_rn,
+            (dre * lat_rate - v.z) * inverse_re - t * lat_rate,
+            v.y * inverse_re,
             0.0,
             0.0,
             0.0,
