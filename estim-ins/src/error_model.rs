@@ -270,8 +270,9 @@ impl InsErrorModel {
     /// does (same operations in the same order, so the same result to the last bit). For a
     /// loop that needs only P: nothing 15 x 15 is returned or copied (Phi stays on the
     /// stack, Q_d's blocks go straight into P's upper triangle), and the whole step runs
-    /// the AVX2 build when the CPU has it (see `propagate_structured_avx2`): the 400 s
-    /// mission bench takes about a fifth less time than with the two trait calls.
+    /// the AVX-512 or AVX2 build when the CPU has it (`predict_covariance_avx512`,
+    /// `predict_covariance_avx2`; the trait path's propagation has the AVX2 one), all with
+    /// the same values.
     pub fn predict_covariance(
         &self,
         state: &InsState,
