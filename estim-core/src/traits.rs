@@ -293,9 +293,13 @@ pub struct InputSpec {
 ///         Ok(Vector1::new(w.mean()))
 ///     }
 ///     fn noise_covariance(&self) -> Matrix1<f64> { Matrix1::new(0.01 / 10.0) }
-///     fn sensitivity(&self, _: &[DMatrix<f64>], directions: &[Vec<DMatrix<f64>>]) -> Result<Option<Vec<Vector1<f64>>>> {
-///         // Linear model: d(mean) along a direction is the mean of the direction.
-///         Ok(Some(directions.iter().map(|d| Vector1::new(d[0].mean())).collect()))
+///     fn sensitivity(&self, _: &[DMatrix<f64>], directions: &[DMatrix<f64>], products: &mut [Vector1<f64>]) -> Result<bool> {
+///         // Linear model: d(mean) along a direction is the mean of the direction
+///         // (one stream, so one matrix per direction).
+///         for (d, product) in directions.iter().zip(products) {
+///             *product = Vector1::new(d.mean());
+///         }
+///         Ok(true)
 ///     }
 /// }
 ///
@@ -316,13 +320,25 @@ pub trait LearnedMeasurement<T: Scalar, const M: usize> {
     /// Error covariance of the model's output (e.g. from validation residuals).
     fn noise_covariance(&self) -> SMatrix<T, M, M>;
 
-    /// Jacobian-vector products: for each direction (one perturbation matrix per
-    /// input stream), d(output) along it. `None` if the model cannot provide them.
+    /// Jacobian-vector products at `inputs`, written into `products`: product i is
+    /// d(output) along direction i. The directions lie one after another in
+    /// `directions`, each one perturbation matrix per input stream (shaped as the
+    /// inputs), so direction i is `directions.chunks_exact(inputs.len()).nth(i)` and
+    /// `directions.len() == products.len() * inputs.len()`.
+    ///
+    /// The caller owns both buffers and reuses them from one update to the next, so
+    /// a model that computes in place allocates nothing per update. Returns
+    /// `Ok(false)`, `products` untouched, if the model cannot provide them (the
+    /// default).
+    ///
+    /// # Errors
+    /// The model's (e.g. buffers of the wrong length, a failed inference).
     fn sensitivity(
         &self,
         _inputs: &[DMatrix<T>],
-        _directions: &[Vec<DMatrix<T>>],
-    ) -> Result<Option<Vec<SVector<T, M>>>> {
-        Ok(None)
+        _directions: &[DMatrix<T>],
+        _products: &mut [SVector<T, M>],
+    ) -> Result<bool> {
+        Ok(false)
     }
 }

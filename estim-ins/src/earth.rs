@@ -65,8 +65,10 @@ fn surface_gravity(sin_lat: f64) -> f64 {
 /// Height factor of Groves eq. 2.139: g(L, h) = g_0(L) \[1 - 2/a (1 + f + m) h + 3 h^2 / a^2\].
 #[inline]
 pub(crate) fn height_factor(height: f64) -> f64 {
+    // 3 / a² as one constant: a division by a² would stay a divide instruction in the
+    // hot loops (the term is below 1e-10 of the factor, so its rounding is immaterial).
     1.0 - 2.0 / SEMI_MAJOR_AXIS * (1.0 + FLATTENING + GRAVITY_M) * height
-        + 3.0 * height * height / (SEMI_MAJOR_AXIS * SEMI_MAJOR_AXIS)
+        + height * height * (3.0 / (SEMI_MAJOR_AXIS * SEMI_MAJOR_AXIS))
 }
 
 /// Magnitude of normal gravity (gravitation plus centrifugal) at latitude \[rad\] and
@@ -80,20 +82,28 @@ pub fn normal_gravity(latitude: f64, height: f64) -> f64 {
 /// Partial derivatives (∂g/∂latitude \[m/s^2/rad\], ∂g/∂height \[1/s^2\]) of [`normal_gravity`].
 pub fn normal_gravity_gradient(latitude: f64, height: f64) -> (f64, f64) {
     let (s, c) = latitude.sin_cos();
-    normal_gravity_gradient_at(s, c, height)
+    let inverse_root = 1.0 / (1.0 - ECCENTRICITY_SQUARED * s * s).sqrt();
+    normal_gravity_gradient_at(s, c, inverse_root, height)
 }
 
-/// [`normal_gravity_gradient`] from sin L and cos L already at hand (the error model
-/// evaluates them once per step for all its Earth terms).
+/// [`normal_gravity_gradient`] from sin L, cos L and 1 / sqrt(1 - e² sin² L) already at
+/// hand (the error model evaluates them once per step for all its Earth terms), with no
+/// division of its own.
 #[inline]
-pub(crate) fn normal_gravity_gradient_at(s: f64, c: f64, height: f64) -> (f64, f64) {
-    let d = 1.0 - ECCENTRICITY_SQUARED * s * s;
-    let dg0 = GRAVITY_EQUATOR
-        * (2.0 * SOMIGLIANA_K * s * c / d.sqrt()
-            + (1.0 + SOMIGLIANA_K * s * s) * ECCENTRICITY_SQUARED * s * c / (d * d.sqrt()));
+pub(crate) fn normal_gravity_gradient_at(
+    s: f64,
+    c: f64,
+    inverse_root: f64,
+    height: f64,
+) -> (f64, f64) {
+    let sc = s * c * inverse_root;
+    let surface = GRAVITY_EQUATOR * (1.0 + SOMIGLIANA_K * s * s) * inverse_root;
+    // d g_0 / dL = g_e [2 k s c / sqrt(d) + (1 + k s²) e² s c / d^(3/2)], d = 1 - e² s².
+    let dg0 = GRAVITY_EQUATOR * (2.0 * SOMIGLIANA_K * sc)
+        + surface * ECCENTRICITY_SQUARED * sc * inverse_root;
     let dh = -2.0 / SEMI_MAJOR_AXIS * (1.0 + FLATTENING + GRAVITY_M)
-        + 6.0 * height / (SEMI_MAJOR_AXIS * SEMI_MAJOR_AXIS);
-    (dg0 * height_factor(height), surface_gravity(s) * dh)
+        + height * (6.0 / (SEMI_MAJOR_AXIS * SEMI_MAJOR_AXIS));
+    (dg0 * height_factor(height), surface * dh)
 }
 
 /// Gravity vector in NED, \[0, 0, g(L, h)\]. The deflection of the normal-gravity vector

@@ -198,6 +198,61 @@ fn transition_and_noise_match_the_van_loan_exponential_at_imu_rate() {
     }
 }
 
+/// Phi and Q_d from the 3x3 blocks (written out block by block, with the products that
+/// skip F's structurally zero entries) against the documented formulas evaluated densely
+/// from F = `system_matrix` and G = `noise_input` with nalgebra's 15 x 15 products:
+/// Phi = I + A + A²/2 and Q_d = dt [Q₁ + (A Q₁ + Q₁ A')/2 + A Q₁ A'/3], A = F dt,
+/// Q₁ = G Σ G'. Each entry within 16 ε of the sum of the absolute values of its terms
+/// (a rounding bound for sums this short), at random states (several IMU grades and
+/// step lengths) and along the default mission.
+#[test]
+fn transition_and_noise_equal_the_dense_second_order_formulas() {
+    let eps = f64::EPSILON;
+    let check = |model: &InsErrorModel, s: &InsState, imu: &ImuSample, dt: f64| {
+        let (phi, q) = model.transition_and_noise(s, imu, dt);
+        let a = model.system_matrix(s, imu) * dt;
+        let id = SMatrix::<f64, 15, 15>::identity();
+        let phi_ref = id + a + a * a * 0.5;
+        let phi_scale = id + a.abs() + a.abs() * a.abs() * 0.5;
+        let g = model.noise_input(s);
+        let sigma = SMatrix::<f64, 12, 12>::from_diagonal(&model.noise_psd());
+        let q1 = g * sigma * g.transpose();
+        let q_ref = (q1 + (a * q1 + q1 * a.transpose()) * 0.5 + a * q1 * a.transpose() / 3.0) * dt;
+        let q1_abs = g.abs() * sigma * g.abs().transpose();
+        let q_scale = (q1_abs
+            + (a.abs() * q1_abs + q1_abs * a.abs().transpose()) * 0.5
+            + a.abs() * q1_abs * a.abs().transpose() / 3.0)
+            * dt;
+        for i in 0..15 {
+            for j in 0..15 {
+                let e = (phi[(i, j)] - phi_ref[(i, j)]).abs();
+                assert!(e <= 16.0 * eps * phi_scale[(i, j)], "Phi[{i},{j}]: {e:e}");
+                let e = (q[(i, j)] - q_ref[(i, j)]).abs();
+                assert!(e <= 16.0 * eps * q_scale[(i, j)], "Q[{i},{j}]: {e:e}");
+            }
+        }
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    for spec in [
+        ImuSpec::consumer_mems(),
+        ImuSpec::tactical_mems(),
+        ImuSpec::navigation_grade_fog(),
+    ] {
+        let model = InsErrorModel::new(spec);
+        for dt in [0.001, 0.01, 0.1, 1.0] {
+            for _ in 0..10 {
+                let (s, imu) = random_state(&mut rng);
+                check(&model, &s, &imu, dt);
+            }
+        }
+    }
+    let mission = estim_ins::Mission::generate(&estim_ins::MissionConfig::default(), 7).unwrap();
+    let model = InsErrorModel::new(ImuSpec::akit_observed());
+    for (s, imu) in mission.truth.iter().zip(&mission.imu).step_by(97) {
+        check(&model, s, imu, mission.imu_dt);
+    }
+}
+
 #[test]
 fn sparse_covariance_propagation_equals_the_dense_product() {
     let mut rng = ChaCha8Rng::seed_from_u64(5);

@@ -63,7 +63,9 @@ pub use dataset::{
 };
 pub use error::{Error, Result};
 pub use evaluation::{evaluate, Evaluation};
-pub use measurement::{LearnedSensor, Observation, OnnxMeasurement, DEFAULT_SENSITIVITY_STEP};
+pub use measurement::{
+    LearnedSensor, LinearObservation, Observation, OnnxMeasurement, DEFAULT_SENSITIVITY_STEP,
+};
 pub use metadata::{
     BeamGeometryMetadata, InputMetadata, ModelMetadata, OutputMetadata, METADATA_FORMAT,
 };

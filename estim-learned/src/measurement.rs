@@ -2,6 +2,7 @@
 //! estim-core [`LearnedMeasurement`].
 
 use std::path::Path;
+use std::sync::Mutex;
 
 use estim_core::{InputSpec, LearnedMeasurement};
 use nalgebra::{DMatrix, SMatrix, SVector};
@@ -21,13 +22,30 @@ pub const DEFAULT_SENSITIVITY_STEP: f64 = 1e-2;
 /// columns are samples, oldest first), in the order of the metadata's `inputs`. They
 /// are normalised per channel with the metadata's mean/std, converted to `f32`, and run
 /// through the model loaded once at construction.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct OnnxMeasurement<const M: usize> {
     metadata: ModelMetadata,
     model: OnnxModel,
     specs: Vec<InputSpec>,
     noise_covariance: SMatrix<f64, M, M>,
     sensitivity_step: f64,
+    /// The finite-difference scale of each direction of the last JVP batch, kept so
+    /// that a repeated batch allocates nothing (see `jacobian_vector_products`).
+    scales: Mutex<Vec<f64>>,
+}
+
+impl<const M: usize> Clone for OnnxMeasurement<M> {
+    /// The clone gets its own (empty) scratch.
+    fn clone(&self) -> Self {
+        Self {
+            metadata: self.metadata.clone(),
+            model: self.model.clone(),
+            specs: self.specs.clone(),
+            noise_covariance: self.noise_covariance,
+            sensitivity_step: self.sensitivity_step,
+            scales: Mutex::new(Vec::new()),
+        }
+    }
 }
 
 impl<const M: usize> OnnxMeasurement<M> {
@@ -81,6 +99,7 @@ impl<const M: usize> OnnxMeasurement<M> {
             specs,
             noise_covariance: r,
             sensitivity_step: DEFAULT_SENSITIVITY_STEP,
+            scales: Mutex::new(Vec::new()),
         })
     }
 
@@ -211,15 +230,24 @@ impl<const M: usize> OnnxMeasurement<M> {
     }
 
     /// Jacobian-vector products by forward finite differences, all in ONE batched
-    /// inference of `1 + directions.len()` elements: for each direction d (one matrix
-    /// per input, raw units), (f(x + s d) - f(x)) / s with s chosen so that the largest
-    /// normalised component of s d equals the sensitivity step. The perturbed inputs are
-    /// written straight into the model's input tensors (no copy of x or d).
+    /// inference of `1 + products.len()` elements: for each direction d (one matrix
+    /// per input, raw units; the directions one after another in `directions`, as in
+    /// [`LearnedMeasurement::sensitivity`]), product = (f(x + s d) - f(x)) / s with s
+    /// chosen so that the largest normalised component of s d equals the sensitivity
+    /// step. The perturbed inputs are written straight into the model's input tensors
+    /// and the products into `products` (no copy of x or d; the scales go to a buffer
+    /// kept between calls, so a repeated batch allocates nothing here).
+    ///
+    /// # Errors
+    /// [`Error::InvalidInput`] for a non-positive step; [`Error::InputMismatch`] for
+    /// inputs or directions not shaped as the metadata declares, or
+    /// `directions.len() != products.len() * inputs.len()`; the inference's errors.
     pub fn jacobian_vector_products(
         &self,
         inputs: &[DMatrix<f64>],
-        directions: &[Vec<DMatrix<f64>>],
-    ) -> Result<Vec<SVector<f64, M>>> {
+        directions: &[DMatrix<f64>],
+        products: &mut [SVector<f64, M>],
+    ) -> Result<()> {
         if !(self.sensitivity_step.is_finite() && self.sensitivity_step > 0.0) {
             return Err(Error::InvalidInput {
                 what: "sensitivity step",
@@ -227,32 +255,59 @@ impl<const M: usize> OnnxMeasurement<M> {
             });
         }
         self.check_inputs(inputs)?;
-        for d in directions {
-            if d.len() != inputs.len() || d.iter().zip(inputs).any(|(a, b)| a.shape() != b.shape())
-            {
-                return Err(Error::InputMismatch {
-                    expected: "one direction matrix per input, same shapes as the inputs".into(),
-                    given: format!(
-                        "[{}]",
-                        d.iter()
-                            .map(|m| format!("{} x {}", m.nrows(), m.ncols()))
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    ),
-                });
-            }
+        let streams = inputs.len();
+        if directions.len() != products.len() * streams
+            || directions
+                .iter()
+                .enumerate()
+                .any(|(i, d)| d.shape() != inputs[i % streams].shape())
+        {
+            return Err(Error::InputMismatch {
+                expected: format!(
+                    "{} directions of one matrix per input each ({} matrices), shaped as the \
+                     inputs",
+                    products.len(),
+                    products.len() * streams
+                ),
+                given: format!(
+                    "[{}]",
+                    directions
+                        .iter()
+                        .map(|m| format!("{} x {}", m.nrows(), m.ncols()))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            });
         }
-        // Once per direction (the fill below visits each direction once per input).
-        let scales: Vec<f64> = directions.iter().map(|d| self.direction_scale(d)).collect();
-        let mut jvp = Vec::with_capacity(directions.len());
+        if products.is_empty() {
+            return Ok(());
+        }
+        // One scale per direction, in a buffer kept between calls (a fresh one when
+        // another thread holds it).
+        let mut local;
+        let mut guard = self.scales.try_lock();
+        let scales: &mut Vec<f64> = match guard.as_deref_mut() {
+            Ok(kept) => kept,
+            Err(_) => {
+                local = Vec::new();
+                &mut local
+            }
+        };
+        scales.clear();
+        scales.extend(
+            directions
+                .chunks_exact(streams)
+                .map(|d| self.direction_scale(d)),
+        );
+        let scales = &*scales;
         self.model.run_with(
-            1 + directions.len(),
+            1 + products.len(),
             |k, values| {
                 let mut chunks = values.chunks_exact_mut(self.element_size(k));
                 if let Some(first) = chunks.next() {
                     self.write_normalised(k, &inputs[k], None, first)?;
                 }
-                for ((d, &s), chunk) in directions.iter().zip(&scales).zip(chunks) {
+                for ((d, &s), chunk) in directions.chunks_exact(streams).zip(scales).zip(chunks) {
                     self.write_normalised(k, &inputs[k], Some((&d[k], s)), chunk)?;
                 }
                 Ok(())
@@ -260,17 +315,16 @@ impl<const M: usize> OnnxMeasurement<M> {
             |values| {
                 let mut outputs = values.chunks_exact(M).map(to_output::<M>);
                 let base = outputs.next().unwrap_or_else(SVector::zeros);
-                for (y, &s) in outputs.zip(&scales) {
-                    jvp.push(if s > 0.0 {
+                for ((y, &s), product) in outputs.zip(scales).zip(products.iter_mut()) {
+                    *product = if s > 0.0 {
                         (y - base) / s
                     } else {
                         SVector::zeros()
-                    });
+                    };
                 }
                 Ok(())
             },
-        )?;
-        Ok(jvp)
+        )
     }
 
     /// The finite-difference scale s of a direction: the largest normalised component
@@ -313,9 +367,11 @@ impl<const M: usize> LearnedMeasurement<f64, M> for OnnxMeasurement<M> {
     fn sensitivity(
         &self,
         inputs: &[DMatrix<f64>],
-        directions: &[Vec<DMatrix<f64>>],
-    ) -> estim_core::Result<Option<Vec<SVector<f64, M>>>> {
-        Ok(Some(self.jacobian_vector_products(inputs, directions)?))
+        directions: &[DMatrix<f64>],
+        products: &mut [SVector<f64, M>],
+    ) -> estim_core::Result<bool> {
+        self.jacobian_vector_products(inputs, directions, products)?;
+        Ok(true)
     }
 }
 
@@ -336,6 +392,49 @@ pub trait Observation<T: estim_core::Scalar, const N: usize, const M: usize> {
     /// # Errors
     /// As [`Observation::predict`].
     fn jacobian(&self, state: &Self::State) -> estim_core::Result<SMatrix<T, M, N>>;
+}
+
+/// The common case of an [`Observation`]: the learned output measures a linear
+/// function of a vector state, h(x) = H x with a constant H (e.g. a position fix, H =
+/// I; a velocity out of \[position; velocity\], H = \[0 I\]). For a state that is not
+/// an `SVector` (an error-state filter's nominal state), or a nonlinear h, implement
+/// [`Observation`].
+///
+/// ```
+/// use estim_core::nalgebra::{Matrix1x2, Vector1, Vector2};
+/// use estim_learned::{LinearObservation, Observation};
+///
+/// // The velocity of a [position; velocity] state.
+/// let velocity = LinearObservation::new(Matrix1x2::new(0.0, 1.0));
+/// let x = Vector2::new(3.0, -0.5);
+/// assert_eq!(velocity.predict(&x)?, Vector1::new(-0.5));
+/// assert_eq!(velocity.jacobian(&x)?, Matrix1x2::new(0.0, 1.0));
+/// # Ok::<(), estim_core::Error>(())
+/// ```
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LinearObservation<T: estim_core::Scalar, const N: usize, const M: usize> {
+    jacobian: SMatrix<T, M, N>,
+}
+
+impl<T: estim_core::Scalar, const N: usize, const M: usize> LinearObservation<T, N, M> {
+    /// h(x) = `jacobian` x.
+    pub fn new(jacobian: SMatrix<T, M, N>) -> Self {
+        Self { jacobian }
+    }
+}
+
+impl<T: estim_core::Scalar, const N: usize, const M: usize> Observation<T, N, M>
+    for LinearObservation<T, N, M>
+{
+    type State = SVector<T, N>;
+
+    fn predict(&self, state: &SVector<T, N>) -> estim_core::Result<SVector<T, M>> {
+        Ok(self.jacobian * state)
+    }
+
+    fn jacobian(&self, _state: &SVector<T, N>) -> estim_core::Result<SMatrix<T, M, N>> {
+        Ok(self.jacobian)
+    }
 }
 
 /// A [`LearnedMeasurement`] plus the user's [`Observation`] (h(x), H) as an estim-core

@@ -1,6 +1,7 @@
 //! The only module that touches tract: load an ONNX model once, fix its input facts
-//! (a symbolic batch axis plus the metadata's per-input shape), optimise it, make it
-//! runnable once, and run it many times (the tract pattern).
+//! (a symbolic batch axis plus the metadata's per-input shape), then, per batch size
+//! run, fix the batch axis, optimise, make it runnable once, and run it many times (the
+//! tract pattern).
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -11,12 +12,17 @@ use tract_onnx::tract_hir::infer::Factoid;
 use crate::metadata::{InputMetadata, OutputMetadata};
 use crate::{Error, Result};
 
-/// A loaded, optimised, runnable ONNX model with `f32` inputs `[batch, shape...]` and one
-/// `f32` output `[batch, size]`.
+/// A loaded ONNX model with `f32` inputs `[batch, shape...]` and one `f32` output
+/// `[batch, size]`, run through plans optimised for each batch size it is run with.
 #[derive(Debug)]
 pub(crate) struct OnnxModel {
     path: PathBuf,
-    plan: Arc<TypedRunnableModel>,
+    /// The typed model with a symbolic batch axis, from which the plans are made.
+    typed: Arc<TypedModel>,
+    batch: Symbol,
+    /// Plans made for concrete batch sizes, most recently used first; shared by the
+    /// clones of this model and by the threads running it.
+    plans: Arc<Mutex<Vec<PlanForBatch>>>,
     input_names: Vec<String>,
     input_shapes: Vec<Vec<usize>>,
     output_size: usize,
@@ -26,11 +32,13 @@ pub(crate) struct OnnxModel {
 }
 
 impl Clone for OnnxModel {
-    /// The plan is shared; the clone gets its own (empty) scratch.
+    /// The plans are shared; the clone gets its own (empty) scratch.
     fn clone(&self) -> Self {
         Self {
             path: self.path.clone(),
-            plan: Arc::clone(&self.plan),
+            typed: Arc::clone(&self.typed),
+            batch: self.batch.clone(),
+            plans: Arc::clone(&self.plans),
             input_names: self.input_names.clone(),
             input_shapes: self.input_shapes.clone(),
             output_size: self.output_size,
@@ -39,46 +47,32 @@ impl Clone for OnnxModel {
     }
 }
 
-/// Batch sizes whose input tensors are kept (e.g. 1 for a measurement, 1 + N for a
-/// sensitivity batch); the least recently used set is replaced beyond this.
+/// A batch size and the plan made for it.
+type PlanForBatch = (usize, Arc<TypedRunnableModel>);
+
+/// Batch sizes whose tract state and input tensors are kept (e.g. 1 for a
+/// measurement, 1 + N for a sensitivity batch); the least recently used set is
+/// replaced beyond this.
 const KEPT_BATCH_SIZES: usize = 4;
 
-/// The spawned tract state and, per batch size, one input tensor per model input.
-/// A tensor is handed to tract as a shared reference (`TValue::from_const`); once
-/// tract has dropped its reference after the run, the next call refills it in place.
+/// Batch sizes whose optimised plan is kept (a plan costs 10-35 ms to make for
+/// BeamsNet, against about 50 µs per inference).
+const KEPT_PLANS: usize = 8;
+
+/// Per batch size: the spawned tract state of that size's plan and one input tensor
+/// per model input. A tensor is handed to tract as a shared reference
+/// (`TValue::from_const`); once tract has dropped its reference after the run, the
+/// next call refills it in place.
 #[derive(Debug, Default)]
 struct Scratch {
-    state: Option<TypedSimpleState>,
-    inputs: Vec<(usize, Vec<Arc<Tensor>>)>,
+    batches: Vec<BatchScratch>,
 }
 
-impl Scratch {
-    /// The input tensors for `batch`, most recently used first.
-    fn inputs_for(
-        &mut self,
-        batch: usize,
-        shapes: &[Vec<usize>],
-    ) -> TractResult<&mut Vec<Arc<Tensor>>> {
-        match self.inputs.iter().position(|(b, _)| *b == batch) {
-            Some(i) => self.inputs[..=i].rotate_right(1),
-            None => {
-                let tensors = shapes
-                    .iter()
-                    .map(|shape| {
-                        let mut dims = Vec::with_capacity(shape.len() + 1);
-                        dims.push(batch);
-                        dims.extend_from_slice(shape);
-                        Tensor::zero::<f32>(&dims).map(Arc::new)
-                    })
-                    .collect::<TractResult<Vec<_>>>()?;
-                if self.inputs.len() == KEPT_BATCH_SIZES {
-                    self.inputs.pop();
-                }
-                self.inputs.insert(0, (batch, tensors));
-            }
-        }
-        Ok(&mut self.inputs[0].1)
-    }
+#[derive(Debug)]
+struct BatchScratch {
+    batch: usize,
+    state: TypedSimpleState,
+    inputs: Vec<Arc<Tensor>>,
 }
 
 fn describe(name: &str, shape: &[usize]) -> String {
@@ -188,27 +182,92 @@ impl OnnxModel {
                 given: format!("output {}: f32 [batch, {}]", output.name, output.size),
             });
         }
-        let plan = typed
-            .into_optimized()
-            .and_then(|m| m.into_runnable())
-            .map_err(malformed)?;
-        Ok(OnnxModel {
+        let typed = typed.into_decluttered().map_err(malformed)?;
+        let model = OnnxModel {
             path: path.to_path_buf(),
-            plan,
+            typed: Arc::new(typed),
+            batch,
+            plans: Arc::new(Mutex::new(Vec::new())),
             input_names: inputs.iter().map(|m| m.name.clone()).collect(),
             input_shapes: inputs.iter().map(|m| m.shape.clone()).collect(),
             output_size: output.size,
             scratch: Mutex::new(Scratch::default()),
-        })
+        };
+        // The plan of a single measurement, made now: a model that tract cannot
+        // optimise is refused at load, and the first measurement does not wait.
+        model.plan_for(1).map_err(malformed)?;
+        Ok(model)
+    }
+
+    /// The plan for `batch`: made once per batch size (the batch axis fixed, then
+    /// optimised) and kept. A plan for a concrete size runs faster and allocates less
+    /// per run than one plan with a symbolic batch axis (BeamsNet, batch 1: 85 heap
+    /// allocations per run instead of 127; estim-learned/README.md).
+    fn plan_for(&self, batch: usize) -> TractResult<Arc<TypedRunnableModel>> {
+        let mut plans = self.plans.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(i) = plans.iter().position(|(b, _)| *b == batch) {
+            plans[..=i].rotate_right(1);
+            return Ok(Arc::clone(&plans[0].1));
+        }
+        let size = i64::try_from(batch)?;
+        let mut values = std::collections::HashMap::new();
+        values.insert(self.batch.clone(), TDim::Val(size));
+        let plan = self
+            .typed
+            .set_symbols(&values)?
+            .into_optimized()?
+            .into_runnable()?;
+        if plans.len() == KEPT_PLANS {
+            plans.pop();
+        }
+        plans.insert(0, (batch, Arc::clone(&plan)));
+        Ok(plan)
+    }
+
+    /// The state and input tensors for `batch` in `scratch`, most recently used first.
+    fn batch_scratch<'s>(
+        &self,
+        scratch: &'s mut Scratch,
+        batch: usize,
+    ) -> TractResult<&'s mut BatchScratch> {
+        match scratch.batches.iter().position(|b| b.batch == batch) {
+            Some(i) => scratch.batches[..=i].rotate_right(1),
+            None => {
+                let state = self.plan_for(batch)?.spawn()?;
+                let inputs = self
+                    .input_shapes
+                    .iter()
+                    .map(|shape| {
+                        let mut dims = Vec::with_capacity(shape.len() + 1);
+                        dims.push(batch);
+                        dims.extend_from_slice(shape);
+                        Tensor::zero::<f32>(&dims).map(Arc::new)
+                    })
+                    .collect::<TractResult<Vec<_>>>()?;
+                if scratch.batches.len() == KEPT_BATCH_SIZES {
+                    scratch.batches.pop();
+                }
+                scratch.batches.insert(
+                    0,
+                    BatchScratch {
+                        batch,
+                        state,
+                        inputs,
+                    },
+                );
+            }
+        }
+        Ok(&mut scratch.batches[0])
     }
 
     /// Run one batch, writing the inputs in place and reading the output in place.
     ///
     /// `fill(k, values)` writes input k: `values` holds `batch * prod(shape_k)` values
     /// in row-major order (batch first). `read(values)` receives the `batch *
-    /// output_size` output values. The input tensors and tract's state are kept from
-    /// one call to the next (see [`Scratch`]); when another thread holds them, this
-    /// call uses fresh ones instead of waiting.
+    /// output_size` output values. The plan of this batch size, its tract state and
+    /// the input tensors are kept from one call to the next (see [`Scratch`]); when
+    /// another thread holds the scratch, this call spawns a fresh state of the shared
+    /// plan instead of waiting.
     pub(crate) fn run_with(
         &self,
         batch: usize,
@@ -231,29 +290,18 @@ impl OnnxModel {
                 &mut local
             }
         };
+        let entry = self.batch_scratch(scratch, batch).map_err(inference)?;
         let mut values: TVec<TValue> = TVec::new();
-        {
-            let tensors = scratch
-                .inputs_for(batch, &self.input_shapes)
+        for (k, tensor) in entry.inputs.iter_mut().enumerate() {
+            // Unique after the previous run (tract dropped its reference); if not,
+            // make_mut copies it once and the copy is kept.
+            let mut view = Arc::make_mut(tensor)
+                .try_as_plain_ram_mut()
                 .map_err(inference)?;
-            for (k, tensor) in tensors.iter_mut().enumerate() {
-                // Unique after the previous run (tract dropped its reference); if not,
-                // make_mut copies it once and the copy is kept.
-                let mut view = Arc::make_mut(tensor)
-                    .try_as_plain_ram_mut()
-                    .map_err(inference)?;
-                fill(k, view.as_slice_mut::<f32>().map_err(inference)?)?;
-                values.push(TValue::from_const(Arc::clone(tensor)));
-            }
+            fill(k, view.as_slice_mut::<f32>().map_err(inference)?)?;
+            values.push(TValue::from_const(Arc::clone(tensor)));
         }
-        if scratch.state.is_none() {
-            scratch.state = Some(self.plan.spawn().map_err(inference)?);
-        }
-        let state = scratch
-            .state
-            .as_mut()
-            .ok_or_else(|| Error::Inference("tract state unavailable".into()))?;
-        let out = state.run(values).map_err(inference)?;
+        let out = entry.state.run(values).map_err(inference)?;
         let first = out
             .first()
             .ok_or_else(|| Error::Inference("model produced no output".into()))?;

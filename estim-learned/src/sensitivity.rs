@@ -26,10 +26,17 @@
 //! Layout: the model's first input streams read the process samples, one column per
 //! step (their channel counts sum to K, [`InputNoise::input_channels`] gives the
 //! channels in that order, and their window is the window L of the update); the
-//! remaining streams are per-update values handed in when the struct is built (e.g.
-//! the DVL beams of BeamsNet). Nothing is kept between updates: the struct borrows
-//! the model, the process model and the per-update values, and is built at each
-//! update.
+//! remaining streams are per-update values (e.g. the DVL beams of BeamsNet), set when
+//! the struct is built and replaced per update.
+//!
+//! Allocation: the struct is built once and kept; its workspace (the model's inputs,
+//! the direction sets, the products) is sized from the declared input shapes and,
+//! for the directions, at the first update. After that an update allocates nothing
+//! of estim's; the model's own [`LearnedMeasurement::measure`] and
+//! [`LearnedMeasurement::sensitivity`] write into those buffers (a pure-Rust model
+//! can then run allocation-free: `tests/no_allocation.rs`).
+
+use std::cell::RefCell;
 
 use estim_core::{
     InputSpec, LearnedMeasurement, ProcessModel, Scalar, StepWindow, WindowedCrossCovariance,
@@ -68,42 +75,134 @@ pub trait InputNoise<T: Scalar, const N: usize, const K: usize>: ProcessModel<T,
 }
 
 /// D_j = A_j Σ_j J_j' for a [`LearnedMeasurement`] fed with the samples of the window
-/// (see the module docs). Build one per update: it borrows the model, the process
-/// model and this update's extra inputs.
-#[derive(Debug, Clone, Copy)]
-pub struct LearnedCrossCovariance<'a, T: Scalar, L: ?Sized, P: ?Sized, const K: usize> {
+/// (see the module docs).
+///
+/// Build it once, beside the filter, and keep it from one update to the next: it
+/// borrows the model and the process model and owns a workspace (the model's inputs,
+/// the JVP directions and their products) sized from the model's declared input
+/// shapes, so that after the first update neither [`measure`](Self::measure) nor the
+/// cross-covariance allocates anything of estim's. Per update, set the per-update
+/// inputs ([`set_update_input`](Self::set_update_input), e.g. this update's fix), then
+/// `measure` the window and pass `self` to `update_windowed`. Building one per update
+/// works too; it then allocates its workspace each time.
+#[derive(Debug)]
+pub struct LearnedCrossCovariance<'a, T, L, P, const M: usize, const K: usize>
+where
+    T: Scalar,
+    L: ?Sized,
+    P: ?Sized,
+{
     model: &'a L,
     process: &'a P,
-    extra: &'a [DMatrix<T>],
     /// Number of leading input streams fed by the process samples.
     process_streams: usize,
     window: usize,
+    /// Borrowed mutably by one call at a time (the trait methods take `&self`).
+    workspace: RefCell<Workspace<T, M>>,
+}
+
+/// What [`LearnedCrossCovariance`] reuses from one update to the next.
+#[derive(Debug, Clone)]
+struct Workspace<T: Scalar, const M: usize> {
+    /// One matrix per input stream: the process-fed ones are refilled from the window
+    /// at each call, the per-update ones hold the values last set.
+    inputs: Vec<DMatrix<T>>,
+    /// Direction sets one after another, one matrix per input stream each; grown to
+    /// the largest number of directions asked for (N for the adjoint form, K L per
+    /// step), then reused.
+    directions: Vec<DMatrix<T>>,
+    /// One Jacobian-vector product per direction set.
+    products: Vec<SVector<T, M>>,
+}
+
+impl<T: Scalar, const M: usize> Workspace<T, M> {
+    /// At least `count` direction sets and products, the first `count` sets zeroed.
+    fn zeroed_directions(&mut self, count: usize) {
+        let streams = self.inputs.len();
+        while self.directions.len() < count * streams {
+            let like = &self.inputs[self.directions.len() % streams];
+            self.directions
+                .push(DMatrix::zeros(like.nrows(), like.ncols()));
+        }
+        if self.products.len() < count {
+            self.products.resize(count, SVector::zeros());
+        }
+        for d in &mut self.directions[..count * streams] {
+            d.fill(T::zero());
+        }
+    }
+}
+
+impl<T, L, P, const M: usize, const K: usize> Clone for LearnedCrossCovariance<'_, T, L, P, M, K>
+where
+    T: Scalar,
+    L: ?Sized,
+    P: ?Sized,
+{
+    fn clone(&self) -> Self {
+        Self {
+            model: self.model,
+            process: self.process,
+            process_streams: self.process_streams,
+            window: self.window,
+            workspace: RefCell::new(self.workspace.borrow().clone()),
+        }
+    }
 }
 
 fn layout_error(reason: String) -> estim_core::Error {
     estim_core::Error::Model(format!("learned cross-covariance input layout: {reason}"))
 }
 
-impl<'a, T, L, P, const K: usize> LearnedCrossCovariance<'a, T, L, P, K>
+fn busy() -> estim_core::Error {
+    estim_core::Error::Model(
+        "learned cross-covariance: its workspace is in use by another call on the same \
+         value (a re-entrant call from the model)"
+            .into(),
+    )
+}
+
+/// Write the K-vector `v` into column `column` of the leading (process-fed) streams.
+fn scatter<T: Scalar, const K: usize>(inputs: &mut [DMatrix<T>], column: usize, v: &SVector<T, K>) {
+    let mut c = 0;
+    for m in inputs.iter_mut() {
+        if c == K {
+            break;
+        }
+        for r in 0..m.nrows() {
+            m[(r, column)] = v[c];
+            c += 1;
+        }
+    }
+}
+
+/// Set channel `channel` (of the K process channels) of column `column` to `value`.
+fn set_channel<T: Scalar>(inputs: &mut [DMatrix<T>], column: usize, channel: usize, value: T) {
+    let mut first = 0;
+    for m in inputs.iter_mut() {
+        if channel < first + m.nrows() {
+            m[(channel - first, column)] = value;
+            return;
+        }
+        first += m.nrows();
+    }
+}
+
+impl<'a, T, L, P, const M: usize, const K: usize> LearnedCrossCovariance<'a, T, L, P, M, K>
 where
     T: Scalar,
-    L: ?Sized,
+    L: LearnedMeasurement<T, M> + ?Sized,
     P: ?Sized,
 {
     /// For `model` whose leading input streams (channels summing to K, one common
     /// window L) read the process samples and whose remaining streams are `extra`
-    /// (one matrix per stream, in order, with the declared shapes).
+    /// (one matrix per stream, in order, with the declared shapes; copied into the
+    /// workspace, replace them per update with
+    /// [`set_update_input`](Self::set_update_input)).
     ///
     /// # Errors
     /// [`estim_core::Error::Model`] naming the mismatch if the streams do not split so.
-    pub fn new<const M: usize>(
-        model: &'a L,
-        process: &'a P,
-        extra: &'a [DMatrix<T>],
-    ) -> estim_core::Result<Self>
-    where
-        L: LearnedMeasurement<T, M>,
-    {
+    pub fn new(model: &'a L, process: &'a P, extra: &[DMatrix<T>]) -> estim_core::Result<Self> {
         let specs: &[InputSpec] = model.input_specs();
         let mut channels = 0;
         let mut process_streams = 0;
@@ -143,94 +242,90 @@ where
                     .join(", ")
             )));
         }
+        let inputs = specs[..process_streams]
+            .iter()
+            .map(|s| DMatrix::zeros(s.channels, s.window))
+            .chain(extra.iter().cloned())
+            .collect();
         Ok(Self {
             model,
             process,
-            extra,
             process_streams,
             window,
+            workspace: RefCell::new(Workspace {
+                inputs,
+                directions: Vec::new(),
+                products: Vec::new(),
+            }),
         })
-    }
-
-    /// The window L (process steps the model reads).
-    pub fn window(&self) -> usize {
-        self.window
-    }
-
-    /// Zero matrices shaped like the model's inputs.
-    fn zero_inputs<const M: usize>(&self) -> Vec<DMatrix<T>>
-    where
-        L: LearnedMeasurement<T, M>,
-    {
-        self.model
-            .input_specs()
-            .iter()
-            .map(|s| DMatrix::zeros(s.channels, s.window))
-            .collect()
-    }
-
-    /// Write the K-vector `v` into column `column` of the process-fed streams.
-    fn scatter(&self, inputs: &mut [DMatrix<T>], column: usize, v: &SVector<T, K>) {
-        let mut c = 0;
-        for m in inputs.iter_mut().take(self.process_streams) {
-            for r in 0..m.nrows() {
-                m[(r, column)] = v[c];
-                c += 1;
-            }
-        }
     }
 }
 
-impl<'a, T, L, P, const K: usize> LearnedCrossCovariance<'a, T, L, P, K>
+impl<'a, T, L, P, const M: usize, const K: usize> LearnedCrossCovariance<'a, T, L, P, M, K>
 where
     T: Scalar,
     L: ?Sized,
     P: ?Sized,
 {
-    /// The model's inputs built from the window's samples (process-fed streams) and
-    /// the per-update values.
-    ///
-    /// # Errors
-    /// [`estim_core::Error::Dimension`] if the window is not L steps long.
-    pub fn inputs<const N: usize, const M: usize>(
-        &self,
-        window: &StepWindow<'_, T, P::State, P::Input, N>,
-    ) -> estim_core::Result<Vec<DMatrix<T>>>
-    where
-        L: LearnedMeasurement<T, M>,
-        P: InputNoise<T, N, K>,
-    {
-        self.check_window(window)?;
-        let mut inputs = self.zero_inputs::<M>();
-        for step in window.iter() {
-            let v = self.process.input_channels(step.input);
-            self.scatter(&mut inputs, step.position, &v);
-        }
-        for (slot, m) in inputs[self.process_streams..].iter_mut().zip(self.extra) {
-            slot.copy_from(m);
-        }
-        Ok(inputs)
+    /// The window L (process steps the model reads).
+    pub fn window(&self) -> usize {
+        self.window
     }
 
-    /// The model's measurement on the window (the samples the filter consumed).
-    ///
-    /// # Errors
-    /// As [`LearnedCrossCovariance::inputs`], and the model's errors.
-    pub fn measure<const N: usize, const M: usize>(
-        &self,
-        window: &StepWindow<'_, T, P::State, P::Input, N>,
-    ) -> estim_core::Result<SVector<T, M>>
-    where
-        L: LearnedMeasurement<T, M>,
-        P: InputNoise<T, N, K>,
-    {
-        self.model.measure(&self.inputs::<N, M>(window)?)
+    /// The learned model.
+    pub fn model(&self) -> &'a L {
+        self.model
     }
 
-    fn check_window<S, U, const N: usize>(
+    /// The process model whose input noise the model sees.
+    pub fn process(&self) -> &'a P {
+        self.process
+    }
+
+    /// Replace per-update input `index` (0 = the first stream after the process-fed
+    /// ones) with `values`, column-major (`channels x window` of its declared shape,
+    /// e.g. a 2 x 1 fix as its 2 values). Copies into the workspace; allocates nothing.
+    ///
+    /// # Errors
+    /// [`estim_core::Error::Dimension`] for an index past the per-update streams or a
+    /// length that is not the stream's.
+    pub fn set_update_input(&mut self, index: usize, values: &[T]) -> estim_core::Result<()> {
+        let inputs = &mut self.workspace.get_mut().inputs;
+        let streams = inputs.len() - self.process_streams;
+        let slot =
+            inputs
+                .get_mut(self.process_streams + index)
+                .ok_or(estim_core::Error::Dimension {
+                    what: "per-update input streams of the learned measurement",
+                    expected: streams,
+                    got: index + 1,
+                })?;
+        if values.len() != slot.len() {
+            return Err(estim_core::Error::Dimension {
+                what: "values of a per-update input stream (channels x window)",
+                expected: slot.len(),
+                got: values.len(),
+            });
+        }
+        slot.copy_from_slice(values);
+        Ok(())
+    }
+
+    /// Write the K-vector `v` into column `column` of the process-fed streams of
+    /// `inputs` (shaped as the model's inputs).
+    pub(crate) fn scatter(&self, inputs: &mut [DMatrix<T>], column: usize, v: &SVector<T, K>) {
+        scatter(&mut inputs[..self.process_streams], column, v);
+    }
+
+    /// Fill the process-fed streams of `inputs` from the window's samples.
+    fn fill_inputs<const N: usize>(
         &self,
-        window: &StepWindow<'_, T, S, U, N>,
-    ) -> estim_core::Result<()> {
+        inputs: &mut [DMatrix<T>],
+        window: &StepWindow<'_, T, P::State, P::Input, N>,
+    ) -> estim_core::Result<()>
+    where
+        P: InputNoise<T, N, K>,
+    {
         if window.len() != self.window {
             return Err(estim_core::Error::Dimension {
                 what: "learned measurement window (process steps)",
@@ -238,7 +333,53 @@ where
                 got: window.len(),
             });
         }
+        for step in window.iter() {
+            let v = self.process.input_channels(step.input);
+            self.scatter(inputs, step.position, &v);
+        }
         Ok(())
+    }
+
+    /// A copy of the model's inputs built from the window's samples (process-fed
+    /// streams) and the per-update values (allocates; for validation, e.g. a Monte
+    /// Carlo that perturbs them).
+    ///
+    /// # Errors
+    /// [`estim_core::Error::Dimension`] if the window is not L steps long.
+    pub fn inputs<const N: usize>(
+        &self,
+        window: &StepWindow<'_, T, P::State, P::Input, N>,
+    ) -> estim_core::Result<Vec<DMatrix<T>>>
+    where
+        P: InputNoise<T, N, K>,
+    {
+        let mut inputs = self
+            .workspace
+            .try_borrow()
+            .map_err(|_| busy())?
+            .inputs
+            .clone();
+        self.fill_inputs(&mut inputs, window)?;
+        Ok(inputs)
+    }
+
+    /// The model's measurement on the window (the samples the filter consumed) and
+    /// the per-update inputs; the inputs are written into the workspace, nothing is
+    /// allocated.
+    ///
+    /// # Errors
+    /// As [`LearnedCrossCovariance::inputs`], and the model's errors.
+    pub fn measure<const N: usize>(
+        &self,
+        window: &StepWindow<'_, T, P::State, P::Input, N>,
+    ) -> estim_core::Result<SVector<T, M>>
+    where
+        L: LearnedMeasurement<T, M>,
+        P: InputNoise<T, N, K>,
+    {
+        let mut workspace = self.workspace.try_borrow_mut().map_err(|_| busy())?;
+        self.fill_inputs(&mut workspace.inputs, window)?;
+        self.model.measure(&workspace.inputs)
     }
 
     fn step_dt(dt: Option<T>) -> estim_core::Result<T> {
@@ -251,32 +392,36 @@ where
         })
     }
 
-    fn jvps<const M: usize>(
-        &self,
-        inputs: &[DMatrix<T>],
-        directions: &[Vec<DMatrix<T>>],
-    ) -> estim_core::Result<Vec<SVector<T, M>>>
+    /// The model's JVPs for the first `count` direction sets of the workspace, into
+    /// its first `count` products.
+    fn products(&self, workspace: &mut Workspace<T, M>, count: usize) -> estim_core::Result<()>
     where
         L: LearnedMeasurement<T, M>,
     {
-        let out = self.model.sensitivity(inputs, directions)?.ok_or_else(|| {
-            estim_core::Error::Model(
+        let streams = workspace.inputs.len();
+        let Workspace {
+            inputs,
+            directions,
+            products,
+        } = workspace;
+        let provided = self.model.sensitivity(
+            inputs,
+            &directions[..count * streams],
+            &mut products[..count],
+        )?;
+        if provided {
+            Ok(())
+        } else {
+            Err(estim_core::Error::Model(
                 "the learned measurement provides no sensitivity (Jacobian-vector products)".into(),
-            )
-        })?;
-        if out.len() != directions.len() {
-            return Err(estim_core::Error::Dimension {
-                what: "Jacobian-vector products",
-                expected: directions.len(),
-                got: out.len(),
-            });
+            ))
         }
-        Ok(out)
     }
 }
 
 impl<'a, T, L, P, const N: usize, const M: usize, const K: usize>
-    WindowedCrossCovariance<T, P::State, P::Input, N, M> for LearnedCrossCovariance<'a, T, L, P, K>
+    WindowedCrossCovariance<T, P::State, P::Input, N, M>
+    for LearnedCrossCovariance<'a, T, L, P, M, K>
 where
     T: Scalar,
     L: LearnedMeasurement<T, M> + ?Sized,
@@ -293,19 +438,23 @@ where
         window: &StepWindow<'_, T, P::State, P::Input, N>,
         sink: &mut dyn FnMut(&SMatrix<T, N, M>) -> estim_core::Result<()>,
     ) -> estim_core::Result<()> {
-        let inputs = self.inputs::<N, M>(window)?;
-        let zero = self.zero_inputs::<M>();
-        let mut directions = Vec::with_capacity(K * self.window);
+        let mut workspace = self.workspace.try_borrow_mut().map_err(|_| busy())?;
+        self.fill_inputs(&mut workspace.inputs, window)?;
+        let streams = workspace.inputs.len();
+        let count = K * self.window;
+        workspace.zeroed_directions(count);
         for j in 0..self.window {
             for c in 0..K {
-                let mut d = zero.clone();
-                let mut e = SVector::<T, K>::zeros();
-                e[c] = T::one();
-                self.scatter(&mut d, j, &e);
-                directions.push(d);
+                let set = (j * K + c) * streams;
+                set_channel(
+                    &mut workspace.directions[set..set + self.process_streams],
+                    j,
+                    c,
+                    T::one(),
+                );
             }
         }
-        let jvp = self.jvps::<M>(&inputs, &directions)?;
+        self.products(&mut workspace, count)?;
         for step in window.iter() {
             let dt = Self::step_dt(step.dt)?;
             let a = self
@@ -313,7 +462,8 @@ where
                 .input_noise_jacobian(step.state, step.input, dt);
             let sigma = self.process.input_noise_covariance(dt);
             // J_j' (K x M): row c = (J_j e_c)'.
-            let jt = SMatrix::<T, K, M>::from_fn(|c, m| jvp[step.position * K + c][m]);
+            let jt =
+                SMatrix::<T, K, M>::from_fn(|c, m| workspace.products[step.position * K + c][m]);
             sink(&(a * sigma * jt))?;
         }
         Ok(())
@@ -325,10 +475,12 @@ where
         &self,
         window: &StepWindow<'_, T, P::State, P::Input, N>,
     ) -> estim_core::Result<Option<SMatrix<T, N, M>>> {
-        let inputs = self.inputs::<N, M>(window)?;
-        let zero = self.zero_inputs::<M>();
-        let mut directions: Vec<Vec<DMatrix<T>>> = vec![zero; N];
+        let mut workspace = self.workspace.try_borrow_mut().map_err(|_| busy())?;
+        self.fill_inputs(&mut workspace.inputs, window)?;
+        let streams = workspace.inputs.len();
+        workspace.zeroed_directions(N);
         let mut nonzero = [false; N];
+        let directions = &mut workspace.directions;
         window.for_each_transport(|step, transport| {
             let dt = Self::step_dt(step.dt)?;
             let a = self
@@ -336,7 +488,7 @@ where
                 .input_noise_jacobian(step.state, step.input, dt);
             let sigma = self.process.input_noise_covariance(dt);
             let b = transport * a * sigma;
-            for (r, d) in directions.iter_mut().enumerate() {
+            for (r, d) in directions.chunks_exact_mut(streams).take(N).enumerate() {
                 let row: SVector<T, K> = b.row(r).transpose();
                 if row.iter().any(|v| *v != T::zero()) {
                     nonzero[r] = true;
@@ -345,15 +497,25 @@ where
             }
             Ok(())
         })?;
-        let rows: Vec<usize> = (0..N).filter(|&r| nonzero[r]).collect();
-        let kept: Vec<Vec<DMatrix<T>>> = rows
-            .iter()
-            .map(|&r| std::mem::take(&mut directions[r]))
-            .collect();
-        let jvp = self.jvps::<M>(&inputs, &kept)?;
+        // Move the non-zero rows' directions to the front (swapping matrices, no copy);
+        // rows[i] is the row of direction set i.
+        let mut rows = [0; N];
+        let mut kept = 0;
+        for r in (0..N).filter(|&r| nonzero[r]) {
+            for s in 0..streams {
+                workspace
+                    .directions
+                    .swap(kept * streams + s, r * streams + s);
+            }
+            rows[kept] = r;
+            kept += 1;
+        }
         let mut m = SMatrix::<T, N, M>::zeros();
-        for (&r, v) in rows.iter().zip(jvp) {
-            m.set_row(r, &v.transpose());
+        if kept > 0 {
+            self.products(&mut workspace, kept)?;
+            for (&r, v) in rows[..kept].iter().zip(&workspace.products) {
+                m.set_row(r, &v.transpose());
+            }
         }
         Ok(Some(m))
     }
@@ -435,43 +597,51 @@ fn beams_input(beams: &Vector4<f64>) -> [DMatrix<f64>; 1] {
 
 /// M from BeamsNet's own sensitivity: [`LearnedCrossCovariance`] applied to BeamsNet
 /// and the INS error model, over the last [`crate::BEAMSNET_WINDOW`] IMU samples the
-/// filter integrated (the runner's recorded window: no Phi recomputed here, nothing
-/// kept between updates). Build one per update with the update's beams.
+/// filter integrated (the runner's recorded window: no Phi recomputed here). Build one
+/// for the first update and keep it, setting each update's beams with
+/// [`NetworkSensitivity::set_beams`] (its workspace is then reused), or build one per
+/// update.
 ///
 /// Use it with `ErrorStateKalmanFilter::update_windowed` on a filter configured with
 /// `FilterConfig::builder().window_capacity(BEAMSNET_WINDOW)`.
 #[derive(Debug, Clone)]
 pub struct NetworkSensitivity<'a> {
-    beamsnet: &'a BeamsNet,
-    error_model: &'a InsErrorModel,
-    beams: [DMatrix<f64>; 1],
+    generic: LearnedCrossCovariance<'a, f64, OnnxMeasurement<3>, InsErrorModel, 3, IMU_CHANNELS>,
 }
 
 impl<'a> NetworkSensitivity<'a> {
     /// For this update's `beams`, the network and the INS error model whose IMU noise
     /// it sees.
+    ///
+    /// # Errors
+    /// Never for a loaded [`BeamsNet`] (its input layout is checked at load).
     pub fn new(
         beamsnet: &'a BeamsNet,
         error_model: &'a InsErrorModel,
         beams: Vector4<f64>,
-    ) -> Self {
-        Self {
-            beamsnet,
-            error_model,
-            beams: beams_input(&beams),
-        }
+    ) -> estim_core::Result<Self> {
+        Ok(Self {
+            generic: LearnedCrossCovariance::new(
+                beamsnet.measurement(),
+                error_model,
+                &beams_input(&beams),
+            )?,
+        })
+    }
+
+    /// Set the beams of the next update (allocates nothing).
+    ///
+    /// # Errors
+    /// Never for a loaded [`BeamsNet`] (its beams stream is 4 x 1).
+    pub fn set_beams(&mut self, beams: &Vector4<f64>) -> estim_core::Result<()> {
+        self.generic.set_update_input(0, beams.as_slice())
     }
 
     /// The generic piece underneath.
-    ///
-    /// # Errors
-    /// Never for a loaded [`BeamsNet`] (its metadata is checked at load).
     pub fn generic(
         &self,
-    ) -> estim_core::Result<
-        LearnedCrossCovariance<'_, f64, OnnxMeasurement<3>, InsErrorModel, IMU_CHANNELS>,
-    > {
-        LearnedCrossCovariance::new::<3>(self.beamsnet.measurement(), self.error_model, &self.beams)
+    ) -> &LearnedCrossCovariance<'a, f64, OnnxMeasurement<3>, InsErrorModel, 3, IMU_CHANNELS> {
+        &self.generic
     }
 
     /// The network's velocity on the window (the IMU samples the filter integrated).
@@ -482,7 +652,7 @@ impl<'a> NetworkSensitivity<'a> {
         &self,
         window: &StepWindow<'_, f64, InsState, ImuSample, ERROR_STATES>,
     ) -> estim_core::Result<Vector3<f64>> {
-        self.generic()?.measure::<ERROR_STATES, 3>(window)
+        self.generic.measure(window)
     }
 }
 
@@ -496,14 +666,14 @@ impl WindowedCrossCovariance<f64, InsState, ImuSample, ERROR_STATES, 3> for Netw
         window: &StepWindow<'_, f64, InsState, ImuSample, ERROR_STATES>,
         sink: &mut dyn FnMut(&CrossMatrix) -> estim_core::Result<()>,
     ) -> estim_core::Result<()> {
-        self.generic()?.step_cross_covariances(window, sink)
+        self.generic.step_cross_covariances(window, sink)
     }
 
     fn transported_cross_covariance(
         &self,
         window: &StepWindow<'_, f64, InsState, ImuSample, ERROR_STATES>,
     ) -> estim_core::Result<Option<CrossMatrix>> {
-        self.generic()?.transported_cross_covariance(window)
+        self.generic.transported_cross_covariance(window)
     }
 }
 
@@ -616,9 +786,9 @@ impl<'a> Empirical<'a> {
     /// the given per-update inputs.
     fn generic(
         &self,
-    ) -> Result<LearnedCrossCovariance<'_, f64, OnnxMeasurement<3>, InsErrorModel, IMU_CHANNELS>>
+    ) -> Result<LearnedCrossCovariance<'_, f64, OnnxMeasurement<3>, InsErrorModel, 3, IMU_CHANNELS>>
     {
-        LearnedCrossCovariance::new::<3>(self.model, self.error_model, &self.extra).map_err(|e| {
+        LearnedCrossCovariance::new(self.model, self.error_model, &self.extra).map_err(|e| {
             Error::InvalidInput {
                 what: "learned model inputs",
                 reason: e.to_string(),
@@ -647,7 +817,7 @@ impl<'a> Empirical<'a> {
                 ),
             });
         }
-        let base = generic.inputs::<ERROR_STATES, 3>(window)?;
+        let base = generic.inputs::<ERROR_STATES>(window)?;
         let steps: Vec<_> = window.iter().collect();
         let dts = steps
             .iter()

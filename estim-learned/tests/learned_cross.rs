@@ -77,14 +77,13 @@ impl LearnedMeasurement<f64, 1> for MeanAcc {
     fn sensitivity(
         &self,
         _: &[DMatrix<f64>],
-        directions: &[Vec<DMatrix<f64>>],
-    ) -> Result<Option<Vec<Vector1<f64>>>> {
-        Ok(Some(
-            directions
-                .iter()
-                .map(|d| Vector1::new(self.gain * d[0].mean()))
-                .collect(),
-        ))
+        directions: &[DMatrix<f64>],
+        products: &mut [Vector1<f64>],
+    ) -> Result<bool> {
+        for (d, product) in directions.iter().zip(products) {
+            *product = Vector1::new(self.gain * d.mean());
+        }
+        Ok(true)
     }
 }
 
@@ -132,7 +131,7 @@ fn adjoint_and_per_step_forms_match_the_closed_form() {
         let ekf = filter(l, l + 3, dt, q);
         let model = MeanAcc::new(l, gain);
         let window = ekf.step_window(l).unwrap();
-        let cross = LearnedCrossCovariance::new::<1>(&model, ekf.process(), &[]).unwrap();
+        let cross = LearnedCrossCovariance::new(&model, ekf.process(), &[]).unwrap();
         let expected = closed_form(l, dt, q, gain);
         let adjoint = cross
             .transported_cross_covariance(&window)
@@ -157,7 +156,7 @@ fn adjoint_and_per_step_forms_match_the_closed_form() {
             );
         }
         // The measurement on the runner's window is the model on the consumed samples.
-        let y = cross.measure::<2, 1>(&window).unwrap();
+        let y = cross.measure::<2>(&window).unwrap();
         let mean: f64 = (3..l + 3).map(|i| 0.1 + 0.01 * i as f64).sum::<f64>() / l as f64;
         assert!((y[0] - gain * mean).abs() < 1e-12);
     }
@@ -169,9 +168,9 @@ fn the_filter_uses_the_exact_cross_covariance() {
     let mut ekf = filter(l, 40, dt, q);
     let model = MeanAcc::new(l, 1.0);
     let cart = Cart { q };
-    let cross = LearnedCrossCovariance::new::<1>(&model, &cart, &[]).unwrap();
+    let cross = LearnedCrossCovariance::new(&model, &cart, &[]).unwrap();
     let window = ekf.step_window(l).unwrap();
-    let y = cross.measure::<2, 1>(&window).unwrap();
+    let y = cross.measure::<2>(&window).unwrap();
     let sensor = LearnedSensor::new(&model, Velocity);
     let prior = ekf.estimate().clone();
     assert_eq!(
@@ -200,16 +199,16 @@ fn layout_mismatches_are_typed_errors() {
     let extra = [DMatrix::zeros(4, 1)];
     // An extra input the model does not declare.
     assert!(
-        LearnedCrossCovariance::<f64, _, Cart, 1>::new::<1>(&model, &Cart { q: 1.0 }, &extra)
+        LearnedCrossCovariance::<f64, _, Cart, 1, 1>::new(&model, &Cart { q: 1.0 }, &extra)
             .is_err()
     );
     // K larger than the model's channels.
     assert!(
-        LearnedCrossCovariance::<f64, _, Cart, 2>::new::<1>(&model, &Cart { q: 1.0 }, &[]).is_err()
+        LearnedCrossCovariance::<f64, _, Cart, 1, 2>::new(&model, &Cart { q: 1.0 }, &[]).is_err()
     );
     // A window of the wrong length.
     let ekf = filter(8, 8, 0.1, 1.0);
-    let cross = LearnedCrossCovariance::new::<1>(&model, ekf.process(), &[]).unwrap();
+    let cross = LearnedCrossCovariance::new(&model, ekf.process(), &[]).unwrap();
     let window = ekf.step_window(8).unwrap();
     assert!(cross.transported_cross_covariance(&window).is_err());
     assert!(ekf.step_window(9).is_err());

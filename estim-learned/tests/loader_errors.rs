@@ -132,6 +132,20 @@ fn input_assembly_errors_list_expected_and_given() {
     let e = m.measure(&bad).unwrap_err().to_string();
     assert!(e.contains("channel 2, sample 5"), "{e}");
     // Direction of the wrong shape for the sensitivity.
-    let dirs = vec![vec![DMatrix::zeros(3, 100)]];
-    assert!(m.jacobian_vector_products(&good_inputs(), &dirs).is_err());
+    let mut products = [nalgebra::Vector3::zeros(); 1];
+    let dirs = [
+        DMatrix::zeros(3, 100),
+        DMatrix::zeros(3, 99),
+        DMatrix::zeros(4, 1),
+    ];
+    let e = m
+        .jacobian_vector_products(&good_inputs(), &dirs, &mut products)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("3 x 99"), "{e}");
+    // Directions that do not make whole sets of one matrix per input.
+    let dirs = [DMatrix::zeros(3, 100), DMatrix::zeros(3, 100)];
+    assert!(m
+        .jacobian_vector_products(&good_inputs(), &dirs, &mut products)
+        .is_err());
 }

@@ -145,7 +145,7 @@ fn first_order_m_matches_monte_carlo_where_the_network_is_linear() {
         let s0 = mission.truth[start - 2000];
         let last = s0.attitude.inverse() * s0.velocity_ned;
         let extra = net.extra_inputs(&last, 21.0).unwrap();
-        let first = LearnedCrossCovariance::<f64, _, _, IMU_CHANNELS>::new::<3>(
+        let first = LearnedCrossCovariance::<f64, _, _, 3, IMU_CHANNELS>::new(
             net.measurement(),
             &model,
             &extra,

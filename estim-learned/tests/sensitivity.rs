@@ -70,6 +70,7 @@ fn network_sensitivity_matches_monte_carlo() {
     let (filter, beams) = recorded(11);
     let window = filter.step_window(BEAMSNET_WINDOW).unwrap();
     let analytic = NetworkSensitivity::new(&beamsnet, filter.process(), beams)
+        .unwrap()
         .transported_cross_covariance(&window)
         .unwrap()
         .unwrap();
@@ -129,7 +130,7 @@ fn adjoint_and_per_step_forms_agree() {
     let window = filter.step_window(BEAMSNET_WINDOW).unwrap();
     let extra = [DMatrix::from_column_slice(4, 1, beams.as_slice())];
     let model = OnnxMeasurement::<3>::from_model_path(&default_model_path()).unwrap();
-    let generic = LearnedCrossCovariance::new::<3>(&model, filter.process(), &extra).unwrap();
+    let generic = LearnedCrossCovariance::new(&model, filter.process(), &extra).unwrap();
     let adjoint = generic
         .transported_cross_covariance(&window)
         .unwrap()
@@ -143,7 +144,7 @@ fn adjoint_and_per_step_forms_agree() {
     assert!(adjoint.amax() < 1e-7, "adjoint M\n{adjoint}");
     assert!(per_step.amax() < 1e-7, "per-step M\n{per_step}");
     let beamsnet = BeamsNet::load_default().unwrap();
-    let ns = NetworkSensitivity::new(&beamsnet, filter.process(), beams);
+    let ns = NetworkSensitivity::new(&beamsnet, filter.process(), beams).unwrap();
     // The network reads exactly the samples the filter integrated.
     let force: Vec<Vector3<f64>> = window.iter().map(|s| s.input.specific_force).collect();
     let rate: Vec<Vector3<f64>> = window.iter().map(|s| s.input.angular_rate).collect();
@@ -160,7 +161,7 @@ fn a_window_of_the_wrong_length_is_a_typed_error() {
     let beamsnet = BeamsNet::load_default().unwrap();
     let (filter, beams) = recorded(13);
     let short = filter.step_window(BEAMSNET_WINDOW - 1).unwrap();
-    let ns = NetworkSensitivity::new(&beamsnet, filter.process(), beams);
+    let ns = NetworkSensitivity::new(&beamsnet, filter.process(), beams).unwrap();
     assert!(ns.transported_cross_covariance(&short).is_err());
     assert!(Empirical::new(&beamsnet, filter.process(), beams, 10, 1)
         .estimate(&short)

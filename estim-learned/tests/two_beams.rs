@@ -172,7 +172,7 @@ fn adjoint_and_per_step_forms_agree() {
         let (filter, beams) = recorded(seed);
         let window = filter.step_window(BEAMSNET_WINDOW).unwrap();
         let extra = net.beam_inputs(&beams).unwrap();
-        let generic = LearnedCrossCovariance::<f64, _, _, IMU_CHANNELS>::new::<3>(
+        let generic = LearnedCrossCovariance::<f64, _, _, 3, IMU_CHANNELS>::new(
             net.measurement(),
             filter.process(),
             &extra,
@@ -221,7 +221,7 @@ fn first_order(
     window: &StepWindow<'_, f64, InsState, ImuSample, ERROR_STATES>,
     extra: &[DMatrix<f64>],
 ) -> CrossMatrix {
-    LearnedCrossCovariance::<f64, _, _, IMU_CHANNELS>::new::<3>(net.measurement(), model, extra)
+    LearnedCrossCovariance::<f64, _, _, 3, IMU_CHANNELS>::new(net.measurement(), model, extra)
         .unwrap()
         .transported_cross_covariance(window)
         .unwrap()
@@ -375,7 +375,7 @@ fn wrong_layouts_are_typed_errors() {
     let net = TwoBeamsNet::load_default().unwrap();
     let (filter, beams) = recorded(11);
     let extra = net.beam_inputs(&beams).unwrap();
-    let generic = LearnedCrossCovariance::<f64, _, _, IMU_CHANNELS>::new::<3>(
+    let generic = LearnedCrossCovariance::<f64, _, _, 3, IMU_CHANNELS>::new(
         net.measurement(),
         filter.process(),
         &extra,
@@ -384,14 +384,14 @@ fn wrong_layouts_are_typed_errors() {
     let short = filter.step_window(BEAMSNET_WINDOW - 1).unwrap();
     assert!(generic.transported_cross_covariance(&short).is_err());
     // No per-update input, or four beams where the network reads two.
-    assert!(LearnedCrossCovariance::<f64, _, _, IMU_CHANNELS>::new::<3>(
+    assert!(LearnedCrossCovariance::<f64, _, _, 3, IMU_CHANNELS>::new(
         net.measurement(),
         filter.process(),
         &[],
     )
     .is_err());
     let four = [DMatrix::from_column_slice(4, 1, beams.as_slice())];
-    assert!(LearnedCrossCovariance::<f64, _, _, IMU_CHANNELS>::new::<3>(
+    assert!(LearnedCrossCovariance::<f64, _, _, 3, IMU_CHANNELS>::new(
         net.measurement(),
         filter.process(),
         &four,

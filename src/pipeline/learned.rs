@@ -88,7 +88,7 @@ pub fn beamsnet_inputs(
                 recorder.predict(sample, scenario.imu_dt)?;
             }
             let steps = recorder.step_window(n)?;
-            let m = NetworkSensitivity::new(net, &error_model, beams)
+            let m = NetworkSensitivity::new(net, &error_model, beams)?
                 .transported_cross_covariance(&steps)?
                 .ok_or_else(|| {
                     super::PipelineError::Invalid("network sensitivity gave no M".into())

@@ -240,12 +240,9 @@ pub fn learned_measurements(
             recorder.predict(sample, scenario.imu_dt)?;
         }
         let steps = recorder.step_window(n)?;
-        let generic = LearnedCrossCovariance::<f64, _, _, IMU_CHANNELS>::new::<3>(
-            model,
-            &error_model,
-            extra,
-        )?;
-        velocities[k] = Some(generic.measure::<ERROR_STATES, 3>(&steps)?);
+        let generic =
+            LearnedCrossCovariance::<f64, _, _, 3, IMU_CHANNELS>::new(model, &error_model, extra)?;
+        velocities[k] = Some(generic.measure::<ERROR_STATES>(&steps)?);
         let m = generic
             .transported_cross_covariance(&steps)?
             .ok_or_else(|| PipelineError::Invalid("network sensitivity gave no M".into()))?;
