@@ -26,33 +26,6 @@ use rand_distr::{Distribution, StandardNormal};
 /// room for the round-off of two different factorisations.
 const TOL: f64 = 1e-10;
 
-/// Reference: `steps` x (predict, update with ys[k]) with constant M, covariance
-/// form, LU inverse of S.
-fn reference<const N: usize, const M: usize>(
-    sys: &System<N, M>,
-    steps: usize,
-) -> (DMatrix<f64>, DMatrix<f64>) {
-    let (f, h, r, m, qd) = (
-        dm(&sys.f),
-        dm(&sys.h),
-        dm(&sys.r),
-        dm(&sys.m()),
-        dm(&sys.qd()),
-    );
-    let mut x = DMatrix::from_column_slice(N, 1, sys.x0.as_slice());
-    let mut p = dm(&sys.p0);
-    for y in sys.ys.iter().take(steps) {
-        x = &f * &x;
-        p = &f * &p * f.transpose() + &qd;
-        let s = &h * &p * h.transpose() + &h * &m + m.transpose() * h.transpose() + &r;
-        let k = (&p * h.transpose() + &m) * inv(&s);
-        let y = DMatrix::from_column_slice(M, 1, y.as_slice());
-        x = &x + &k * (y - &h * &x);
-        p = &p - &k * (&h * &p + m.transpose());
-    }
-    (x, p)
-}
-
 fn check_same<const N: usize, const M: usize>(
     what: &str,
     x: &SVector<f64, N>,

@@ -126,3 +126,30 @@ impl<const N: usize, const M: usize> System<N, M> {
         self.g * self.c
     }
 }
+
+/// Reference: `steps` x (predict, update with ys[k]) with constant M, covariance
+/// form, LU inverse of S.
+pub fn reference<const N: usize, const M: usize>(
+    sys: &System<N, M>,
+    steps: usize,
+) -> (DMatrix<f64>, DMatrix<f64>) {
+    let (f, h, r, m, qd) = (
+        dm(&sys.f),
+        dm(&sys.h),
+        dm(&sys.r),
+        dm(&sys.m()),
+        dm(&sys.qd()),
+    );
+    let mut x = DMatrix::from_column_slice(N, 1, sys.x0.as_slice());
+    let mut p = dm(&sys.p0);
+    for y in sys.ys.iter().take(steps) {
+        x = &f * &x;
+        p = &f * &p * f.transpose() + &qd;
+        let s = &h * &p * h.transpose() + &h * &m + m.transpose() * h.transpose() + &r;
+        let k = (&p * h.transpose() + &m) * inv(&s);
+        let y = DMatrix::from_column_slice(M, 1, y.as_slice());
+        x = &x + &k * (y - &h * &x);
+        p = &p - &k * (&h * &p + m.transpose());
+    }
+    (x, p)
+}
