@@ -60,6 +60,9 @@
 //!
 //! - a windowed update ([`crate::WindowedCrossCovariance`]): its window may reach
 //!   back past the previous epoch;
+//! - an update the gate's recovery rule accepted with an inflated prior covariance
+//!   ([`crate::GateRecovery::Inflate`]): the forward pass then is not a Kalman filter
+//!   of the recorded model;
 //! - a correlated update (M != 0) that is not the first accepted update of its epoch
 //!   (the earlier update made its noise correlated with e_k);
 //! - with [`RecordAt::EveryStep`], a correlated update after more than one predict:
@@ -311,6 +314,12 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
         if event.windowed {
             self.mark_unsupported(
                 "windowed update (its window may reach back past the previous epoch)",
+            );
+        }
+        if event.covariance_inflation.is_some() {
+            self.mark_unsupported(
+                "update accepted by the gate's recovery rule with an inflated prior covariance \
+                 (not a Kalman step of the recorded model; GateRecovery::None to smooth)",
             );
         }
         let Some(last) = self.epochs.back() else {

@@ -722,6 +722,39 @@ fn unsupported_recordings_are_typed_errors() {
         ekf.observer().smooth(),
         Err(Error::SmootherUnsupported { epoch: 1, .. })
     ));
+    // An update the gate's recovery rule accepted with an inflated prior: refused (at
+    // epoch 1, the first accepted update's); the same far measurements without the
+    // rule stay rejected and smooth.
+    for recovery in [true, false] {
+        let mut builder = FilterConfig::builder().gate(estim_core::Gate::NisThreshold(9.0));
+        if recovery {
+            builder = builder.gate_recovery(estim_core::GateRecovery::Inflate { after: 2 });
+        }
+        let mut ekf = ExtendedKalmanFilter::new(TimeVarying, initial.clone())
+            .with_config(builder.build().unwrap())
+            .with_observer(ForwardRecorder::from_initial(RecordAt::Updates, &initial));
+        let far = SVector::<f64, 1>::new(100.0);
+        let mut inflated = false;
+        for _ in 0..3 {
+            ekf.predict(&input, 1.0).unwrap();
+            inflated |= ekf
+                .update(&model, &far, &estim_core::Zero)
+                .unwrap()
+                .covariance_inflation
+                .is_some();
+        }
+        assert_eq!(inflated, recovery);
+        let smoothed = ekf.observer().smooth();
+        if recovery {
+            assert!(
+                matches!(smoothed, Err(Error::SmootherUnsupported { epoch: 1, .. })),
+                "{smoothed:?}"
+            );
+        } else {
+            // Rejected updates observed nothing: the initial epoch and the predicted one.
+            assert_eq!(smoothed.map(|s| s.len()).ok(), Some(2));
+        }
+    }
     // The online fixed-lag smoother reports it too.
     let mut ekf = ExtendedKalmanFilter::new(TimeVarying, initial.clone())
         .with_observer(FixedLagSmoother::new(RecordAt::Updates, 1));
