@@ -6,7 +6,7 @@ use estim_core::LearnedMeasurement;
 use nalgebra::{DMatrix, Matrix3, Vector3, Vector4};
 
 use crate::measurement::OnnxMeasurement;
-use crate::{Error, Result};
+use crate::Result;
 
 /// Samples per IMU window of BeamsNetV1 (1 s at 100 Hz).
 pub const BEAMSNET_WINDOW: usize = 100;
@@ -70,19 +70,15 @@ impl BeamsNet {
     /// Load an ONNX file and its metadata (`<model>.json` beside it).
     pub fn load(model_path: &Path) -> Result<Self> {
         let inner = OnnxMeasurement::<3>::from_model_path(model_path)?;
-        let ok = {
-            let i = &inner.metadata().inputs;
-            i.len() == 3
-                && (i[0].channels, i[0].window) == (3, BEAMSNET_WINDOW)
-                && (i[1].channels, i[1].window) == (3, BEAMSNET_WINDOW)
-                && (i[2].channels, i[2].window) == (4, 1)
-        };
-        if !ok {
-            return Err(Error::MalformedMetadata {
-                path: model_path.with_extension("json"),
-                reason: "BeamsNet needs inputs acc 3x100, gyro 3x100, beams 4x1".into(),
-            });
-        }
+        inner.require_inputs(
+            model_path,
+            "BeamsNet",
+            &[
+                ("acc", 3, BEAMSNET_WINDOW),
+                ("gyro", 3, BEAMSNET_WINDOW),
+                ("beams", 4, 1),
+            ],
+        )?;
         Ok(Self { inner })
     }
 

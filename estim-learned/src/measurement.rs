@@ -116,6 +116,34 @@ impl<const M: usize> OnnxMeasurement<M> {
         &self.metadata
     }
 
+    /// Check that the metadata declares exactly `expected` inputs as (name, channels,
+    /// window), for a network-specific loader; the error names the metadata file
+    /// beside `model_path` and what `network` needs.
+    pub(crate) fn require_inputs(
+        &self,
+        model_path: &Path,
+        network: &str,
+        expected: &[(&str, usize, usize)],
+    ) -> Result<()> {
+        let declared = &self.metadata.inputs;
+        let matches = declared.len() == expected.len()
+            && declared
+                .iter()
+                .zip(expected)
+                .all(|(d, &(_, channels, window))| (d.channels, d.window) == (channels, window));
+        if matches {
+            return Ok(());
+        }
+        let needed: Vec<String> = expected
+            .iter()
+            .map(|(name, channels, window)| format!("{name} {channels}x{window}"))
+            .collect();
+        Err(Error::MalformedMetadata {
+            path: model_path.with_extension("json"),
+            reason: format!("{network} needs inputs {}", needed.join(", ")),
+        })
+    }
+
     /// Check one set of input windows against the specs (count, shapes).
     fn check_inputs(&self, inputs: &[DMatrix<f64>]) -> Result<()> {
         if inputs.len() == self.metadata.inputs.len()

@@ -42,18 +42,16 @@ impl OutageNet {
             path: model_path.with_extension("json"),
             reason,
         };
-        let i = &meta.inputs;
-        let ok = i.len() == 4
-            && (i[0].channels, i[0].window) == (3, BEAMSNET_WINDOW)
-            && (i[1].channels, i[1].window) == (3, BEAMSNET_WINDOW)
-            && (i[2].channels, i[2].window) == (3, 1)
-            && (i[3].channels, i[3].window) == (1, 1);
-        if !ok {
-            return Err(bad(
-                "OutageNet needs inputs acc 3x100, gyro 3x100, last_velocity 3x1, elapsed 1x1"
-                    .into(),
-            ));
-        }
+        inner.require_inputs(
+            model_path,
+            "OutageNet",
+            &[
+                ("acc", 3, BEAMSNET_WINDOW),
+                ("gyro", 3, BEAMSNET_WINDOW),
+                ("last_velocity", 3, 1),
+                ("elapsed", 1, 1),
+            ],
+        )?;
         let max_elapsed_s = match meta.training.as_ref().and_then(|t| t.get("max_elapsed_s")) {
             None => 60.0,
             Some(v) => v

@@ -36,16 +36,15 @@ impl TwoBeamsNet {
             path: model_path.with_extension("json"),
             reason,
         };
-        let i = &meta.inputs;
-        let ok = i.len() == 3
-            && (i[0].channels, i[0].window) == (3, BEAMSNET_WINDOW)
-            && (i[1].channels, i[1].window) == (3, BEAMSNET_WINDOW)
-            && (i[2].channels, i[2].window) == (2, 1);
-        if !ok {
-            return Err(bad(
-                "TwoBeamsNet needs inputs acc 3x100, gyro 3x100, beams 2x1".into(),
-            ));
-        }
+        inner.require_inputs(
+            model_path,
+            "TwoBeamsNet",
+            &[
+                ("acc", 3, BEAMSNET_WINDOW),
+                ("gyro", 3, BEAMSNET_WINDOW),
+                ("beams", 2, 1),
+            ],
+        )?;
         let used = match meta.training.as_ref().and_then(|t| t.get("beams_used")) {
             None => [1, 2],
             Some(v) => {
