@@ -35,3 +35,30 @@ pub fn flatten(v: &serde_json::Value) -> Vec<f32> {
         other => panic!("unexpected {other}"),
     }
 }
+
+/// An error-state filter (A-KIT IMU model) started at the truth at `start` that
+/// integrated `imu` and recorded the steps.
+pub fn record(
+    mission: &estim_ins::SimulatedMission,
+    start: usize,
+    imu: &[estim_ins::ImuSample],
+) -> estim_core::ErrorStateKalmanFilter<f64, estim_ins::InsErrorModel, { estim_ins::ERROR_STATES }>
+{
+    let mut filter = estim_core::ErrorStateKalmanFilter::new(
+        estim_ins::InsErrorModel::new(estim_ins::ImuSpec::akit_observed()),
+        mission.truth[start],
+        nalgebra::SMatrix::<f64, { estim_ins::ERROR_STATES }, { estim_ins::ERROR_STATES }>::identity()
+            * 1e-6,
+    )
+    .unwrap()
+    .with_config(
+        estim_core::FilterConfig::builder()
+            .window_capacity(estim_learned::BEAMSNET_WINDOW)
+            .build()
+            .unwrap(),
+    );
+    for sample in imu {
+        filter.predict(sample, mission.imu_dt).unwrap();
+    }
+    filter
+}

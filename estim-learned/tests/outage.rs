@@ -6,15 +6,15 @@
 //! error.
 
 mod common;
-use common::flatten;
+use common::{flatten, record};
 
-use estim_core::{ErrorStateKalmanFilter, FilterConfig, WindowedCrossCovariance};
+use estim_core::WindowedCrossCovariance;
 use estim_ins::{ImuSpec, InsErrorModel, Mission, MissionConfig, ERROR_STATES};
 use estim_learned::{
     Empirical, Error, LearnedCrossCovariance, OnnxMeasurement, OutageNet, BEAMSNET_WINDOW,
     IMU_CHANNELS,
 };
-use nalgebra::{SMatrix, Vector3};
+use nalgebra::Vector3;
 
 #[test]
 fn tract_matches_pytorch_within_1e_5() {
@@ -126,21 +126,11 @@ fn first_order_m_matches_monte_carlo_where_the_network_is_linear() {
         let config = MissionConfig::builder().duration(60.0).build().unwrap();
         let mission = Mission::generate(&config, seed).unwrap();
         let start = 3000;
-        let mut filter = ErrorStateKalmanFilter::new(
-            InsErrorModel::new(ImuSpec::akit_observed()),
-            mission.truth[start],
-            SMatrix::<f64, ERROR_STATES, ERROR_STATES>::identity() * 1e-6,
-        )
-        .unwrap()
-        .with_config(
-            FilterConfig::builder()
-                .window_capacity(BEAMSNET_WINDOW)
-                .build()
-                .unwrap(),
+        let filter = record(
+            &mission,
+            start,
+            &mission.imu[start..start + BEAMSNET_WINDOW],
         );
-        for imu in &mission.imu[start..start + BEAMSNET_WINDOW] {
-            filter.predict(imu, mission.imu_dt).unwrap();
-        }
         let window = filter.step_window(BEAMSNET_WINDOW).unwrap();
         let s0 = mission.truth[start - 2000];
         let last = s0.attitude.inverse() * s0.velocity_ned;

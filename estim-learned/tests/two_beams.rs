@@ -7,9 +7,9 @@
 //! covariance matches its recursion.
 
 mod common;
-use common::flatten;
+use common::{flatten, record};
 
-use estim_core::{ErrorStateKalmanFilter, FilterConfig, StepWindow, WindowedCrossCovariance};
+use estim_core::{ErrorStateKalmanFilter, StepWindow, WindowedCrossCovariance};
 use estim_ins::{
     ImuSample, ImuSpec, InsErrorModel, InsState, Mission, MissionConfig, SimulatedMission,
     ERROR_STATES,
@@ -57,31 +57,6 @@ fn mission_window(seed: u64) -> (SimulatedMission, usize, Vector4<f64>) {
     let v_body: Vector3<f64> = state.attitude.inverse() * state.velocity_ned;
     let beams = estim_dvl::BeamGeometry::beamsnet().beams(&v_body);
     (mission, start, beams)
-}
-
-/// An error-state filter (A-KIT IMU model) started at the truth at `start` that
-/// integrated `imu` and recorded the steps.
-fn record(
-    mission: &SimulatedMission,
-    start: usize,
-    imu: &[ImuSample],
-) -> ErrorStateKalmanFilter<f64, InsErrorModel, ERROR_STATES> {
-    let mut filter = ErrorStateKalmanFilter::new(
-        InsErrorModel::new(ImuSpec::akit_observed()),
-        mission.truth[start],
-        SMatrix::<f64, ERROR_STATES, ERROR_STATES>::identity() * 1e-6,
-    )
-    .unwrap()
-    .with_config(
-        FilterConfig::builder()
-            .window_capacity(BEAMSNET_WINDOW)
-            .build()
-            .unwrap(),
-    );
-    for sample in imu {
-        filter.predict(sample, mission.imu_dt).unwrap();
-    }
-    filter
 }
 
 /// The filter that integrated the window's recorded IMU samples, and the beams.
