@@ -797,7 +797,7 @@ fn compose_structured(
 ) -> ErrorMatrix {
     let mut out = ErrorMatrix::zeros();
     for (column, earlier_column) in out.data.0.iter_mut().zip(earlier) {
-        let navigation = navigation_column::<Separate, NAV>(later, earlier_column);
+        let navigation = navigation_column::<Separate, NAV>(later, |k| earlier_column[k]);
         column[..NAV].copy_from_slice(&navigation);
         for r in NAV..ERROR_STATES {
             column[r] = later[r][r] * earlier_column[r];
@@ -957,12 +957,32 @@ fn propagate_upper<M: MultiplyAdd>(
     // Column arrays (nalgebra stores column-major: `data.0[column][row]`), so every loop
     // below has a length known at compile time and runs down contiguous memory.
     let p = &*covariance;
-    // Y[:, i] = sum_k Phi[i, k] P[:, k]; navigation rows of Phi, skipping the zero
-    // position x gyro-bias block.
-    let [y0, y1, y2] = combine_three_columns::<M, GYRO_BIAS>(p, phi, POS);
-    let [y3, y4, y5] = combine_three_columns::<M, N>(p, phi, VEL);
-    let [y6, y7, y8] = combine_three_columns::<M, N>(p, phi, ATT);
-    let y = [y0, y1, y2, y3, y4, y5, y6, y7, y8];
+    // Y = P N' (15 x 9), Y[k, j] = sum_m P[k, m] Phi[j, m] = sum_m Phi[j, m] P[m, k] (P is
+    // symmetric), kept as `y[k][j]` for the first eight navigation rows j and `y_down[k]`
+    // for the ninth (ψ_D). Each y[k] is a sum over m of Phi's column m (rows 0..8, one
+    // 8-lane vector) times the scalar P[m, k]: the vector runs down Phi's contiguous
+    // columns, with no shuffles (a sum down P's 15-row columns needs an 8-, 4-, 2- and
+    // 1-lane operation, and three such sums at a time were compiled into lane
+    // permutations). Every entry is summed over m in increasing order from zero.
+    let mut y = [[0.0f64; 8]; N];
+    for (yk, pk) in y.iter_mut().zip(p) {
+        for (m, phim) in phi.iter().enumerate() {
+            let w = pk[m];
+            // Rows 0..3 of the gyro-bias columns of Phi are zero: adding their zero
+            // products changes no value (w is finite), so the loop stays uniform.
+            for (acc, f) in yk.iter_mut().zip(&phim[..8]) {
+                *acc = M::multiply_add(*f, w, *acc);
+            }
+        }
+    }
+    // Y[:, 8] = sum_m Phi[8, m] P[:, m], down P's columns.
+    let mut y_down = [0.0f64; N];
+    for (pm, phim) in p.iter().zip(phi) {
+        let w = phim[NAV - 1];
+        for (acc, v) in y_down.iter_mut().zip(pm) {
+            *acc = M::multiply_add(w, *v, *acc);
+        }
+    }
     let out = covariance;
     // Navigation block, upper half: out[i, j] = sum_k Phi[i, k] Y[k, j], i <= j, each
     // column computed to its row j rounded up to 4, 6, 8 or 9 rows (fixed lengths, so the
@@ -971,12 +991,13 @@ fn propagate_upper<M: MultiplyAdd>(
     // rows alone is a variable-length `memcpy` call, 9 per step): the rows below the
     // diagonal are lower-triangle entries, which the callers overwrite with the mirror of
     // the upper triangle and nothing reads before that.
-    for (j, yj) in y.iter().enumerate() {
+    for j in 0..NAV {
+        let column = |k: usize| if j < NAV - 1 { y[k][j] } else { y_down[k] };
         match j {
-            0..=3 => out[j][..4].copy_from_slice(&navigation_column::<M, 4>(phi, yj)),
-            4 | 5 => out[j][..6].copy_from_slice(&navigation_column::<M, 6>(phi, yj)),
-            6 | 7 => out[j][..8].copy_from_slice(&navigation_column::<M, 8>(phi, yj)),
-            _ => out[j][..NAV].copy_from_slice(&navigation_column::<M, NAV>(phi, yj)),
+            0..=3 => out[j][..4].copy_from_slice(&navigation_column::<M, 4>(phi, column)),
+            4 | 5 => out[j][..6].copy_from_slice(&navigation_column::<M, 6>(phi, column)),
+            6 | 7 => out[j][..8].copy_from_slice(&navigation_column::<M, 8>(phi, column)),
+            _ => out[j][..NAV].copy_from_slice(&navigation_column::<M, NAV>(phi, column)),
         }
     }
     // Bias rows: d_b Y[9 + b, j] against the navigation columns, d_a P d_b among
@@ -984,9 +1005,10 @@ fn propagate_upper<M: MultiplyAdd>(
     for b in 0..(N - NAV) {
         let row = NAV + b;
         let d = phi[row][row];
-        for (j, yj) in y.iter().enumerate() {
-            out[row][j] = d * yj[row];
+        for (o, v) in out[row].iter_mut().zip(&y[row]) {
+            *o = d * v;
         }
+        out[row][NAV - 1] = d * y_down[row];
         for a in 0..=b {
             let col = NAV + a;
             out[row][col] = phi[col][col] * out[row][col] * d;
@@ -994,22 +1016,22 @@ fn propagate_upper<M: MultiplyAdd>(
     }
 }
 
-/// Rows 0..R of sum_k Phi[:, k] Y[k, j] (3 < R <= 9; `y_column` = Y[:, j]). Rows 0..3
+/// Rows 0..R of sum_k Phi[:, k] Y[k, j] (3 < R <= 9; `y_column(k)` = Y[k, j]). Rows 0..3
 /// of the gyro-bias columns of Phi are zero and skipped.
 #[inline(always)]
 fn navigation_column<M: MultiplyAdd, const R: usize>(
     phi: &[[f64; ERROR_STATES]; ERROR_STATES],
-    y_column: &[f64; ERROR_STATES],
+    y_column: impl Fn(usize) -> f64,
 ) -> [f64; R] {
     let mut acc = [0.0f64; R];
     for (k, phik) in phi.iter().enumerate().take(GYRO_BIAS) {
-        let w = y_column[k];
+        let w = y_column(k);
         for (a, f) in acc.iter_mut().zip(&phik[..R]) {
             *a = M::multiply_add(*f, w, *a);
         }
     }
     for (k, phik) in phi.iter().enumerate().skip(GYRO_BIAS) {
-        let w = y_column[k];
+        let w = y_column(k);
         for (a, f) in acc[VEL..].iter_mut().zip(&phik[VEL..R]) {
             *a = M::multiply_add(*f, w, *a);
         }
@@ -1026,28 +1048,6 @@ fn mirror_upper(out: &mut [[f64; ERROR_STATES]; ERROR_STATES]) {
             out[i][j] = out[j][i];
         }
     }
-}
-
-/// Y[:, i..i + 3] = sum_{k < K} Phi[i.., k] P[:, k]: three columns at once, so
-/// that three independent sums are in flight (one column's sum over k is a chain of
-/// dependent additions) and each column of P is loaded once for the three. Every entry is
-/// summed over k in increasing order from zero, as one column at a time would be.
-#[inline(always)]
-fn combine_three_columns<M: MultiplyAdd, const K: usize>(
-    p: &[[f64; ERROR_STATES]; ERROR_STATES],
-    phi: &[[f64; ERROR_STATES]; ERROR_STATES],
-    i: usize,
-) -> [[f64; ERROR_STATES]; 3] {
-    let [mut s0, mut s1, mut s2] = [[0.0f64; ERROR_STATES]; 3];
-    for (column, phik) in p.iter().zip(phi).take(K) {
-        let (w0, w1, w2) = (phik[i], phik[i + 1], phik[i + 2]);
-        for r in 0..ERROR_STATES {
-            s0[r] = M::multiply_add(w0, column[r], s0[r]);
-            s1[r] = M::multiply_add(w1, column[r], s1[r]);
-            s2[r] = M::multiply_add(w2, column[r], s2[r]);
-        }
-    }
-    [s0, s1, s2]
 }
 
 fn check_dt(dt: f64) -> estim_core::Result<()> {
