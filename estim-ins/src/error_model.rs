@@ -984,22 +984,24 @@ fn propagate_upper<M: MultiplyAdd>(
         }
     }
     let out = covariance;
-    // Navigation block, upper half: out[i, j] = sum_k Phi[i, k] Y[k, j], i <= j, each
-    // column computed to its row j rounded up to 4, 6, 8 or 9 rows (fixed lengths, so the
-    // loops still unroll and vectorise; exact per-column lengths measured slower).
-    // The whole rounded-up column is stored (a fixed-length copy; a copy of the j + 1
-    // rows alone is a variable-length `memcpy` call, 9 per step): the rows below the
-    // diagonal are lower-triangle entries, which the callers overwrite with the mirror of
-    // the upper triangle and nothing reads before that.
+    // Navigation block, upper half: out[i, j] = sum_k Phi[i, k] Y[k, j], i <= j, summed
+    // over k in increasing order. Rows 0..8 of every column j as one 8-lane vector
+    // (Phi's column k times the scalar Y[k, j]); the rows below the diagonal are
+    // lower-triangle entries, which the callers overwrite with the mirror of the upper
+    // triangle and nothing reads before that. Only the corner (8, 8) needs row 8.
     for j in 0..NAV {
-        let column = |k: usize| if j < NAV - 1 { y[k][j] } else { y_down[k] };
-        match j {
-            0..=3 => out[j][..4].copy_from_slice(&navigation_column::<M, 4>(phi, column)),
-            4 | 5 => out[j][..6].copy_from_slice(&navigation_column::<M, 6>(phi, column)),
-            6 | 7 => out[j][..8].copy_from_slice(&navigation_column::<M, 8>(phi, column)),
-            _ => out[j][..NAV].copy_from_slice(&navigation_column::<M, NAV>(phi, column)),
+        let mut acc = [0.0f64; 8];
+        for (k, phik) in phi.iter().enumerate() {
+            let w = if j < NAV - 1 { y[k][j] } else { y_down[k] };
+            for (a, f) in acc.iter_mut().zip(&phik[..8]) {
+                *a = M::multiply_add(*f, w, *a);
+            }
         }
+        out[j][..8].copy_from_slice(&acc);
     }
+    out[NAV - 1][NAV - 1] = phi.iter().zip(&y_down).fold(0.0, |acc, (phik, w)| {
+        M::multiply_add(phik[NAV - 1], *w, acc)
+    });
     // Bias rows: d_b Y[9 + b, j] against the navigation columns, d_a P d_b among
     // themselves (column 9 + b, rows <= 9 + b of the upper triangle).
     for b in 0..(N - NAV) {
