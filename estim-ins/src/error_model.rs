@@ -918,12 +918,17 @@ const NAV: usize = 9;
 /// - bias x navigation (Phi P Phi')[9 + b, j]   = d_b Y[9 + b, j],
 /// - bias block        (Phi P Phi')[9 + a, 9 + b] = d_a P[9 + a, 9 + b] d_b,
 ///
-/// each of which is the dense product with the zero terms left out; the lower triangle is
+/// each of which is the dense product with the zero blocks left out; the lower triangle is
 /// mirrored, so the result is exactly symmetric (Q's two triangles are averaged, as in
-/// estim-core's runners). Cost: Y 1890 multiply-adds, the navigation half 594, the bias
-/// rows 75; about 2560 instead of the dense 6750 (2 x 15^3) or 3375 for a symmetric-aware
-/// dense product. Loops run down contiguous columns (column-major storage) so they
-/// vectorise.
+/// estim-core's runners). Cost as computed: Y 2,025 multiply-adds (225 eight-lane ones
+/// down Phi's columns for the first eight navigation rows, 225 for the ninth; 135 of them
+/// multiply a structural zero of Phi's position x gyro-bias block, kept so that every
+/// vector has the same shape), the navigation block 1,095 (rows 0..8 of each of its nine
+/// columns as one vector, where only the upper half is kept, and the corner (8, 8)), the
+/// bias rows 75: about 3,200 instead of the dense 6,750 (2 x 15^3). That is more than the
+/// 2,560 of a term-by-term count, but whole 8-lane vectors with no lane shuffles, which
+/// measured faster (estim-ins/README.md). Loops run down contiguous columns (column-major
+/// storage) so they vectorise.
 ///
 /// In place: once Y is formed, P is read only in its bias block, each entry just before
 /// it is overwritten, so the result needs no second 15 x 15 array (whose copy back cost
