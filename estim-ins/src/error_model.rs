@@ -1176,6 +1176,7 @@ mod tests {
                 }));
             }
         }
+        let mut finals: Vec<ErrorMatrix> = Vec::new();
         for (name, kernel) in kernels {
             let (mut s, mut p, mut dense) = (mission.truth[0], p0, p0);
             let (mut worst_step, mut worst_chain) = (0.0f64, 0.0f64);
@@ -1190,9 +1191,15 @@ mod tests {
                 worst_chain = worst_chain.max(scaled_error(&p, &dense));
                 s = model.mechanization.step(&s, imu, dt).unwrap();
             }
-            println!("{name}: worst per step {worst_step:e}, between the chains {worst_chain:e}");
+            // How far this build's chain ends from the portable one's (rounding only).
+            let from_portable = finals.first().map_or(0.0, |first| scaled_error(&p, first));
+            println!(
+                "{name}: worst per step {worst_step:e}, between the chains {worst_chain:e}, \
+                 final P from the portable kernel's {from_portable:e}"
+            );
             assert!(worst_step < 1e-12, "{name}: {worst_step:e}");
             assert!(worst_chain < 1e-12, "{name}: {worst_chain:e}");
+            finals.push(p);
         }
     }
 }
