@@ -806,8 +806,8 @@ fn compose_structured(
     out
 }
 
-/// [`compose_structured`] compiled for AVX2 (bit-identical, as
-/// [`propagate_structured_avx2`]).
+/// [`compose_structured`] compiled for AVX2, without FMA: every lane does the portable
+/// build's separately rounded multiply and add, so the values are the same to the last bit.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn compose_structured_avx2(
