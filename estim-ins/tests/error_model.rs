@@ -424,7 +424,10 @@ fn correlation_scaled_error(a: &SMatrix<f64, 15, 15>, b: &SMatrix<f64, 15, 15>) 
 /// the whole 400 s default mission at 100 Hz: at every step on the same prior, and as two
 /// chains run side by side for 40 000 steps. The in-place path
 /// (`InsErrorModel::predict_covariance`, a third chain) must equal the structured one to
-/// the last bit at every step, so the bounds hold for it too. The structured product of
+/// the last bit at every step (both run the build the CPU selects: fused multiply-adds
+/// where it has AVX2 or AVX-512 and FMA, the portable kernel otherwise; the lib test
+/// `every_covariance_kernel_equals_the_dense_reference` checks each build against the
+/// dense reference on one machine), so the bounds hold for it too. The structured product of
 /// transitions (`compose_transitions`, the runners' Phi_acc between updates, here reset
 /// every 100 steps as with 1 Hz updates) must equal an explicitly looped dense product
 /// of the same factors at every step.
