@@ -125,7 +125,10 @@ fn chi_square_quantile(_m: usize, _probability: f64) -> Result<f64> {
 /// -[`crate::joint_tolerance`] iff the joint covariance is valid: for a valid one it is
 /// the smallest LDL' pivot of the correlation matrix (0 when singular, at most 1; an
 /// upper bound on its smallest eigenvalue), for an invalid one the smallest eigenvalue.
-/// `Skip` avoids even the factorisation and reports `None`.
+/// `Skip` avoids even the factorisation and reports `None`. With M = 0 the joint is
+/// block diagonal and its LDL' is Q_acc's and R's apart; a runner keeps Q_acc's part
+/// from its last update and reuses it while Q_acc is unchanged (a time-invariant
+/// model with one predict per update factors its Q once), with the same result.
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[non_exhaustive]

@@ -1,8 +1,8 @@
 //! Cross-covariance models M_k and the validity check of the joint covariance.
 
-use nalgebra::{DMatrix, SMatrix};
+use nalgebra::{DMatrix, SMatrix, SVector};
 
-use crate::gaussian::check_finite;
+use crate::gaussian::{all_zero, check_finite};
 use crate::scalar::{lit, to_f64};
 use crate::{CrossCovariance, CrossCovarianceContext, Error, Result, Scalar};
 
@@ -228,7 +228,7 @@ fn certify_psd<T: Scalar, const N: usize, const M: usize>(
     c: SMatrix<T, M, M>,
     tol: T,
 ) -> Option<T> {
-    let correlated = b.iter().any(|v| !v.is_zero());
+    let correlated = !all_zero(b.as_slice());
     certify_psd_with(a, b, c, tol, correlated)
 }
 
@@ -318,6 +318,75 @@ pub fn joint_validity_margin<T: Scalar, const N: usize, const M: usize>(
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
 ) -> Result<T> {
+    joint_validity_margin_reusing(
+        accumulated_process_noise,
+        cross_covariance,
+        measurement_noise,
+        None,
+    )
+    .map(|(margin, _)| margin)
+}
+
+/// The unit-diagonal correlation matrix D^-1/2 A D^-1/2 of a symmetric block (its two
+/// triangles averaged), upper triangle only (the certificate reads no other entry),
+/// and the scaling D^-1/2.
+#[inline(always)]
+fn correlation_upper<T: Scalar, const K: usize>(
+    a: &SMatrix<T, K, K>,
+) -> (SMatrix<T, K, K>, SVector<T, K>) {
+    let half = lit::<T>(0.5);
+    let d = a.diagonal().map(inverse_sqrt_or_one);
+    let c = SMatrix::<T, K, K>::from_fn(|i, j| {
+        if i <= j {
+            (a[(i, j)] + a[(j, i)]) * half * d[i] * d[j]
+        } else {
+            T::zero()
+        }
+    });
+    (c, d)
+}
+
+/// The certificate of one symmetric block of an uncorrelated (M = 0) joint covariance,
+/// [`certify_psd_with`]'s elimination of that block alone: its smallest LDL' pivot
+/// (not clamped), or `None` when the block is not certified.
+pub(crate) fn block_certificate<T: Scalar, const K: usize>(a: &SMatrix<T, K, K>) -> Option<T> {
+    let (mut c, _) = correlation_upper(a);
+    let tol = joint_tolerance::<T>();
+    let mut smallest = T::one();
+    for k in 0..K {
+        let d = c[(k, k)];
+        smallest = smallest.min(d);
+        if d > tol {
+            let inv = T::one() / d;
+            for j in (k + 1)..K {
+                let f = c[(k, j)] * inv;
+                for i in (k + 1)..=j {
+                    let v = c[(k, i)] * f;
+                    c[(i, j)] -= v;
+                }
+            }
+        } else if d < -tol || ((k + 1)..K).any(|j| c[(k, j)].abs() > tol) {
+            return None;
+        }
+    }
+    Some(smallest)
+}
+
+/// [`joint_validity_margin`], given the certificate of Q_acc's block when it is already
+/// known (`Some(block_certificate(Q_acc))`, e.g. from an earlier update with the same
+/// Q_acc). Also returns Q_acc's block certificate when M = 0 (else `None`), for reuse.
+///
+/// With M = 0 the joint correlation matrix is block diagonal, and the static LDL' of
+/// [`certify_psd_with`] eliminates the two blocks independently (the eliminations through
+/// the zero block subtract nothing), so its smallest pivot is the smaller of the two
+/// blocks' and it certifies the joint iff it certifies both: the same margin, without
+/// forming the joint matrix.
+pub(crate) fn joint_validity_margin_reusing<T: Scalar, const N: usize, const M: usize>(
+    accumulated_process_noise: &SMatrix<T, N, N>,
+    cross_covariance: &SMatrix<T, N, M>,
+    measurement_noise: &SMatrix<T, M, M>,
+    known_noise_certificate: Option<Option<T>>,
+) -> Result<(T, Option<Option<T>>)> {
     check_joint_finite(
         accumulated_process_noise,
         cross_covariance,
@@ -328,29 +397,22 @@ pub fn joint_validity_margin<T: Scalar, const N: usize, const M: usize>(
         cross_covariance,
         measurement_noise,
     );
-    let half = lit::<T>(0.5);
-    let dq = q.diagonal().map(inverse_sqrt_or_one);
-    let dr = r.diagonal().map(inverse_sqrt_or_one);
-    // Upper triangles only (the certificate reads no other entry).
-    let a = SMatrix::<T, N, N>::from_fn(|i, j| {
-        if i <= j {
-            (q[(i, j)] + q[(j, i)]) * half * dq[i] * dq[j]
-        } else {
-            T::zero()
-        }
-    });
-    let b = SMatrix::<T, N, M>::from_fn(|i, j| m[(i, j)] * dq[i] * dr[j]);
-    let c = SMatrix::<T, M, M>::from_fn(|i, j| {
-        if i <= j {
-            (r[(i, j)] + r[(j, i)]) * half * dr[i] * dr[j]
-        } else {
-            T::zero()
-        }
-    });
-    match certify_psd(a, b, c, joint_tolerance::<T>()) {
-        Some(smallest_pivot) => Ok(smallest_pivot),
-        None => joint_min_correlation_eigenvalue(q, m, r),
+    if all_zero(m.as_slice()) {
+        let noise = known_noise_certificate.unwrap_or_else(|| block_certificate(q));
+        let margin = match (noise, block_certificate(r)) {
+            (Some(a), Some(c)) => a.min(c).max(T::zero()),
+            _ => joint_min_correlation_eigenvalue(q, m, r)?,
+        };
+        return Ok((margin, Some(noise)));
     }
+    let (a, dq) = correlation_upper(q);
+    let (c, dr) = correlation_upper(r);
+    let b = SMatrix::<T, N, M>::from_fn(|i, j| m[(i, j)] * dq[i] * dr[j]);
+    let margin = match certify_psd(a, b, c, joint_tolerance::<T>()) {
+        Some(smallest_pivot) => smallest_pivot,
+        None => joint_min_correlation_eigenvalue(q, m, r)?,
+    };
+    Ok((margin, None))
 }
 
 /// Check that [[Q_acc, M], [M', R]] is positive semidefinite: [`joint_validity_margin`]
@@ -456,6 +518,51 @@ mod tests {
     use nalgebra::{Matrix2, SMatrix};
     use rand::{RngExt, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    /// With M = 0 the margin from the two blocks' separate certificates (what the
+    /// runners compute, reusing Q_acc's) equals the joint elimination's: the LDL' of the
+    /// whole correlation matrix through its zero block (`certify_psd_with(.., true)`),
+    /// with the eigenvalue fallback where that does not certify; a given Q certificate
+    /// gives the same as a fresh one. Valid, rank-deficient and indefinite Q and R at
+    /// (6, 3), seeded (seeds 11, 12, 13 checked: each exercises both outcomes).
+    #[test]
+    fn uncorrelated_margin_from_the_two_blocks_equals_the_joint_elimination() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let (mut certified, mut refused) = (0, 0);
+        for case in 0..300 {
+            let rank = 1 + case % 6;
+            let g = SMatrix::<f64, 6, 6>::from_fn(|_, j| {
+                if j < rank {
+                    rng.random_range(-1.0..1.0)
+                } else {
+                    0.0
+                }
+            });
+            let q_shift = if case % 5 == 0 { -0.05 } else { 0.0 };
+            let q = g * g.transpose() + SMatrix::identity() * q_shift;
+            let h = SMatrix::<f64, 3, 3>::from_fn(|_, _| rng.random_range(-1.0..1.0));
+            let r_shift = if case % 7 == 0 { -0.1 } else { 0.01 };
+            let r = h * h.transpose() + SMatrix::identity() * r_shift;
+            let m = SMatrix::<f64, 6, 3>::zeros();
+            let (a, _) = correlation_upper(&q);
+            let (c, _) = correlation_upper(&r);
+            let joint = certify_psd_with(a, m, c, joint_tolerance(), true);
+            let reference = match joint {
+                Some(pivot) => pivot,
+                None => joint_min_correlation_eigenvalue(&q, &m, &r).unwrap(),
+            };
+            let (fresh, certificate) = joint_validity_margin_reusing(&q, &m, &r, None).unwrap();
+            assert_eq!(fresh, reference, "case {case}");
+            assert_eq!(certificate, Some(block_certificate(&q)), "case {case}");
+            let (reused, _) = joint_validity_margin_reusing(&q, &m, &r, certificate).unwrap();
+            assert_eq!(reused, reference, "case {case}");
+            match joint {
+                Some(_) => certified += 1,
+                None => refused += 1,
+            }
+        }
+        assert!(certified > 20 && refused > 20, "{certified} / {refused}");
+    }
 
     /// The M = 0 shortcut of the LDL' certificate (eliminations involving B skipped)
     /// gives exactly what the full elimination gives on B = 0: valid, rank-deficient

@@ -86,9 +86,23 @@ impl<T: Scalar, const N: usize> StateAndCovariance<T, N> {
     }
 }
 
+/// Whether every value is finite: a branch-free fold (it vectorises; `all` stops at
+/// the first failure and does not, which cost more than the check on matrices).
+#[inline(always)]
+pub(crate) fn all_finite<T: Scalar>(values: &[T]) -> bool {
+    values.iter().fold(true, |ok, v| ok & v.is_finite())
+}
+
+/// Whether every value is zero (branch-free, as [`all_finite`]).
+#[inline(always)]
+pub(crate) fn all_zero<T: Scalar>(values: &[T]) -> bool {
+    values.iter().fold(true, |ok, v| ok & v.is_zero())
+}
+
 /// Fail with [`Error::NonFinite`] if any value is NaN or infinite.
+#[inline(always)]
 pub fn check_finite<T: Scalar>(values: &[T], what: &'static str) -> Result<()> {
-    if values.iter().all(|v| v.is_finite()) {
+    if all_finite(values) {
         Ok(())
     } else {
         Err(Error::NonFinite { what })

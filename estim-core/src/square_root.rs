@@ -43,7 +43,7 @@
 use nalgebra::{SMatrix, SVector};
 
 use crate::cross::joint_min_correlation_eigenvalue;
-use crate::gaussian::check_finite;
+use crate::gaussian::{all_zero, check_finite};
 use crate::scalar::{lit, to_f64};
 use crate::update::{check_innovation_conditioning, mul_static};
 use crate::{CrossCovariance, CrossCovarianceContext, Error, Result, Scalar, StateAndCovariance};
@@ -277,7 +277,7 @@ pub(crate) fn joint_factor<T: Scalar, const N: usize, const M: usize>(
     if !semidefinite_cholesky_sized(N, tol_size, 0, |i, k| covariance[(i, k)], &mut l11) {
         return None;
     }
-    if cross_covariance.iter().all(|v| v.is_zero()) {
+    if all_zero(cross_covariance.as_slice()) {
         // M = 0: the joint is block diagonal, L21 = 0 and L22 = chol(R). The general
         // elimination below would subtract only zero products from R's entries
         // (R_ij - 0 = R_ij exactly) before the same operations in the same order, and

@@ -12,7 +12,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use crate::gaussian::{check_finite, symmetrize};
+use crate::gaussian::{all_finite, all_zero, check_finite, symmetrize};
 use crate::scalar::{lit, to_f64};
 use crate::{Error, Result, Scalar, StateAndCovariance};
 
@@ -404,7 +404,7 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
     cross_covariance: &SMatrix<T, N, M>,
 ) -> Result<FactoredInnovation<T, N, M>> {
     let p = prior.covariance();
-    let correlated = cross_covariance.iter().any(|v| !v.is_zero());
+    let correlated = !all_zero(cross_covariance.as_slice());
     let pht = mul_transpose_static(p, jacobian);
     let s = if correlated {
         innovation_covariance(p, jacobian, measurement_noise, cross_covariance)
@@ -427,7 +427,7 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
     // A NaN or infinity in H, R, M or P always reaches S (IEEE: NaN * 0 = NaN,
     // inf * 0 = NaN), so one check of S guards them all; the cold path names the
     // culprit.
-    if !s.iter().all(|v| v.is_finite()) {
+    if !all_finite(s.as_slice()) {
         check_finite(jacobian.as_slice(), "measurement jacobian")?;
         check_finite(measurement_noise.as_slice(), "measurement noise covariance")?;
         check_finite(cross_covariance.as_slice(), "cross-covariance")?;
