@@ -795,12 +795,13 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         let covariance = propagate_symmetric(f, self.estimate.covariance(), &self.process_noise);
         check_finite(state.as_slice(), "predicted state")?;
         check_finite(covariance.as_slice(), "predicted covariance")?;
-        let before = std::mem::replace(
-            &mut self.estimate,
-            StateAndCovariance::new_unchecked(state, covariance),
-        );
+        // Only the state before is kept (for the recorded window), not the whole
+        // estimate: the covariance is written once.
+        let before = *self.estimate.state();
+        self.estimate = StateAndCovariance::new_unchecked(state, covariance);
+        let f = &self.transition;
         self.shared.record_predict(
-            before.state(),
+            &before,
             &(),
             None,
             f,
