@@ -280,24 +280,40 @@ fn certify_psd_with<T: Scalar, const N: usize, const M: usize>(
             return None;
         }
     }
-    for k in 0..M {
+    if !eliminate_last_block(&mut c, tol, &mut smallest) {
+        return None;
+    }
+    // A pivot accepted as zero may be a round-off -tol..0: certified means >= 0.
+    Some(smallest.max(T::zero()))
+}
+
+/// The LDL' elimination of the last symmetric block C of [`certify_psd_with`] (upper
+/// triangle, in place, after the blocks before it have been eliminated into it), or of a
+/// block alone: `smallest` takes its pivots; false when a pivot is negative beyond `tol`
+/// or a zero pivot has a nonzero row (not certified).
+#[inline(always)]
+fn eliminate_last_block<T: Scalar, const K: usize>(
+    c: &mut SMatrix<T, K, K>,
+    tol: T,
+    smallest: &mut T,
+) -> bool {
+    for k in 0..K {
         let d = c[(k, k)];
-        smallest = smallest.min(d);
+        *smallest = smallest.min(d);
         if d > tol {
             let inv = T::one() / d;
-            for j in (k + 1)..M {
+            for j in (k + 1)..K {
                 let f = c[(k, j)] * inv;
                 for i in (k + 1)..=j {
                     let v = c[(k, i)] * f;
                     c[(i, j)] -= v;
                 }
             }
-        } else if d < -tol || ((k + 1)..M).any(|j| c[(k, j)].abs() > tol) {
-            return None;
+        } else if d < -tol || ((k + 1)..K).any(|j| c[(k, j)].abs() > tol) {
+            return false;
         }
     }
-    // A pivot accepted as zero may be a round-off -tol..0: certified means >= 0.
-    Some(smallest.max(T::zero()))
+    true
 }
 
 /// How valid the joint covariance [[Q_acc, M], [M', R]] is, without allocating when it
@@ -351,25 +367,8 @@ fn correlation_upper<T: Scalar, const K: usize>(
 /// (not clamped), or `None` when the block is not certified.
 pub(crate) fn block_certificate<T: Scalar, const K: usize>(a: &SMatrix<T, K, K>) -> Option<T> {
     let (mut c, _) = correlation_upper(a);
-    let tol = joint_tolerance::<T>();
     let mut smallest = T::one();
-    for k in 0..K {
-        let d = c[(k, k)];
-        smallest = smallest.min(d);
-        if d > tol {
-            let inv = T::one() / d;
-            for j in (k + 1)..K {
-                let f = c[(k, j)] * inv;
-                for i in (k + 1)..=j {
-                    let v = c[(k, i)] * f;
-                    c[(i, j)] -= v;
-                }
-            }
-        } else if d < -tol || ((k + 1)..K).any(|j| c[(k, j)].abs() > tol) {
-            return None;
-        }
-    }
-    Some(smallest)
+    eliminate_last_block(&mut c, joint_tolerance::<T>(), &mut smallest).then_some(smallest)
 }
 
 /// [`joint_validity_margin`], given the certificate of Q_acc's block when it is already
@@ -530,14 +529,7 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(11);
         let (mut certified, mut refused) = (0, 0);
         for case in 0..300 {
-            let rank = 1 + case % 6;
-            let g = SMatrix::<f64, 6, 6>::from_fn(|_, j| {
-                if j < rank {
-                    rng.random_range(-1.0..1.0)
-                } else {
-                    0.0
-                }
-            });
+            let g = crate::test_support::rank_deficient_factor::<6>(&mut rng, 1 + case % 6);
             let q_shift = if case % 5 == 0 { -0.05 } else { 0.0 };
             let q = g * g.transpose() + SMatrix::identity() * q_shift;
             let h = SMatrix::<f64, 3, 3>::from_fn(|_, _| rng.random_range(-1.0..1.0));

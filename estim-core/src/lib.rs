@@ -187,6 +187,28 @@ mod smoother;
 mod square_root;
 #[cfg(feature = "testing")]
 pub mod testing;
+
+/// Helpers of the unit tests.
+#[cfg(test)]
+pub(crate) mod test_support {
+    use nalgebra::SMatrix;
+    use rand::RngExt;
+
+    /// An N x N factor G whose first `rank` columns are uniform in [-1, 1) and the rest
+    /// zero, so G G' has rank `rank` at most (column-major draws, as `from_fn`).
+    pub(crate) fn rank_deficient_factor<const N: usize>(
+        rng: &mut impl rand::Rng,
+        rank: usize,
+    ) -> SMatrix<f64, N, N> {
+        SMatrix::from_fn(|_, j| {
+            if j < rank {
+                rng.random_range(-1.0..1.0)
+            } else {
+                0.0
+            }
+        })
+    }
+}
 mod traits;
 mod update;
 pub mod window;

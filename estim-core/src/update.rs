@@ -585,13 +585,7 @@ mod tests {
         let mut compared = 0;
         for case in 0..300 {
             let rank = 1 + case % 6;
-            let g = SMatrix::<f64, 6, 6>::from_fn(|_, j| {
-                if j < rank {
-                    rng.random_range(-1.0..1.0)
-                } else {
-                    0.0
-                }
-            });
+            let g = crate::test_support::rank_deficient_factor::<6>(&mut rng, rank);
             let p = g * g.transpose();
             let h = SMatrix::<f64, 2, 6>::from_fn(|_, _| rng.random_range(-1.0..1.0));
             let r = SMatrix::<f64, 2, 2>::new(0.3, 0.05, 0.05, 0.2);
