@@ -310,7 +310,7 @@ fn single_precision(c: &mut Criterion<ThreadCpuTime>) {
                 kf.predict().expect("predict");
                 // Keep the covariance bounded: one update every 100 predicts.
                 k += 1;
-                if k % 100 == 0 {
+                if k.is_multiple_of(100) {
                     kf.update(&y, &Zero).expect("update");
                 }
                 black_box(kf.estimate().covariance()[(0, 0)])
@@ -335,7 +335,7 @@ fn single_precision(c: &mut Criterion<ThreadCpuTime>) {
             b.iter(|| {
                 filter.predict(black_box(acc), black_box(rot), Duration::from_millis(10));
                 k += 1;
-                if k % 40_000 == 0 {
+                if k.is_multiple_of(40_000) {
                     filter = fresh;
                 }
                 black_box(&filter);

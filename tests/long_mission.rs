@@ -101,7 +101,7 @@ impl Observer<f64, InsState, ERROR_STATES> for PositiveDefinite {
         self.check(
             event.covariance,
             "predict",
-            event.propagations_since_update % 100 == 0,
+            event.propagations_since_update.is_multiple_of(100),
         );
         Ok(())
     }

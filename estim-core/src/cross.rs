@@ -571,7 +571,7 @@ mod tests {
                     0.0
                 }
             });
-            let shift = if n % 3 == 0 { -0.05 } else { 0.0 };
+            let shift = if n.is_multiple_of(3) { -0.05 } else { 0.0 };
             g * g.transpose() + SMatrix::identity() * shift
         };
         let (mut certified, mut refused) = (0, 0);

@@ -64,6 +64,13 @@ impl<T: Scalar, const N: usize> StateAndCovariance<T, N> {
         Self { state, covariance }
     }
 
+    /// Take `state` and the covariance in `covariance`, leaving the old covariance
+    /// there (a swap: the runners commit a posterior without copying it).
+    pub(crate) fn commit(&mut self, state: SVector<T, N>, covariance: &mut SMatrix<T, N, N>) {
+        self.state = state;
+        std::mem::swap(&mut self.covariance, covariance);
+    }
+
     /// The mean.
     pub fn state(&self) -> &SVector<T, N> {
         &self.state

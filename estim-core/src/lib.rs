@@ -179,6 +179,7 @@ mod consistency;
 mod cross;
 mod error;
 mod gaussian;
+mod kernel;
 mod observer;
 mod runner;
 mod scalar;

@@ -17,7 +17,7 @@ use crate::gaussian::{all_zero, check_finite, check_symmetric, symmetrize};
 use crate::observer::{NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
 use crate::scalar::lit;
 use crate::update::{
-    factor_innovation, finish_update, mul_static, spd_inverse, FactoredInnovation,
+    factor_innovation, finish_update_into, mul_static, spd_inverse, FactoredInnovation,
 };
 use crate::window::{exact_terms, History};
 use crate::{
@@ -81,11 +81,18 @@ impl<T: Scalar, const N: usize, const M: usize> UpdateReport<T, N, M> {
 ///
 /// The first propagation after a measurement copies (no product), so a filter that
 /// updates after every prediction pays nothing for the accumulation.
+///
+/// A reset writes nothing: with no propagation since the last measurement the sums
+/// read as their origins 0 and I (kept once), and the next push overwrites them.
 #[derive(Debug, Clone, PartialEq)]
 struct Accumulator<T: Scalar, const N: usize> {
     noise: SMatrix<T, N, N>,
     transition: SMatrix<T, N, N>,
     steps: usize,
+    /// Whether `noise` and `transition` hold a sum since the last reset.
+    filled: bool,
+    /// (0, I): Q_acc and Phi_acc while nothing is filled.
+    origin: (SMatrix<T, N, N>, SMatrix<T, N, N>),
 }
 
 impl<T: Scalar, const N: usize> Accumulator<T, N> {
@@ -94,6 +101,28 @@ impl<T: Scalar, const N: usize> Accumulator<T, N> {
             noise: SMatrix::zeros(),
             transition: SMatrix::identity(),
             steps: 0,
+            filled: false,
+            origin: (SMatrix::zeros(), SMatrix::identity()),
+        }
+    }
+
+    /// Q_acc.
+    #[inline(always)]
+    fn noise(&self) -> &SMatrix<T, N, N> {
+        if !self.filled {
+            &self.origin.0
+        } else {
+            &self.noise
+        }
+    }
+
+    /// Phi_acc.
+    #[inline(always)]
+    fn transition(&self) -> &SMatrix<T, N, N> {
+        if !self.filled {
+            &self.origin.1
+        } else {
+            &self.transition
         }
     }
 
@@ -111,7 +140,7 @@ impl<T: Scalar, const N: usize> Accumulator<T, N> {
         ) -> SMatrix<T, N, N>,
         compose: impl FnOnce(&SMatrix<T, N, N>, &SMatrix<T, N, N>) -> SMatrix<T, N, N>,
     ) {
-        if self.steps == 0 {
+        if !self.filled {
             self.noise = *process_noise;
             self.transition = *transition;
         } else {
@@ -119,15 +148,18 @@ impl<T: Scalar, const N: usize> Accumulator<T, N> {
             self.transition = compose(transition, &self.transition);
         }
         self.steps += 1;
+        self.filled = true;
     }
 
     fn reset(&mut self) {
-        *self = Self::new();
+        self.steps = 0;
+        self.filled = false;
     }
 }
 
-/// F P F' + Q for a symmetric P and Q, as two static products in column (axpy)
-/// order, which vectorise and carry no long dependency chain; then the upper
+/// F P F' + Q for a symmetric P and Q, as two products (`crate::kernel`: the fused
+/// AVX-512 kernel for 8 or more states where the CPU has it, else static loops in
+/// column (axpy) order, which vectorise and carry no long dependency chain); then the upper
 /// triangle, plus Q's triangles averaged (as by `symmetrize`), mirrored so the
 /// result is exactly symmetric. (An upper-triangle-only (F P) F', same values,
 /// measured slower at (4,2), (15,3) and (30,6): its inner loops have a variable
@@ -138,8 +170,8 @@ fn propagate_symmetric<T: Scalar, const N: usize>(
     covariance: &SMatrix<T, N, N>,
     process_noise: &SMatrix<T, N, N>,
 ) -> SMatrix<T, N, N> {
-    let fp = mul_static(transition, covariance);
-    let mut out = mul_static(&fp, &transition.transpose());
+    let fp = crate::kernel::product(transition, covariance);
+    let mut out = crate::kernel::product_transposed(&fp, transition);
     let half = lit::<T>(0.5);
     for j in 0..N {
         for i in 0..=j {
@@ -163,9 +195,11 @@ fn check_dt<T: Scalar>(dt: T) -> Result<()> {
 }
 
 /// `$this.$body`, run through its copy `$avx2` compiled for AVX2 when the CPU has it
-/// (4 lanes instead of SSE2's 2). No FMA: every lane does the same separately rounded
-/// multiply and add as the portable build, so both give the same bits. (An AVX-512
-/// copy measured no faster at (15,3) and 10 % slower at (4,2).)
+/// (4 lanes instead of SSE2's 2). No FMA in this build itself: its loops do the same
+/// separately rounded multiply and add as the portable build. The large dense
+/// products (N >= 8) go through [`crate::kernel`], which fuses them on AVX-512 CPUs:
+/// there the results differ from the portable build's by round-off. (An AVX-512 copy
+/// of the whole runner measured no faster at (15,3) and 10 % slower at (4,2).)
 macro_rules! simd_dispatch {
     ($this:ident . $body:ident ( $($arg:expr),* ) via $avx2:ident) => {{
         #[cfg(target_arch = "x86_64")]
@@ -191,10 +225,11 @@ enum CrossSource<'c, C: ?Sized, W: ?Sized> {
 /// The update attempt's result before the runner commits it.
 struct Attempt<T: Scalar, const N: usize, const M: usize> {
     report: UpdateReport<T, N, M>,
-    posterior: Option<StateAndCovariance<T, N>>,
+    /// The posterior mean when accepted; its covariance is in the runner's buffer.
+    posterior: Option<SVector<T, N>>,
     /// (H' S^-1 H, H' S^-1 nu) when the history records updates.
     information: Option<(SMatrix<T, N, N>, SVector<T, N>)>,
-    /// Q_acc's block certificate, when an uncorrelated joint check computed it.
+    /// Q_acc's block certificate, when an uncorrelated joint check computed it afresh.
     noise_certificate: Option<Option<T>>,
 }
 
@@ -303,8 +338,8 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
             CrossSource::OneStep(model) => {
                 let tracked = self.config.track_accumulated_noise();
                 let context = CrossCovarianceContext {
-                    accumulated_process_noise: &self.accumulated.noise,
-                    accumulated_transition: &self.accumulated.transition,
+                    accumulated_process_noise: self.accumulated.noise(),
+                    accumulated_transition: self.accumulated.transition(),
                     accumulation_tracked: tracked,
                     measurement_noise,
                     jacobian,
@@ -326,7 +361,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
                         (None, None)
                     }
                     check => {
-                        let noise = &self.accumulated.noise;
+                        let noise = self.accumulated.noise();
                         let known = match &self.noise_certificate {
                             Some((checked, certificate))
                                 if checked.as_slice() == noise.as_slice() =>
@@ -337,7 +372,8 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
                         };
                         let (margin, certificate) =
                             joint_eigenvalue(check, noise, &cross, measurement_noise, known)?;
-                        (Some(margin), certificate)
+                        // A reused certificate is already stored with its Q_acc.
+                        (Some(margin), certificate.filter(|_| known.is_none()))
                     }
                 };
                 Ok((
@@ -374,7 +410,9 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         }
     }
 
-    /// The update attempt shared by all runners. Touches nothing: the caller commits.
+    /// The update attempt shared by all runners. Touches nothing but the runner's
+    /// posterior buffer `posterior_covariance` (P+ when accepted, unspecified
+    /// otherwise): the caller commits.
     /// Inlined, so that the linear runner's AVX2 build (`simd_dispatch!`) covers it
     /// (measured 8 % faster at (15,3) and 13 % at (4,2) than an out-of-line call).
     #[allow(clippy::too_many_arguments)]
@@ -388,6 +426,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         predicted: SVector<T, M>,
         jacobian: &SMatrix<T, M, N>,
         measurement_noise: &SMatrix<T, M, M>,
+        posterior_covariance: &mut SMatrix<T, N, N>,
     ) -> Result<Attempt<T, N, M>>
     where
         C: CrossCovariance<T, S, N, M> + ?Sized,
@@ -475,18 +514,21 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
                 mul_static(&hs, &innovation),
             )
         });
-        let outcome = finish_update(
+        let finished = finish_update_into(
             prior,
             &innovation,
             &cross_covariance,
             self.config.covariance_update(),
-            factored,
+            &factored,
+            posterior_covariance,
         )?;
-        report.gain = Some(outcome.gain);
-        report.correction = Some(outcome.posterior.state() - prior.state());
+        report.gain = Some(finished.gain);
+        report.correction = Some(SVector::from_fn(|i, _| {
+            finished.state[i] - prior.state()[i]
+        }));
         Ok(Attempt {
             report,
-            posterior: Some(outcome.posterior),
+            posterior: Some(finished.state),
             information,
             noise_certificate: certificate,
         })
@@ -512,7 +554,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
                 .push_update(transform, *information, *weighted, correlated);
         }
         if let Some(certificate) = attempt.noise_certificate {
-            self.noise_certificate = Some((self.accumulated.noise, certificate));
+            self.noise_certificate = Some((*self.accumulated.noise(), certificate));
         }
         if attempt.report.is_accepted() {
             self.rejections_in_a_row = 0;
@@ -653,12 +695,12 @@ macro_rules! shared_accessors {
         /// Q_acc since the last measurement (zero when not tracked, see
         /// [`FilterConfig::track_accumulated_noise`]).
         pub fn accumulated_process_noise(&self) -> &SMatrix<T, N, N> {
-            &self.shared.accumulated.noise
+            self.shared.accumulated.noise()
         }
 
         /// Phi_acc since the last measurement (identity when not tracked).
         pub fn accumulated_transition(&self) -> &SMatrix<T, N, N> {
-            &self.shared.accumulated.transition
+            self.shared.accumulated.transition()
         }
 
         /// Propagations since the last measurement.
@@ -714,6 +756,9 @@ pub struct KalmanFilter<T: Scalar, const N: usize, const M: usize, O = NoObserve
     observation: SMatrix<T, M, N>,
     measurement_noise: SMatrix<T, M, M>,
     estimate: StateAndCovariance<T, N>,
+    /// The update's posterior covariance buffer; after an accepted update it holds
+    /// the prior covariance (swapped, not copied).
+    spare: SMatrix<T, N, N>,
     shared: Shared<T, SVector<T, N>, (), N, O>,
 }
 
@@ -742,6 +787,7 @@ impl<T: Scalar, const N: usize, const M: usize> KalmanFilter<T, N, M, NoObserver
             observation,
             measurement_noise,
             estimate: initial,
+            spare: SMatrix::zeros(),
             shared: Shared::new(),
         })
     }
@@ -759,6 +805,7 @@ impl<T: Scalar, const N: usize, const M: usize, O> KalmanFilter<T, N, M, O> {
             observation: self.observation,
             measurement_noise: self.measurement_noise,
             estimate: self.estimate,
+            spare: self.spare,
             shared: self.shared.with_observer(observer),
         }
     }
@@ -773,8 +820,9 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
     KalmanFilter<T, N, M, O>
 {
     /// Prior: x <- F x, P <- F P F' + Q. Runs a copy compiled for AVX2 when the CPU
-    /// has it (as does [`KalmanFilter::update`]), with the same bits as the portable
-    /// build.
+    /// has it (as does [`KalmanFilter::update`]); F P F' of 8 or more states runs
+    /// through the fused AVX-512 product kernel on CPUs that have it (same values to
+    /// round-off).
     ///
     /// # Errors
     /// [`Error::NonFinite`] if the prediction overflows; observer errors.
@@ -807,7 +855,7 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             f,
             &self.process_noise,
             |q, phi, qd| propagate_symmetric(phi, q, qd),
-            |later, earlier| mul_static(later, earlier),
+            |later, earlier| crate::kernel::product(later, earlier),
         );
         self.shared.notify_predict(
             None,
@@ -864,17 +912,21 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             predicted,
             &self.observation,
             &self.measurement_noise,
+            &mut self.spare,
         )?;
         self.shared.record_update(&attempt, &self.observation, None);
-        let prior = match attempt.posterior {
-            Some(posterior) => std::mem::replace(&mut self.estimate, posterior),
-            None => self.estimate.clone(),
+        let prior_covariance = match attempt.posterior {
+            Some(state) => {
+                self.estimate.commit(state, &mut self.spare);
+                &self.spare
+            }
+            None => self.estimate.covariance(),
         };
         self.shared.notify_update(
             &attempt.report,
             self.estimate.state(),
             self.estimate.covariance(),
-            prior.covariance(),
+            prior_covariance,
             &self.observation,
             windowed,
             None,
@@ -948,6 +1000,9 @@ where
 {
     process: P,
     estimate: StateAndCovariance<T, N>,
+    /// The update's posterior covariance buffer; after an accepted update it holds
+    /// the prior covariance (swapped, not copied).
+    spare: SMatrix<T, N, N>,
     shared: Shared<T, SVector<T, N>, P::Input, N, O>,
 }
 
@@ -961,6 +1016,7 @@ where
         Self {
             process,
             estimate: initial,
+            spare: SMatrix::zeros(),
             shared: Shared::new(),
         }
     }
@@ -989,6 +1045,7 @@ impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ExtendedKalmanFilter<T
         ExtendedKalmanFilter {
             process: self.process,
             estimate: self.estimate,
+            spare: self.spare,
             shared: self.shared.with_observer(observer),
         }
     }
@@ -1076,17 +1133,21 @@ where
             predicted,
             &jacobian,
             &noise,
+            &mut self.spare,
         )?;
         self.shared.record_update(&attempt, &jacobian, None);
-        let prior = match attempt.posterior {
-            Some(posterior) => std::mem::replace(&mut self.estimate, posterior),
-            None => self.estimate.clone(),
+        let prior_covariance = match attempt.posterior {
+            Some(state) => {
+                self.estimate.commit(state, &mut self.spare);
+                &self.spare
+            }
+            None => self.estimate.covariance(),
         };
         self.shared.notify_update(
             &attempt.report,
             self.estimate.state(),
             self.estimate.covariance(),
-            prior.covariance(),
+            prior_covariance,
             &jacobian,
             windowed,
             None,
@@ -1174,6 +1235,9 @@ where
     process: P,
     nominal: P::State,
     covariance: SMatrix<T, N, N>,
+    /// The update's posterior covariance buffer; after an accepted update it holds
+    /// the prior covariance (swapped, not copied).
+    spare: SMatrix<T, N, N>,
     shared: Shared<T, P::State, P::Input, N, O>,
 }
 
@@ -1193,6 +1257,7 @@ where
             process,
             nominal,
             covariance,
+            spare: SMatrix::zeros(),
             shared: Shared::new(),
         })
     }
@@ -1222,6 +1287,7 @@ impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ErrorStateKalmanFilter
             process: self.process,
             nominal: self.nominal,
             covariance: self.covariance,
+            spare: self.spare,
             shared: self.shared.with_observer(observer),
         }
     }
@@ -1308,35 +1374,37 @@ where
             predicted,
             &jacobian,
             &noise,
+            &mut self.spare,
         )?;
-        // Everything that can fail happens before the commit.
+        // Everything that can fail happens before the commit; the posterior
+        // covariance (reset when J != I) is in `spare`.
         let mut committed = None;
         let mut reset = None;
-        if let Some(posterior) = attempt.posterior.as_ref() {
-            let error = *posterior.state();
-            let j = self.process.reset_jacobian(&self.nominal, &error);
+        if let Some(error) = attempt.posterior.as_ref() {
+            let j = self.process.reset_jacobian(&self.nominal, error);
             check_finite(j.as_slice(), "reset jacobian")?;
-            let nominal = self.process.inject(&self.nominal, &error)?;
-            let covariance = if j == SMatrix::<T, N, N>::identity() {
-                *posterior.covariance()
-            } else {
+            let nominal = self.process.inject(&self.nominal, error)?;
+            if j != SMatrix::<T, N, N>::identity() {
+                self.spare = symmetrize(&(j * self.spare * j.transpose()));
                 reset = Some(j);
-                symmetrize(&(j * posterior.covariance() * j.transpose()))
-            };
-            committed = Some((nominal, covariance));
+            }
+            committed = Some(nominal);
         }
         self.shared
             .record_update(&attempt, &jacobian, reset.as_ref());
-        let prior_covariance = self.covariance;
-        if let Some((nominal, covariance)) = committed {
-            self.nominal = nominal;
-            self.covariance = covariance;
-        }
+        let prior_covariance = match committed {
+            Some(nominal) => {
+                self.nominal = nominal;
+                std::mem::swap(&mut self.covariance, &mut self.spare);
+                &self.spare
+            }
+            None => &self.covariance,
+        };
         self.shared.notify_update(
             &attempt.report,
             &self.nominal,
             &self.covariance,
-            &prior_covariance,
+            prior_covariance,
             &jacobian,
             windowed,
             reset.as_ref(),

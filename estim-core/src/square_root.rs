@@ -814,7 +814,7 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(7);
         let (mut factored, mut refused) = (0, 0);
         for case in 0..400 {
-            let shift = |c: usize| if c % 5 == 0 { -1e-3 } else { 0.0 };
+            let shift = |c: usize| if c.is_multiple_of(5) { -1e-3 } else { 0.0 };
             let p = gram::<7>(&mut rng, 1 + case % 7, shift(case));
             let r = gram::<3>(&mut rng, 1 + case % 3, shift(case / 2)) * 0.1;
             let m = SMatrix::<f64, 7, 3>::zeros();

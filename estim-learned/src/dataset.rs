@@ -152,7 +152,7 @@ pub fn dataset_row(sample: &BeamsNetSample, trajectory: u32, realization: u32) -
 
 /// Write a 2-D little-endian `float64` C-order array in NumPy `.npy` format 1.0.
 pub fn write_npy(path: &Path, columns: usize, data: &[f64]) -> Result<()> {
-    if columns == 0 || data.len() % columns != 0 {
+    if columns == 0 || !data.len().is_multiple_of(columns) {
         return Err(Error::InvalidInput {
             what: "npy array",
             reason: format!("{} values do not fill rows of {columns}", data.len()),

@@ -1,0 +1,468 @@
+//! Dense products of the runners' hot loops (F P F', Phi_acc, the square-root
+//! update's Gram product) through a register-blocked AVX-512 kernel with fused
+//! multiply-adds, for `f64` on CPUs that have AVX-512F; everywhere else (other
+//! scalars, other CPUs, small products) the plain loops of [`mul_static`].
+//!
+//! Why by hand: at the sizes of a filter (N = 8..30) the loops of `mul_static`, even
+//! compiled for AVX-512, run at 12-15 multiply-adds per ns on the Zen 5 machine the
+//! benches run on, and the crates that do products well (matrixmultiply, gemm) pack
+//! their operands, which costs more than the product at these sizes (14 and 11 per
+//! ns at N = 15, measured in the same session). The kernel keeps a panel of up to 24
+//! rows by 4 columns of the product in 24 registers and streams A's columns through
+//! them: 28 per ns at N = 15, 35 at N = 30 (F P F' + Q 566 -> 241 ns at N = 15).
+//!
+//! Results: each entry is the sum over k in increasing order, as in `mul_static`, but
+//! with every multiply-add rounded once (fused) instead of twice; so the two builds
+//! differ by round-off (tested against a separately coded product, `tests` below).
+//! A A' computed by the kernel is exactly symmetric: entry (i, j) and (j, i) run the
+//! same fused operations on the same products (a b = b a exactly).
+
+use nalgebra::SMatrix;
+
+use crate::scalar::Scalar;
+use crate::update::mul_static;
+
+/// Products with fewer multiply-adds than this use `mul_static`: the kernel's masked
+/// panels do not pay below about N = 8 (F P F' + Q at N = 6: 41 ns by the kernel, 29
+/// ns by the loops; N = 8: 48 against 100 ns).
+const KERNEL_MIN_WORK: usize = 512;
+
+/// How the second factor is read.
+#[derive(Clone, Copy, Debug)]
+enum Second {
+    /// B itself (column-major K x C).
+    Plain,
+    /// X' for a column-major C x K matrix X.
+    Transposed,
+}
+
+/// A B.
+#[inline(always)]
+pub(crate) fn product<T: Scalar, const R: usize, const K: usize, const C: usize>(
+    a: &SMatrix<T, R, K>,
+    b: &SMatrix<T, K, C>,
+) -> SMatrix<T, R, C> {
+    let mut out = SMatrix::<T, R, C>::zeros();
+    if !fused(
+        out.as_mut_slice(),
+        a.as_slice(),
+        b.as_slice(),
+        (R, K, C),
+        Second::Plain,
+        false,
+    ) {
+        out = mul_static(a, b);
+    }
+    out
+}
+
+/// A X' (X is C x K).
+#[inline(always)]
+pub(crate) fn product_transposed<T: Scalar, const R: usize, const K: usize, const C: usize>(
+    a: &SMatrix<T, R, K>,
+    x: &SMatrix<T, C, K>,
+) -> SMatrix<T, R, C> {
+    let mut out = SMatrix::<T, R, C>::zeros();
+    if !fused(
+        out.as_mut_slice(),
+        a.as_slice(),
+        x.as_slice(),
+        (R, K, C),
+        Second::Transposed,
+        false,
+    ) {
+        out = mul_static(a, &x.transpose());
+    }
+    out
+}
+
+/// C - A B.
+#[inline(always)]
+pub(crate) fn minus_product<T: Scalar, const R: usize, const K: usize, const C: usize>(
+    c: &SMatrix<T, R, C>,
+    a: &SMatrix<T, R, K>,
+    b: &SMatrix<T, K, C>,
+) -> SMatrix<T, R, C> {
+    let mut out = *c;
+    let negated = -a;
+    if !fused(
+        out.as_mut_slice(),
+        negated.as_slice(),
+        b.as_slice(),
+        (R, K, C),
+        Second::Plain,
+        true,
+    ) {
+        out = c - mul_static(a, b);
+    }
+    out
+}
+
+/// `out` = A A' + B B' (A is N x K, B is N x L), exactly symmetric, when the kernel
+/// runs (f64, AVX-512F, large enough); false, with `out` untouched, otherwise (the
+/// caller's own loops then).
+#[inline(always)]
+pub(crate) fn gram_pair_into<T: Scalar, const N: usize, const K: usize, const L: usize>(
+    a: &SMatrix<T, N, K>,
+    b: &SMatrix<T, N, L>,
+    out: &mut SMatrix<T, N, N>,
+) -> bool {
+    if N * (K + L) * N < KERNEL_MIN_WORK
+        || !fused_any_size(
+            out.as_mut_slice(),
+            a.as_slice(),
+            a.as_slice(),
+            (N, K, N),
+            Second::Transposed,
+            false,
+        )
+    {
+        return false;
+    }
+    // The first call ran the kernel, so this one does too (same scalar, same CPU).
+    L == 0
+        || fused_any_size(
+            out.as_mut_slice(),
+            b.as_slice(),
+            b.as_slice(),
+            (N, L, N),
+            Second::Transposed,
+            true,
+        )
+}
+
+/// Whether this CPU runs the kernel (for `f64`).
+pub(crate) fn available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        avx512::available()
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// `out` (R x C) = A B (or += with `accumulate`) through the kernel when it applies
+/// (f64, the CPU, at least [`KERNEL_MIN_WORK`]); false (nothing written) when not.
+#[inline(always)]
+fn fused<T: Scalar>(
+    out: &mut [T],
+    a: &[T],
+    b: &[T],
+    (r, k, c): (usize, usize, usize),
+    second: Second,
+    accumulate: bool,
+) -> bool {
+    r * k * c >= KERNEL_MIN_WORK && fused_any_size(out, a, b, (r, k, c), second, accumulate)
+}
+
+/// [`fused`] whatever the size.
+#[inline(always)]
+fn fused_any_size<T: Scalar>(
+    out: &mut [T],
+    a: &[T],
+    b: &[T],
+    (r, k, c): (usize, usize, usize),
+    second: Second,
+    accumulate: bool,
+) -> bool {
+    if r * c == 0 {
+        return false;
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::any::TypeId;
+        if TypeId::of::<T>() == TypeId::of::<f64>() && available() {
+            // SAFETY: T is f64 (checked on the line above), so the slices' memory holds
+            // f64 values of the same length.
+            let (out, a, b) = unsafe {
+                (
+                    std::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<f64>(), out.len()),
+                    std::slice::from_raw_parts(a.as_ptr().cast::<f64>(), a.len()),
+                    std::slice::from_raw_parts(b.as_ptr().cast::<f64>(), b.len()),
+                )
+            };
+            let strides = match second {
+                Second::Plain => (1, k),
+                Second::Transposed => (c, 1),
+            };
+            avx512::product(out, a, b, (r, k, c), strides, accumulate);
+            return true;
+        }
+    }
+    let _ = (out, a, b, second, accumulate);
+    false
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use std::arch::x86_64::{
+        __mmask8, _mm512_fmadd_pd, _mm512_mask_storeu_pd, _mm512_maskz_loadu_pd, _mm512_set1_pd,
+        _mm512_setzero_pd,
+    };
+
+    /// Whether the CPU runs the kernel (AVX-512F; its FMA is part of AVX-512F).
+    #[inline(always)]
+    pub(super) fn available() -> bool {
+        std::arch::is_x86_feature_detected!("avx512f")
+    }
+
+    /// `out` (column-major r x c) = A B (or += with `accumulate`), A column-major
+    /// r x k, B(kk, j) = b[kk * strides.0 + j * strides.1].
+    ///
+    /// # Panics
+    /// If a slice is shorter than the sizes say (never for the callers' static sizes).
+    pub(super) fn product(
+        out: &mut [f64],
+        a: &[f64],
+        b: &[f64],
+        (r, k, c): (usize, usize, usize),
+        strides: (usize, usize),
+        accumulate: bool,
+    ) {
+        assert!(available());
+        assert!(out.len() >= r * c && a.len() >= r * k);
+        assert!(k == 0 || c == 0 || b.len() > (k - 1) * strides.0 + (c - 1) * strides.1);
+        // SAFETY: the CPU has AVX-512F (asserted), and every index the kernel reads or
+        // writes is within the lengths asserted above (masked lanes are not accessed).
+        unsafe { product_avx512(out, a, b, (r, k, c), strides, accumulate) }
+    }
+
+    /// Mask of the first `n` lanes of 8.
+    #[inline(always)]
+    fn lanes(n: usize) -> __mmask8 {
+        if n >= 8 {
+            0xff
+        } else {
+            ((1u16 << n) - 1) as __mmask8
+        }
+    }
+
+    #[target_feature(enable = "avx512f")]
+    unsafe fn product_avx512(
+        out: &mut [f64],
+        a: &[f64],
+        b: &[f64],
+        (r, k, c): (usize, usize, usize),
+        strides: (usize, usize),
+        accumulate: bool,
+    ) {
+        let (out, a, b) = (out.as_mut_ptr(), a.as_ptr(), b.as_ptr());
+        let mut i0 = 0;
+        while i0 < r {
+            // Panels of 8, 16 or 24 rows; the rows past r are masked off.
+            let rows = (r - i0).min(24);
+            let masks = [
+                lanes(rows),
+                lanes(rows.saturating_sub(8)),
+                lanes(rows.saturating_sub(16)),
+            ];
+            let mut j0 = 0;
+            while j0 < c {
+                let width = (c - j0).min(4);
+                let job = Panel {
+                    k,
+                    a: a.add(i0),
+                    lda: r,
+                    masks,
+                    b: b.add(j0 * strides.1),
+                    strides,
+                    out: out.add(i0 + j0 * r),
+                    ldo: r,
+                    accumulate,
+                };
+                match (rows.div_ceil(8), width) {
+                    (1, 1) => job.run::<1, 1>(),
+                    (1, 2) => job.run::<1, 2>(),
+                    (1, 3) => job.run::<1, 3>(),
+                    (1, _) => job.run::<1, 4>(),
+                    (2, 1) => job.run::<2, 1>(),
+                    (2, 2) => job.run::<2, 2>(),
+                    (2, 3) => job.run::<2, 3>(),
+                    (2, _) => job.run::<2, 4>(),
+                    (_, 1) => job.run::<3, 1>(),
+                    (_, 2) => job.run::<3, 2>(),
+                    (_, 3) => job.run::<3, 3>(),
+                    (_, _) => job.run::<3, 4>(),
+                }
+                j0 += width;
+            }
+            i0 += rows;
+        }
+    }
+
+    /// One panel of the product: rows i0.. (H registers of 8) by W columns.
+    struct Panel {
+        k: usize,
+        a: *const f64,
+        lda: usize,
+        masks: [__mmask8; 3],
+        b: *const f64,
+        strides: (usize, usize),
+        out: *mut f64,
+        ldo: usize,
+        accumulate: bool,
+    }
+
+    impl Panel {
+        /// Inlined into `product_avx512`, whose AVX-512 code it becomes.
+        #[inline(always)]
+        unsafe fn run<const H: usize, const W: usize>(&self) {
+            // acc[w][h]: column w of the panel, rows 8h..8h + 8.
+            let mut acc = [[_mm512_setzero_pd(); H]; W];
+            if self.accumulate {
+                for (w, column) in acc.iter_mut().enumerate() {
+                    let start = self.out.add(w * self.ldo);
+                    for (h, lanes) in column.iter_mut().enumerate() {
+                        *lanes = _mm512_maskz_loadu_pd(self.masks[h], start.add(8 * h));
+                    }
+                }
+            }
+            for kk in 0..self.k {
+                let start = self.a.add(kk * self.lda);
+                let mut av = [_mm512_setzero_pd(); H];
+                for (h, lanes) in av.iter_mut().enumerate() {
+                    *lanes = _mm512_maskz_loadu_pd(self.masks[h], start.add(8 * h));
+                }
+                let row = self.b.add(kk * self.strides.0);
+                for (w, column) in acc.iter_mut().enumerate() {
+                    let bb = _mm512_set1_pd(*row.add(w * self.strides.1));
+                    for (lanes, a) in column.iter_mut().zip(&av) {
+                        *lanes = _mm512_fmadd_pd(*a, bb, *lanes);
+                    }
+                }
+            }
+            for (w, column) in acc.iter().enumerate() {
+                let start = self.out.add(w * self.ldo);
+                for (h, lanes) in column.iter().enumerate() {
+                    _mm512_mask_storeu_pd(start.add(8 * h), self.masks[h], *lanes);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// The product entry by entry in the textbook order, with its error bound
+    /// k eps sum |a_il| |b_lj| (Higham, *Accuracy and Stability*, 2nd ed., eq. 3.5).
+    fn reference(
+        a: &[f64],
+        b: impl Fn(usize, usize) -> f64,
+        (r, k, c): (usize, usize, usize),
+    ) -> (Vec<f64>, Vec<f64>) {
+        let mut value = vec![0.0; r * c];
+        let mut bound = vec![0.0; r * c];
+        for j in 0..c {
+            for i in 0..r {
+                let (mut v, mut s) = (0.0, 0.0);
+                for l in 0..k {
+                    v += a[i + l * r] * b(l, j);
+                    s += (a[i + l * r] * b(l, j)).abs();
+                }
+                value[i + j * r] = v;
+                bound[i + j * r] = 2.0 * (k as f64 + 1.0) * f64::EPSILON * s;
+            }
+        }
+        (value, bound)
+    }
+
+    #[test]
+    fn kernel_products_equal_the_textbook_product_for_every_shape() {
+        // Every row count 1..=50 (panels of 8, 16, 24, and 24 + a remainder), inner and
+        // column counts around the panel edges, both orientations, fresh and
+        // accumulating; the kernel runs where the CPU has AVX-512F, otherwise the test
+        // checks the fallback's refusal.
+        let mut rng = ChaCha8Rng::seed_from_u64(71);
+        for r in 1..=50 {
+            for (k, c) in [(1, 1), (3, 4), (9, 5), (17, 7), (30, 31), (24, 3)] {
+                let a: Vec<f64> = (0..r * k).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let len = k * c;
+                let b: Vec<f64> = (0..len).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let start: Vec<f64> = (0..r * c).map(|_| rng.random_range(-1.0..1.0)).collect();
+                for (second, accumulate) in [
+                    (Second::Plain, false),
+                    (Second::Transposed, false),
+                    (Second::Plain, true),
+                ] {
+                    let read = |l: usize, j: usize| match second {
+                        Second::Plain => b[l + j * k],
+                        Second::Transposed => b[j + l * c],
+                    };
+                    let (mut want, bound) = reference(&a, read, (r, k, c));
+                    let mut got = if accumulate {
+                        start.clone()
+                    } else {
+                        vec![f64::NAN; r * c]
+                    };
+                    if accumulate {
+                        for (w, s) in want.iter_mut().zip(&start) {
+                            *w += s;
+                        }
+                    }
+                    // One more column of room: the kernel must not write past r x c.
+                    got.push(7.0);
+                    let ran = fused(&mut got, &a, &b, (r, k, c), second, accumulate);
+                    assert_eq!(got[r * c], 7.0, "wrote past the product");
+                    if !ran {
+                        assert!(r * k * c < KERNEL_MIN_WORK || !available());
+                        continue;
+                    }
+                    for i in 0..r * c {
+                        let slack = bound[i]
+                            + if accumulate {
+                                f64::EPSILON * start[i].abs() * 2.0
+                            } else {
+                                0.0
+                            };
+                        assert!(
+                            (got[i] - want[i]).abs() <= slack,
+                            "({r}, {k}, {c}) {second:?} accumulate {accumulate}: entry {i} {} vs {}",
+                            got[i],
+                            want[i]
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn static_products_and_the_gram_pair_match_the_plain_loops() {
+        let mut rng = ChaCha8Rng::seed_from_u64(72);
+        let a = SMatrix::<f64, 15, 15>::from_fn(|_, _| rng.random_range(-1.0..1.0));
+        let x = SMatrix::<f64, 15, 15>::from_fn(|_, _| rng.random_range(-1.0..1.0));
+        let b = SMatrix::<f64, 15, 3>::from_fn(|_, _| rng.random_range(-1.0..1.0));
+        let tol = 1e-13;
+        assert!((product(&a, &x) - a * x).amax() < tol);
+        assert!((product_transposed(&a, &x) - a * x.transpose()).amax() < tol);
+        let want = a * a.transpose() + b * b.transpose();
+        let mut got = SMatrix::<f64, 15, 15>::zeros();
+        if gram_pair_into(&a, &b, &mut got) {
+            assert!((got - want).amax() < tol);
+            assert_eq!(
+                got,
+                got.transpose(),
+                "the kernel's Gram product is exactly symmetric"
+            );
+        } else {
+            assert!(!available());
+        }
+        assert!((minus_product(&want, &a, &x) - (want - a * x)).amax() < tol * 10.0);
+        // f32 and small sizes never take the kernel.
+        let mut small = SMatrix::<f64, 4, 4>::identity();
+        let zeros = SMatrix::<f64, 4, 2>::zeros();
+        assert!(!gram_pair_into(&small.clone(), &zeros, &mut small));
+        let mut out32 = SMatrix::<f32, 15, 15>::zeros();
+        assert!(!gram_pair_into(
+            &a.map(|v| v as f32),
+            &b.map(|v| v as f32),
+            &mut out32
+        ));
+    }
+}
