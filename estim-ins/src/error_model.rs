@@ -256,12 +256,69 @@ impl InsErrorModel {
         imu: &ImuSample,
         dt: f64,
     ) -> (ErrorMatrix, ErrorMatrix) {
+        // The build of `predict_covariance`'s kernel, so that both give the same Phi.
+        match Kernel::detect() {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Kernel::detect` checked that the CPU has the features.
+            Kernel::Avx512Fma => unsafe { self.transition_and_noise_avx512(state, imu, dt) },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as above.
+            Kernel::Avx2Fma => unsafe { self.transition_and_noise_avx2(state, imu, dt) },
+            Kernel::Portable => self.transition_and_noise_body::<Separate>(state, imu, dt),
+        }
+    }
+
+    /// [`InsErrorModel::transition_and_noise`] compiled for AVX-512 with FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,fma")]
+    unsafe fn transition_and_noise_avx512(
+        &self,
+        state: &InsState,
+        imu: &ImuSample,
+        dt: f64,
+    ) -> (ErrorMatrix, ErrorMatrix) {
+        self.transition_and_noise_body::<Fused>(state, imu, dt)
+    }
+
+    /// [`InsErrorModel::transition_and_noise`] compiled for AVX2 with FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn transition_and_noise_avx2(
+        &self,
+        state: &InsState,
+        imu: &ImuSample,
+        dt: f64,
+    ) -> (ErrorMatrix, ErrorMatrix) {
+        self.transition_and_noise_body::<Fused>(state, imu, dt)
+    }
+
+    #[inline(always)]
+    fn transition_and_noise_body<M: MultiplyAdd>(
+        &self,
+        state: &InsState,
+        imu: &ImuSample,
+        dt: f64,
+    ) -> (ErrorMatrix, ErrorMatrix) {
         let a = ScaledBlocks::new(&self.system_blocks(state, imu), dt);
         // Both written in place into the returned pair: no 15 x 15 temporaries to copy.
         let mut out = (ErrorMatrix::zeros(), ErrorMatrix::zeros());
-        a.write_transition(&mut out.0.data.0);
+        a.write_transition::<M>(&mut out.0.data.0);
         self.write_noise(&a, dt, &mut out.1.data.0);
         out
+    }
+
+    /// Phi alone, from the build of [`InsErrorModel::transition_and_noise`] (same bits).
+    fn transition_matrix(&self, state: &InsState, imu: &ImuSample, dt: f64) -> ErrorMatrix {
+        let a = ScaledBlocks::new(&self.system_blocks(state, imu), dt);
+        match Kernel::detect() {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Kernel::detect` checked that the CPU has the features.
+            Kernel::Avx512Fma => unsafe { transition_avx512(&a) },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as above.
+            Kernel::Avx2Fma => unsafe { transition_avx2(&a) },
+            Kernel::Portable => a.transition::<Separate>(),
+        }
     }
 
     /// One covariance step in place: P <- Phi P Phi' + Q_d with Phi and Q_d of
@@ -336,7 +393,7 @@ impl InsErrorModel {
     ) {
         let a = ScaledBlocks::new(&self.system_blocks(state, imu), dt);
         let mut phi = [[0.0f64; ERROR_STATES]; ERROR_STATES];
-        a.write_transition(&mut phi);
+        a.write_transition::<M>(&mut phi);
         let p = &mut covariance.data.0;
         propagate_upper::<M>(p, &phi);
         // Q_d's blocks added to the upper triangle only. Q_d is exactly symmetric, so this
@@ -488,117 +545,197 @@ impl ScaledBlocks {
         }
     }
 
-    /// Phi = I + A + A²/2, written out block by block for the pattern of F: 19 3x3
-    /// products; the position x gyro-bias block and the bias rows' off-diagonal blocks
-    /// are zero (the structure [`propagate_structured`] relies on).
-    fn transition(&self) -> ErrorMatrix {
+    /// Phi = I + A + A²/2 (see [`ScaledBlocks::write_transition`]) as a matrix.
+    #[inline(always)]
+    fn transition<M: MultiplyAdd>(&self) -> ErrorMatrix {
         let mut phi = ErrorMatrix::zeros();
-        self.write_transition(&mut phi.data.0);
+        self.write_transition::<M>(&mut phi.data.0);
         phi
     }
 
-    /// Phi into a column array that is zero outside its 16 nonzero blocks.
+    /// A's nine navigation rows, column by column (see [`NavigationColumns`]).
     #[inline(always)]
-    fn write_transition(&self, phi: &mut [[f64; ERROR_STATES]; ERROR_STATES]) {
-        let Self {
-            alpha,
-            pp,
-            vp,
-            vv,
-            vpsi,
-            va,
-            psip,
-            psiv,
-            psipsi,
-            psig,
-            ka,
-            kg,
-        } = *self;
-        let id = M3::identity();
-        let mut put = |i: usize, j: usize, b: M3| {
+    fn navigation_columns(&self) -> NavigationColumns {
+        let mut a = NavigationColumns {
+            top: [[0.0; 8]; ERROR_STATES],
+            bottom: [0.0; ERROR_STATES],
+        };
+        let mut put = |i: usize, j: usize, b: &M3| {
             for c in 0..3 {
-                phi[3 * j + c][3 * i..3 * i + 3].copy_from_slice(&b.data.0[c]);
+                for r in 0..3 {
+                    let row = 3 * i + r;
+                    if row < 8 {
+                        a.top[3 * j + c][row] = b[(r, c)];
+                    } else {
+                        a.bottom[3 * j + c] = b[(r, c)];
+                    }
+                }
             }
         };
-        // Each block written as soon as it is formed (no array of 16 blocks to copy). The
-        // block products skip the entries that F's formulas make exactly zero (see
-        // `block_product`), so they are the dense products' values with fewer multiplies.
-        put(
-            0,
-            0,
-            id + pp + (block_product::<PP, PP>(&pp, &pp) + vp * alpha) * 0.5,
-        );
-        put(0, 1, (id + (pp + vv) * 0.5) * alpha);
-        put(0, 2, vpsi * (0.5 * alpha));
-        put(0, 3, va * (0.5 * alpha));
-        put(
-            1,
-            0,
-            vp + (block_product::<NO_EAST, PP>(&vp, &pp)
-                + block_product::<FULL, NO_EAST>(&vv, &vp)
-                + block_product::<SKEW, NO_EAST>(&vpsi, &psip))
-                * 0.5,
-        );
-        put(
-            1,
-            1,
-            id + vv
-                + (vp * alpha
-                    + block_product::<FULL, FULL>(&vv, &vv)
-                    + block_product::<SKEW, PSI_V>(&vpsi, &psiv))
-                    * 0.5,
-        );
-        put(
-            1,
-            2,
-            vpsi + (block_product::<FULL, SKEW>(&vv, &vpsi)
-                + block_product::<SKEW, SKEW>(&vpsi, &psipsi))
-                * 0.5,
-        );
-        put(
-            1,
-            3,
-            va + (block_product::<FULL, FULL>(&vv, &va) + va * ka) * 0.5,
-        );
-        put(1, 4, block_product::<SKEW, FULL>(&vpsi, &psig) * 0.5);
-        put(
-            2,
-            0,
-            psip + (block_product::<NO_EAST, PP>(&psip, &pp)
-                + block_product::<PSI_V, NO_EAST>(&psiv, &vp)
-                + block_product::<SKEW, NO_EAST>(&psipsi, &psip))
-                * 0.5,
-        );
-        put(
-            2,
-            1,
-            psiv + (psip * alpha
-                + block_product::<PSI_V, FULL>(&psiv, &vv)
-                + block_product::<SKEW, PSI_V>(&psipsi, &psiv))
-                * 0.5,
-        );
-        put(
-            2,
-            2,
-            id + psipsi
-                + (block_product::<PSI_V, SKEW>(&psiv, &vpsi)
-                    + block_product::<SKEW, SKEW>(&psipsi, &psipsi))
-                    * 0.5,
-        );
-        put(2, 3, block_product::<PSI_V, FULL>(&psiv, &va) * 0.5);
-        put(
-            2,
-            4,
-            psig + (block_product::<SKEW, FULL>(&psipsi, &psig) + psig * kg) * 0.5,
-        );
-        put(3, 3, id * (1.0 + ka + 0.5 * ka * ka));
-        put(4, 4, id * (1.0 + kg + 0.5 * kg * kg));
+        put(0, 0, &self.pp);
+        put(0, 1, &(M3::identity() * self.alpha));
+        put(1, 0, &self.vp);
+        put(1, 1, &self.vv);
+        put(1, 2, &self.vpsi);
+        put(1, 3, &self.va);
+        put(2, 0, &self.psip);
+        put(2, 1, &self.psiv);
+        put(2, 2, &self.psipsi);
+        put(2, 4, &self.psig);
+        debug_assert!((0..ERROR_STATES)
+            .all(|m| (0..NAV)
+                .all(|k| A_COLUMNS[m] & (1 << k) != 0 || a.entry(k, m, [0.0; 6]) == 0.0)));
+        a
     }
+
+    /// Phi = I + A + A²/2 into a column array that is zero outside its 16 nonzero blocks
+    /// (the structure [`propagate_structured`] relies on). Column m of the navigation
+    /// rows is e_m + A\[:, m\] + ½ Σ_k A\[:, k\] A\[k, m\], summed over the k where A\[k, m\]
+    /// can be nonzero (`A_COLUMNS`, from the zero patterns of F's blocks; a left-out term
+    /// is an exact zero), in increasing k, as 8-lane multiply-adds down A's columns plus
+    /// the ninth row: about 100 vector and 60 scalar multiply-adds instead of 19 3x3 block
+    /// products. The bias rows are diagonal: 1 + k + k²/2. Every product of a zero block
+    /// is left out, so the position x gyro-bias block and the bias rows' off-diagonal
+    /// blocks stay exactly zero.
+    #[inline(always)]
+    fn write_transition<M: MultiplyAdd>(&self, phi: &mut [[f64; ERROR_STATES]; ERROR_STATES]) {
+        let a = self.navigation_columns();
+        let (ka, kg) = (self.ka, self.kg);
+        let bias = [ka, ka, ka, kg, kg, kg];
+        transition_columns::<M>(&a, bias, phi);
+        for (b, k) in bias.iter().enumerate() {
+            let row = NAV + b;
+            phi[row][row] = 1.0 + k + 0.5 * k * k;
+        }
+    }
+}
+
+/// The nine navigation rows of A = F dt by column: rows 0..8 of column m in `top[m]`
+/// (one 8-lane vector) and row 8 (ψ_D) in `bottom[m]`. A's bias rows are k_a, k_g on
+/// the diagonal and zero elsewhere.
+struct NavigationColumns {
+    top: [[f64; 8]; ERROR_STATES],
+    bottom: [f64; ERROR_STATES],
+}
+
+impl NavigationColumns {
+    /// A\[k, m\] (`bias` = the diagonal of A's bias rows).
+    #[inline(always)]
+    fn entry(&self, k: usize, m: usize, bias: [f64; 6]) -> f64 {
+        if k < 8 {
+            self.top[m][k]
+        } else if k == 8 {
+            self.bottom[m]
+        } else if k == m {
+            bias[k - NAV]
+        } else {
+            0.0
+        }
+    }
+}
+
+/// The nonzero blocks of A = F dt: (row block, column block, zero pattern).
+const A_BLOCKS: [(usize, usize, u16); 12] = [
+    (0, 0, PP),
+    (0, 1, IDENTITY),
+    (1, 0, NO_EAST),
+    (1, 1, FULL),
+    (1, 2, SKEW),
+    (1, 3, FULL),
+    (2, 0, NO_EAST),
+    (2, 1, PSI_V),
+    (2, 2, SKEW),
+    (2, 4, FULL),
+    (3, 3, IDENTITY),
+    (4, 4, IDENTITY),
+];
+
+/// For each column m of A, bit k set where A\[k, m\] can be nonzero (from `A_BLOCKS`).
+const A_COLUMNS: [u16; ERROR_STATES] = {
+    let mut out = [0u16; ERROR_STATES];
+    let mut b = 0;
+    while b < A_BLOCKS.len() {
+        let (i, j, pattern) = A_BLOCKS[b];
+        let mut r = 0;
+        while r < 3 {
+            let mut c = 0;
+            while c < 3 {
+                if pattern & (1 << (3 * r + c)) != 0 {
+                    out[3 * j + c] |= 1 << (3 * i + r);
+                }
+                c += 1;
+            }
+            r += 1;
+        }
+        b += 1;
+    }
+    out
+};
+
+/// The navigation rows of Phi's columns (see [`ScaledBlocks::write_transition`]).
+#[inline(always)]
+fn transition_columns<M: MultiplyAdd>(
+    a: &NavigationColumns,
+    bias: [f64; 6],
+    phi: &mut [[f64; ERROR_STATES]; ERROR_STATES],
+) {
+    transition_column::<M, 0>(a, bias, phi);
+    transition_column::<M, 1>(a, bias, phi);
+    transition_column::<M, 2>(a, bias, phi);
+    transition_column::<M, 3>(a, bias, phi);
+    transition_column::<M, 4>(a, bias, phi);
+    transition_column::<M, 5>(a, bias, phi);
+    transition_column::<M, 6>(a, bias, phi);
+    transition_column::<M, 7>(a, bias, phi);
+    transition_column::<M, 8>(a, bias, phi);
+    transition_column::<M, 9>(a, bias, phi);
+    transition_column::<M, 10>(a, bias, phi);
+    transition_column::<M, 11>(a, bias, phi);
+    transition_column::<M, 12>(a, bias, phi);
+    transition_column::<M, 13>(a, bias, phi);
+    transition_column::<M, 14>(a, bias, phi);
+}
+
+/// Rows 0..9 of Phi's column `COL`: e + A\[:, COL\] + ½ Σ_k A\[:, k\] A\[k, COL\] over the k
+/// of `A_COLUMNS[COL]` (a constant, so the loop unrolls into the nonzero terms only).
+#[inline(always)]
+fn transition_column<M: MultiplyAdd, const COL: usize>(
+    a: &NavigationColumns,
+    bias: [f64; 6],
+    phi: &mut [[f64; ERROR_STATES]; ERROR_STATES],
+) {
+    let mut top = [0.0f64; 8];
+    let mut bottom = 0.0f64;
+    for k in 0..ERROR_STATES {
+        if A_COLUMNS[COL] & (1 << k) != 0 {
+            let w = a.entry(k, COL, bias);
+            for (acc, x) in top.iter_mut().zip(&a.top[k]) {
+                *acc = M::multiply_add(*x, w, *acc);
+            }
+            bottom = M::multiply_add(a.bottom[k], w, bottom);
+        }
+    }
+    let column = &mut phi[COL];
+    for (r, (out, (acc, x))) in column
+        .iter_mut()
+        .zip(top.iter().zip(&a.top[COL]))
+        .enumerate()
+    {
+        let identity = if r == COL { 1.0 } else { 0.0 };
+        *out = M::multiply_add(0.5, *acc, identity + x);
+    }
+    column[8] = M::multiply_add(
+        0.5,
+        bottom,
+        if COL == 8 { 1.0 } else { 0.0 } + a.bottom[COL],
+    );
 }
 
 /// Zero patterns of F's 3x3 blocks: bit 3 i + j is set where entry (i, j) can be nonzero.
 /// All nine entries.
 const FULL: u16 = 0b111_111_111;
+/// A multiple of the identity.
+const IDENTITY: u16 = 0b100_010_001;
 /// A skew-symmetric block (\[ω×\] dt, \[f×\] dt): zero diagonal.
 const SKEW: u16 = 0b011_101_110;
 /// F_pp dt: its down row is zero (ḣ = -v_D has no position term) and so is its (N, E)
@@ -716,7 +853,7 @@ impl ProcessModel<f64, ERROR_STATES> for InsErrorModel {
         dt: f64,
     ) -> estim_core::Result<ErrorMatrix> {
         check_dt(dt)?;
-        Ok(ScaledBlocks::new(&self.system_blocks(state, input), dt).transition())
+        Ok(self.transition_matrix(state, input, dt))
     }
 
     fn process_noise(
@@ -815,6 +952,20 @@ unsafe fn compose_structured_avx2(
     earlier: &[[f64; ERROR_STATES]; ERROR_STATES],
 ) -> ErrorMatrix {
     compose_structured(later, earlier)
+}
+
+/// Phi of `a` compiled for AVX-512 with FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,fma")]
+unsafe fn transition_avx512(a: &ScaledBlocks) -> ErrorMatrix {
+    a.transition::<Fused>()
+}
+
+/// Phi of `a` compiled for AVX2 with FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn transition_avx2(a: &ScaledBlocks) -> ErrorMatrix {
+    a.transition::<Fused>()
 }
 
 /// [`propagate_structured`] compiled for AVX-512 with FMA (the kernel of
