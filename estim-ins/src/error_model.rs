@@ -40,10 +40,11 @@ use estim_core::{ErrorStateModel, ProcessModel};
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 
 use crate::earth::{
-    normal_gravity_gradient_at, radii_of_curvature, EARTH_RATE, ECCENTRICITY_SQUARED,
-    SEMI_MAJOR_AXIS,
+    inverse_root_of_prime_vertical_factor, latitude_sin_cos, normal_gravity_gradient_at,
+    radii_of_curvature, EARTH_RATE, ECCENTRICITY_SQUARED, SEMI_MAJOR_AXIS,
 };
 use crate::imu_spec::ImuSpec;
+use crate::kernel::{Fused, Kernel, MultiplyAdd, Separate};
 use crate::mechanization::{ImuSample, Mechanization};
 use crate::state::{InsState, ACC_BIAS, ATT, ERROR_STATES, GYRO_BIAS, POS, VEL};
 
@@ -127,11 +128,14 @@ impl InsErrorModel {
     }
 
     /// The 3x3 blocks of the continuous system matrix F at `state` with the raw sample `imu`.
-    fn system_blocks(&self, state: &InsState, imu: &ImuSample) -> SystemBlocks {
+    /// Inlined into each kernel build, whose sin/cos of the latitude is the inline one of
+    /// [`latitude_sin_cos`] (no library call).
+    #[inline(always)]
+    fn system_blocks<M: MultiplyAdd>(&self, state: &InsState, imu: &ImuSample) -> SystemBlocks {
         let lat = state.latitude;
         let h = state.height;
         let v = state.velocity_ned;
-        let (s, c) = lat.sin_cos();
+        let (s, c) = latitude_sin_cos::<M>(lat);
         // Reciprocals once, then products: the Earth terms below need 1/cos L, 1/d,
         // 1/(R_N+h) and 1/(R_E+h) many times, and each division is a slow instruction.
         let inverse_cos = 1.0 / c;
@@ -139,8 +143,7 @@ impl InsErrorModel {
         // Radii, their latitude derivatives and gravity from one sin/cos (Groves eqs.
         // 2.105, 2.106, 2.134, 2.139; same formulas as crate::earth).
         let e2 = ECCENTRICITY_SQUARED;
-        let d = 1.0 - e2 * s * s;
-        let inverse_root = 1.0 / d.sqrt();
+        let inverse_root = inverse_root_of_prime_vertical_factor::<M>(s * s);
         let inverse_d = inverse_root * inverse_root;
         let re0 = SEMI_MAJOR_AXIS * inverse_root;
         let rn0 = re0 * (1.0 - e2) * inverse_d;
@@ -222,7 +225,7 @@ impl InsErrorModel {
     /// Continuous system matrix F (15 x 15) at `state` with the raw IMU sample `imu`.
     #[must_use]
     pub fn system_matrix(&self, state: &InsState, imu: &ImuSample) -> ErrorMatrix {
-        self.system_blocks(state, imu).dense()
+        self.system_blocks::<Separate>(state, imu).dense()
     }
 
     /// Noise-input matrix G (15 x 12) for w = \[w_a, w_g, w_ba, w_bg\]: -C_b^n into the
@@ -299,7 +302,7 @@ impl InsErrorModel {
         imu: &ImuSample,
         dt: f64,
     ) -> (ErrorMatrix, ErrorMatrix) {
-        let a = ScaledBlocks::new(&self.system_blocks(state, imu), dt);
+        let a = ScaledBlocks::new(&self.system_blocks::<M>(state, imu), dt);
         // Both written in place into the returned pair: no 15 x 15 temporaries to copy.
         let mut out = (ErrorMatrix::zeros(), ErrorMatrix::zeros());
         a.write_transition::<M>(&mut out.0.data.0);
@@ -309,16 +312,39 @@ impl InsErrorModel {
 
     /// Phi alone, from the build of [`InsErrorModel::transition_and_noise`] (same bits).
     fn transition_matrix(&self, state: &InsState, imu: &ImuSample, dt: f64) -> ErrorMatrix {
-        let a = ScaledBlocks::new(&self.system_blocks(state, imu), dt);
         match Kernel::detect() {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Kernel::detect` checked that the CPU has the features.
-            Kernel::Avx512Fma => unsafe { transition_avx512(&a) },
+            Kernel::Avx512Fma => unsafe { self.transition_avx512(state, imu, dt) },
             #[cfg(target_arch = "x86_64")]
             // SAFETY: as above.
-            Kernel::Avx2Fma => unsafe { transition_avx2(&a) },
-            Kernel::Portable => a.transition::<Separate>(),
+            Kernel::Avx2Fma => unsafe { self.transition_avx2(state, imu, dt) },
+            Kernel::Portable => self.transition_body::<Separate>(state, imu, dt),
         }
+    }
+
+    /// [`InsErrorModel::transition_matrix`] compiled for AVX-512 with FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,fma")]
+    unsafe fn transition_avx512(&self, state: &InsState, imu: &ImuSample, dt: f64) -> ErrorMatrix {
+        self.transition_body::<Fused>(state, imu, dt)
+    }
+
+    /// [`InsErrorModel::transition_matrix`] compiled for AVX2 with FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn transition_avx2(&self, state: &InsState, imu: &ImuSample, dt: f64) -> ErrorMatrix {
+        self.transition_body::<Fused>(state, imu, dt)
+    }
+
+    #[inline(always)]
+    fn transition_body<M: MultiplyAdd>(
+        &self,
+        state: &InsState,
+        imu: &ImuSample,
+        dt: f64,
+    ) -> ErrorMatrix {
+        ScaledBlocks::new(&self.system_blocks::<M>(state, imu), dt).transition::<M>()
     }
 
     /// One covariance step in place: P <- Phi P Phi' + Q_d with Phi and Q_d of
@@ -391,7 +417,7 @@ impl InsErrorModel {
         dt: f64,
         covariance: &mut ErrorMatrix,
     ) {
-        let a = ScaledBlocks::new(&self.system_blocks(state, imu), dt);
+        let a = ScaledBlocks::new(&self.system_blocks::<M>(state, imu), dt);
         let mut phi = [[0.0f64; ERROR_STATES]; ERROR_STATES];
         a.write_transition::<M>(&mut phi);
         let p = &mut covariance.data.0;
@@ -954,20 +980,6 @@ unsafe fn compose_structured_avx2(
     compose_structured(later, earlier)
 }
 
-/// Phi of `a` compiled for AVX-512 with FMA.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,fma")]
-unsafe fn transition_avx512(a: &ScaledBlocks) -> ErrorMatrix {
-    a.transition::<Fused>()
-}
-
-/// Phi of `a` compiled for AVX2 with FMA.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn transition_avx2(a: &ScaledBlocks) -> ErrorMatrix {
-    a.transition::<Fused>()
-}
-
 /// [`propagate_structured`] compiled for AVX-512 with FMA (the kernel of
 /// [`InsErrorModel::predict_covariance`]'s AVX-512 build).
 #[cfg(target_arch = "x86_64")]
@@ -989,67 +1001,6 @@ unsafe fn propagate_structured_avx2(
     q: &[[f64; ERROR_STATES]; ERROR_STATES],
 ) {
     propagate_structured::<Fused>(covariance, phi, q);
-}
-
-/// The builds of the covariance kernels, chosen once per call from the CPU's features
-/// (`is_x86_feature_detected!` caches its answer, so the check costs a load).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Kernel {
-    /// AVX-512 (8 lanes) with fused multiply-adds.
-    #[cfg(target_arch = "x86_64")]
-    Avx512Fma,
-    /// AVX2 (4 lanes) with fused multiply-adds.
-    #[cfg(target_arch = "x86_64")]
-    Avx2Fma,
-    /// The baseline build: products and sums rounded separately.
-    Portable,
-}
-
-impl Kernel {
-    #[inline(always)]
-    fn detect() -> Self {
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("fma") {
-                if std::arch::is_x86_feature_detected!("avx512f") {
-                    return Self::Avx512Fma;
-                }
-                if std::arch::is_x86_feature_detected!("avx2") {
-                    return Self::Avx2Fma;
-                }
-            }
-        }
-        Self::Portable
-    }
-}
-
-/// How a kernel forms a b + c. Rust never contracts `a * b + c` into a fused
-/// multiply-add by itself, and `f64::mul_add` on a CPU without FMA is a slow library
-/// call, so the kernels take the choice as a type: [`Fused`] only inside the builds
-/// compiled with the `fma` feature, [`Separate`] in the portable one.
-trait MultiplyAdd {
-    /// a b + c.
-    fn multiply_add(a: f64, b: f64, c: f64) -> f64;
-}
-
-/// a b + c with the product and the sum rounded separately.
-struct Separate;
-
-impl MultiplyAdd for Separate {
-    #[inline(always)]
-    fn multiply_add(a: f64, b: f64, c: f64) -> f64 {
-        a * b + c
-    }
-}
-
-/// a b + c rounded once (one FMA instruction where the `fma` feature is enabled).
-struct Fused;
-
-impl MultiplyAdd for Fused {
-    #[inline(always)]
-    fn multiply_add(a: f64, b: f64, c: f64) -> f64 {
-        a.mul_add(b, c)
-    }
 }
 
 /// Navigation rows (position, velocity, misalignment) of the error state.
