@@ -2,8 +2,9 @@
 //! build forms a multiply-add (shared by the covariance kernels of `error_model` and the
 //! mechanization).
 
-/// The builds of the hot kernels (the covariance step, the mechanization), chosen once per call from the CPU's features
-/// (`is_x86_feature_detected!` caches its answer, so the check costs a load).
+/// The builds of the hot kernels (the covariance step, the mechanization), chosen once
+/// per call from the CPU's features (`is_x86_feature_detected!` caches its answer, so
+/// the check costs a load).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Kernel {
     /// AVX-512 (8 lanes) with fused multiply-adds.
