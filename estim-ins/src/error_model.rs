@@ -26,8 +26,8 @@
 //! # Discretisation
 //!
 //! - Phi = I + F dt + (F dt)²/2 (Groves eq. 14.72 truncated after the second-order
-//!   term; Farrell 2008 eq. 4.115), evaluated from the 3x3 blocks of F (F has 12 nonzero
-//!   blocks out of 25).
+//!   term; Farrell 2008 eq. 4.115), evaluated column by column from the nonzero entries
+//!   of F's 3x3 blocks (F has 12 nonzero blocks out of 25).
 //! - Q_d = ∫_0^dt (I + F s) G Σ G' (I + F s)' ds
 //!   = Q_1 dt + (F Q_1 + Q_1 F') dt²/2 + F Q_1 F' dt³/3, Q_1 = G Σ G'
 //!   (the second-order expansion of the Van Loan integral, Groves eq. 14.82-14.83 /
@@ -40,10 +40,11 @@ use estim_core::{ErrorStateModel, ProcessModel};
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 
 use crate::earth::{
-    normal_gravity_gradient_at, radii_of_curvature, EARTH_RATE, ECCENTRICITY_SQUARED,
-    SEMI_MAJOR_AXIS,
+    inverse_root_of_prime_vertical_factor, latitude_sin_cos, normal_gravity_gradient_at,
+    radii_of_curvature, EARTH_RATE, ECCENTRICITY_SQUARED, SEMI_MAJOR_AXIS,
 };
 use crate::imu_spec::ImuSpec;
+use crate::kernel::{Fused, Kernel, MultiplyAdd, Separate};
 use crate::mechanization::{ImuSample, Mechanization};
 use crate::state::{InsState, ACC_BIAS, ATT, ERROR_STATES, GYRO_BIAS, POS, VEL};
 
@@ -127,11 +128,14 @@ impl InsErrorModel {
     }
 
     /// The 3x3 blocks of the continuous system matrix F at `state` with the raw sample `imu`.
-    fn system_blocks(&self, state: &InsState, imu: &ImuSample) -> SystemBlocks {
+    /// Inlined into each kernel build, whose sin/cos of the latitude is the inline one of
+    /// [`latitude_sin_cos`] (no library call).
+    #[inline(always)]
+    fn system_blocks<M: MultiplyAdd>(&self, state: &InsState, imu: &ImuSample) -> SystemBlocks {
         let lat = state.latitude;
         let h = state.height;
         let v = state.velocity_ned;
-        let (s, c) = lat.sin_cos();
+        let (s, c) = latitude_sin_cos::<M>(lat);
         // Reciprocals once, then products: the Earth terms below need 1/cos L, 1/d,
         // 1/(R_N+h) and 1/(R_E+h) many times, and each division is a slow instruction.
         let inverse_cos = 1.0 / c;
@@ -139,8 +143,7 @@ impl InsErrorModel {
         // Radii, their latitude derivatives and gravity from one sin/cos (Groves eqs.
         // 2.105, 2.106, 2.134, 2.139; same formulas as crate::earth).
         let e2 = ECCENTRICITY_SQUARED;
-        let d = 1.0 - e2 * s * s;
-        let inverse_root = 1.0 / d.sqrt();
+        let inverse_root = inverse_root_of_prime_vertical_factor::<M>(s * s);
         let inverse_d = inverse_root * inverse_root;
         let re0 = SEMI_MAJOR_AXIS * inverse_root;
         let rn0 = re0 * (1.0 - e2) * inverse_d;
@@ -222,7 +225,7 @@ impl InsErrorModel {
     /// Continuous system matrix F (15 x 15) at `state` with the raw IMU sample `imu`.
     #[must_use]
     pub fn system_matrix(&self, state: &InsState, imu: &ImuSample) -> ErrorMatrix {
-        self.system_blocks(state, imu).dense()
+        self.system_blocks::<Separate>(state, imu).dense()
     }
 
     /// Noise-input matrix G (15 x 12) for w = \[w_a, w_g, w_ba, w_bg\]: -C_b^n into the
@@ -256,12 +259,92 @@ impl InsErrorModel {
         imu: &ImuSample,
         dt: f64,
     ) -> (ErrorMatrix, ErrorMatrix) {
-        let a = ScaledBlocks::new(&self.system_blocks(state, imu), dt);
+        // The build of `predict_covariance`'s kernel, so that both give the same Phi.
+        match Kernel::detect() {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Kernel::detect` checked that the CPU has the features.
+            Kernel::Avx512Fma => unsafe { self.transition_and_noise_avx512(state, imu, dt) },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as above.
+            Kernel::Avx2Fma => unsafe { self.transition_and_noise_avx2(state, imu, dt) },
+            Kernel::Portable => self.transition_and_noise_body::<Separate>(state, imu, dt),
+        }
+    }
+
+    /// [`InsErrorModel::transition_and_noise`] compiled for AVX-512 with FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,fma")]
+    unsafe fn transition_and_noise_avx512(
+        &self,
+        state: &InsState,
+        imu: &ImuSample,
+        dt: f64,
+    ) -> (ErrorMatrix, ErrorMatrix) {
+        self.transition_and_noise_body::<Fused>(state, imu, dt)
+    }
+
+    /// [`InsErrorModel::transition_and_noise`] compiled for AVX2 with FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn transition_and_noise_avx2(
+        &self,
+        state: &InsState,
+        imu: &ImuSample,
+        dt: f64,
+    ) -> (ErrorMatrix, ErrorMatrix) {
+        self.transition_and_noise_body::<Fused>(state, imu, dt)
+    }
+
+    #[inline(always)]
+    fn transition_and_noise_body<M: MultiplyAdd>(
+        &self,
+        state: &InsState,
+        imu: &ImuSample,
+        dt: f64,
+    ) -> (ErrorMatrix, ErrorMatrix) {
+        let a = ScaledBlocks::new(&self.system_blocks::<M>(state, imu), dt);
         // Both written in place into the returned pair: no 15 x 15 temporaries to copy.
         let mut out = (ErrorMatrix::zeros(), ErrorMatrix::zeros());
-        a.write_transition(&mut out.0.data.0);
+        a.write_transition::<M>(&mut out.0.data.0);
         self.write_noise(&a, dt, &mut out.1.data.0);
         out
+    }
+
+    /// Phi alone, from the build of [`InsErrorModel::transition_and_noise`] (same bits).
+    fn transition_matrix(&self, state: &InsState, imu: &ImuSample, dt: f64) -> ErrorMatrix {
+        match Kernel::detect() {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Kernel::detect` checked that the CPU has the features.
+            Kernel::Avx512Fma => unsafe { self.transition_avx512(state, imu, dt) },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as above.
+            Kernel::Avx2Fma => unsafe { self.transition_avx2(state, imu, dt) },
+            Kernel::Portable => self.transition_body::<Separate>(state, imu, dt),
+        }
+    }
+
+    /// [`InsErrorModel::transition_matrix`] compiled for AVX-512 with FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,fma")]
+    unsafe fn transition_avx512(&self, state: &InsState, imu: &ImuSample, dt: f64) -> ErrorMatrix {
+        self.transition_body::<Fused>(state, imu, dt)
+    }
+
+    /// [`InsErrorModel::transition_matrix`] compiled for AVX2 with FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn transition_avx2(&self, state: &InsState, imu: &ImuSample, dt: f64) -> ErrorMatrix {
+        self.transition_body::<Fused>(state, imu, dt)
+    }
+
+    #[inline(always)]
+    fn transition_body<M: MultiplyAdd>(
+        &self,
+        state: &InsState,
+        imu: &ImuSample,
+        dt: f64,
+    ) -> ErrorMatrix {
+        ScaledBlocks::new(&self.system_blocks::<M>(state, imu), dt).transition::<M>()
     }
 
     /// One covariance step in place: P <- Phi P Phi' + Q_d with Phi and Q_d of
@@ -334,9 +417,9 @@ impl InsErrorModel {
         dt: f64,
         covariance: &mut ErrorMatrix,
     ) {
-        let a = ScaledBlocks::new(&self.system_blocks(state, imu), dt);
+        let a = ScaledBlocks::new(&self.system_blocks::<M>(state, imu), dt);
         let mut phi = [[0.0f64; ERROR_STATES]; ERROR_STATES];
-        a.write_transition(&mut phi);
+        a.write_transition::<M>(&mut phi);
         let p = &mut covariance.data.0;
         propagate_upper::<M>(p, &phi);
         // Q_d's blocks added to the upper triangle only. Q_d is exactly symmetric, so this
@@ -488,117 +571,198 @@ impl ScaledBlocks {
         }
     }
 
-    /// Phi = I + A + A²/2, written out block by block for the pattern of F: 19 3x3
-    /// products; the position x gyro-bias block and the bias rows' off-diagonal blocks
-    /// are zero (the structure [`propagate_structured`] relies on).
-    fn transition(&self) -> ErrorMatrix {
+    /// Phi = I + A + A²/2 (see [`ScaledBlocks::write_transition`]) as a matrix.
+    #[inline(always)]
+    fn transition<M: MultiplyAdd>(&self) -> ErrorMatrix {
         let mut phi = ErrorMatrix::zeros();
-        self.write_transition(&mut phi.data.0);
+        self.write_transition::<M>(&mut phi.data.0);
         phi
     }
 
-    /// Phi into a column array that is zero outside its 16 nonzero blocks.
+    /// A's nine navigation rows, column by column (see [`NavigationColumns`]).
     #[inline(always)]
-    fn write_transition(&self, phi: &mut [[f64; ERROR_STATES]; ERROR_STATES]) {
-        let Self {
-            alpha,
-            pp,
-            vp,
-            vv,
-            vpsi,
-            va,
-            psip,
-            psiv,
-            psipsi,
-            psig,
-            ka,
-            kg,
-        } = *self;
-        let id = M3::identity();
-        let mut put = |i: usize, j: usize, b: M3| {
+    fn navigation_columns(&self) -> NavigationColumns {
+        let mut a = NavigationColumns {
+            top: [[0.0; 8]; ERROR_STATES],
+            bottom: [0.0; ERROR_STATES],
+        };
+        let mut put = |i: usize, j: usize, b: &M3| {
             for c in 0..3 {
-                phi[3 * j + c][3 * i..3 * i + 3].copy_from_slice(&b.data.0[c]);
+                for r in 0..3 {
+                    let row = 3 * i + r;
+                    if row < 8 {
+                        a.top[3 * j + c][row] = b[(r, c)];
+                    } else {
+                        a.bottom[3 * j + c] = b[(r, c)];
+                    }
+                }
             }
         };
-        // Each block written as soon as it is formed (no array of 16 blocks to copy). The
-        // block products skip the entries that F's formulas make exactly zero (see
-        // `block_product`), so they are the dense products' values with fewer multiplies.
-        put(
-            0,
-            0,
-            id + pp + (block_product::<PP, PP>(&pp, &pp) + vp * alpha) * 0.5,
-        );
-        put(0, 1, (id + (pp + vv) * 0.5) * alpha);
-        put(0, 2, vpsi * (0.5 * alpha));
-        put(0, 3, va * (0.5 * alpha));
-        put(
-            1,
-            0,
-            vp + (block_product::<NO_EAST, PP>(&vp, &pp)
-                + block_product::<FULL, NO_EAST>(&vv, &vp)
-                + block_product::<SKEW, NO_EAST>(&vpsi, &psip))
-                * 0.5,
-        );
-        put(
-            1,
-            1,
-            id + vv
-                + (vp * alpha
-                    + block_product::<FULL, FULL>(&vv, &vv)
-                    + block_product::<SKEW, PSI_V>(&vpsi, &psiv))
-                    * 0.5,
-        );
-        put(
-            1,
-            2,
-            vpsi + (block_product::<FULL, SKEW>(&vv, &vpsi)
-                + block_product::<SKEW, SKEW>(&vpsi, &psipsi))
-                * 0.5,
-        );
-        put(
-            1,
-            3,
-            va + (block_product::<FULL, FULL>(&vv, &va) + va * ka) * 0.5,
-        );
-        put(1, 4, block_product::<SKEW, FULL>(&vpsi, &psig) * 0.5);
-        put(
-            2,
-            0,
-            psip + (block_product::<NO_EAST, PP>(&psip, &pp)
-                + block_product::<PSI_V, NO_EAST>(&psiv, &vp)
-                + block_product::<SKEW, NO_EAST>(&psipsi, &psip))
-                * 0.5,
-        );
-        put(
-            2,
-            1,
-            psiv + (psip * alpha
-                + block_product::<PSI_V, FULL>(&psiv, &vv)
-                + block_product::<SKEW, PSI_V>(&psipsi, &psiv))
-                * 0.5,
-        );
-        put(
-            2,
-            2,
-            id + psipsi
-                + (block_product::<PSI_V, SKEW>(&psiv, &vpsi)
-                    + block_product::<SKEW, SKEW>(&psipsi, &psipsi))
-                    * 0.5,
-        );
-        put(2, 3, block_product::<PSI_V, FULL>(&psiv, &va) * 0.5);
-        put(
-            2,
-            4,
-            psig + (block_product::<SKEW, FULL>(&psipsi, &psig) + psig * kg) * 0.5,
-        );
-        put(3, 3, id * (1.0 + ka + 0.5 * ka * ka));
-        put(4, 4, id * (1.0 + kg + 0.5 * kg * kg));
+        put(0, 0, &self.pp);
+        put(0, 1, &(M3::identity() * self.alpha));
+        put(1, 0, &self.vp);
+        put(1, 1, &self.vv);
+        put(1, 2, &self.vpsi);
+        put(1, 3, &self.va);
+        put(2, 0, &self.psip);
+        put(2, 1, &self.psiv);
+        put(2, 2, &self.psipsi);
+        put(2, 4, &self.psig);
+        debug_assert!((0..ERROR_STATES)
+            .all(|m| (0..NAV)
+                .all(|k| A_COLUMNS[m] & (1 << k) != 0 || a.entry(k, m, [0.0; 6]) == 0.0)));
+        a
     }
+
+    /// Phi = I + A + A²/2 into a column array that is zero outside its 16 nonzero blocks
+    /// (the structure [`propagate_structured`] relies on). Column m of the navigation
+    /// rows is e_m + A\[:, m\] + ½ Σ_k A\[:, k\] A\[k, m\], summed over the k where A\[k, m\]
+    /// can be nonzero (`A_COLUMNS`, from the zero patterns of F's blocks; a left-out term
+    /// is an exact zero), in increasing k, as 8-lane multiply-adds down A's columns plus
+    /// the ninth row: 83 vector and 83 scalar multiply-adds (68 terms and one ½ per
+    /// column) instead of 19 3x3 block products (estim-ins/README.md: 1,200 to about 750
+    /// instructions). The bias rows are diagonal: 1 + k + k²/2. Every product of a zero
+    /// block is left out, so the position x gyro-bias block and the bias rows'
+    /// off-diagonal blocks stay exactly zero.
+    #[inline(always)]
+    fn write_transition<M: MultiplyAdd>(&self, phi: &mut [[f64; ERROR_STATES]; ERROR_STATES]) {
+        let a = self.navigation_columns();
+        let (ka, kg) = (self.ka, self.kg);
+        let bias = [ka, ka, ka, kg, kg, kg];
+        transition_columns::<M>(&a, bias, phi);
+        for (b, k) in bias.iter().enumerate() {
+            let row = NAV + b;
+            phi[row][row] = 1.0 + k + 0.5 * k * k;
+        }
+    }
+}
+
+/// The nine navigation rows of A = F dt by column: rows 0..8 of column m in `top[m]`
+/// (one 8-lane vector) and row 8 (ψ_D) in `bottom[m]`. A's bias rows are k_a, k_g on
+/// the diagonal and zero elsewhere.
+struct NavigationColumns {
+    top: [[f64; 8]; ERROR_STATES],
+    bottom: [f64; ERROR_STATES],
+}
+
+impl NavigationColumns {
+    /// A\[k, m\] (`bias` = the diagonal of A's bias rows).
+    #[inline(always)]
+    fn entry(&self, k: usize, m: usize, bias: [f64; 6]) -> f64 {
+        if k < 8 {
+            self.top[m][k]
+        } else if k == 8 {
+            self.bottom[m]
+        } else if k == m {
+            bias[k - NAV]
+        } else {
+            0.0
+        }
+    }
+}
+
+/// The nonzero blocks of A = F dt: (row block, column block, zero pattern).
+const A_BLOCKS: [(usize, usize, u16); 12] = [
+    (0, 0, PP),
+    (0, 1, IDENTITY),
+    (1, 0, NO_EAST),
+    (1, 1, FULL),
+    (1, 2, SKEW),
+    (1, 3, FULL),
+    (2, 0, NO_EAST),
+    (2, 1, PSI_V),
+    (2, 2, SKEW),
+    (2, 4, FULL),
+    (3, 3, IDENTITY),
+    (4, 4, IDENTITY),
+];
+
+/// For each column m of A, bit k set where A\[k, m\] can be nonzero (from `A_BLOCKS`).
+const A_COLUMNS: [u16; ERROR_STATES] = {
+    let mut out = [0u16; ERROR_STATES];
+    let mut b = 0;
+    while b < A_BLOCKS.len() {
+        let (i, j, pattern) = A_BLOCKS[b];
+        let mut r = 0;
+        while r < 3 {
+            let mut c = 0;
+            while c < 3 {
+                if pattern & (1 << (3 * r + c)) != 0 {
+                    out[3 * j + c] |= 1 << (3 * i + r);
+                }
+                c += 1;
+            }
+            r += 1;
+        }
+        b += 1;
+    }
+    out
+};
+
+/// The navigation rows of Phi's columns (see [`ScaledBlocks::write_transition`]).
+#[inline(always)]
+fn transition_columns<M: MultiplyAdd>(
+    a: &NavigationColumns,
+    bias: [f64; 6],
+    phi: &mut [[f64; ERROR_STATES]; ERROR_STATES],
+) {
+    transition_column::<M, 0>(a, bias, phi);
+    transition_column::<M, 1>(a, bias, phi);
+    transition_column::<M, 2>(a, bias, phi);
+    transition_column::<M, 3>(a, bias, phi);
+    transition_column::<M, 4>(a, bias, phi);
+    transition_column::<M, 5>(a, bias, phi);
+    transition_column::<M, 6>(a, bias, phi);
+    transition_column::<M, 7>(a, bias, phi);
+    transition_column::<M, 8>(a, bias, phi);
+    transition_column::<M, 9>(a, bias, phi);
+    transition_column::<M, 10>(a, bias, phi);
+    transition_column::<M, 11>(a, bias, phi);
+    transition_column::<M, 12>(a, bias, phi);
+    transition_column::<M, 13>(a, bias, phi);
+    transition_column::<M, 14>(a, bias, phi);
+}
+
+/// Rows 0..9 of Phi's column `COL`: e + A\[:, COL\] + ½ Σ_k A\[:, k\] A\[k, COL\] over the k
+/// of `A_COLUMNS[COL]` (a constant, so the loop unrolls into the nonzero terms only).
+#[inline(always)]
+fn transition_column<M: MultiplyAdd, const COL: usize>(
+    a: &NavigationColumns,
+    bias: [f64; 6],
+    phi: &mut [[f64; ERROR_STATES]; ERROR_STATES],
+) {
+    let mut top = [0.0f64; 8];
+    let mut bottom = 0.0f64;
+    for k in 0..ERROR_STATES {
+        if A_COLUMNS[COL] & (1 << k) != 0 {
+            let w = a.entry(k, COL, bias);
+            for (acc, x) in top.iter_mut().zip(&a.top[k]) {
+                *acc = M::multiply_add(*x, w, *acc);
+            }
+            bottom = M::multiply_add(a.bottom[k], w, bottom);
+        }
+    }
+    let column = &mut phi[COL];
+    for (r, (out, (acc, x))) in column
+        .iter_mut()
+        .zip(top.iter().zip(&a.top[COL]))
+        .enumerate()
+    {
+        let identity = if r == COL { 1.0 } else { 0.0 };
+        *out = M::multiply_add(0.5, *acc, identity + x);
+    }
+    column[8] = M::multiply_add(
+        0.5,
+        bottom,
+        if COL == 8 { 1.0 } else { 0.0 } + a.bottom[COL],
+    );
 }
 
 /// Zero patterns of F's 3x3 blocks: bit 3 i + j is set where entry (i, j) can be nonzero.
 /// All nine entries.
 const FULL: u16 = 0b111_111_111;
+/// A multiple of the identity.
+const IDENTITY: u16 = 0b100_010_001;
 /// A skew-symmetric block (\[ω×\] dt, \[f×\] dt): zero diagonal.
 const SKEW: u16 = 0b011_101_110;
 /// F_pp dt: its down row is zero (ḣ = -v_D has no position term) and so is its (N, E)
@@ -716,7 +880,7 @@ impl ProcessModel<f64, ERROR_STATES> for InsErrorModel {
         dt: f64,
     ) -> estim_core::Result<ErrorMatrix> {
         check_dt(dt)?;
-        Ok(ScaledBlocks::new(&self.system_blocks(state, input), dt).transition())
+        Ok(self.transition_matrix(state, input, dt))
     }
 
     fn process_noise(
@@ -838,67 +1002,6 @@ unsafe fn propagate_structured_avx2(
     q: &[[f64; ERROR_STATES]; ERROR_STATES],
 ) {
     propagate_structured::<Fused>(covariance, phi, q);
-}
-
-/// The builds of the covariance kernels, chosen once per call from the CPU's features
-/// (`is_x86_feature_detected!` caches its answer, so the check costs a load).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Kernel {
-    /// AVX-512 (8 lanes) with fused multiply-adds.
-    #[cfg(target_arch = "x86_64")]
-    Avx512Fma,
-    /// AVX2 (4 lanes) with fused multiply-adds.
-    #[cfg(target_arch = "x86_64")]
-    Avx2Fma,
-    /// The baseline build: products and sums rounded separately.
-    Portable,
-}
-
-impl Kernel {
-    #[inline(always)]
-    fn detect() -> Self {
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("fma") {
-                if std::arch::is_x86_feature_detected!("avx512f") {
-                    return Self::Avx512Fma;
-                }
-                if std::arch::is_x86_feature_detected!("avx2") {
-                    return Self::Avx2Fma;
-                }
-            }
-        }
-        Self::Portable
-    }
-}
-
-/// How a kernel forms a b + c. Rust never contracts `a * b + c` into a fused
-/// multiply-add by itself, and `f64::mul_add` on a CPU without FMA is a slow library
-/// call, so the kernels take the choice as a type: [`Fused`] only inside the builds
-/// compiled with the `fma` feature, [`Separate`] in the portable one.
-trait MultiplyAdd {
-    /// a b + c.
-    fn multiply_add(a: f64, b: f64, c: f64) -> f64;
-}
-
-/// a b + c with the product and the sum rounded separately.
-struct Separate;
-
-impl MultiplyAdd for Separate {
-    #[inline(always)]
-    fn multiply_add(a: f64, b: f64, c: f64) -> f64 {
-        a * b + c
-    }
-}
-
-/// a b + c rounded once (one FMA instruction where the `fma` feature is enabled).
-struct Fused;
-
-impl MultiplyAdd for Fused {
-    #[inline(always)]
-    fn multiply_add(a: f64, b: f64, c: f64) -> f64 {
-        a.mul_add(b, c)
-    }
 }
 
 /// Navigation rows (position, velocity, misalignment) of the error state.
@@ -1141,6 +1244,64 @@ mod tests {
             }
         }
         worst
+    }
+
+    /// Phi from each build (the portable one, and the FMA ones when this CPU has them)
+    /// against I + A + A²/2 formed from `system_matrix` with dense nalgebra products (no
+    /// zero patterns, no column kernel): every entry within 16 ε of the sum of its terms'
+    /// magnitudes (an exact zero where every term is zero), at every 97th state of the
+    /// default mission. The public entry points run only the build the CPU selects, so this
+    /// is where a machine with FMA checks the portable Phi (and the other way round).
+    #[test]
+    fn every_transition_build_equals_the_dense_formula() {
+        let mission = Mission::generate(&MissionConfig::default(), 7).unwrap();
+        let model = InsErrorModel::new(ImuSpec::akit_observed());
+        let dt = mission.imu_dt;
+        type Build = fn(&InsErrorModel, &InsState, &ImuSample, f64) -> ErrorMatrix;
+        let mut builds: Vec<(&str, Build)> = vec![("portable", |m, s, u, dt| {
+            m.transition_body::<Separate>(s, u, dt)
+        })];
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("fma") {
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU has AVX2 and FMA (checked above).
+                builds.push(("avx2+fma", |m, s, u, dt| unsafe {
+                    m.transition_avx2(s, u, dt)
+                }));
+            }
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU has AVX-512F and FMA (checked above).
+                builds.push(("avx512+fma", |m, s, u, dt| unsafe {
+                    m.transition_avx512(s, u, dt)
+                }));
+            }
+        }
+        let identity = ErrorMatrix::identity();
+        for (name, build) in builds {
+            let mut worst = 0.0f64;
+            for (state, imu) in mission.truth.iter().zip(&mission.imu).step_by(97) {
+                let a = model.system_matrix(state, imu) * dt;
+                let reference = identity + a + a * a * 0.5;
+                let magnitude = a.abs();
+                let bound =
+                    (identity + magnitude + magnitude * magnitude * 0.5) * (16.0 * f64::EPSILON);
+                let phi = build(&model, state, imu, dt);
+                for i in 0..15 {
+                    for j in 0..15 {
+                        let error = (phi[(i, j)] - reference[(i, j)]).abs();
+                        assert!(
+                            error <= bound[(i, j)],
+                            "{name} ({i}, {j}): {error:e} > {:e}",
+                            bound[(i, j)]
+                        );
+                        if bound[(i, j)] > 0.0 {
+                            worst = worst.max(error / bound[(i, j)]);
+                        }
+                    }
+                }
+            }
+            println!("{name}: worst error {worst:.3} of the bound");
+        }
     }
 
     /// The portable kernel (products and sums rounded separately) and, when this CPU has

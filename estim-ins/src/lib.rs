@@ -35,6 +35,7 @@ pub mod earth;
 mod error;
 mod error_model;
 mod imu_spec;
+mod kernel;
 mod mechanization;
 mod mission;
 mod simulator;
