@@ -27,6 +27,17 @@ use crate::update::mul_static;
 /// ns by the loops; N = 8: 48 against 100 ns).
 const KERNEL_MIN_WORK: usize = 512;
 
+/// What the product is added to.
+#[derive(Clone, Copy, Debug)]
+enum Start<'a, T> {
+    /// Nothing: `out` = A B.
+    Zero,
+    /// `out` itself: `out` += A B.
+    Out,
+    /// Another matrix of `out`'s shape: `out` = C + A B.
+    Matrix(&'a [T]),
+}
+
 /// How the second factor is read.
 #[derive(Clone, Copy, Debug)]
 enum Second {
@@ -49,7 +60,7 @@ pub(crate) fn product<T: Scalar, const R: usize, const K: usize, const C: usize>
         b.as_slice(),
         (R, K, C),
         Second::Plain,
-        false,
+        Start::Zero,
     ) {
         out = mul_static(a, b);
     }
@@ -69,7 +80,7 @@ pub(crate) fn product_transposed<T: Scalar, const R: usize, const K: usize, cons
         x.as_slice(),
         (R, K, C),
         Second::Transposed,
-        false,
+        Start::Zero,
     ) {
         out = mul_static(a, &x.transpose());
     }
@@ -83,7 +94,7 @@ pub(crate) fn minus_product<T: Scalar, const R: usize, const K: usize, const C: 
     a: &SMatrix<T, R, K>,
     b: &SMatrix<T, K, C>,
 ) -> SMatrix<T, R, C> {
-    let mut out = *c;
+    let mut out = SMatrix::<T, R, C>::zeros();
     let negated = -a;
     if !fused(
         out.as_mut_slice(),
@@ -91,7 +102,7 @@ pub(crate) fn minus_product<T: Scalar, const R: usize, const K: usize, const C: 
         b.as_slice(),
         (R, K, C),
         Second::Plain,
-        true,
+        Start::Matrix(c.as_slice()),
     ) {
         out = c - mul_static(a, b);
     }
@@ -114,7 +125,7 @@ pub(crate) fn gram_pair_into<T: Scalar, const N: usize, const K: usize, const L:
             a.as_slice(),
             (N, K, N),
             Second::Transposed,
-            false,
+            Start::Zero,
         )
     {
         return false;
@@ -127,7 +138,7 @@ pub(crate) fn gram_pair_into<T: Scalar, const N: usize, const K: usize, const L:
             b.as_slice(),
             (N, L, N),
             Second::Transposed,
-            true,
+            Start::Out,
         )
 }
 
@@ -143,7 +154,7 @@ pub(crate) fn available() -> bool {
     }
 }
 
-/// `out` (R x C) = A B (or += with `accumulate`) through the kernel when it applies
+/// `out` (R x C) = `start` + A B through the kernel when it applies
 /// (f64, the CPU, at least [`KERNEL_MIN_WORK`]); false (nothing written) when not.
 #[inline(always)]
 fn fused<T: Scalar>(
@@ -152,9 +163,9 @@ fn fused<T: Scalar>(
     b: &[T],
     (r, k, c): (usize, usize, usize),
     second: Second,
-    accumulate: bool,
+    start: Start<'_, T>,
 ) -> bool {
-    r * k * c >= KERNEL_MIN_WORK && fused_any_size(out, a, b, (r, k, c), second, accumulate)
+    r * k * c >= KERNEL_MIN_WORK && fused_any_size(out, a, b, (r, k, c), second, start)
 }
 
 /// [`fused`] whatever the size.
@@ -165,7 +176,7 @@ fn fused_any_size<T: Scalar>(
     b: &[T],
     (r, k, c): (usize, usize, usize),
     second: Second,
-    accumulate: bool,
+    start: Start<'_, T>,
 ) -> bool {
     if r * c == 0 {
         return false;
@@ -187,11 +198,19 @@ fn fused_any_size<T: Scalar>(
                 Second::Plain => (1, k),
                 Second::Transposed => (c, 1),
             };
-            avx512::product(out, a, b, (r, k, c), strides, accumulate);
+            let start = match start {
+                Start::Zero => avx512::Start::Zero,
+                Start::Out => avx512::Start::Out,
+                // SAFETY: as above.
+                Start::Matrix(c) => avx512::Start::Matrix(unsafe {
+                    std::slice::from_raw_parts(c.as_ptr().cast::<f64>(), c.len())
+                }),
+            };
+            avx512::product(out, a, b, (r, k, c), strides, start);
             return true;
         }
     }
-    let _ = (out, a, b, second, accumulate);
+    let _ = (out, a, b, second, start);
     false
 }
 
@@ -208,8 +227,15 @@ mod avx512 {
         std::arch::is_x86_feature_detected!("avx512f")
     }
 
-    /// `out` (column-major r x c) = A B (or += with `accumulate`), A column-major
-    /// r x k, B(kk, j) = b[kk * strides.0 + j * strides.1].
+    /// What the product is added to (as the outer `Start`, for f64).
+    pub(super) enum Start<'a> {
+        Zero,
+        Out,
+        Matrix(&'a [f64]),
+    }
+
+    /// `out` (column-major r x c) = `start` + A B, A column-major r x k,
+    /// B(kk, j) = b[kk * strides.0 + j * strides.1].
     ///
     /// # Panics
     /// If a slice is shorter than the sizes say (never for the callers' static sizes).
@@ -219,14 +245,22 @@ mod avx512 {
         b: &[f64],
         (r, k, c): (usize, usize, usize),
         strides: (usize, usize),
-        accumulate: bool,
+        start: Start<'_>,
     ) {
         assert!(available());
         assert!(out.len() >= r * c && a.len() >= r * k);
         assert!(k == 0 || c == 0 || b.len() > (k - 1) * strides.0 + (c - 1) * strides.1);
+        let start = match start {
+            Start::Zero => std::ptr::null(),
+            Start::Out => out.as_ptr(),
+            Start::Matrix(initial) => {
+                assert!(initial.len() >= r * c);
+                initial.as_ptr()
+            }
+        };
         // SAFETY: the CPU has AVX-512F (asserted), and every index the kernel reads or
         // writes is within the lengths asserted above (masked lanes are not accessed).
-        unsafe { product_avx512(out, a, b, (r, k, c), strides, accumulate) }
+        unsafe { product_avx512(out, a, b, (r, k, c), strides, start) }
     }
 
     /// Mask of the first `n` lanes of 8.
@@ -246,7 +280,7 @@ mod avx512 {
         b: &[f64],
         (r, k, c): (usize, usize, usize),
         strides: (usize, usize),
-        accumulate: bool,
+        start: *const f64,
     ) {
         let (out, a, b) = (out.as_mut_ptr(), a.as_ptr(), b.as_ptr());
         let mut i0 = 0;
@@ -270,7 +304,11 @@ mod avx512 {
                     strides,
                     out: out.add(i0 + j0 * r),
                     ldo: r,
-                    accumulate,
+                    start: if start.is_null() {
+                        start
+                    } else {
+                        start.add(i0 + j0 * r)
+                    },
                 };
                 match (rows.div_ceil(8), width) {
                     (1, 1) => job.run::<1, 1>(),
@@ -302,7 +340,8 @@ mod avx512 {
         strides: (usize, usize),
         out: *mut f64,
         ldo: usize,
-        accumulate: bool,
+        /// Where the panel's initial values are (laid out as `out`), or null for 0.
+        start: *const f64,
     }
 
     impl Panel {
@@ -311,9 +350,9 @@ mod avx512 {
         unsafe fn run<const H: usize, const W: usize>(&self) {
             // acc[w][h]: column w of the panel, rows 8h..8h + 8.
             let mut acc = [[_mm512_setzero_pd(); H]; W];
-            if self.accumulate {
+            if !self.start.is_null() {
                 for (w, column) in acc.iter_mut().enumerate() {
-                    let start = self.out.add(w * self.ldo);
+                    let start = self.start.add(w * self.ldo);
                     for (h, lanes) in column.iter_mut().enumerate() {
                         *lanes = _mm512_maskz_loadu_pd(self.masks[h], start.add(8 * h));
                     }
@@ -385,17 +424,20 @@ mod tests {
                 let len = k * c;
                 let b: Vec<f64> = (0..len).map(|_| rng.random_range(-1.0..1.0)).collect();
                 let start: Vec<f64> = (0..r * c).map(|_| rng.random_range(-1.0..1.0)).collect();
-                for (second, accumulate) in [
-                    (Second::Plain, false),
-                    (Second::Transposed, false),
-                    (Second::Plain, true),
+                // 0: out = A B; 1: out += A B; 2: out = C + A B (C = `start`, out NaN).
+                for (second, mode) in [
+                    (Second::Plain, 0),
+                    (Second::Transposed, 0),
+                    (Second::Plain, 1),
+                    (Second::Transposed, 2),
                 ] {
+                    let accumulate = mode > 0;
                     let read = |l: usize, j: usize| match second {
                         Second::Plain => b[l + j * k],
                         Second::Transposed => b[j + l * c],
                     };
                     let (mut want, bound) = reference(&a, read, (r, k, c));
-                    let mut got = if accumulate {
+                    let mut got = if mode == 1 {
                         start.clone()
                     } else {
                         vec![f64::NAN; r * c]
@@ -407,7 +449,12 @@ mod tests {
                     }
                     // One more column of room: the kernel must not write past r x c.
                     got.push(7.0);
-                    let ran = fused(&mut got, &a, &b, (r, k, c), second, accumulate);
+                    let from = match mode {
+                        0 => Start::Zero,
+                        1 => Start::Out,
+                        _ => Start::Matrix(&start),
+                    };
+                    let ran = fused(&mut got, &a, &b, (r, k, c), second, from);
                     assert_eq!(got[r * c], 7.0, "wrote past the product");
                     if !ran {
                         assert!(r * k * c < KERNEL_MIN_WORK || !available());
@@ -422,7 +469,7 @@ mod tests {
                             };
                         assert!(
                             (got[i] - want[i]).abs() <= slack,
-                            "({r}, {k}, {c}) {second:?} accumulate {accumulate}: entry {i} {} vs {}",
+                            "({r}, {k}, {c}) {second:?} mode {mode}: entry {i} {} vs {}",
                             got[i],
                             want[i]
                         );

@@ -271,10 +271,11 @@ pub(crate) fn joint_factor<T: Scalar, const N: usize, const M: usize>(
     measurement_noise: &SMatrix<T, M, M>,
 ) -> Option<Blocks<T, N, M, N, M>> {
     // Leading block on a plain static matrix (the hot part, no block addressing),
-    // with the tolerance of the whole joint's size, then the rows of [M' R].
-    let mut l11 = SMatrix::<T, N, N>::zeros();
+    // with the tolerance of the whole joint's size, then the rows of [M' R]. Factored
+    // in place in the result's block (no copy of an N x N factor).
+    let mut l = Blocks::<T, N, M, N, M>::zeros();
     let tol_size = N + M;
-    if !semidefinite_cholesky_sized(N, tol_size, 0, |i, k| covariance[(i, k)], &mut l11) {
+    if !semidefinite_cholesky_sized(N, tol_size, 0, |i, k| covariance[(i, k)], &mut l.a) {
         return None;
     }
     if all_zero(cross_covariance.as_slice()) {
@@ -284,8 +285,6 @@ pub(crate) fn joint_factor<T: Scalar, const N: usize, const M: usize>(
         // its zero-pivot test on the rows of M' reads zeros, so this gives the same
         // factor (bit for bit, up to the sign of exact zeros in L21) without touching
         // the zero block.
-        let mut l = Blocks::<T, N, M, N, M>::zeros();
-        l.a = l11;
         return semidefinite_cholesky_sized(
             M,
             tol_size,
@@ -295,7 +294,7 @@ pub(crate) fn joint_factor<T: Scalar, const N: usize, const M: usize>(
         )
         .then_some(l);
     }
-    joint_factor_from(&l11, cross_covariance, measurement_noise)
+    factor_rest(&mut l, cross_covariance, measurement_noise).then_some(l)
 }
 
 /// [`joint_factor`] without the block-diagonal shortcut for M = 0 (the reference the
@@ -322,6 +321,17 @@ fn joint_factor_from<T: Scalar, const N: usize, const M: usize>(
 ) -> Option<Blocks<T, N, M, N, M>> {
     let mut l = Blocks::<T, N, M, N, M>::zeros();
     l.a = *factor;
+    factor_rest(&mut l, cross_covariance, measurement_noise).then_some(l)
+}
+
+/// The rows of [M' R] of the joint factor, given its leading block `l.a` (lower
+/// triangular); false if the joint has no square root.
+fn factor_rest<T: Scalar, const N: usize, const M: usize>(
+    l: &mut Blocks<T, N, M, N, M>,
+    cross_covariance: &SMatrix<T, N, M>,
+    measurement_noise: &SMatrix<T, M, M>,
+) -> bool {
+    let factor = &l.a;
     let diag: SVector<T, N> = SVector::from_fn(|j, _| {
         (0..N).fold(T::zero(), |acc, k| acc + factor[(j, k)] * factor[(j, k)])
     });
@@ -334,7 +344,7 @@ fn joint_factor_from<T: Scalar, const N: usize, const M: usize>(
             (true, false) => cross_covariance[(i, k - N)],
         }
     };
-    semidefinite_cholesky(N + M, N, joint, &mut l).then_some(l)
+    semidefinite_cholesky(N + M, N, joint, l)
 }
 
 /// Lower-triangular factor S of a covariance, S S' = P (semidefinite Cholesky:
