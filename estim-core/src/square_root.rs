@@ -69,7 +69,7 @@ pub(crate) struct Blocks<
 impl<T: Scalar, const R1: usize, const R2: usize, const C1: usize, const C2: usize>
     Blocks<T, R1, R2, C1, C2>
 {
-    fn zeros() -> Self {
+    pub(crate) fn zeros() -> Self {
         Self {
             a: SMatrix::zeros(),
             b: SMatrix::zeros(),
@@ -273,14 +273,30 @@ pub(crate) fn joint_factor<T: Scalar, const N: usize, const M: usize>(
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
 ) -> Option<Blocks<T, N, M, N, M>> {
+    let mut l = Blocks::zeros();
+    joint_factor_into(covariance, cross_covariance, measurement_noise, &mut l).then_some(l)
+}
+
+/// [`joint_factor`] into `l`, which must be zero (only the lower triangle is
+/// written): the update's caller keeps the factor where it is used instead of
+/// moving it out of a return value. False if the joint has no square root.
+#[inline(always)]
+pub(crate) fn joint_factor_into<T: Scalar, const N: usize, const M: usize>(
+    covariance: &SMatrix<T, N, N>,
+    cross_covariance: &SMatrix<T, N, M>,
+    measurement_noise: &SMatrix<T, M, M>,
+    l: &mut Blocks<T, N, M, N, M>,
+) -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         if N >= 8 && std::arch::is_x86_feature_detected!("avx512f") {
             // SAFETY: the CPU has the feature (checked on the line above).
-            return unsafe { joint_factor_avx512(covariance, cross_covariance, measurement_noise) };
+            return unsafe {
+                joint_factor_avx512(covariance, cross_covariance, measurement_noise, l)
+            };
         }
     }
-    joint_factor_body(covariance, cross_covariance, measurement_noise)
+    joint_factor_body(covariance, cross_covariance, measurement_noise, l)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -289,8 +305,9 @@ unsafe fn joint_factor_avx512<T: Scalar, const N: usize, const M: usize>(
     covariance: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
-) -> Option<Blocks<T, N, M, N, M>> {
-    joint_factor_body(covariance, cross_covariance, measurement_noise)
+    l: &mut Blocks<T, N, M, N, M>,
+) -> bool {
+    joint_factor_body(covariance, cross_covariance, measurement_noise, l)
 }
 
 #[inline(always)]
@@ -298,14 +315,14 @@ fn joint_factor_body<T: Scalar, const N: usize, const M: usize>(
     covariance: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
-) -> Option<Blocks<T, N, M, N, M>> {
+    l: &mut Blocks<T, N, M, N, M>,
+) -> bool {
     // Leading block on a plain static matrix (the hot part, no block addressing),
     // with the tolerance of the whole joint's size, then the rows of [M' R]. Factored
     // in place in the result's block (no copy of an N x N factor).
-    let mut l = Blocks::<T, N, M, N, M>::zeros();
     let tol_size = N + M;
     if !semidefinite_cholesky_sized(N, tol_size, 0, |i, k| covariance[(i, k)], &mut l.a) {
-        return None;
+        return false;
     }
     if all_zero(cross_covariance.as_slice()) {
         // M = 0: the joint is block diagonal, L21 = 0 and L22 = chol(R). The general
@@ -320,10 +337,9 @@ fn joint_factor_body<T: Scalar, const N: usize, const M: usize>(
             0,
             |i, k| measurement_noise[(i, k)],
             &mut l.d,
-        )
-        .then_some(l);
+        );
     }
-    factor_rest(&mut l, cross_covariance, measurement_noise).then_some(l)
+    factor_rest(l, cross_covariance, measurement_noise)
 }
 
 /// [`joint_factor`] without the block-diagonal shortcut for M = 0 (the reference the
@@ -889,7 +905,9 @@ mod tests {
             } else {
                 SMatrix::<f64, 15, 3>::from_fn(|_, _| rng.random_range(-1.0..1.0)) * 0.01
             };
-            match (joint_factor(&p, &m, &r), joint_factor_body(&p, &m, &r)) {
+            let mut portable = Blocks::zeros();
+            let portable = joint_factor_body(&p, &m, &r, &mut portable).then_some(portable);
+            match (joint_factor(&p, &m, &r), portable) {
                 (Some(f), Some(g)) => {
                     assert_eq!(f.a, g.a, "case {case}");
                     assert_eq!(f.c, g.c, "case {case}");

@@ -218,11 +218,15 @@ fn square_root_into<T: Scalar, const N: usize, const M: usize>(
     gain: &SMatrix<T, N, M>,
     out: &mut SMatrix<T, N, N>,
 ) -> bool {
-    let Some(l) =
-        crate::square_root::joint_factor(covariance, cross_covariance, &factored.measurement_noise)
-    else {
+    let mut l = crate::square_root::Blocks::<T, N, M, N, M>::zeros();
+    if !crate::square_root::joint_factor_into(
+        covariance,
+        cross_covariance,
+        &factored.measurement_noise,
+        &mut l,
+    ) {
         return false;
-    };
+    }
     // B1 = (I-KH) L11 - K L21 = L11 - K (H L11 + L21) (N x N, N^2 M work instead
     // of N^3), B2 = -K L22 (N x M; the sign does not matter in B B'). L11 and L22
     // are lower triangular: the products skip the leading zeros of each column
