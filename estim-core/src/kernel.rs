@@ -1,7 +1,8 @@
 //! Dense products of the runners' hot loops (F P F', Phi_acc, the square-root
 //! update's Gram product) through a register-blocked AVX-512 kernel with fused
-//! multiply-adds, for `f64` on CPUs that have AVX-512F; everywhere else (other
-//! scalars, other CPUs, small products) the plain loops of [`mul_static`].
+//! multiply-adds, for `f64` (8 lanes) and `f32` (16 lanes) on CPUs that have
+//! AVX-512F; everywhere else (other CPUs, small products) the plain loops of
+//! [`mul_static`].
 //!
 //! Why by hand: at the sizes of a filter (N = 8..30) the loops of `mul_static`, even
 //! compiled for AVX-512, run at 12-15 multiply-adds per ns on the Zen 5 machine the
@@ -110,7 +111,7 @@ pub(crate) fn minus_product<T: Scalar, const R: usize, const K: usize, const C: 
 }
 
 /// `out` = A A' + B B' (A is N x K, B is N x L), exactly symmetric, when the kernel
-/// runs (f64, AVX-512F, large enough); false, with `out` untouched, otherwise (the
+/// runs (f64 or f32, AVX-512F, large enough); false, with `out` untouched, otherwise (the
 /// caller's own loops then).
 #[inline(always)]
 pub(crate) fn gram_pair_into<T: Scalar, const N: usize, const K: usize, const L: usize>(
@@ -142,7 +143,7 @@ pub(crate) fn gram_pair_into<T: Scalar, const N: usize, const K: usize, const L:
         )
 }
 
-/// Whether this CPU runs the kernel (for `f64`).
+/// Whether this CPU runs the kernel (for `f64` and `f32`).
 pub(crate) fn available() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
@@ -155,7 +156,8 @@ pub(crate) fn available() -> bool {
 }
 
 /// `out` (R x C) = `start` + A B through the kernel when it applies
-/// (f64, the CPU, at least [`KERNEL_MIN_WORK`]); false (nothing written) when not.
+/// (f64 or f32, the CPU, at least [`KERNEL_MIN_WORK`]); false (nothing written) when
+/// not.
 #[inline(always)]
 fn fused<T: Scalar>(
     out: &mut [T],
@@ -166,6 +168,32 @@ fn fused<T: Scalar>(
     start: Start<'_, T>,
 ) -> bool {
     r * k * c >= KERNEL_MIN_WORK && fused_any_size(out, a, b, (r, k, c), second, start)
+}
+
+/// The kernel on slices of `T` read as `E`.
+///
+/// # Safety
+/// `T` must be `E` (the callers compare their `TypeId`s).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn run_as<T: Scalar, E: avx512::Lanes>(
+    out: &mut [T],
+    a: &[T],
+    b: &[T],
+    dims: (usize, usize, usize),
+    strides: (usize, usize),
+    start: Start<'_, T>,
+) {
+    // SAFETY: T is E (the caller's contract), so the memory holds E values of the
+    // same lengths.
+    let cast = |s: &[T]| unsafe { std::slice::from_raw_parts(s.as_ptr().cast::<E>(), s.len()) };
+    let out = unsafe { std::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<E>(), out.len()) };
+    let start = match start {
+        Start::Zero => avx512::Start::Zero,
+        Start::Out => avx512::Start::Out,
+        Start::Matrix(initial) => avx512::Start::Matrix(cast(initial)),
+    };
+    avx512::product(out, cast(a), cast(b), dims, strides, start);
 }
 
 /// [`fused`] whatever the size.
@@ -184,29 +212,18 @@ fn fused_any_size<T: Scalar>(
     #[cfg(target_arch = "x86_64")]
     {
         use std::any::TypeId;
+        let strides = match second {
+            Second::Plain => (1, k),
+            Second::Transposed => (c, 1),
+        };
         if TypeId::of::<T>() == TypeId::of::<f64>() && available() {
-            // SAFETY: T is f64 (checked on the line above), so the slices' memory holds
-            // f64 values of the same length.
-            let (out, a, b) = unsafe {
-                (
-                    std::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<f64>(), out.len()),
-                    std::slice::from_raw_parts(a.as_ptr().cast::<f64>(), a.len()),
-                    std::slice::from_raw_parts(b.as_ptr().cast::<f64>(), b.len()),
-                )
-            };
-            let strides = match second {
-                Second::Plain => (1, k),
-                Second::Transposed => (c, 1),
-            };
-            let start = match start {
-                Start::Zero => avx512::Start::Zero,
-                Start::Out => avx512::Start::Out,
-                // SAFETY: as above.
-                Start::Matrix(c) => avx512::Start::Matrix(unsafe {
-                    std::slice::from_raw_parts(c.as_ptr().cast::<f64>(), c.len())
-                }),
-            };
-            avx512::product(out, a, b, (r, k, c), strides, start);
+            // SAFETY: T is f64 (checked on the line above).
+            unsafe { run_as::<T, f64>(out, a, b, (r, k, c), strides, start) };
+            return true;
+        }
+        if TypeId::of::<T>() == TypeId::of::<f32>() && available() {
+            // SAFETY: T is f32 (checked on the line above).
+            unsafe { run_as::<T, f32>(out, a, b, (r, k, c), strides, start) };
             return true;
         }
     }
@@ -217,8 +234,9 @@ fn fused_any_size<T: Scalar>(
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
     use std::arch::x86_64::{
-        __mmask8, _mm512_fmadd_pd, _mm512_mask_storeu_pd, _mm512_maskz_loadu_pd, _mm512_set1_pd,
-        _mm512_setzero_pd,
+        __m512, __m512d, __mmask16, __mmask8, _mm512_fmadd_pd, _mm512_fmadd_ps,
+        _mm512_mask_storeu_pd, _mm512_mask_storeu_ps, _mm512_maskz_loadu_pd, _mm512_maskz_loadu_ps,
+        _mm512_set1_pd, _mm512_set1_ps, _mm512_setzero_pd, _mm512_setzero_ps,
     };
 
     /// Whether the CPU runs the kernel (AVX-512F; its FMA is part of AVX-512F).
@@ -227,11 +245,93 @@ mod avx512 {
         std::arch::is_x86_feature_detected!("avx512f")
     }
 
-    /// What the product is added to (as the outer `Start`, for f64).
-    pub(super) enum Start<'a> {
+    /// A scalar with its 512-bit register: 8 f64 or 16 f32 lanes. The methods are
+    /// only called (inlined) inside `product_avx512`, which has AVX-512F.
+    pub(super) trait Lanes: Copy {
+        type Vector: Copy;
+        type Mask: Copy;
+        const LANES: usize;
+        fn mask(n: usize) -> Self::Mask;
+        unsafe fn zero() -> Self::Vector;
+        unsafe fn load(mask: Self::Mask, from: *const Self) -> Self::Vector;
+        unsafe fn splat(value: Self) -> Self::Vector;
+        unsafe fn multiply_add(a: Self::Vector, b: Self::Vector, c: Self::Vector) -> Self::Vector;
+        unsafe fn store(to: *mut Self, mask: Self::Mask, value: Self::Vector);
+    }
+
+    impl Lanes for f64 {
+        type Vector = __m512d;
+        type Mask = __mmask8;
+        const LANES: usize = 8;
+        #[inline(always)]
+        fn mask(n: usize) -> __mmask8 {
+            if n >= 8 {
+                0xff
+            } else {
+                ((1u16 << n) - 1) as __mmask8
+            }
+        }
+        #[inline(always)]
+        unsafe fn zero() -> __m512d {
+            _mm512_setzero_pd()
+        }
+        #[inline(always)]
+        unsafe fn load(mask: __mmask8, from: *const f64) -> __m512d {
+            _mm512_maskz_loadu_pd(mask, from)
+        }
+        #[inline(always)]
+        unsafe fn splat(value: f64) -> __m512d {
+            _mm512_set1_pd(value)
+        }
+        #[inline(always)]
+        unsafe fn multiply_add(a: __m512d, b: __m512d, c: __m512d) -> __m512d {
+            _mm512_fmadd_pd(a, b, c)
+        }
+        #[inline(always)]
+        unsafe fn store(to: *mut f64, mask: __mmask8, value: __m512d) {
+            _mm512_mask_storeu_pd(to, mask, value)
+        }
+    }
+
+    impl Lanes for f32 {
+        type Vector = __m512;
+        type Mask = __mmask16;
+        const LANES: usize = 16;
+        #[inline(always)]
+        fn mask(n: usize) -> __mmask16 {
+            if n >= 16 {
+                0xffff
+            } else {
+                ((1u32 << n) - 1) as __mmask16
+            }
+        }
+        #[inline(always)]
+        unsafe fn zero() -> __m512 {
+            _mm512_setzero_ps()
+        }
+        #[inline(always)]
+        unsafe fn load(mask: __mmask16, from: *const f32) -> __m512 {
+            _mm512_maskz_loadu_ps(mask, from)
+        }
+        #[inline(always)]
+        unsafe fn splat(value: f32) -> __m512 {
+            _mm512_set1_ps(value)
+        }
+        #[inline(always)]
+        unsafe fn multiply_add(a: __m512, b: __m512, c: __m512) -> __m512 {
+            _mm512_fmadd_ps(a, b, c)
+        }
+        #[inline(always)]
+        unsafe fn store(to: *mut f32, mask: __mmask16, value: __m512) {
+            _mm512_mask_storeu_ps(to, mask, value)
+        }
+    }
+
+    /// What the product is added to (as the outer `Start`, for one scalar).
+    pub(super) enum Start<'a, E> {
         Zero,
         Out,
-        Matrix(&'a [f64]),
+        Matrix(&'a [E]),
     }
 
     /// `out` (column-major r x c) = `start` + A B, A column-major r x k,
@@ -239,13 +339,13 @@ mod avx512 {
     ///
     /// # Panics
     /// If a slice is shorter than the sizes say (never for the callers' static sizes).
-    pub(super) fn product(
-        out: &mut [f64],
-        a: &[f64],
-        b: &[f64],
+    pub(super) fn product<E: Lanes>(
+        out: &mut [E],
+        a: &[E],
+        b: &[E],
         (r, k, c): (usize, usize, usize),
         strides: (usize, usize),
-        start: Start<'_>,
+        start: Start<'_, E>,
     ) {
         assert!(available());
         assert!(out.len() >= r * c && a.len() >= r * k);
@@ -263,34 +363,26 @@ mod avx512 {
         unsafe { product_avx512(out, a, b, (r, k, c), strides, start) }
     }
 
-    /// Mask of the first `n` lanes of 8.
-    #[inline(always)]
-    fn lanes(n: usize) -> __mmask8 {
-        if n >= 8 {
-            0xff
-        } else {
-            ((1u16 << n) - 1) as __mmask8
-        }
-    }
-
     #[target_feature(enable = "avx512f")]
-    unsafe fn product_avx512(
-        out: &mut [f64],
-        a: &[f64],
-        b: &[f64],
+    unsafe fn product_avx512<E: Lanes>(
+        out: &mut [E],
+        a: &[E],
+        b: &[E],
         (r, k, c): (usize, usize, usize),
         strides: (usize, usize),
-        start: *const f64,
+        start: *const E,
     ) {
         let (out, a, b) = (out.as_mut_ptr(), a.as_ptr(), b.as_ptr());
+        let lanes = E::LANES;
         let mut i0 = 0;
         while i0 < r {
-            // Panels of 8, 16 or 24 rows; the rows past r are masked off.
-            let rows = (r - i0).min(24);
+            // Panels of one, two or three registers of rows; the rows past r are
+            // masked off.
+            let rows = (r - i0).min(3 * lanes);
             let masks = [
-                lanes(rows),
-                lanes(rows.saturating_sub(8)),
-                lanes(rows.saturating_sub(16)),
+                E::mask(rows),
+                E::mask(rows.saturating_sub(lanes)),
+                E::mask(rows.saturating_sub(2 * lanes)),
             ];
             let mut j0 = 0;
             while j0 < c {
@@ -310,7 +402,7 @@ mod avx512 {
                         start.add(i0 + j0 * r)
                     },
                 };
-                match (rows.div_ceil(8), width) {
+                match (rows.div_ceil(lanes), width) {
                     (1, 1) => job.run::<1, 1>(),
                     (1, 2) => job.run::<1, 2>(),
                     (1, 3) => job.run::<1, 3>(),
@@ -330,52 +422,53 @@ mod avx512 {
         }
     }
 
-    /// One panel of the product: rows i0.. (H registers of 8) by W columns.
-    struct Panel {
+    /// One panel of the product: rows i0.. (H registers of lanes) by W columns.
+    struct Panel<E: Lanes> {
         k: usize,
-        a: *const f64,
+        a: *const E,
         lda: usize,
-        masks: [__mmask8; 3],
-        b: *const f64,
+        masks: [E::Mask; 3],
+        b: *const E,
         strides: (usize, usize),
-        out: *mut f64,
+        out: *mut E,
         ldo: usize,
         /// Where the panel's initial values are (laid out as `out`), or null for 0.
-        start: *const f64,
+        start: *const E,
     }
 
-    impl Panel {
+    impl<E: Lanes> Panel<E> {
         /// Inlined into `product_avx512`, whose AVX-512 code it becomes.
         #[inline(always)]
         unsafe fn run<const H: usize, const W: usize>(&self) {
-            // acc[w][h]: column w of the panel, rows 8h..8h + 8.
-            let mut acc = [[_mm512_setzero_pd(); H]; W];
+            let lanes = E::LANES;
+            // acc[w][h]: column w of the panel, rows h lanes.. (h + 1) lanes.
+            let mut acc = [[E::zero(); H]; W];
             if !self.start.is_null() {
                 for (w, column) in acc.iter_mut().enumerate() {
                     let start = self.start.add(w * self.ldo);
-                    for (h, lanes) in column.iter_mut().enumerate() {
-                        *lanes = _mm512_maskz_loadu_pd(self.masks[h], start.add(8 * h));
+                    for (h, vector) in column.iter_mut().enumerate() {
+                        *vector = E::load(self.masks[h], start.add(lanes * h));
                     }
                 }
             }
             for kk in 0..self.k {
                 let start = self.a.add(kk * self.lda);
-                let mut av = [_mm512_setzero_pd(); H];
-                for (h, lanes) in av.iter_mut().enumerate() {
-                    *lanes = _mm512_maskz_loadu_pd(self.masks[h], start.add(8 * h));
+                let mut av = [E::zero(); H];
+                for (h, vector) in av.iter_mut().enumerate() {
+                    *vector = E::load(self.masks[h], start.add(lanes * h));
                 }
                 let row = self.b.add(kk * self.strides.0);
                 for (w, column) in acc.iter_mut().enumerate() {
-                    let bb = _mm512_set1_pd(*row.add(w * self.strides.1));
-                    for (lanes, a) in column.iter_mut().zip(&av) {
-                        *lanes = _mm512_fmadd_pd(*a, bb, *lanes);
+                    let bb = E::splat(*row.add(w * self.strides.1));
+                    for (vector, a) in column.iter_mut().zip(&av) {
+                        *vector = E::multiply_add(*a, bb, *vector);
                     }
                 }
             }
             for (w, column) in acc.iter().enumerate() {
                 let start = self.out.add(w * self.ldo);
-                for (h, lanes) in column.iter().enumerate() {
-                    _mm512_mask_storeu_pd(start.add(8 * h), self.masks[h], *lanes);
+                for (h, vector) in column.iter().enumerate() {
+                    E::store(start.add(lanes * h), self.masks[h], *vector);
                 }
             }
         }
@@ -385,15 +478,19 @@ mod avx512 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scalar::{lit, to_f64};
     use rand::{RngExt, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
-    /// The product entry by entry in the textbook order, with its error bound
-    /// k eps sum |a_il| |b_lj| (Higham, *Accuracy and Stability*, 2nd ed., eq. 3.5).
+    /// The product entry by entry in the textbook order (in f64), with the error
+    /// bound of a product computed in a scalar of unit round-off `eps`:
+    /// k eps sum |a_il| |b_lj| (Higham, *Accuracy and Stability*, 2nd ed., eq. 3.5),
+    /// doubled.
     fn reference(
         a: &[f64],
         b: impl Fn(usize, usize) -> f64,
         (r, k, c): (usize, usize, usize),
+        eps: f64,
     ) -> (Vec<f64>, Vec<f64>) {
         let mut value = vec![0.0; r * c];
         let mut bound = vec![0.0; r * c];
@@ -405,25 +502,31 @@ mod tests {
                     s += (a[i + l * r] * b(l, j)).abs();
                 }
                 value[i + j * r] = v;
-                bound[i + j * r] = 2.0 * (k as f64 + 1.0) * f64::EPSILON * s;
+                bound[i + j * r] = 2.0 * (k as f64 + 1.0) * eps * s;
             }
         }
         (value, bound)
     }
 
-    #[test]
-    fn kernel_products_equal_the_textbook_product_for_every_shape() {
-        // Every row count 1..=50 (panels of 8, 16, 24, and 24 + a remainder), inner and
-        // column counts around the panel edges, both orientations, fresh and
-        // accumulating; the kernel runs where the CPU has AVX-512F, otherwise the test
-        // checks the fallback's refusal.
-        let mut rng = ChaCha8Rng::seed_from_u64(71);
+    /// Every row count 1..=50 (panels of one, two, three registers and a remainder:
+    /// 8/16/24 rows in f64, 16/32/48 in f32), inner and column counts around the
+    /// panel edges, both orientations, the three starts; the kernel runs where the
+    /// CPU has AVX-512F, otherwise the test checks the fallback's refusal. Inputs are
+    /// drawn in `T`, the reference is computed in f64 from the same values.
+    fn every_shape<T: Scalar>(seed: u64) {
+        let eps = to_f64(T::default_epsilon());
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut draw = |n: usize| -> Vec<T> {
+            (0..n)
+                .map(|_| lit::<T>(rng.random_range(-1.0..1.0)))
+                .collect()
+        };
+        let wide = |v: &[T]| -> Vec<f64> { v.iter().map(|&x| to_f64(x)).collect() };
+        let mut ran_any = false;
         for r in 1..=50 {
             for (k, c) in [(1, 1), (3, 4), (9, 5), (17, 7), (30, 31), (24, 3)] {
-                let a: Vec<f64> = (0..r * k).map(|_| rng.random_range(-1.0..1.0)).collect();
-                let len = k * c;
-                let b: Vec<f64> = (0..len).map(|_| rng.random_range(-1.0..1.0)).collect();
-                let start: Vec<f64> = (0..r * c).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let (a, b, start) = (draw(r * k), draw(k * c), draw(r * c));
+                let (a64, b64, start64) = (wide(&a), wide(&b), wide(&start));
                 // 0: out = A B; 1: out += A B; 2: out = C + A B (C = `start`, out NaN).
                 for (second, mode) in [
                     (Second::Plain, 0),
@@ -431,52 +534,54 @@ mod tests {
                     (Second::Plain, 1),
                     (Second::Transposed, 2),
                 ] {
-                    let accumulate = mode > 0;
                     let read = |l: usize, j: usize| match second {
-                        Second::Plain => b[l + j * k],
-                        Second::Transposed => b[j + l * c],
+                        Second::Plain => b64[l + j * k],
+                        Second::Transposed => b64[j + l * c],
                     };
-                    let (mut want, bound) = reference(&a, read, (r, k, c));
+                    let (mut want, mut bound) = reference(&a64, read, (r, k, c), eps);
+                    if mode > 0 {
+                        for i in 0..r * c {
+                            want[i] += start64[i];
+                            bound[i] += 2.0 * eps * start64[i].abs();
+                        }
+                    }
                     let mut got = if mode == 1 {
                         start.clone()
                     } else {
-                        vec![f64::NAN; r * c]
+                        vec![lit::<T>(f64::NAN); r * c]
                     };
-                    if accumulate {
-                        for (w, s) in want.iter_mut().zip(&start) {
-                            *w += s;
-                        }
-                    }
                     // One more column of room: the kernel must not write past r x c.
-                    got.push(7.0);
+                    got.push(lit::<T>(7.0));
                     let from = match mode {
                         0 => Start::Zero,
                         1 => Start::Out,
                         _ => Start::Matrix(&start),
                     };
                     let ran = fused(&mut got, &a, &b, (r, k, c), second, from);
-                    assert_eq!(got[r * c], 7.0, "wrote past the product");
+                    assert_eq!(to_f64(got[r * c]), 7.0, "wrote past the product");
                     if !ran {
                         assert!(r * k * c < KERNEL_MIN_WORK || !available());
                         continue;
                     }
+                    ran_any = true;
                     for i in 0..r * c {
-                        let slack = bound[i]
-                            + if accumulate {
-                                f64::EPSILON * start[i].abs() * 2.0
-                            } else {
-                                0.0
-                            };
+                        let g = to_f64(got[i]);
                         assert!(
-                            (got[i] - want[i]).abs() <= slack,
-                            "({r}, {k}, {c}) {second:?} mode {mode}: entry {i} {} vs {}",
-                            got[i],
+                            (g - want[i]).abs() <= bound[i],
+                            "({r}, {k}, {c}) {second:?} mode {mode}: entry {i} {g} vs {}",
                             want[i]
                         );
                     }
                 }
             }
         }
+        assert!(ran_any || !available());
+    }
+
+    #[test]
+    fn kernel_products_equal_the_textbook_product_for_every_shape() {
+        every_shape::<f64>(71);
+        every_shape::<f32>(73);
     }
 
     #[test]
@@ -501,15 +606,9 @@ mod tests {
             assert!(!available());
         }
         assert!((minus_product(&want, &a, &x) - (want - a * x)).amax() < tol * 10.0);
-        // f32 and small sizes never take the kernel.
+        // Small sizes never take the kernel.
         let mut small = SMatrix::<f64, 4, 4>::identity();
         let zeros = SMatrix::<f64, 4, 2>::zeros();
         assert!(!gram_pair_into(&small.clone(), &zeros, &mut small));
-        let mut out32 = SMatrix::<f32, 15, 15>::zeros();
-        assert!(!gram_pair_into(
-            &a.map(|v| v as f32),
-            &b.map(|v| v as f32),
-            &mut out32
-        ));
     }
 }
