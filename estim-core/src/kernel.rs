@@ -30,6 +30,7 @@ const KERNEL_MIN_WORK: usize = 512;
 
 /// What the product is added to.
 #[derive(Clone, Copy, Debug)]
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 enum Start<'a, T> {
     /// Nothing: `out` = A B.
     Zero,
@@ -144,6 +145,7 @@ pub(crate) fn gram_pair_into<T: Scalar, const N: usize, const K: usize, const L:
 }
 
 /// Whether this CPU runs the kernel (for `f64` and `f32`).
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 pub(crate) fn available() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
@@ -227,7 +229,8 @@ fn fused_any_size<T: Scalar>(
             return true;
         }
     }
-    let _ = (out, a, b, second, start);
+    // Other architectures: the callers' loops (the arguments are used above only).
+    let _ = (out, a, b, k, second, start);
     false
 }
 

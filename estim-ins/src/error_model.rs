@@ -44,7 +44,9 @@ use crate::earth::{
     radii_of_curvature, EARTH_RATE, ECCENTRICITY_SQUARED, SEMI_MAJOR_AXIS,
 };
 use crate::imu_spec::ImuSpec;
-use crate::kernel::{Fused, Kernel, MultiplyAdd, Separate};
+#[cfg(target_arch = "x86_64")]
+use crate::kernel::Fused;
+use crate::kernel::{Kernel, MultiplyAdd, Separate};
 use crate::mechanization::{ImuSample, Mechanization};
 use crate::state::{InsState, ACC_BIAS, ATT, ERROR_STATES, GYRO_BIAS, POS, VEL};
 

@@ -55,6 +55,7 @@ impl MultiplyAdd for Separate {
 }
 
 /// a b + c rounded once (one FMA instruction where the `fma` feature is enabled).
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 pub(crate) struct Fused;
 
 impl MultiplyAdd for Fused {

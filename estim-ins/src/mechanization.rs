@@ -37,7 +37,9 @@ use crate::earth::{
     GRAVITY_EQUATOR, SEMI_MAJOR_AXIS, SOMIGLIANA_K,
 };
 use crate::error::{Error, Result};
-use crate::kernel::{Fused, Kernel, MultiplyAdd, Separate};
+#[cfg(target_arch = "x86_64")]
+use crate::kernel::Fused;
+use crate::kernel::{Kernel, MultiplyAdd, Separate};
 use crate::InsState;
 
 /// One IMU sample: raw (bias-including) mean specific force and angular rate over the
