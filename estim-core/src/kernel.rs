@@ -21,7 +21,7 @@
 use nalgebra::SMatrix;
 
 use crate::scalar::Scalar;
-use crate::update::mul_static;
+use crate::update::{mul_static, mul_transpose_static};
 
 /// Products with fewer multiply-adds than this use `mul_static`: the kernel's masked
 /// panels do not pay below about N = 8 (F P F' + Q at N = 6: 41 ns by the kernel, 29
@@ -84,7 +84,7 @@ pub(crate) fn product_transposed<T: Scalar, const R: usize, const K: usize, cons
         Second::Transposed,
         Start::Zero,
     ) {
-        out = mul_static(a, &x.transpose());
+        out = mul_transpose_static(a, x);
     }
     out
 }

@@ -261,7 +261,7 @@ fn square_root_into<T: Scalar, const N: usize, const M: usize>(
 
 /// A B' for static sizes as plain loops (see [`mul_static`]).
 #[inline(always)]
-fn mul_transpose_static<T: Scalar, const R: usize, const K: usize, const C: usize>(
+pub(crate) fn mul_transpose_static<T: Scalar, const R: usize, const K: usize, const C: usize>(
     a: &SMatrix<T, R, K>,
     b: &SMatrix<T, C, K>,
 ) -> SMatrix<T, R, C> {
