@@ -56,6 +56,17 @@ pub(crate) fn product<T: Scalar, const R: usize, const K: usize, const C: usize>
     b: &SMatrix<T, K, C>,
 ) -> SMatrix<T, R, C> {
     let mut out = SMatrix::<T, R, C>::zeros();
+    product_into(a, b, &mut out);
+    out
+}
+
+/// `out` = A B (every entry written; no zeroing first when the kernel runs).
+#[inline(always)]
+pub(crate) fn product_into<T: Scalar, const R: usize, const K: usize, const C: usize>(
+    a: &SMatrix<T, R, K>,
+    b: &SMatrix<T, K, C>,
+    out: &mut SMatrix<T, R, C>,
+) {
     if !fused(
         out.as_mut_slice(),
         a.as_slice(),
@@ -64,9 +75,27 @@ pub(crate) fn product<T: Scalar, const R: usize, const K: usize, const C: usize>
         Second::Plain,
         Start::Zero,
     ) {
-        out = mul_static(a, b);
+        *out = mul_static(a, b);
     }
-    out
+}
+
+/// `out` = A X' (X is C x K; every entry written, as [`product_into`]).
+#[inline(always)]
+pub(crate) fn product_transposed_into<T: Scalar, const R: usize, const K: usize, const C: usize>(
+    a: &SMatrix<T, R, K>,
+    x: &SMatrix<T, C, K>,
+    out: &mut SMatrix<T, R, C>,
+) {
+    if !fused(
+        out.as_mut_slice(),
+        a.as_slice(),
+        x.as_slice(),
+        (R, K, C),
+        Second::Transposed,
+        Start::Zero,
+    ) {
+        *out = mul_transpose_static(a, x);
+    }
 }
 
 /// A X' (X is C x K).
@@ -76,27 +105,30 @@ pub(crate) fn product_transposed<T: Scalar, const R: usize, const K: usize, cons
     x: &SMatrix<T, C, K>,
 ) -> SMatrix<T, R, C> {
     let mut out = SMatrix::<T, R, C>::zeros();
-    if !fused(
-        out.as_mut_slice(),
-        a.as_slice(),
-        x.as_slice(),
-        (R, K, C),
-        Second::Transposed,
-        Start::Zero,
-    ) {
-        out = mul_transpose_static(a, x);
-    }
+    product_transposed_into(a, x, &mut out);
     out
 }
 
 /// C - A B.
-#[inline(always)]
+#[cfg(test)]
 pub(crate) fn minus_product<T: Scalar, const R: usize, const K: usize, const C: usize>(
     c: &SMatrix<T, R, C>,
     a: &SMatrix<T, R, K>,
     b: &SMatrix<T, K, C>,
 ) -> SMatrix<T, R, C> {
     let mut out = SMatrix::<T, R, C>::zeros();
+    minus_product_into(c, a, b, &mut out);
+    out
+}
+
+/// `out` = C - A B (every entry written; no zeroing first when the kernel runs).
+#[inline(always)]
+pub(crate) fn minus_product_into<T: Scalar, const R: usize, const K: usize, const C: usize>(
+    c: &SMatrix<T, R, C>,
+    a: &SMatrix<T, R, K>,
+    b: &SMatrix<T, K, C>,
+    out: &mut SMatrix<T, R, C>,
+) {
     let negated = -a;
     if !fused(
         out.as_mut_slice(),
@@ -106,9 +138,8 @@ pub(crate) fn minus_product<T: Scalar, const R: usize, const K: usize, const C: 
         Second::Plain,
         Start::Matrix(c.as_slice()),
     ) {
-        out = c - mul_static(a, b);
+        *out = c - mul_static(a, b);
     }
-    out
 }
 
 /// `out` = A A' + B B' (A is N x K, B is N x L), exactly symmetric, when the kernel

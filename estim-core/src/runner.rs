@@ -70,6 +70,24 @@ pub struct UpdateReport<T: Scalar, const N: usize, const M: usize> {
 }
 
 impl<T: Scalar, const N: usize, const M: usize> UpdateReport<T, N, M> {
+    /// An accepted report of zeros, for an update attempt to fill in place.
+    fn blank() -> Self {
+        Self {
+            status: UpdateStatus::Accepted,
+            innovation: SVector::zeros(),
+            innovation_covariance: SMatrix::zeros(),
+            nis: T::zero(),
+            gate_threshold: None,
+            cross_covariance: SMatrix::zeros(),
+            noise_covariance: SMatrix::zeros(),
+            noise_mean: SVector::zeros(),
+            joint_min_eigenvalue: None,
+            covariance_inflation: None,
+            gain: None,
+            correction: None,
+        }
+    }
+
     /// Whether the posterior replaced the prior.
     pub fn is_accepted(&self) -> bool {
         self.status == UpdateStatus::Accepted
@@ -80,7 +98,8 @@ impl<T: Scalar, const N: usize, const M: usize> UpdateReport<T, N, M> {
 /// Q_acc <- Phi Q_acc Phi' + Q_d and Phi_acc <- Phi Phi_acc.
 ///
 /// The first propagation after a measurement copies (no product), so a filter that
-/// updates after every prediction pays nothing for the accumulation.
+/// updates after every prediction pays nothing for the accumulation; for a linear
+/// filter (F and Q fixed) not even the copy when the last interval was one step too.
 ///
 /// A reset writes nothing: with no propagation since the last measurement the sums
 /// read as their origins 0 and I (kept once), and the next push overwrites them.
@@ -91,6 +110,10 @@ struct Accumulator<T: Scalar, const N: usize> {
     steps: usize,
     /// Whether `noise` and `transition` hold a sum since the last reset.
     filled: bool,
+    /// Whether `noise` and `transition` hold the one step of a fixed model (the
+    /// linear filter's F and Q never change), so that the next first push of that
+    /// model finds them in place and copies nothing.
+    first_is_fixed: bool,
     /// (0, I): Q_acc and Phi_acc while nothing is filled.
     origin: (SMatrix<T, N, N>, SMatrix<T, N, N>),
 }
@@ -102,6 +125,7 @@ impl<T: Scalar, const N: usize> Accumulator<T, N> {
             transition: SMatrix::identity(),
             steps: 0,
             filled: false,
+            first_is_fixed: false,
             origin: (SMatrix::zeros(), SMatrix::identity()),
         }
     }
@@ -128,9 +152,11 @@ impl<T: Scalar, const N: usize> Accumulator<T, N> {
 
     /// Add one propagation; `propagate` is the model's covariance propagation and
     /// `compose` its product of transitions (the same structure as P's, so a sparse
-    /// override speeds up both).
+    /// override speeds up both). `fixed`: the caller's transition and noise are the
+    /// same on every call (a linear filter's).
     fn push(
         &mut self,
+        fixed: bool,
         transition: &SMatrix<T, N, N>,
         process_noise: &SMatrix<T, N, N>,
         propagate: impl FnOnce(
@@ -141,11 +167,15 @@ impl<T: Scalar, const N: usize> Accumulator<T, N> {
         compose: impl FnOnce(&SMatrix<T, N, N>, &SMatrix<T, N, N>) -> SMatrix<T, N, N>,
     ) {
         if !self.filled {
-            self.noise = *process_noise;
-            self.transition = *transition;
+            if !(fixed && self.first_is_fixed) {
+                self.noise = *process_noise;
+                self.transition = *transition;
+            }
+            self.first_is_fixed = fixed;
         } else {
             self.noise = propagate(&self.noise, transition, process_noise);
             self.transition = compose(transition, &self.transition);
+            self.first_is_fixed = false;
         }
         self.steps += 1;
         self.filled = true;
@@ -170,8 +200,26 @@ fn propagate_symmetric<T: Scalar, const N: usize>(
     covariance: &SMatrix<T, N, N>,
     process_noise: &SMatrix<T, N, N>,
 ) -> SMatrix<T, N, N> {
-    let fp = crate::kernel::product(transition, covariance);
-    let mut out = crate::kernel::product_transposed(&fp, transition);
+    let mut work = SMatrix::zeros();
+    let mut out = SMatrix::zeros();
+    propagate_symmetric_into(transition, covariance, process_noise, &mut work, &mut out);
+    out
+}
+
+/// [`propagate_symmetric`] written into `out` (every entry), with F P in `work`:
+/// buffers the caller keeps, so that nothing is zeroed or copied on the way (at
+/// N = 15 the zeroing and the copies of the returned matrices were a third of the
+/// time of the products).
+#[inline(always)]
+fn propagate_symmetric_into<T: Scalar, const N: usize>(
+    transition: &SMatrix<T, N, N>,
+    covariance: &SMatrix<T, N, N>,
+    process_noise: &SMatrix<T, N, N>,
+    work: &mut SMatrix<T, N, N>,
+    out: &mut SMatrix<T, N, N>,
+) {
+    crate::kernel::product_into(transition, covariance, work);
+    crate::kernel::product_transposed_into(work, transition, out);
     let half = lit::<T>(0.5);
     for j in 0..N {
         for i in 0..=j {
@@ -180,7 +228,6 @@ fn propagate_symmetric<T: Scalar, const N: usize>(
             out[(j, i)] = v;
         }
     }
-    out
 }
 
 fn check_dt<T: Scalar>(dt: T) -> Result<()> {
@@ -224,11 +271,11 @@ enum CrossSource<'c, C: ?Sized, W: ?Sized> {
 
 /// The update attempt's result before the runner commits it.
 struct Attempt<T: Scalar, const N: usize, const M: usize> {
-    report: UpdateReport<T, N, M>,
     /// The posterior mean when accepted; its covariance is in the runner's buffer.
     posterior: Option<SVector<T, N>>,
-    /// (H' S^-1 H, H' S^-1 nu) when the history records updates.
-    information: Option<(SMatrix<T, N, N>, SVector<T, N>)>,
+    /// S^-1 of the accepted update when the history records updates (for
+    /// H' S^-1 H and H' S^-1 nu, formed when recorded).
+    innovation_inverse: Option<SMatrix<T, M, M>>,
     /// Q_acc's block certificate, when an uncorrelated joint check computed it afresh.
     noise_certificate: Option<Option<T>>,
 }
@@ -283,9 +330,11 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
     }
 
     /// Record a committed predict: accumulation (if tracked) and window (if kept).
+    /// `fixed`: as for [`Accumulator::push`].
     #[allow(clippy::too_many_arguments)]
     fn record_predict(
         &mut self,
+        fixed: bool,
         state_before: &S,
         input: &U,
         dt: Option<T>,
@@ -303,7 +352,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
     {
         if self.config.track_accumulated_noise() {
             self.accumulated
-                .push(transition, process_noise, propagate, compose);
+                .push(fixed, transition, process_noise, propagate, compose);
         } else {
             self.accumulated.steps += 1;
         }
@@ -311,9 +360,10 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
     }
 
     /// Cross-covariance, noise covariance, noise mean and joint eigenvalue for an
-    /// update, and Q_acc's block certificate when the joint check computed one; fails
-    /// before anything is touched.
-    #[allow(clippy::type_complexity)]
+    /// update, written into `report` (in place: no matrix moves through a return
+    /// value); returns Q_acc's block certificate when the joint check computed one.
+    /// Fails before anything but `report` is touched.
+    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn cross_terms<C, W, const M: usize>(
         &self,
@@ -323,13 +373,8 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         measurement: &SVector<T, M>,
         jacobian: &SMatrix<T, M, N>,
         measurement_noise: &SMatrix<T, M, M>,
-    ) -> Result<(
-        SMatrix<T, N, M>,
-        SMatrix<T, M, M>,
-        SVector<T, M>,
-        Option<T>,
-        Option<Option<T>>,
-    )>
+        report: &mut UpdateReport<T, N, M>,
+    ) -> Result<Option<Option<T>>>
     where
         C: CrossCovariance<T, S, N, M> + ?Sized,
         W: WindowedCrossCovariance<T, S, U, N, M> + ?Sized,
@@ -347,7 +392,8 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
                     state,
                     covariance: prior.covariance(),
                 };
-                let cross = model.cross_covariance(&context)?;
+                report.cross_covariance = model.cross_covariance(&context)?;
+                let cross = &report.cross_covariance;
                 let correlated = !all_zero(cross.as_slice());
                 let (joint, certificate) = match self.config.joint_check() {
                     JointCheck::Skip => (None, None),
@@ -371,18 +417,15 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
                             _ => None,
                         };
                         let (margin, certificate) =
-                            joint_eigenvalue(check, noise, &cross, measurement_noise, known)?;
+                            joint_eigenvalue(check, noise, cross, measurement_noise, known)?;
                         // A reused certificate is already stored with its Q_acc.
                         (Some(margin), certificate.filter(|_| known.is_none()))
                     }
                 };
-                Ok((
-                    cross,
-                    *measurement_noise,
-                    SVector::zeros(),
-                    joint,
-                    certificate,
-                ))
+                report.noise_covariance = *measurement_noise;
+                report.noise_mean = SVector::zeros();
+                report.joint_min_eigenvalue = joint;
+                Ok(certificate)
             }
             CrossSource::Windowed(model) => {
                 let terms = exact_terms(&self.history, model, measurement_noise)?;
@@ -399,13 +442,11 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
                         .0,
                     ),
                 };
-                Ok((
-                    terms.cross,
-                    terms.noise_covariance,
-                    terms.noise_mean,
-                    joint,
-                    None,
-                ))
+                report.cross_covariance = terms.cross;
+                report.noise_covariance = terms.noise_covariance;
+                report.noise_mean = terms.noise_mean;
+                report.joint_min_eigenvalue = joint;
+                Ok(None)
             }
         }
     }
@@ -427,6 +468,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         jacobian: &SMatrix<T, M, N>,
         measurement_noise: &SMatrix<T, M, M>,
         posterior_covariance: &mut SMatrix<T, N, N>,
+        report: &mut UpdateReport<T, N, M>,
     ) -> Result<Attempt<T, N, M>>
     where
         C: CrossCovariance<T, S, N, M> + ?Sized,
@@ -436,53 +478,40 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         // measurement is checked here so the error names it.
         check_finite(measurement.as_slice(), "measurement")?;
         check_finite(predicted.as_slice(), "predicted measurement")?;
-        let (cross_covariance, noise_covariance, noise_mean, joint_min_eigenvalue, certificate) =
-            self.cross_terms(
-                source,
-                prior,
-                state,
-                measurement,
-                jacobian,
-                measurement_noise,
-            )?;
-        let innovation = measurement - predicted - noise_mean;
+        let certificate = self.cross_terms(
+            source,
+            prior,
+            state,
+            measurement,
+            jacobian,
+            measurement_noise,
+            report,
+        )?;
+        report.innovation = measurement - predicted - report.noise_mean;
         let factored = factor_innovation(
             prior,
-            &innovation,
+            &report.innovation,
             jacobian,
-            &noise_covariance,
-            &cross_covariance,
+            &report.noise_covariance,
+            &report.cross_covariance,
         )?;
-        let gate_threshold = self.config.gate_threshold(M)?.map(lit::<T>);
-        let mut report = UpdateReport {
-            status: UpdateStatus::Accepted,
-            innovation,
-            innovation_covariance: factored.covariance,
-            nis: factored.nis,
-            gate_threshold,
-            cross_covariance,
-            noise_covariance,
-            noise_mean,
-            joint_min_eigenvalue,
-            covariance_inflation: None,
-            gain: None,
-            correction: None,
-        };
+        report.gate_threshold = self.config.gate_threshold(M)?.map(lit::<T>);
+        report.innovation_covariance = factored.covariance;
+        report.nis = factored.nis;
         let mut inflated_prior = None;
-        if let Some(threshold) = gate_threshold {
+        if let Some(threshold) = report.gate_threshold {
             if factored.nis > threshold {
                 let inflation = match self.config.gate_recovery() {
                     GateRecovery::Inflate { after } if self.rejections_in_a_row >= after => {
-                        recovery_inflation(&factored, &innovation, threshold)
+                        recovery_inflation(&factored, &report.innovation, threshold)
                     }
                     _ => None,
                 };
                 let Some(lambda) = inflation else {
                     report.status = UpdateStatus::RejectedByGate;
                     return Ok(Attempt {
-                        report,
                         posterior: None,
-                        information: None,
+                        innovation_inverse: None,
                         noise_certificate: certificate,
                     });
                 };
@@ -498,38 +527,30 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
                 inflated,
                 factor_innovation(
                     inflated,
-                    &innovation,
+                    &report.innovation,
                     jacobian,
-                    &noise_covariance,
-                    &cross_covariance,
+                    &report.noise_covariance,
+                    &report.cross_covariance,
                 )?,
             ),
             None => (prior, factored),
         };
-        let information = self.history.is_enabled().then(|| {
-            // H' S^-1 H and H' S^-1 nu: what a later windowed update needs of this one.
-            let hs = mul_static(&jacobian.transpose(), &factored.inverse);
-            (
-                symmetrize(&mul_static(&hs, jacobian)),
-                mul_static(&hs, &innovation),
-            )
-        });
+        let gain = report.gain.insert(SMatrix::zeros());
         let finished = finish_update_into(
             prior,
-            &innovation,
-            &cross_covariance,
+            &report.innovation,
+            &report.cross_covariance,
             self.config.covariance_update(),
             &factored,
+            gain,
             posterior_covariance,
         )?;
-        report.gain = Some(finished.gain);
         report.correction = Some(SVector::from_fn(|i, _| {
             finished.state[i] - prior.state()[i]
         }));
         Ok(Attempt {
-            report,
+            innovation_inverse: self.history.is_enabled().then_some(factored.inverse),
             posterior: Some(finished.state),
-            information,
             noise_certificate: certificate,
         })
     }
@@ -539,24 +560,29 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
     fn record_update<const M: usize>(
         &mut self,
         attempt: &Attempt<T, N, M>,
+        report: &UpdateReport<T, N, M>,
         jacobian: &SMatrix<T, M, N>,
         reset: Option<&SMatrix<T, N, N>>,
     ) {
-        if let (Some(gain), Some((information, weighted))) =
-            (attempt.report.gain.as_ref(), attempt.information.as_ref())
+        if let (Some(gain), Some(inverse)) =
+            (report.gain.as_ref(), attempt.innovation_inverse.as_ref())
         {
+            // H' S^-1 H and H' S^-1 nu: what a later windowed update needs of this one.
+            let hs = mul_static(&jacobian.transpose(), inverse);
+            let information = symmetrize(&mul_static(&hs, jacobian));
+            let weighted = mul_static(&hs, &report.innovation);
             let mut transform = SMatrix::<T, N, N>::identity() - mul_static(gain, jacobian);
             if let Some(j) = reset {
                 transform = mul_static(j, &transform);
             }
-            let correlated = !all_zero(attempt.report.cross_covariance.as_slice());
+            let correlated = !all_zero(report.cross_covariance.as_slice());
             self.history
-                .push_update(transform, *information, *weighted, correlated);
+                .push_update(transform, information, weighted, correlated);
         }
         if let Some(certificate) = attempt.noise_certificate {
             self.noise_certificate = Some((*self.accumulated.noise(), certificate));
         }
-        if attempt.report.is_accepted() {
+        if report.is_accepted() {
             self.rejections_in_a_row = 0;
         } else {
             self.rejections_in_a_row += 1;
@@ -632,11 +658,11 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
 /// positive semidefinite), so bisection on log lambda brackets the boundary; the upper
 /// end of the final bracket is returned, so the inflated update passes the gate.
 fn recovery_inflation<T: Scalar, const N: usize, const M: usize>(
-    factored: &FactoredInnovation<T, N, M>,
+    factored: &FactoredInnovation<'_, T, N, M>,
     innovation: &SVector<T, M>,
     threshold: T,
 ) -> Option<T> {
-    let hph = symmetrize(&mul_static(&factored.jacobian, &factored.pht));
+    let hph = symmetrize(&mul_static(factored.jacobian, &factored.pht));
     let nis = |lambda: T| -> Option<T> {
         let s = factored.covariance + hph * (lambda - T::one());
         let inverse = spd_inverse(&s)?;
@@ -756,9 +782,11 @@ pub struct KalmanFilter<T: Scalar, const N: usize, const M: usize, O = NoObserve
     observation: SMatrix<T, M, N>,
     measurement_noise: SMatrix<T, M, M>,
     estimate: StateAndCovariance<T, N>,
-    /// The update's posterior covariance buffer; after an accepted update it holds
-    /// the prior covariance (swapped, not copied).
+    /// The predicted or posterior covariance buffer; after a predict or an accepted
+    /// update it holds the covariance before (swapped, not copied).
     spare: SMatrix<T, N, N>,
+    /// F P during a predict.
+    work: SMatrix<T, N, N>,
     shared: Shared<T, SVector<T, N>, (), N, O>,
 }
 
@@ -788,6 +816,7 @@ impl<T: Scalar, const N: usize, const M: usize> KalmanFilter<T, N, M, NoObserver
             measurement_noise,
             estimate: initial,
             spare: SMatrix::zeros(),
+            work: SMatrix::zeros(),
             shared: Shared::new(),
         })
     }
@@ -806,6 +835,7 @@ impl<T: Scalar, const N: usize, const M: usize, O> KalmanFilter<T, N, M, O> {
             measurement_noise: self.measurement_noise,
             estimate: self.estimate,
             spare: self.spare,
+            work: self.work,
             shared: self.shared.with_observer(observer),
         }
     }
@@ -840,15 +870,22 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
     fn predict_body(&mut self) -> Result<()> {
         let f = &self.transition;
         let state = mul_static(f, self.estimate.state());
-        let covariance = propagate_symmetric(f, self.estimate.covariance(), &self.process_noise);
+        propagate_symmetric_into(
+            f,
+            self.estimate.covariance(),
+            &self.process_noise,
+            &mut self.work,
+            &mut self.spare,
+        );
         check_finite(state.as_slice(), "predicted state")?;
-        check_finite(covariance.as_slice(), "predicted covariance")?;
+        check_finite(self.spare.as_slice(), "predicted covariance")?;
         // Only the state before is kept (for the recorded window), not the whole
-        // estimate: the covariance is written once.
+        // estimate: the covariance is written once, into `spare`, and swapped in.
         let before = *self.estimate.state();
-        self.estimate = StateAndCovariance::new_unchecked(state, covariance);
+        self.estimate.commit(state, &mut self.spare);
         let f = &self.transition;
         self.shared.record_predict(
+            true,
             &before,
             &(),
             None,
@@ -904,6 +941,9 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
     {
         let predicted = mul_static(&self.observation, self.estimate.state());
         let windowed = matches!(source, CrossSource::Windowed(_));
+        // Filled in place by the attempt (the copies of returned matrices were a
+        // tenth of an update at N = 15).
+        let mut report = UpdateReport::blank();
         let attempt = self.shared.attempt(
             source,
             &self.estimate,
@@ -913,8 +953,10 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             &self.observation,
             &self.measurement_noise,
             &mut self.spare,
+            &mut report,
         )?;
-        self.shared.record_update(&attempt, &self.observation, None);
+        self.shared
+            .record_update(&attempt, &report, &self.observation, None);
         let prior_covariance = match attempt.posterior {
             Some(state) => {
                 self.estimate.commit(state, &mut self.spare);
@@ -923,7 +965,7 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             None => self.estimate.covariance(),
         };
         self.shared.notify_update(
-            &attempt.report,
+            &report,
             self.estimate.state(),
             self.estimate.covariance(),
             prior_covariance,
@@ -931,7 +973,7 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             windowed,
             None,
         )?;
-        Ok(attempt.report)
+        Ok(report)
     }
 
     /// Update with measurement y and the one-step cross-covariance model `cross`.
@@ -1092,6 +1134,7 @@ where
         );
         let process = &self.process;
         self.shared.record_predict(
+            false,
             before.state(),
             input,
             Some(dt),
@@ -1125,6 +1168,9 @@ where
         let jacobian = model.jacobian(x)?;
         let noise = model.noise_covariance(x)?;
         let windowed = matches!(source, CrossSource::Windowed(_));
+        // Filled in place by the attempt (the copies of returned matrices were a
+        // tenth of an update at N = 15).
+        let mut report = UpdateReport::blank();
         let attempt = self.shared.attempt(
             source,
             &self.estimate,
@@ -1134,8 +1180,10 @@ where
             &jacobian,
             &noise,
             &mut self.spare,
+            &mut report,
         )?;
-        self.shared.record_update(&attempt, &jacobian, None);
+        self.shared
+            .record_update(&attempt, &report, &jacobian, None);
         let prior_covariance = match attempt.posterior {
             Some(state) => {
                 self.estimate.commit(state, &mut self.spare);
@@ -1144,7 +1192,7 @@ where
             None => self.estimate.covariance(),
         };
         self.shared.notify_update(
-            &attempt.report,
+            &report,
             self.estimate.state(),
             self.estimate.covariance(),
             prior_covariance,
@@ -1152,7 +1200,7 @@ where
             windowed,
             None,
         )?;
-        Ok(attempt.report)
+        Ok(report)
     }
 
     /// Update with `model`, measurement y and the one-step cross-covariance `cross`.
@@ -1338,6 +1386,7 @@ where
         self.covariance = covariance;
         let process = &self.process;
         self.shared.record_predict(
+            false,
             &before,
             input,
             Some(dt),
@@ -1366,6 +1415,9 @@ where
         let noise = model.noise_covariance(&self.nominal)?;
         let prior = StateAndCovariance::new_unchecked(SVector::zeros(), self.covariance);
         let windowed = matches!(source, CrossSource::Windowed(_));
+        // Filled in place by the attempt (the copies of returned matrices were a
+        // tenth of an update at N = 15).
+        let mut report = UpdateReport::blank();
         let attempt = self.shared.attempt(
             source,
             &prior,
@@ -1375,6 +1427,7 @@ where
             &jacobian,
             &noise,
             &mut self.spare,
+            &mut report,
         )?;
         // Everything that can fail happens before the commit; the posterior
         // covariance (reset when J != I) is in `spare`.
@@ -1391,7 +1444,7 @@ where
             committed = Some(nominal);
         }
         self.shared
-            .record_update(&attempt, &jacobian, reset.as_ref());
+            .record_update(&attempt, &report, &jacobian, reset.as_ref());
         let prior_covariance = match committed {
             Some(nominal) => {
                 self.nominal = nominal;
@@ -1401,7 +1454,7 @@ where
             None => &self.covariance,
         };
         self.shared.notify_update(
-            &attempt.report,
+            &report,
             &self.nominal,
             &self.covariance,
             prior_covariance,
@@ -1409,7 +1462,7 @@ where
             windowed,
             reset.as_ref(),
         )?;
-        Ok(attempt.report)
+        Ok(report)
     }
 
     /// Estimate the error from measurement y (prior error zero), inject it into the
@@ -1513,6 +1566,33 @@ mod tests {
         kf.update(&Vector1::new(0.3), &Zero).unwrap();
         assert_eq!(kf.propagations_since_update(), 0);
         assert_eq!(*kf.accumulated_process_noise(), Matrix2::zeros());
+    }
+
+    /// The linear filter's first push of an interval reuses F and Q left in place by
+    /// the last one-step interval: Q_acc and Phi_acc still equal the explicit sums
+    /// after every predict, whatever mix of one-step and longer intervals came before.
+    #[test]
+    fn accumulation_is_exact_across_intervals_of_any_length() {
+        let mut kf = cv_filter();
+        let f = Matrix2::new(1.0, 1.0, 0.0, 1.0);
+        let g = Matrix2x1::new(0.5, 1.0);
+        let q = g * g.transpose() * 0.04;
+        for steps in [1, 1, 3, 1, 2, 1, 1, 4] {
+            let (mut expected_q, mut expected_f) = (Matrix2::zeros(), Matrix2::identity());
+            for step in 1..=steps {
+                kf.predict().unwrap();
+                // Independent: Q_acc <- F Q_acc F' + Q and Phi_acc <- F Phi_acc by
+                // nalgebra's products.
+                expected_q = f * expected_q * f.transpose() + q;
+                expected_f = f * expected_f;
+                assert!((kf.accumulated_process_noise() - expected_q).amax() < 1e-15);
+                assert_eq!(*kf.accumulated_transition(), expected_f);
+                assert_eq!(kf.propagations_since_update(), step);
+            }
+            kf.update(&Vector1::new(0.3), &Zero).unwrap();
+            assert_eq!(*kf.accumulated_process_noise(), Matrix2::zeros());
+            assert_eq!(*kf.accumulated_transition(), Matrix2::identity());
+        }
     }
 
     #[test]

@@ -200,7 +200,7 @@ fn product_form<T: Scalar, const N: usize, const M: usize>(
 #[cfg(test)]
 fn square_root_form<T: Scalar, const N: usize, const M: usize>(
     covariance: &SMatrix<T, N, N>,
-    factored: &FactoredInnovation<T, N, M>,
+    factored: &FactoredInnovation<'_, T, N, M>,
     cross_covariance: &SMatrix<T, N, M>,
     gain: &SMatrix<T, N, M>,
 ) -> Option<SMatrix<T, N, N>> {
@@ -213,7 +213,7 @@ fn square_root_form<T: Scalar, const N: usize, const M: usize>(
 #[inline(always)]
 fn square_root_into<T: Scalar, const N: usize, const M: usize>(
     covariance: &SMatrix<T, N, N>,
-    factored: &FactoredInnovation<T, N, M>,
+    factored: &FactoredInnovation<'_, T, N, M>,
     cross_covariance: &SMatrix<T, N, M>,
     gain: &SMatrix<T, N, M>,
     out: &mut SMatrix<T, N, N>,
@@ -222,7 +222,7 @@ fn square_root_into<T: Scalar, const N: usize, const M: usize>(
     if !crate::square_root::joint_factor_into(
         covariance,
         cross_covariance,
-        &factored.measurement_noise,
+        factored.measurement_noise,
         &mut l,
     ) {
         return false;
@@ -232,12 +232,16 @@ fn square_root_into<T: Scalar, const N: usize, const M: usize>(
     // are lower triangular: the products skip the leading zeros of each column
     // (terms a * 0 added to a sum that is still +0 leave it +0, so bit for bit the
     // same as the full products); L21 = 0 when M = 0.
-    let mut hl = mul_lower_static(&factored.jacobian, &l.a);
+    // Products written into their buffers (returned by value they were copied).
+    let mut hl = SMatrix::<T, M, N>::zeros();
+    mul_lower_into(factored.jacobian, &l.a, &mut hl);
     if factored.correlated {
         hl += l.c;
     }
-    let b1 = crate::kernel::minus_product(&l.a, gain, &hl);
-    let b2 = mul_lower_static(gain, &l.d);
+    let mut b1 = SMatrix::<T, N, N>::zeros();
+    crate::kernel::minus_product_into(&l.a, gain, &hl, &mut b1);
+    let mut b2 = SMatrix::<T, N, M>::zeros();
+    mul_lower_into(gain, &l.d, &mut b2);
     if crate::kernel::gram_pair_into(&b1, &b2, out) {
         return true;
     }
@@ -280,12 +284,13 @@ pub(crate) fn mul_transpose_static<T: Scalar, const R: usize, const K: usize, co
 /// A L for a lower-triangular L (static sizes, plain loops): column j of the product
 /// only reads rows k >= j of L. Equal bit for bit to [`mul_static`] on the same
 /// arguments (the skipped terms a * 0 come first, while each sum is still +0).
+/// Written into `out`, which must be zero.
 #[inline(always)]
-fn mul_lower_static<T: Scalar, const R: usize, const K: usize>(
+fn mul_lower_into<T: Scalar, const R: usize, const K: usize>(
     a: &SMatrix<T, R, K>,
     lower: &SMatrix<T, K, K>,
-) -> SMatrix<T, R, K> {
-    let mut out = SMatrix::<T, R, K>::zeros();
+    out: &mut SMatrix<T, R, K>,
+) {
     for j in 0..K {
         for k in j..K {
             let lkj = lower[(k, j)];
@@ -294,7 +299,6 @@ fn mul_lower_static<T: Scalar, const R: usize, const K: usize>(
             }
         }
     }
-    out
 }
 
 /// A B for static sizes as plain loops, inlined into the caller (nalgebra's product
@@ -321,7 +325,7 @@ pub(crate) fn mul_static<T: Scalar, const R: usize, const K: usize, const C: usi
 pub(crate) const RCOND_FLOOR: f64 = 1000.0;
 
 /// S factorised once: used for the NIS, the gate and the gain.
-pub(crate) struct FactoredInnovation<T: Scalar, const N: usize, const M: usize> {
+pub(crate) struct FactoredInnovation<'a, T: Scalar, const N: usize, const M: usize> {
     pub(crate) covariance: SMatrix<T, M, M>,
     /// S^-1 (from the Cholesky factor, exactly symmetric).
     pub(crate) inverse: SMatrix<T, M, M>,
@@ -330,10 +334,10 @@ pub(crate) struct FactoredInnovation<T: Scalar, const N: usize, const M: usize> 
     pub(crate) nis: T,
     /// Whether M is nonzero (skips the cross terms when it is zero).
     pub(crate) correlated: bool,
-    /// R (for the product and square-root forms).
-    pub(crate) measurement_noise: SMatrix<T, M, M>,
+    /// R (for the product and square-root forms; borrowed, not copied).
+    pub(crate) measurement_noise: &'a SMatrix<T, M, M>,
     /// H (for the product and square-root forms).
-    pub(crate) jacobian: SMatrix<T, M, N>,
+    pub(crate) jacobian: &'a SMatrix<T, M, N>,
 }
 
 /// Inverse of a symmetric positive definite matrix through its Cholesky factor
@@ -428,13 +432,13 @@ pub(crate) fn check_innovation_conditioning<T: Scalar, const M: usize>(
 /// Form and factorise S, compute the NIS. Checks finiteness of every input and the
 /// conditioning of S.
 #[inline(always)]
-pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
+pub(crate) fn factor_innovation<'a, T: Scalar, const N: usize, const M: usize>(
     prior: &StateAndCovariance<T, N>,
     innovation: &SVector<T, M>,
-    jacobian: &SMatrix<T, M, N>,
-    measurement_noise: &SMatrix<T, M, M>,
+    jacobian: &'a SMatrix<T, M, N>,
+    measurement_noise: &'a SMatrix<T, M, M>,
     cross_covariance: &SMatrix<T, N, M>,
-) -> Result<FactoredInnovation<T, N, M>> {
+) -> Result<FactoredInnovation<'a, T, N, M>> {
     let p = prior.covariance();
     let correlated = !all_zero(cross_covariance.as_slice());
     let pht = crate::kernel::product_transposed(p, jacobian);
@@ -483,8 +487,8 @@ pub(crate) fn factor_innovation<T: Scalar, const N: usize, const M: usize>(
         pht,
         nis,
         correlated,
-        measurement_noise: *measurement_noise,
-        jacobian: *jacobian,
+        measurement_noise,
+        jacobian,
     })
 }
 
@@ -495,33 +499,33 @@ pub(crate) fn finish_update<T: Scalar, const N: usize, const M: usize>(
     innovation: &SVector<T, M>,
     cross_covariance: &SMatrix<T, N, M>,
     form: CovarianceUpdate,
-    factored: FactoredInnovation<T, N, M>,
+    factored: FactoredInnovation<'_, T, N, M>,
 ) -> Result<UpdateOutcome<T, N, M>> {
     let mut covariance = SMatrix::zeros();
+    let mut gain = SMatrix::zeros();
     let finished = finish_update_into(
         prior,
         innovation,
         cross_covariance,
         form,
         &factored,
+        &mut gain,
         &mut covariance,
     )?;
     Ok(UpdateOutcome {
         posterior: StateAndCovariance::new_unchecked(finished.state, covariance),
         innovation: *innovation,
         innovation_covariance: factored.covariance,
-        gain: finished.gain,
+        gain,
         nis: factored.nis,
         covariance_form: finished.covariance_form,
     })
 }
 
-/// What [`finish_update_into`] returns besides the posterior covariance.
-pub(crate) struct Finished<T: Scalar, const N: usize, const M: usize> {
+/// What [`finish_update_into`] returns besides the gain and the posterior covariance.
+pub(crate) struct Finished<T: Scalar, const N: usize> {
     /// Posterior mean.
     pub(crate) state: SVector<T, N>,
-    /// Gain K.
-    pub(crate) gain: SMatrix<T, N, M>,
     /// As [`UpdateOutcome::covariance_form`].
     pub(crate) covariance_form: CovarianceUpdate,
 }
@@ -537,38 +541,41 @@ pub(crate) fn finish_update_into<T: Scalar, const N: usize, const M: usize>(
     innovation: &SVector<T, M>,
     cross_covariance: &SMatrix<T, N, M>,
     form: CovarianceUpdate,
-    factored: &FactoredInnovation<T, N, M>,
+    factored: &FactoredInnovation<'_, T, N, M>,
+    gain: &mut SMatrix<T, N, M>,
     covariance: &mut SMatrix<T, N, N>,
-) -> Result<Finished<T, N, M>> {
+) -> Result<Finished<T, N>> {
     let p = prior.covariance();
     // K = (P H' + M) S^-1 (Simon 2006, eq. 7.13).
-    let pht = &factored.pht;
+    let with_cross;
     let pht_m = if factored.correlated {
-        pht + cross_covariance
+        with_cross = factored.pht + cross_covariance;
+        &with_cross
     } else {
-        *pht
+        &factored.pht
     };
-    let gain = mul_static(&pht_m, &factored.inverse);
-    let state = prior.state() + mul_static(&gain, innovation);
+    *gain = mul_static(pht_m, &factored.inverse);
+    let gain = &*gain;
+    let state = prior.state() + mul_static(gain, innovation);
     let mut covariance_form = form;
     match form {
         CovarianceUpdate::JosephLike => {
-            joseph_into(p, &pht_m, &factored.covariance, &gain, covariance)
+            joseph_into(p, pht_m, &factored.covariance, gain, covariance)
         }
         CovarianceUpdate::Short => *covariance = symmetrize(&(p - gain * pht_m.transpose())),
         CovarianceUpdate::Product => {
             *covariance = product_form(
                 p,
-                &identity_minus_kh(&gain, &factored.jacobian),
+                &identity_minus_kh(gain, factored.jacobian),
                 cross_covariance,
-                &factored.measurement_noise,
-                &gain,
+                factored.measurement_noise,
+                gain,
             )
         }
         CovarianceUpdate::SquareRoot => {
-            if !square_root_into(p, factored, cross_covariance, &gain, covariance) {
+            if !square_root_into(p, factored, cross_covariance, gain, covariance) {
                 covariance_form = CovarianceUpdate::JosephLike;
-                joseph_into(p, &pht_m, &factored.covariance, &gain, covariance);
+                joseph_into(p, pht_m, &factored.covariance, gain, covariance);
             }
         }
     }
@@ -576,7 +583,6 @@ pub(crate) fn finish_update_into<T: Scalar, const N: usize, const M: usize>(
     check_finite(covariance.as_slice(), "posterior covariance")?;
     Ok(Finished {
         state,
-        gain,
         covariance_form,
     })
 }
@@ -619,16 +625,16 @@ mod tests {
     /// products, dot-product Gram): the reference the faster evaluation must equal.
     fn square_root_reference<const N: usize, const M: usize>(
         covariance: &SMatrix<f64, N, N>,
-        factored: &FactoredInnovation<f64, N, M>,
+        factored: &FactoredInnovation<'_, f64, N, M>,
         cross_covariance: &SMatrix<f64, N, M>,
         gain: &SMatrix<f64, N, M>,
     ) -> Option<SMatrix<f64, N, N>> {
         let l = crate::square_root::joint_factor_general(
             covariance,
             cross_covariance,
-            &factored.measurement_noise,
+            factored.measurement_noise,
         )?;
-        let hl = mul_static(&factored.jacobian, &l.a) + l.c;
+        let hl = mul_static(factored.jacobian, &l.a) + l.c;
         let b1 = l.a - mul_static(gain, &hl);
         let b2 = mul_static(gain, &l.d);
         let (b1, b2) = (b1.transpose(), b2.transpose());
