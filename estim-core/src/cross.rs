@@ -339,6 +339,7 @@ pub fn joint_validity_margin<T: Scalar, const N: usize, const M: usize>(
         cross_covariance,
         measurement_noise,
         None,
+        None,
     )
     .map(|(margin, _)| margin)
 }
@@ -373,7 +374,11 @@ pub(crate) fn block_certificate<T: Scalar, const K: usize>(a: &SMatrix<T, K, K>)
 
 /// [`joint_validity_margin`], given the certificate of Q_acc's block when it is already
 /// known (`Some(block_certificate(Q_acc))`, e.g. from an earlier update with the same
-/// Q_acc). Also returns Q_acc's block certificate when M = 0 (else `None`), for reuse.
+/// Q_acc), and R's (`Some(block_certificate(R))`, e.g. a linear filter's fixed R).
+/// Also returns Q_acc's block certificate when M = 0 (else `None`), for reuse.
+///
+/// A known certificate vouches for its block's finiteness too (it was computed on a
+/// checked block): with M = 0 and both known, nothing is re-checked.
 ///
 /// With M = 0 the joint correlation matrix is block diagonal, and the static LDL' of
 /// [`certify_psd_with`] eliminates the two blocks independently (the eliminations through
@@ -385,20 +390,24 @@ pub(crate) fn joint_validity_margin_reusing<T: Scalar, const N: usize, const M: 
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
     known_noise_certificate: Option<Option<T>>,
+    known_measurement_certificate: Option<Option<T>>,
 ) -> Result<(T, Option<Option<T>>)> {
-    check_joint_finite(
-        accumulated_process_noise,
-        cross_covariance,
-        measurement_noise,
-    )?;
     let (q, m, r) = (
         accumulated_process_noise,
         cross_covariance,
         measurement_noise,
     );
-    if all_zero(m.as_slice()) {
+    let uncorrelated = all_zero(m.as_slice());
+    if !(uncorrelated
+        && known_noise_certificate.is_some()
+        && known_measurement_certificate.is_some())
+    {
+        check_joint_finite(q, m, r)?;
+    }
+    if uncorrelated {
         let noise = known_noise_certificate.unwrap_or_else(|| block_certificate(q));
-        let margin = match (noise, block_certificate(r)) {
+        let measurement = known_measurement_certificate.unwrap_or_else(|| block_certificate(r));
+        let margin = match (noise, measurement) {
             (Some(a), Some(c)) => a.min(c).max(T::zero()),
             _ => joint_min_correlation_eigenvalue(q, m, r)?,
         };
@@ -543,11 +552,16 @@ mod tests {
                 Some(pivot) => pivot,
                 None => joint_min_correlation_eigenvalue(&q, &m, &r).unwrap(),
             };
-            let (fresh, certificate) = joint_validity_margin_reusing(&q, &m, &r, None).unwrap();
+            let (fresh, certificate) =
+                joint_validity_margin_reusing(&q, &m, &r, None, None).unwrap();
             assert_eq!(fresh, reference, "case {case}");
             assert_eq!(certificate, Some(block_certificate(&q)), "case {case}");
-            let (reused, _) = joint_validity_margin_reusing(&q, &m, &r, certificate).unwrap();
+            let (reused, _) = joint_validity_margin_reusing(&q, &m, &r, certificate, None).unwrap();
             assert_eq!(reused, reference, "case {case}");
+            let known_r = Some(block_certificate(&r));
+            let (both, _) =
+                joint_validity_margin_reusing(&q, &m, &r, certificate, known_r).unwrap();
+            assert_eq!(both, reference, "case {case}");
             match joint {
                 Some(_) => certified += 1,
                 None => refused += 1,

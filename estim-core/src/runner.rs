@@ -373,6 +373,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         measurement: &SVector<T, M>,
         jacobian: &SMatrix<T, M, N>,
         measurement_noise: &SMatrix<T, M, M>,
+        measurement_certificate: Option<Option<T>>,
         report: &mut UpdateReport<T, N, M>,
     ) -> Result<Option<Option<T>>>
     where
@@ -416,8 +417,14 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
                             }
                             _ => None,
                         };
-                        let (margin, certificate) =
-                            joint_eigenvalue(check, noise, cross, measurement_noise, known)?;
+                        let (margin, certificate) = joint_eigenvalue(
+                            check,
+                            noise,
+                            cross,
+                            measurement_noise,
+                            known,
+                            measurement_certificate,
+                        )?;
                         // A reused certificate is already stored with its Q_acc.
                         (Some(margin), certificate.filter(|_| known.is_none()))
                     }
@@ -437,6 +444,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
                             prior.covariance(),
                             &terms.cross,
                             &terms.noise_covariance,
+                            None,
                             None,
                         )?
                         .0,
@@ -467,6 +475,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         predicted: SVector<T, M>,
         jacobian: &SMatrix<T, M, N>,
         measurement_noise: &SMatrix<T, M, M>,
+        measurement_certificate: Option<Option<T>>,
         posterior_covariance: &mut SMatrix<T, N, N>,
         report: &mut UpdateReport<T, N, M>,
     ) -> Result<Attempt<T, N, M>>
@@ -485,6 +494,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
             measurement,
             jacobian,
             measurement_noise,
+            measurement_certificate,
             report,
         )?;
         report.innovation = measurement - predicted - report.noise_mean;
@@ -688,8 +698,9 @@ fn recovery_inflation<T: Scalar, const N: usize, const M: usize>(
     Some(high)
 }
 
-/// The joint check of `config` on [[A, M], [M', B]], given A's block certificate when
-/// known; also returns A's block certificate when it was computed or used (M = 0).
+/// The joint check of `config` on [[A, M], [M', B]], given A's and B's block
+/// certificates when known; also returns A's block certificate when it was computed or
+/// used (M = 0).
 #[inline(always)]
 fn joint_eigenvalue<T: Scalar, const N: usize, const M: usize>(
     check: JointCheck,
@@ -697,10 +708,11 @@ fn joint_eigenvalue<T: Scalar, const N: usize, const M: usize>(
     cross: &SMatrix<T, N, M>,
     b: &SMatrix<T, M, M>,
     known: Option<Option<T>>,
+    known_b: Option<Option<T>>,
 ) -> Result<(T, Option<Option<T>>)> {
     // Certified without allocation when valid (smallest LDL' pivot, clamped to
     // [0, 1]); the smallest eigenvalue of the correlation matrix when invalid.
-    let (margin, certificate) = joint_validity_margin_reusing(a, cross, b, known)?;
+    let (margin, certificate) = joint_validity_margin_reusing(a, cross, b, known, known_b)?;
     if check == JointCheck::Reject && margin < -joint_tolerance::<T>() {
         // As check_joint_covariance.
         return Err(Error::InvalidJointCovariance {
@@ -787,6 +799,8 @@ pub struct KalmanFilter<T: Scalar, const N: usize, const M: usize, O = NoObserve
     spare: SMatrix<T, N, N>,
     /// F P during a predict.
     work: SMatrix<T, N, N>,
+    /// R's block certificate for the joint check (R never changes).
+    measurement_certificate: Option<T>,
     shared: Shared<T, SVector<T, N>, (), N, O>,
 }
 
@@ -817,6 +831,7 @@ impl<T: Scalar, const N: usize, const M: usize> KalmanFilter<T, N, M, NoObserver
             estimate: initial,
             spare: SMatrix::zeros(),
             work: SMatrix::zeros(),
+            measurement_certificate: crate::cross::block_certificate(&measurement_noise),
             shared: Shared::new(),
         })
     }
@@ -836,6 +851,7 @@ impl<T: Scalar, const N: usize, const M: usize, O> KalmanFilter<T, N, M, O> {
             estimate: self.estimate,
             spare: self.spare,
             work: self.work,
+            measurement_certificate: self.measurement_certificate,
             shared: self.shared.with_observer(observer),
         }
     }
@@ -952,6 +968,7 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             predicted,
             &self.observation,
             &self.measurement_noise,
+            Some(self.measurement_certificate),
             &mut self.spare,
             &mut report,
         )?;
@@ -1179,6 +1196,7 @@ where
             predicted,
             &jacobian,
             &noise,
+            None,
             &mut self.spare,
             &mut report,
         )?;
@@ -1426,6 +1444,7 @@ where
             predicted,
             &jacobian,
             &noise,
+            None,
             &mut self.spare,
             &mut report,
         )?;

@@ -251,12 +251,15 @@ fn semidefinite_cholesky_sized<T: Scalar, L: Square<T>>(
             l.set(j, j, s);
             s
         };
+        // One division per column, not per entry: the divider is the bottleneck of a
+        // small update (its square roots and divisions queue on one unit).
+        let inverse = T::one() / ljj;
         for i in first..n {
             let mut v = joint(i, j);
             for k in 0..j {
                 v -= l.value(i, k) * l.value(j, k);
             }
-            l.set(i, j, v / ljj);
+            l.set(i, j, v * inverse);
         }
     }
     true
