@@ -1554,10 +1554,14 @@ mod tests {
     use crate::{Fixed, Gate, Zero};
     use nalgebra::{Matrix2, Matrix2x1, Vector1, Vector2};
 
-    fn cv_filter() -> KalmanFilter<f64, 2, 1> {
-        let f = Matrix2::new(1.0, 1.0, 0.0, 1.0);
+    /// F and Q of the constant-velocity model of [`cv_filter`].
+    fn cv_model() -> (Matrix2<f64>, Matrix2<f64>) {
         let g = Matrix2x1::new(0.5, 1.0);
-        let q = g * g.transpose() * 0.04;
+        (Matrix2::new(1.0, 1.0, 0.0, 1.0), g * g.transpose() * 0.04)
+    }
+
+    fn cv_filter() -> KalmanFilter<f64, 2, 1> {
+        let (f, q) = cv_model();
         KalmanFilter::new(
             f,
             q,
@@ -1571,9 +1575,7 @@ mod tests {
     #[test]
     fn accumulation_matches_explicit_sum_and_resets() {
         let mut kf = cv_filter();
-        let f = Matrix2::new(1.0, 1.0, 0.0, 1.0);
-        let g = Matrix2x1::new(0.5, 1.0);
-        let q = g * g.transpose() * 0.04;
+        let (f, q) = cv_model();
         for _ in 0..3 {
             kf.predict().unwrap();
         }
@@ -1593,9 +1595,7 @@ mod tests {
     #[test]
     fn accumulation_is_exact_across_intervals_of_any_length() {
         let mut kf = cv_filter();
-        let f = Matrix2::new(1.0, 1.0, 0.0, 1.0);
-        let g = Matrix2x1::new(0.5, 1.0);
-        let q = g * g.transpose() * 0.04;
+        let (f, q) = cv_model();
         for steps in [1, 1, 3, 1, 2, 1, 1, 4] {
             let (mut expected_q, mut expected_f) = (Matrix2::zeros(), Matrix2::identity());
             for step in 1..=steps {
