@@ -891,10 +891,6 @@ mod tests {
         }
     }
 
-    /// The block-diagonal shortcut of `joint_factor` for M = 0 equals the general
-    /// elimination entry for entry (== : only the sign of exact zeros is free), and
-    /// refuses exactly what it refuses: full-rank, rank-deficient (zero pivots) and
-    /// indefinite P and R, sizes (7, 3), seeded.
     /// The joint factor is homogeneous: factor(s J) = sqrt(s) factor(J), down to
     /// subnormal scales where 1 / pivot overflows (the column's reciprocal then comes
     /// from the square root) and up to 1e300: entry by entry against sqrt(s) L, within
@@ -928,6 +924,10 @@ mod tests {
         }
     }
 
+    /// The block-diagonal shortcut of `joint_factor` for M = 0 equals the general
+    /// elimination entry for entry (== : only the sign of exact zeros is free), and
+    /// refuses exactly what it refuses: full-rank, rank-deficient (zero pivots) and
+    /// indefinite P and R, sizes (7, 3), seeded.
     #[test]
     fn zero_cross_covariance_factor_equals_the_general_elimination() {
         let mut rng = ChaCha8Rng::seed_from_u64(7);

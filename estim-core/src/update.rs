@@ -327,7 +327,8 @@ pub(crate) const RCOND_FLOOR: f64 = 1000.0;
 /// S factorised once: used for the NIS, the gate and the gain.
 pub(crate) struct FactoredInnovation<'a, T: Scalar, const N: usize, const M: usize> {
     pub(crate) covariance: SMatrix<T, M, M>,
-    /// S^-1 (from the Cholesky factor, exactly symmetric).
+    /// S^-1 (closed form for one or two measurements, else from the Cholesky factor;
+    /// exactly symmetric).
     pub(crate) inverse: SMatrix<T, M, M>,
     /// P H'.
     pub(crate) pht: SMatrix<T, N, M>,
