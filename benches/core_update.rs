@@ -3,11 +3,14 @@
 //! peer crate adskalman on the same (4, 2) model in the same run.
 //!
 //! Run: `cargo bench --bench core_update` (times are the thread's CPU time, see
-//! `benches/common`). Both filters use the Joseph form; estim's
-//! runner is measured without the joint-covariance check (adskalman has no such check)
-//! and with the default configuration (check reported: a static LDL' of the joint
-//! correlation matrix). Groups `state_size` (N = 6..30) and `single_precision` (f32 vs
-//! f64 vs eskf) follow.
+//! `benches/common`). estim's runner uses its default covariance form (`SquareRoot`)
+//! unless the row names another, and is measured without the joint-covariance check
+//! (adskalman has no such check) and with the default configuration (check reported:
+//! a static LDL' of the joint correlation matrix); adskalman uses its Joseph form, as
+//! does the one estim row that says `JosephLike` (the like-for-like form). Two
+//! hand-written `floor` rows time the default form's operations alone (see
+//! [`floor`]). Groups `state_size` (N = 6..30) and `single_precision` (f32 vs f64 vs
+//! eskf) follow.
 
 use std::hint::black_box;
 use std::time::Duration;
@@ -147,6 +150,255 @@ impl ObservationModel<f64, U4, U2> for AdsObservation {
     }
 }
 
+/// Reference floors for the (4,2) row: the operations of estim's default update (the
+/// square-root form) on the covariance's path from one step to the next, written by
+/// hand on local arrays with no check, report, error path or bookkeeping: F P F' + Q,
+/// S = H P H' + R and its closed-form inverse, the gain, chol(P), B = [L - K H L, -K
+/// L_R] and P+ = B B'. The same step with P = L D L' (square-root free: no square
+/// root on the chain of dependent columns) is the second floor. They bound what any
+/// implementation of these forms can reach on this machine; `floor_matches_estim`
+/// checks before the run that both compute estim's covariances.
+// Index loops: every index addresses several matrices at once, as in the math.
+#[allow(clippy::needless_range_loop)]
+mod floor {
+    /// Column-major N x N.
+    pub type Square<const N: usize> = [[f64; N]; N];
+
+    /// A B (A: R x K as K columns, B: K x C as C columns), in column (axpy) order.
+    #[inline(always)]
+    fn product<const R: usize, const K: usize, const C: usize>(
+        a: &[[f64; R]; K],
+        b: &[[f64; K]; C],
+    ) -> [[f64; R]; C] {
+        let mut out = [[0.0; R]; C];
+        for j in 0..C {
+            for k in 0..K {
+                let s = b[j][k];
+                for i in 0..R {
+                    out[j][i] += a[k][i] * s;
+                }
+            }
+        }
+        out
+    }
+
+    /// A X' (X: C x K as K columns).
+    #[inline(always)]
+    fn product_transposed<const R: usize, const K: usize, const C: usize>(
+        a: &[[f64; R]; K],
+        x: &[[f64; C]; K],
+    ) -> [[f64; R]; C] {
+        let mut out = [[0.0; R]; C];
+        for j in 0..C {
+            for k in 0..K {
+                let s = x[k][j];
+                for i in 0..R {
+                    out[j][i] += a[k][i] * s;
+                }
+            }
+        }
+        out
+    }
+
+    /// A linear filter with two measurements (closed-form S^-1).
+    pub struct Filter<const N: usize> {
+        pub f: Square<N>,
+        pub q: Square<N>,
+        /// H as N columns of 2.
+        pub h: [[f64; 2]; N],
+        /// R and its Cholesky factor and LDL' (R is fixed: factored once).
+        pub r: Square<2>,
+        pub r_factor: Square<2>,
+        pub r_unit: Square<2>,
+        pub r_pivots: [f64; 2],
+        pub x: [f64; N],
+        pub p: Square<N>,
+    }
+
+    impl<const N: usize> Filter<N> {
+        /// One predict + update; `ldl` selects P = L D L' instead of chol(P).
+        #[inline(always)]
+        fn step_body<const LDL: bool>(&mut self, y: &[f64; 2]) -> f64 {
+            let ldl = LDL;
+            let fp = product(&self.f, &self.p);
+            let mut p = product_transposed(&fp, &self.f);
+            for j in 0..N {
+                for i in 0..=j {
+                    let v = p[j][i] + self.q[j][i];
+                    p[j][i] = v;
+                    p[i][j] = v;
+                }
+            }
+            let mut x = [0.0; N];
+            for k in 0..N {
+                for i in 0..N {
+                    x[i] += self.f[k][i] * self.x[k];
+                }
+            }
+            let pht = product_transposed(&p, &self.h);
+            let mut s = self.r;
+            for j in 0..2 {
+                for k in 0..N {
+                    for i in 0..2 {
+                        s[j][i] += self.h[k][i] * pht[j][k];
+                    }
+                }
+            }
+            let (a, b, d) = (s[0][0], s[0][1], s[1][1]);
+            let r = 1.0 / (a * d - b * b);
+            let inverse = [[d * r, -b * r], [-b * r, a * r]];
+            let k = product(&pht, &inverse);
+            let mut nu = *y;
+            for (i, v) in nu.iter_mut().enumerate() {
+                for kk in 0..N {
+                    *v -= self.h[kk][i] * x[kk];
+                }
+            }
+            let mut nis = 0.0;
+            for i in 0..2 {
+                for j in 0..2 {
+                    nis += nu[i] * inverse[j][i] * nu[j];
+                }
+            }
+            for kk in 0..2 {
+                for i in 0..N {
+                    x[i] += k[kk][i] * nu[kk];
+                }
+            }
+            // The factor of P: L (and D for LDL').
+            let mut l = [[0.0; N]; N];
+            let mut pivots = [1.0; N];
+            for j in 0..N {
+                let mut pivot = p[j][j];
+                for kk in 0..j {
+                    pivot -= l[kk][j] * l[kk][j] * if ldl { pivots[kk] } else { 1.0 };
+                }
+                let inverse = if ldl {
+                    pivots[j] = pivot;
+                    l[j][j] = 1.0;
+                    1.0 / pivot
+                } else {
+                    let root = pivot.sqrt();
+                    l[j][j] = root;
+                    root * (1.0 / pivot)
+                };
+                for i in (j + 1)..N {
+                    let mut v = p[j][i];
+                    for kk in 0..j {
+                        v -= l[kk][i] * l[kk][j] * if ldl { pivots[kk] } else { 1.0 };
+                    }
+                    l[j][i] = v * inverse;
+                }
+            }
+            let hl = product(&self.h, &l);
+            let khl = product(&k, &hl);
+            let mut b1 = l;
+            for j in 0..N {
+                for i in 0..N {
+                    b1[j][i] -= khl[j][i];
+                }
+            }
+            let (r_factor, r_pivots) = if ldl {
+                (&self.r_unit, self.r_pivots)
+            } else {
+                (&self.r_factor, [1.0; 2])
+            };
+            let b2 = product(&k, r_factor);
+            let mut out = [[0.0; N]; N];
+            for j in 0..N {
+                for kk in 0..N {
+                    let w = b1[kk][j] * pivots[kk];
+                    for i in 0..N {
+                        out[j][i] += b1[kk][i] * w;
+                    }
+                }
+                for kk in 0..2 {
+                    let w = b2[kk][j] * r_pivots[kk];
+                    for i in 0..N {
+                        out[j][i] += b2[kk][i] * w;
+                    }
+                }
+            }
+            self.p = out;
+            self.x = x;
+            nis
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2")]
+        unsafe fn step_avx2<const LDL: bool>(&mut self, y: &[f64; 2]) -> f64 {
+            self.step_body::<LDL>(y)
+        }
+
+        /// One step, compiled for AVX2 where the CPU has it (as estim's runners are).
+        pub fn step<const LDL: bool>(&mut self, y: &[f64; 2]) -> f64 {
+            #[cfg(target_arch = "x86_64")]
+            {
+                if std::arch::is_x86_feature_detected!("avx2") {
+                    // SAFETY: the CPU has the feature (checked on the line above).
+                    return unsafe { self.step_avx2::<LDL>(y) };
+                }
+            }
+            self.step_body::<LDL>(y)
+        }
+    }
+}
+
+/// The floor filter for estim's model (4, 2) from P = I, x = 0.
+fn floor_filter(
+    (f, q, h, r): (Matrix4<f64>, Matrix4<f64>, Matrix2x4<f64>, Matrix2<f64>),
+) -> floor::Filter<4> {
+    let columns = |m: &Matrix4<f64>| -> floor::Square<4> {
+        std::array::from_fn(|j| std::array::from_fn(|i| m[(i, j)]))
+    };
+    let r_factor = r.cholesky().expect("R is positive definite").l();
+    let r_pivots = [r_factor[(0, 0)].powi(2), r_factor[(1, 1)].powi(2)];
+    floor::Filter {
+        f: columns(&f),
+        q: columns(&q),
+        h: std::array::from_fn(|j| std::array::from_fn(|i| h[(i, j)])),
+        r: std::array::from_fn(|j| std::array::from_fn(|i| r[(i, j)])),
+        r_factor: std::array::from_fn(|j| std::array::from_fn(|i| r_factor[(i, j)])),
+        r_unit: std::array::from_fn(|j| {
+            std::array::from_fn(|i| r_factor[(i, j)] / r_factor[(j, j)])
+        }),
+        r_pivots,
+        x: [0.0; 4],
+        p: columns(&Matrix4::identity()),
+    }
+}
+
+/// Both floors compute estim's covariance and NIS (to round-off) over 200 steps of
+/// the (4,2) model: so that they time the same operations, not a shortcut.
+fn floor_matches_estim(cv: (Matrix4<f64>, Matrix4<f64>, Matrix2x4<f64>, Matrix2<f64>)) {
+    for ldl in [false, true] {
+        let mut kf = estim_filter(cv, JointCheck::Report);
+        let mut reference = floor_filter(cv);
+        for step in 0..200 {
+            let y = SVector::<f64, 2>::new((step as f64 * 0.3).sin(), 0.1);
+            kf.predict().expect("predict");
+            let nis = kf.update(&y, &Zero).expect("update").nis;
+            let floor_nis = if ldl {
+                reference.step::<true>(&[y[0], y[1]])
+            } else {
+                reference.step::<false>(&[y[0], y[1]])
+            };
+            let p = kf.estimate().covariance();
+            let scale = p.amax();
+            for j in 0..4 {
+                for i in 0..4 {
+                    let gap = (p[(i, j)] - reference.p[j][i]).abs();
+                    assert!(
+                        gap <= 1e-12 * scale,
+                        "floor (ldl: {ldl}) left estim at step {step}: P({i},{j}) off by {gap:e}"
+                    );
+                }
+            }
+            assert!((nis - floor_nis).abs() <= 1e-9 * nis.abs().max(1.0), "NIS");
+        }
+    }
+}
+
 fn predict_update(c: &mut Criterion<ThreadCpuTime>) {
     let cv = constant_velocity();
     bench_estim(
@@ -172,6 +424,28 @@ fn predict_update(c: &mut Criterion<ThreadCpuTime>) {
         estim_filter(cv, JointCheck::Report),
         Zero,
     );
+    {
+        let (f, q, h, r) = cv;
+        let config = FilterConfig::builder()
+            .covariance_update(CovarianceUpdate::JosephLike)
+            .build()
+            .expect("config");
+        let kf = KalmanFilter::new(
+            f,
+            q,
+            h,
+            r,
+            StateAndCovariance::new(SVector::zeros(), SMatrix::identity()).expect("initial"),
+        )
+        .expect("filter")
+        .with_config(config);
+        bench_estim(
+            c,
+            "estim KalmanFilter (4,2) predict+update, JosephLike form, joint check reported",
+            kf,
+            Zero,
+        );
+    }
     {
         // The bare update function on a fixed prior (no runner, no prediction).
         let (f, q, h, r) = cv;
@@ -225,6 +499,18 @@ fn predict_update(c: &mut Criterion<ThreadCpuTime>) {
             },
         );
     }
+    floor_matches_estim(cv);
+    let y = [0.0, 0.1];
+    let mut reference = floor_filter(cv);
+    c.bench_function(
+        "floor: hand-written (4,2) square-root step, chol(P), no checks (reference)",
+        |b| b.iter(|| black_box(reference.step::<false>(black_box(&y)))),
+    );
+    let mut reference = floor_filter(cv);
+    c.bench_function(
+        "floor: hand-written (4,2) square-root-free step, LDL'(P), no checks (reference)",
+        |b| b.iter(|| black_box(reference.step::<true>(black_box(&y)))),
+    );
     bench_estim(
         c,
         "estim KalmanFilter (15,3) predict+update",
@@ -264,7 +550,7 @@ fn hundred_predictions_per_update(c: &mut Criterion<ThreadCpuTime>) {
 }
 
 /// Per-step cost against state size: predict + update of a random (N, 3) model with the
-/// default configuration (Joseph-like form, joint covariance reported), N = 6, 9, 15,
+/// default configuration (square-root form, joint covariance reported), N = 6, 9, 15,
 /// 21, 30. The dense multiply-add count of each size is in estim-ins/README.md.
 fn state_size(c: &mut Criterion<ThreadCpuTime>) {
     fn one<const N: usize>(c: &mut Criterion<ThreadCpuTime>) {
