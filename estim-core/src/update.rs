@@ -245,19 +245,27 @@ fn square_root_into<T: Scalar, const N: usize, const M: usize>(
     if crate::kernel::gram_pair_into(&b1, &b2, out) {
         return true;
     }
-    // Transposed so that the Gram products below run down contiguous columns.
-    let (b1, b2) = (b1.transpose(), b2.transpose());
+    // Column (axpy) order over the whole matrix: column j of B B' is the sum over k of
+    // column k of B times B_jk, one vector operation per term instead of a dot
+    // product per entry of the upper triangle. Exactly symmetric all the same:
+    // entries (i, j) and (j, i) add the same products (B_ik B_jk = B_jk B_ik exactly)
+    // in the same order of k.
     for j in 0..N {
-        for i in 0..=j {
-            let mut v = T::zero();
-            for k in 0..N {
-                v += b1[(k, i)] * b1[(k, j)];
+        let mut column = [T::zero(); N];
+        for k in 0..N {
+            let bjk = b1[(j, k)];
+            for (i, v) in column.iter_mut().enumerate() {
+                *v += b1[(i, k)] * bjk;
             }
-            for k in 0..M {
-                v += b2[(k, i)] * b2[(k, j)];
+        }
+        for k in 0..M {
+            let bjk = b2[(j, k)];
+            for (i, v) in column.iter_mut().enumerate() {
+                *v += b2[(i, k)] * bjk;
             }
+        }
+        for (i, v) in column.into_iter().enumerate() {
             out[(i, j)] = v;
-            out[(j, i)] = v;
         }
     }
     true
