@@ -7,9 +7,9 @@
 //! unless the row names another, and is measured without the joint-covariance check
 //! (adskalman has no such check) and with the default configuration (check reported:
 //! a static LDL' of the joint correlation matrix); adskalman uses its Joseph form, as
-//! does the one estim row that says `JosephLike` (the like-for-like form). Two
-//! hand-written `floor` rows time the default form's operations alone (see
-//! [`floor`]). Groups `state_size` (N = 6..30) and `single_precision` (f32 vs f64 vs
+//! does the one estim row that says `JosephLike` (the like-for-like form). Four
+//! hand-written `floor` rows time the default form's operations alone, and with the
+//! checks and report the runner owes (see [`floor`]). Groups `state_size` (N = 6..30) and `single_precision` (f32 vs f64 vs
 //! eskf) follow.
 
 use std::hint::black_box;
@@ -25,8 +25,8 @@ use adskalman::{
 use criterion::{criterion_group, criterion_main, Criterion};
 use estim_core::nalgebra::{Matrix2, Matrix2x4, Matrix4, Matrix4x2, SMatrix, SVector, U2, U4};
 use estim_core::{
-    correlated_update, CovarianceUpdate, CrossCovariance, FilterConfig, Fixed, JointCheck,
-    KalmanFilter, StateAndCovariance, Zero,
+    correlated_update, joint_validity_margin, CovarianceUpdate, CrossCovariance, FilterConfig,
+    Fixed, JointCheck, KalmanFilter, StateAndCovariance, Zero,
 };
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -155,9 +155,11 @@ impl ObservationModel<f64, U4, U2> for AdsObservation {
 /// hand on local arrays with no check, report, error path or bookkeeping: F P F' + Q,
 /// S = H P H' + R and its closed-form inverse, the gain, chol(P), B = [L - K H L, -K
 /// L_R] and P+ = B B'. The same step with P = L D L' (square-root free: no square
-/// root on the chain of dependent columns) is the second floor. They bound what any
-/// implementation of these forms can reach on this machine; `floor_matches_estim`
-/// checks before the run that both compute estim's covariances.
+/// root on the chain of dependent columns) is the second floor. Their checked
+/// variants add what the runner must check and report, each check in its cheapest
+/// form (`Filter::step_body`). They bound what any implementation of these forms can
+/// reach on this machine; `floor_matches_estim` checks before the run that all four
+/// compute estim's covariances (and the checked ones its report).
 // Index loops: every index addresses several matrices at once, as in the math.
 #[allow(clippy::needless_range_loop)]
 mod floor {
@@ -213,12 +215,60 @@ mod floor {
         pub r_pivots: [f64; 2],
         pub x: [f64; N],
         pub p: Square<N>,
+        /// The joint check's block certificates of Q and R (computed once, as estim's
+        /// runner reuses them while Q_acc is unchanged).
+        pub q_certificate: f64,
+        pub r_certificate: f64,
+    }
+
+    /// What the checked floor hands back: what estim's update report carries for
+    /// an uncorrelated update (the cross-covariance, noise mean and gate are zero or
+    /// absent there and cost a store).
+    #[derive(Clone, Copy)]
+    pub struct Report<const N: usize> {
+        pub innovation: [f64; 2],
+        pub innovation_covariance: Square<2>,
+        pub nis: f64,
+        pub joint_margin: f64,
+        pub gain: [[f64; N]; 2],
+        pub correction: [f64; N],
+    }
+
+    impl<const N: usize> Report<N> {
+        pub fn zeros() -> Self {
+            Self {
+                innovation: [0.0; 2],
+                innovation_covariance: [[0.0; 2]; 2],
+                nis: 0.0,
+                joint_margin: 0.0,
+                gain: [[0.0; N]; 2],
+                correction: [0.0; N],
+            }
+        }
+    }
+
+    /// Whether every value is finite (branch-free, as estim's check).
+    #[inline(always)]
+    fn finite(values: &[f64]) -> bool {
+        values.iter().fold(true, |ok, v| ok & v.is_finite())
     }
 
     impl<const N: usize> Filter<N> {
-        /// One predict + update; `ldl` selects P = L D L' instead of chol(P).
+        /// One predict + update; `LDL` selects P = L D L' instead of chol(P).
+        /// `CHECKED` adds what estim's runner must check and report, each in its
+        /// cheapest form: the predicted state and covariance, the measurement, the
+        /// predicted measurement and the posterior finite; S positive definite and
+        /// not ill-conditioned (estim's reciprocal-condition floor, 1000 eps); each
+        /// pivot of P's factor finite and above 16 (N + 2) eps P_jj (one test per
+        /// column; the semidefinite case, which these runs never reach, is refused
+        /// instead of handled); the joint margin from the certificates of Q and R
+        /// (Q_acc = Q: one predict per update); a report. Err names the check.
         #[inline(always)]
-        fn step_body<const LDL: bool>(&mut self, y: &[f64; 2]) -> f64 {
+        fn step_body<const LDL: bool, const CHECKED: bool>(
+            &mut self,
+            y: &[f64; 2],
+            report: &mut Report<N>,
+        ) -> Result<f64, &'static str> {
             let ldl = LDL;
             let fp = product(&self.f, &self.p);
             let mut p = product_transposed(&fp, &self.f);
@@ -235,6 +285,20 @@ mod floor {
                     x[i] += self.f[k][i] * self.x[k];
                 }
             }
+            if CHECKED {
+                if !finite(&x) {
+                    return Err("predicted state");
+                }
+                if !finite(p.as_flattened()) {
+                    return Err("predicted covariance");
+                }
+                // Committed, as a separate predict call would.
+                self.p = p;
+                self.x = x;
+                if !finite(y) {
+                    return Err("measurement");
+                }
+            }
             let pht = product_transposed(&p, &self.h);
             let mut s = self.r;
             for j in 0..2 {
@@ -245,21 +309,39 @@ mod floor {
                 }
             }
             let (a, b, d) = (s[0][0], s[0][1], s[1][1]);
-            let r = 1.0 / (a * d - b * b);
-            let inverse = [[d * r, -b * r], [-b * r, a * r]];
-            let k = product(&pht, &inverse);
-            let mut nu = *y;
-            for (i, v) in nu.iter_mut().enumerate() {
-                for kk in 0..N {
-                    *v -= self.h[kk][i] * x[kk];
+            let det = a * d - b * b;
+            let r = 1.0 / det;
+            if CHECKED {
+                let floor = 1000.0 * f64::EPSILON;
+                let k = (1.0 - floor) / (1.0 + floor);
+                let ad = a * d;
+                if !(a > 0.0 && det >= 4.0 / f64::MAX && det.is_finite() && r.is_finite()) {
+                    return Err("innovation covariance not positive definite");
+                }
+                let conditioned = b * b < k * k * ad;
+                if !conditioned {
+                    return Err("innovation covariance ill-conditioned");
                 }
             }
+            let inverse = [[d * r, -b * r], [-b * r, a * r]];
+            let k = product(&pht, &inverse);
+            let mut predicted = [0.0; 2];
+            for (i, v) in predicted.iter_mut().enumerate() {
+                for kk in 0..N {
+                    *v += self.h[kk][i] * x[kk];
+                }
+            }
+            if CHECKED && !finite(&predicted) {
+                return Err("predicted measurement");
+            }
+            let nu = [y[0] - predicted[0], y[1] - predicted[1]];
             let mut nis = 0.0;
             for i in 0..2 {
                 for j in 0..2 {
                     nis += nu[i] * inverse[j][i] * nu[j];
                 }
             }
+            let prior_x = x;
             for kk in 0..2 {
                 for i in 0..N {
                     x[i] += k[kk][i] * nu[kk];
@@ -268,10 +350,18 @@ mod floor {
             // The factor of P: L (and D for LDL').
             let mut l = [[0.0; N]; N];
             let mut pivots = [1.0; N];
+            let tolerance = 16.0 * (N + 2) as f64 * f64::EPSILON;
             for j in 0..N {
                 let mut pivot = p[j][j];
                 for kk in 0..j {
                     pivot -= l[kk][j] * l[kk][j] * if ldl { pivots[kk] } else { 1.0 };
+                }
+                if CHECKED
+                    && !(pivot.is_finite()
+                        & (pivot > tolerance * p[j][j].abs())
+                        & (1.0 / pivot).is_finite())
+                {
+                    return Err("covariance factor: a pivot not clearly positive");
                 }
                 let inverse = if ldl {
                     pivots[j] = pivot;
@@ -319,27 +409,70 @@ mod floor {
                     }
                 }
             }
+            if CHECKED {
+                if !finite(&x) {
+                    return Err("posterior state");
+                }
+                if !finite(out.as_flattened()) {
+                    return Err("posterior covariance");
+                }
+            }
+            if CHECKED {
+                *report = Report {
+                    innovation: nu,
+                    innovation_covariance: s,
+                    nis,
+                    joint_margin: self.q_certificate.min(self.r_certificate),
+                    gain: k,
+                    correction: std::array::from_fn(|i| x[i] - prior_x[i]),
+                };
+            }
             self.p = out;
             self.x = x;
-            nis
+            Ok(nis)
         }
 
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = "avx2")]
-        unsafe fn step_avx2<const LDL: bool>(&mut self, y: &[f64; 2]) -> f64 {
-            self.step_body::<LDL>(y)
+        unsafe fn step_avx2<const LDL: bool, const CHECKED: bool>(
+            &mut self,
+            y: &[f64; 2],
+            report: &mut Report<N>,
+        ) -> Result<f64, &'static str> {
+            self.step_body::<LDL, CHECKED>(y, report)
         }
 
-        /// One step, compiled for AVX2 where the CPU has it (as estim's runners are).
-        pub fn step<const LDL: bool>(&mut self, y: &[f64; 2]) -> f64 {
+        /// `step_body`, compiled for AVX2 where the CPU has it (as estim's runners are).
+        fn dispatch<const LDL: bool, const CHECKED: bool>(
+            &mut self,
+            y: &[f64; 2],
+            report: &mut Report<N>,
+        ) -> Result<f64, &'static str> {
             #[cfg(target_arch = "x86_64")]
             {
                 if std::arch::is_x86_feature_detected!("avx2") {
                     // SAFETY: the CPU has the feature (checked on the line above).
-                    return unsafe { self.step_avx2::<LDL>(y) };
+                    return unsafe { self.step_avx2::<LDL, CHECKED>(y, report) };
                 }
             }
-            self.step_body::<LDL>(y)
+            self.step_body::<LDL, CHECKED>(y, report)
+        }
+
+        /// One step with no check; the NIS.
+        pub fn step<const LDL: bool>(&mut self, y: &[f64; 2]) -> f64 {
+            let mut unused = Report::zeros();
+            // Without checks the body has no error path.
+            self.dispatch::<LDL, false>(y, &mut unused)
+                .unwrap_or(f64::NAN)
+        }
+
+        /// One step with the runner's checks, writing the report.
+        pub fn checked_step<const LDL: bool>(
+            &mut self,
+            y: &[f64; 2],
+            report: &mut Report<N>,
+        ) -> Result<f64, &'static str> {
+            self.dispatch::<LDL, true>(y, report)
         }
     }
 }
@@ -352,6 +485,7 @@ fn floor_filter(
         std::array::from_fn(|j| std::array::from_fn(|i| m[(i, j)]))
     };
     let r_factor = r.cholesky().expect("R is positive definite").l();
+    let margin = joint_validity_margin(&q, &Matrix4x2::zeros(), &r).expect("margin");
     let r_pivots = [r_factor[(0, 0)].powi(2), r_factor[(1, 1)].powi(2)];
     floor::Filter {
         f: columns(&f),
@@ -365,24 +499,60 @@ fn floor_filter(
         r_pivots,
         x: [0.0; 4],
         p: columns(&Matrix4::identity()),
+        // Zero M: the margin is that of Q's and R's blocks, the smaller one; the
+        // checked floor reports it as estim does (both set to the joint's margin).
+        q_certificate: margin,
+        r_certificate: margin,
     }
 }
 
-/// Both floors compute estim's covariance and NIS (to round-off) over 200 steps of
-/// the (4,2) model: so that they time the same operations, not a shortcut.
+/// The floors, unchecked and checked, compute estim's covariance and NIS (to
+/// round-off) over 200 steps of the (4,2) model, and the checked ones its report
+/// (innovation, S, joint margin, gain, correction): so that they time the same
+/// operations, not a shortcut.
 fn floor_matches_estim(cv: (Matrix4<f64>, Matrix4<f64>, Matrix2x4<f64>, Matrix2<f64>)) {
-    for ldl in [false, true] {
+    for (ldl, checked) in [(false, false), (true, false), (false, true), (true, true)] {
         let mut kf = estim_filter(cv, JointCheck::Report);
         let mut reference = floor_filter(cv);
         for step in 0..200 {
             let y = SVector::<f64, 2>::new((step as f64 * 0.3).sin(), 0.1);
             kf.predict().expect("predict");
-            let nis = kf.update(&y, &Zero).expect("update").nis;
-            let floor_nis = if ldl {
-                reference.step::<true>(&[y[0], y[1]])
-            } else {
-                reference.step::<false>(&[y[0], y[1]])
-            };
+            let report = kf.update(&y, &Zero).expect("update");
+            let nis = report.nis;
+            let yy = [y[0], y[1]];
+            let mut floor_report = floor::Report::zeros();
+            let floor_nis = match (ldl, checked) {
+                (false, false) => Ok(reference.step::<false>(&yy)),
+                (true, false) => Ok(reference.step::<true>(&yy)),
+                (false, true) => reference.checked_step::<false>(&yy, &mut floor_report),
+                (true, true) => reference.checked_step::<true>(&yy, &mut floor_report),
+            }
+            .expect("floor step");
+            if checked {
+                let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(1.0);
+                let gain = report.gain.expect("accepted");
+                let correction = report.correction.expect("accepted");
+                for i in 0..2 {
+                    assert!(close(report.innovation[i], floor_report.innovation[i]));
+                    for j in 0..2 {
+                        assert!(close(
+                            report.innovation_covariance[(i, j)],
+                            floor_report.innovation_covariance[j][i]
+                        ));
+                    }
+                    for r in 0..4 {
+                        assert!(close(gain[(r, i)], floor_report.gain[i][r]), "gain");
+                    }
+                }
+                for r in 0..4 {
+                    assert!(
+                        close(correction[r], floor_report.correction[r]),
+                        "correction"
+                    );
+                }
+                assert!(close(nis, floor_report.nis), "NIS reported");
+                assert_eq!(report.joint_min_eigenvalue, Some(floor_report.joint_margin));
+            }
             let p = kf.estimate().covariance();
             let scale = p.amax();
             for j in 0..4 {
@@ -390,7 +560,8 @@ fn floor_matches_estim(cv: (Matrix4<f64>, Matrix4<f64>, Matrix2x4<f64>, Matrix2<
                     let gap = (p[(i, j)] - reference.p[j][i]).abs();
                     assert!(
                         gap <= 1e-12 * scale,
-                        "floor (ldl: {ldl}) left estim at step {step}: P({i},{j}) off by {gap:e}"
+                        "floor (ldl: {ldl}, checked: {checked}) left estim at step {step}: \
+                         P({i},{j}) off by {gap:e}"
                     );
                 }
             }
@@ -510,6 +681,31 @@ fn predict_update(c: &mut Criterion<ThreadCpuTime>) {
     c.bench_function(
         "floor: hand-written (4,2) square-root-free step, LDL'(P), no checks (reference)",
         |b| b.iter(|| black_box(reference.step::<true>(black_box(&y)))),
+    );
+    let mut reference = floor_filter(cv);
+    let mut report = floor::Report::zeros();
+    c.bench_function(
+        "floor: hand-written (4,2) square-root step, chol(P), with the runner's checks and report (reference)",
+        |b| {
+            b.iter(|| {
+                let nis = reference
+                    .checked_step::<false>(black_box(&y), &mut report)
+                    .expect("checked floor step");
+                black_box((nis, &report));
+            })
+        },
+    );
+    let mut reference = floor_filter(cv);
+    c.bench_function(
+        "floor: hand-written (4,2) square-root-free step, LDL'(P), with the runner's checks and report (reference)",
+        |b| {
+            b.iter(|| {
+                let nis = reference
+                    .checked_step::<true>(black_box(&y), &mut report)
+                    .expect("checked floor step");
+                black_box((nis, &report));
+            })
+        },
     );
     bench_estim(
         c,
