@@ -570,6 +570,25 @@ fn floor_matches_estim(cv: (Matrix4<f64>, Matrix4<f64>, Matrix2x4<f64>, Matrix2<
     }
 }
 
+/// A checked floor step per iteration (`LDL`: P = L D L' instead of chol(P)).
+fn bench_checked_floor<const LDL: bool>(
+    c: &mut Criterion<ThreadCpuTime>,
+    name: &str,
+    cv: (Matrix4<f64>, Matrix4<f64>, Matrix2x4<f64>, Matrix2<f64>),
+) {
+    let y = [0.0, 0.1];
+    let mut reference = floor_filter(cv);
+    let mut report = floor::Report::zeros();
+    c.bench_function(name, |b| {
+        b.iter(|| {
+            let nis = reference
+                .checked_step::<LDL>(black_box(&y), &mut report)
+                .expect("checked floor step");
+            black_box((nis, &report));
+        })
+    });
+}
+
 fn predict_update(c: &mut Criterion<ThreadCpuTime>) {
     let cv = constant_velocity();
     bench_estim(
@@ -682,30 +701,15 @@ fn predict_update(c: &mut Criterion<ThreadCpuTime>) {
         "floor: hand-written (4,2) square-root-free step, LDL'(P), no checks (reference)",
         |b| b.iter(|| black_box(reference.step::<true>(black_box(&y)))),
     );
-    let mut reference = floor_filter(cv);
-    let mut report = floor::Report::zeros();
-    c.bench_function(
+    bench_checked_floor::<false>(
+        c,
         "floor: hand-written (4,2) square-root step, chol(P), with the runner's checks and report (reference)",
-        |b| {
-            b.iter(|| {
-                let nis = reference
-                    .checked_step::<false>(black_box(&y), &mut report)
-                    .expect("checked floor step");
-                black_box((nis, &report));
-            })
-        },
+        cv,
     );
-    let mut reference = floor_filter(cv);
-    c.bench_function(
+    bench_checked_floor::<true>(
+        c,
         "floor: hand-written (4,2) square-root-free step, LDL'(P), with the runner's checks and report (reference)",
-        |b| {
-            b.iter(|| {
-                let nis = reference
-                    .checked_step::<true>(black_box(&y), &mut report)
-                    .expect("checked floor step");
-                black_box((nis, &report));
-            })
-        },
+        cv,
     );
     bench_estim(
         c,
