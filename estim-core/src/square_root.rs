@@ -52,7 +52,7 @@ use crate::{CrossCovariance, CrossCovarianceContext, Error, Result, Scalar, Stat
 /// C: R2 x C1, D: R2 x C2), addressed with global indices. Lets the pre-arrays,
 /// whose sizes are sums of const generics (M + N, N + N), stay on the stack without
 /// `generic_const_exprs`.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Blocks<
     T: Scalar,
     const R1: usize,
@@ -955,36 +955,59 @@ mod tests {
     /// the first column whose pivot is not clearly positive, give the careful loop's
     /// own factor bit for bit, and the same verdict: on positive definite matrices,
     /// on rank-deficient ones (the first zero pivot anywhere from the first column
-    /// to the last), on indefinite ones and with a NaN; every size from 1 to 8
-    /// (static and block storage), seeded.
+    /// to the last), on indefinite ones, at subnormal scale (1 / pivot overflows) and
+    /// with a NaN; every size from 1 to 8, f64 and f32, static and block storage,
+    /// seeded.
     #[test]
     fn definite_columns_then_careful_ones_equal_the_careful_loop() {
+        /// (verdict, first column handed over) of the two-stage factorisation, after
+        /// asserting it equals the careful loop alone, in `L`'s storage.
+        fn compare<T: Scalar, L: Square<T> + PartialEq + std::fmt::Debug>(
+            n: usize,
+            joint: &impl Fn(usize, usize) -> T,
+            zeros: impl Fn() -> L,
+            label: &str,
+        ) -> (bool, usize) {
+            let tol = lit::<T>(PIVOT_TOLERANCE * n as f64) * T::default_epsilon();
+            let mut reference = zeros();
+            let expected = careful_columns(0, n, tol, 0, joint, &mut reference);
+            let mut fast = zeros();
+            let start = definite_columns(n, tol, joint, &mut fast);
+            let verdict = careful_columns(start, n, tol, 0, joint, &mut fast);
+            assert_eq!(verdict, expected, "{label}");
+            let mut through = zeros();
+            assert_eq!(semidefinite_cholesky(n, 0, joint, &mut through), expected);
+            if expected {
+                assert_eq!(fast, reference, "{label}");
+                assert_eq!(through, reference, "{label}");
+            }
+            (expected, start)
+        }
         fn check<const N: usize>(rng: &mut ChaCha8Rng, saw: &mut [usize; 3]) {
-            for case in 0..40 {
-                let (rank, shift) = match case % 4 {
-                    0 => (N, 0.0),
+            for case in 0..50 {
+                let (rank, shift) = match case % 5 {
+                    0 | 4 => (N, 0.0),
                     1 => (rng.random_range(0..N), 0.0),
                     2 => (N, -rng.random_range(0.01..0.5)),
                     _ => (N, 1e-3),
                 };
                 let mut p = gram::<N>(rng, rank, shift);
-                if case == 39 {
+                if case % 5 == 4 {
+                    // Subnormal entries: 1 / pivot overflows in both types.
+                    p *= 1e-310;
+                }
+                if case == 49 {
                     p[(N - 1, N - 1)] = f64::NAN;
                 }
-                let tol = lit::<f64>(PIVOT_TOLERANCE * N as f64) * f64::EPSILON;
+                let label = format!("N = {N}, case {case}");
                 let joint = |i: usize, k: usize| p[(i, k)];
-                let mut reference = SMatrix::<f64, N, N>::zeros();
-                let expected = careful_columns(0, N, tol, 0, &joint, &mut reference);
-                let mut fast = SMatrix::<f64, N, N>::zeros();
-                let start = definite_columns(N, tol, &joint, &mut fast);
-                let verdict = careful_columns(start, N, tol, 0, &joint, &mut fast);
-                assert_eq!(verdict, expected, "N = {N}, case {case}");
-                let mut through = SMatrix::<f64, N, N>::zeros();
-                assert_eq!(semidefinite_cholesky(N, 0, joint, &mut through), expected);
-                if expected {
-                    assert_eq!(fast, reference, "N = {N}, case {case}");
-                    assert_eq!(through, reference, "N = {N}, case {case}");
-                }
+                let (expected, start) = compare(N, &joint, SMatrix::<f64, N, N>::zeros, &label);
+                let blocks = compare(N, &joint, Blocks::<f64, N, 2, N, 2>::zeros, &label);
+                assert_eq!(blocks, (expected, start), "{label}, blocks");
+                let single = p.map(|v| if case % 5 == 4 { v * 1e270 } else { v } as f32);
+                let joint32 = |i: usize, k: usize| single[(i, k)];
+                compare(N, &joint32, SMatrix::<f32, N, N>::zeros, &label);
+                compare(N, &joint32, Blocks::<f32, N, 2, N, 2>::zeros, &label);
                 saw[usize::from(start < N) + usize::from(expected && start < N)] += 1;
             }
         }
