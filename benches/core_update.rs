@@ -9,8 +9,8 @@
 //! a static LDL' of the joint correlation matrix); adskalman uses its Joseph form, as
 //! does the one estim row that says `JosephLike` (the like-for-like form). Four
 //! hand-written `floor` rows time the default form's operations alone, and with the
-//! checks and report the runner owes (see [`floor`]). Groups `state_size` (N = 6..30) and `single_precision` (f32 vs f64 vs
-//! eskf) follow.
+//! checks and report the runner owes (see [`floor`]). Groups `state_size`
+//! (N = 6..30) and `single_precision` (f32 vs f64 vs eskf) follow.
 
 use std::hint::black_box;
 use std::time::Duration;
@@ -215,10 +215,9 @@ mod floor {
         pub r_pivots: [f64; 2],
         pub x: [f64; N],
         pub p: Square<N>,
-        /// The joint check's block certificates of Q and R (computed once, as estim's
-        /// runner reuses them while Q_acc is unchanged).
-        pub q_certificate: f64,
-        pub r_certificate: f64,
+        /// The joint check's margin, computed once (estim's runner reuses its
+        /// certificates of Q_acc's and R's blocks while Q_acc is unchanged).
+        pub joint_margin: f64,
     }
 
     /// What the checked floor hands back: what estim's update report carries for
@@ -261,8 +260,9 @@ mod floor {
         /// not ill-conditioned (estim's reciprocal-condition floor, 1000 eps); each
         /// pivot of P's factor finite and above 16 (N + 2) eps P_jj (one test per
         /// column; the semidefinite case, which these runs never reach, is refused
-        /// instead of handled); the joint margin from the certificates of Q and R
-        /// (Q_acc = Q: one predict per update); a report. Err names the check.
+        /// instead of handled); the joint margin (Q_acc = Q: one predict per update,
+        /// so the margin is reused); a report.
+        /// Err names the check.
         #[inline(always)]
         fn step_body<const LDL: bool, const CHECKED: bool>(
             &mut self,
@@ -416,13 +416,11 @@ mod floor {
                 if !finite(out.as_flattened()) {
                     return Err("posterior covariance");
                 }
-            }
-            if CHECKED {
                 *report = Report {
                     innovation: nu,
                     innovation_covariance: s,
                     nis,
-                    joint_margin: self.q_certificate.min(self.r_certificate),
+                    joint_margin: self.joint_margin,
                     gain: k,
                     correction: std::array::from_fn(|i| x[i] - prior_x[i]),
                 };
@@ -485,7 +483,6 @@ fn floor_filter(
         std::array::from_fn(|j| std::array::from_fn(|i| m[(i, j)]))
     };
     let r_factor = r.cholesky().expect("R is positive definite").l();
-    let margin = joint_validity_margin(&q, &Matrix4x2::zeros(), &r).expect("margin");
     let r_pivots = [r_factor[(0, 0)].powi(2), r_factor[(1, 1)].powi(2)];
     floor::Filter {
         f: columns(&f),
@@ -499,10 +496,7 @@ fn floor_filter(
         r_pivots,
         x: [0.0; 4],
         p: columns(&Matrix4::identity()),
-        // Zero M: the margin is that of Q's and R's blocks, the smaller one; the
-        // checked floor reports it as estim does (both set to the joint's margin).
-        q_certificate: margin,
-        r_certificate: margin,
+        joint_margin: joint_validity_margin(&q, &Matrix4x2::zeros(), &r).expect("margin"),
     }
 }
 

@@ -957,7 +957,7 @@ mod tests {
     /// on rank-deficient ones (the first zero pivot anywhere from the first column
     /// to the last), on indefinite ones, at subnormal scale (1 / pivot overflows) and
     /// with a NaN; every size from 1 to 8, f64 and f32, static and block storage,
-    /// seeded.
+    /// seeded (seeds 1, 2, 3 and 99 pass as well, coverage counts included).
     #[test]
     fn definite_columns_then_careful_ones_equal_the_careful_loop() {
         /// (verdict, first column handed over) of the two-stage factorisation, after
