@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
-# The long runs the README quotes, one log per run in results/:
-# - tests/fuzz_parsers.rs, 1,000,000 cases, one property at a time (about 6-7 min in all);
-# - tests/long_mission.rs, the 10-hour mission (ignored test; about 4 min) and the 1-hour one.
-# - tests/square_root_ins.rs, the 10-hour mission in square-root form (ignored test).
+# The long runs docs/results.md quotes, one log per run in results/:
+# - src/study/tests/fuzz_parsers.rs, 1,000,000 cases, one property at a time (about 6-7 min in all);
+# - src/study/tests/long_mission.rs, the 10-hour mission (ignored test; about 4 min) and the 1-hour one.
+# - src/study/tests/square_root_ins.rs, the 10-hour mission in square-root form (ignored test).
 # Each log's first line is the commit it ran on and the command. Run from the repository
 # root on a clean work tree (the commit must be the code that ran), then
-# `cargo run --release -- report --write README.md` to quote the logs in the README.
+# `cargo run --release -- report --write docs/results.md` to quote the logs there.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ -n "$(git status --porcelain --untracked-files=no)" ]; then
@@ -24,16 +24,16 @@ run() { # run LOG COMMAND...
 
 # The missions run beside the fuzzing (two processes for the machine's two cores).
 (
-  run long_mission-10h.log cargo test --workspace --release --test long_mission -- --ignored --nocapture
-  run long_mission-1h.log cargo test --workspace --release --test long_mission -- --nocapture
-  run long_mission-10h-square-root.log cargo test --workspace --release --test square_root_ins -- --ignored --nocapture
+  run long_mission-10h.log cargo test --release --bin estim study::tests::long_mission -- --ignored --nocapture
+  run long_mission-1h.log cargo test --release --bin estim study::tests::long_mission -- --nocapture
+  run long_mission-10h-square-root.log cargo test --release --bin estim study::tests::square_root_ins -- --ignored --nocapture
 ) &
 missions=$!
 
 cases="${ESTIM_FUZZ_CASES:-1000000}"
-properties=$(cargo test --workspace --release --test fuzz_parsers -- --list 2>/dev/null \
+properties=$(cargo test --release --bin estim study::tests::fuzz_parsers -- --list 2>/dev/null \
   | sed -n 's/^\(.*survives_.*\): test$/\1/p')
 for p in $properties; do
-  run "fuzz_parsers-$p.log" ESTIM_FUZZ_CASES="$cases" cargo test --workspace --release --test fuzz_parsers -- --exact "$p"
+  run "fuzz_parsers-${p##*::}.log" ESTIM_FUZZ_CASES="$cases" cargo test --release --bin estim study::tests::fuzz_parsers -- --exact "$p"
 done
 wait "$missions"

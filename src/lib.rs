@@ -15,7 +15,6 @@
 #![warn(missing_docs)]
 
 pub mod datasets;
-pub mod pipeline;
 
 pub use estim_core as core;
 pub use estim_dvl as dvl;

@@ -13,7 +13,8 @@ use serde_json::Value;
 
 mod common;
 
-const README: &str = include_str!("../README.md");
+/// The page holding the `[faults]` example.
+const RESULTS: &str = include_str!("../docs/results.md");
 
 fn estim(args: &[&str], cwd: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_estim"))
@@ -23,14 +24,15 @@ fn estim(args: &[&str], cwd: &Path) -> Output {
         .expect("run estim")
 }
 
-/// The README's `[faults]` TOML block (the example a user copies into faults.toml).
+/// The `[faults]` TOML block of docs/results.md (the example a user copies into
+/// faults.toml).
 fn readme_faults_toml() -> String {
-    let start = README
+    let start = RESULTS
         .find("```toml\n[faults]")
-        .expect("README [faults] block")
+        .expect("docs/results.md [faults] block")
         + 8;
-    let len = README[start..].find("```").expect("block end");
-    README[start..start + len].to_string()
+    let len = RESULTS[start..].find("```").expect("block end");
+    RESULTS[start..start + len].to_string()
 }
 
 fn json_of(out: &Output) -> Value {

@@ -1,4 +1,4 @@
-//! The README's "Your own data" section, tried: A-KIT trajectory 4 converted the way
+//! The "Your own data" section of docs/cli.md, tried: A-KIT trajectory 4 converted the way
 //! a user's files may look (columns reordered and renamed, latitude, longitude and
 //! attitude in degrees, depth instead of altitude, V Up instead of V Down, CRLF), in a
 //! temporary folder with other file names, run with `estim reproduce --gt ... --dvl
@@ -155,7 +155,7 @@ fn converted_trajectory_gives_the_unconverted_result() {
         "4",
         "--json",
     ]));
-    // Names and units in the header, as the README's "Your own data" lists them.
+    // Names and units in the header, as docs/cli.md's "Your own data" lists them.
     let by_name = converted_run(
         &root,
         [
@@ -179,7 +179,7 @@ fn converted_trajectory_gives_the_unconverted_result() {
         1e-6,
         "by name",
     );
-    // Headers no rule knows, mapped by the README's own `[columns]` example.
+    // Headers no rule knows, mapped by the `[columns]` example of docs/cli.md.
     let mapped = converted_run(
         &root,
         ["HDG", "UP", "LAT", "Z", "SEC", "R", "P", "LON", "E", "N"],
@@ -194,11 +194,13 @@ fn converted_trajectory_gives_the_unconverted_result() {
     );
 }
 
-/// The TOML block of the README's "Your own data" section (list-item indent removed).
+/// The TOML block of the "Your own data" section of docs/cli.md (list-item indent
+/// removed).
 fn readme_column_map() -> String {
-    let readme =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap();
-    let section = &readme[readme.find("### Your own data").expect("README section")..];
+    let readme = include_str!("../docs/cli.md");
+    let section = &readme[readme
+        .find("## Your own data")
+        .expect("docs/cli.md section")..];
     let start = section.find("```toml").expect("a toml block") + "```toml".len();
     let block = &section[start..];
     let block = &block[..block.find("```").expect("block end")];

@@ -1,12 +1,13 @@
-//! Every `estim` command in the README's ```sh blocks, run as written.
+//! Every `estim` command in the ```sh blocks of README.md and the user docs
+//! (docs/cli.md, docs/results.md), run as written.
 //!
-//! The README is read at test time, so a changed example is re-tested. A command is a
+//! The pages are read at compile time of this test, so a changed example is re-tested. A command is a
 //! line (or a `&&`-separated part of one) that starts with `estim` or `cargo run
 //! [--release] [--example NAME] --`; everything else (`cargo test`, `git clone`) is
 //! not an `estim` example and is skipped by kind. A trailing `# ...` comment may state
 //! the expected exit status as `exit N` (default 0). Commands run in a temporary
-//! folder holding `faults.toml` (the README's `[faults]` TOML block, as the README
-//! tells the user to save it); the A-KIT paths of the README (`../shared/data`,
+//! folder holding `faults.toml` (the `[faults]` TOML block of docs/results.md, as
+//! that page tells the user to save it); the A-KIT paths of the README (`../shared/data`,
 //! `A-KIT/Data`) are replaced by the test data root, and such commands are skipped
 //! with a printed reason when the data is absent (a failure with ESTIM_REQUIRE_DATA=1).
 
@@ -15,7 +16,12 @@ use std::process::Command;
 
 mod common;
 
-const README: &str = include_str!("../README.md");
+/// The pages whose examples run, with their text.
+const PAGES: &[(&str, &str)] = &[
+    ("README.md", include_str!("../README.md")),
+    ("docs/cli.md", include_str!("../docs/cli.md")),
+    ("docs/results.md", include_str!("../docs/results.md")),
+];
 
 /// Commands not run here, each with its reason (matched as a substring).
 const SKIPPED: &[(&str, &str)] = &[(
@@ -61,7 +67,7 @@ fn faults_toml(text: &str) -> String {
             body.push('\n');
         }
     }
-    panic!("README has no ```toml block with [faults]");
+    panic!("docs/results.md has no ```toml block with [faults]");
 }
 
 /// An `estim` invocation found in the README.
@@ -142,17 +148,18 @@ fn run(example: &Example, dir: &Path, data: Option<&PathBuf>) {
 
 #[test]
 fn every_readme_estim_example_runs_as_documented() {
-    let all: Vec<Example> = sh_blocks(README)
+    let all: Vec<Example> = PAGES
         .iter()
+        .flat_map(|(_, text)| sh_blocks(text))
         .flatten()
-        .flat_map(|l| examples(l))
+        .flat_map(|l| examples(&l))
         .collect();
     assert!(
         all.len() >= 3,
         "expected the README's estim examples, found {all:?}"
     );
     let dir = tempfile::tempdir().expect("tempdir");
-    std::fs::write(dir.path().join("faults.toml"), faults_toml(README)).expect("write");
+    std::fs::write(dir.path().join("faults.toml"), faults_toml(PAGES[2].1)).expect("write");
     let data = if all.iter().any(|e| e.needs_data) {
         common::data_root()
     } else {

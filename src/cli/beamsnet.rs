@@ -8,7 +8,7 @@ use estim_dvl::BeamsNetProtocol;
 use estim_ins::{Mission, MissionConfig};
 use estim_learned::{default_model_path, evaluate, synthesize, BeamsNet, Evaluation};
 
-use estim::pipeline::{filter_label, BEAMSNET, LS};
+use crate::study::{filter_label, BEAMSNET, LS};
 
 use crate::dataset::{imu_spec, load_akit, TEST_TRAJECTORIES};
 use crate::output::emit;

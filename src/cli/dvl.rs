@@ -54,7 +54,7 @@ struct MismatchArgs {
     /// Trajectories held out of the fit (repeatable); default 4 and 13, the test set.
     #[arg(long = "held-out", value_name = "N")]
     held_out: Vec<u32>,
-    /// JSON (the schema of every `--json`, see README "Command line") instead of CSV.
+    /// JSON (the schema of every `--json`, see docs/cli.md) instead of CSV.
     #[arg(long)]
     json: bool,
 }
@@ -91,7 +91,7 @@ struct CalibrateArgs {
     /// Hold the time offset at zero instead of estimating it.
     #[arg(long)]
     no_time_offset: bool,
-    /// JSON (the schema of every `--json`, see README "Command line") instead of CSV.
+    /// JSON (the schema of every `--json`, see docs/cli.md) instead of CSV.
     #[arg(long)]
     json: bool,
 }
@@ -216,7 +216,7 @@ fn calibrate(args: &CalibrateArgs) -> anyhow::Result<String> {
 }
 
 fn mismatch(args: &MismatchArgs) -> anyhow::Result<String> {
-    use estim::pipeline::{fit_reference_mismatch, Config, AKIT_TEST_TRAJECTORIES};
+    use crate::study::{fit_reference_mismatch, Config, AKIT_TEST_TRAJECTORIES};
     let config = match &args.config {
         Some(path) => Config::from_file(path)?,
         None => Config::default(),

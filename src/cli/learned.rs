@@ -2,9 +2,9 @@
 
 use std::path::Path;
 
+use crate::study::{beamsnet_inputs, Config, LearnedSource};
 use anyhow::Context;
 use estim::learned::BeamsNet;
-use estim::pipeline::{beamsnet_inputs, Config, LearnedSource};
 
 /// The BeamsNet sensor: the committed model, or `model` (metadata JSON beside it),
 /// with M from the network's sensitivity.

@@ -1,11 +1,11 @@
 //! `estim reproduce --scenario two-beams` and `estim montecarlo --learned two-beams`:
 //! learned sensors that must use the IMU.
 
-use estim::learned::{BeamsNet, OutageNet, TwoBeamsNet};
-use estim::pipeline::{
+use crate::study::{
     learned_monte_carlo, learned_study, BeamLoss, Config, DvlOutage, LearnedEvent,
     LearnedMonteCarlo, LearnedStudy, Scenario,
 };
+use estim::learned::{BeamsNet, OutageNet, TwoBeamsNet};
 
 use std::fmt::Write as _;
 
@@ -35,7 +35,7 @@ pub enum LearnedKind {
 }
 
 /// Realizations of the empirical M per update in `estim reproduce --scenario two-beams`.
-pub const EMPIRICAL_REALIZATIONS: usize = estim::pipeline::STUDY_EMPIRICAL_REALIZATIONS;
+pub const EMPIRICAL_REALIZATIONS: usize = crate::study::STUDY_EMPIRICAL_REALIZATIONS;
 
 /// The scripted outage: no DVL from 200 s for 60 s (inside the 400 s A-KIT segments and
 /// the default simulated mission).

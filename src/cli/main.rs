@@ -17,6 +17,11 @@ mod reproduce;
 mod schema;
 mod smooth;
 
+/// The paper study (reproduce, montecarlo, report): private to the binary, not
+/// library API. See docs/design.md.
+#[path = "../study/mod.rs"]
+mod study;
+
 /// estim: state estimation with correlated process and measurement noise.
 #[derive(Debug, Parser)]
 #[command(name = "estim", version, about)]
@@ -37,7 +42,7 @@ enum Command {
     Beamsnet(beamsnet::Args),
     /// Write training datasets.
     Dataset(dataset::Args),
-    /// Regenerate the README's result tables (markdown between marker comments).
+    /// Regenerate the result tables of docs/results.md (between marker comments).
     Report(report::Args),
     /// Smooth the INS/DVL survey (RTS): smoothed vs filtered errors against truth.
     Smooth(smooth::Args),

@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 use std::io::IsTerminal;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use estim::pipeline::{monte_carlo, Config};
+use crate::study::{monte_carlo, Config};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::output::emit;
@@ -107,8 +107,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(path) => Config::from_file(path)?,
         None => Config::default(),
     };
-    if args.faults && config.faults == estim::pipeline::FaultConfig::default() {
-        config.faults = estim::pipeline::FaultConfig::standard();
+    if args.faults && config.faults == crate::study::FaultConfig::default() {
+        config.faults = crate::study::FaultConfig::standard();
     }
     match args.learned {
         None | Some(crate::learned_scenarios::LearnedKind::Beamsnet) => {}

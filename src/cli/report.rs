@@ -1,20 +1,20 @@
-//! `estim report`: regenerate the README's result tables from seeded runs.
+//! `estim report`: regenerate the result tables (docs/results.md) from seeded runs.
 
 use std::io::Write;
 use std::path::PathBuf;
 
-use anyhow::Context;
-use estim::datasets::{akit_dir, data_root};
-use estim::pipeline::markdown::{
+use crate::study::markdown::{
     default_beamsnet, learned_seed_tables, long_run_tables, monte_carlo_table, results_tables,
     seed_interval_tables, splice, Table,
 };
-use estim::pipeline::Config;
+use crate::study::Config;
+use anyhow::Context;
+use estim::datasets::{akit_dir, data_root};
 
 /// Arguments of `estim report`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Print every generated table as markdown between its README markers
+    /// Print every generated table as markdown between its markers
     /// (`<!-- estim-report:NAME begin -->` ... `end -->`); the default output.
     #[arg(long)]
     markdown: bool,
@@ -26,7 +26,7 @@ pub struct Args {
     /// Folder of the long-run logs (fuzzing, 10-hour mission).
     #[arg(long, value_name = "DIR", default_value = "results")]
     results: PathBuf,
-    /// Replace the marked regions of this file (e.g. README.md) with the fresh tables;
+    /// Replace the marked regions of this file (docs/results.md) with the fresh tables;
     /// nothing else in it changes.
     #[arg(long, value_name = "FILE")]
     write: Option<PathBuf>,
@@ -34,7 +34,7 @@ pub struct Args {
 
 /// Run it.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    // The README's tables are the defaults' (no --config on purpose).
+    // The tables are the defaults' (no --config on purpose).
     let config = Config::default();
     let learned = default_beamsnet(&config)?;
     let mut tables: Vec<Table> = Vec::new();

@@ -4,9 +4,9 @@ use std::path::PathBuf;
 
 use std::fmt::Write as _;
 
+use crate::study::{analyse, apply_faults, filter_label, Config, Scenario, TrajectoryReport};
 use anyhow::Context;
 use estim::datasets::data_root;
-use estim::pipeline::{analyse, apply_faults, filter_label, Config, Scenario, TrajectoryReport};
 
 use crate::output::{emit, StagedDir};
 use crate::schema::{document, path_json, status_result};
@@ -22,7 +22,7 @@ pub struct Args {
     #[arg(long = "trajectory", value_name = "N")]
     trajectories: Vec<u32>,
     /// A ground-truth CSV file at any path (one trajectory; with --dvl). Columns are
-    /// found by name in any order, with units from the header (README "Your own data").
+    /// found by name in any order, with units from the header (docs/cli.md, "Your own data").
     #[arg(long, value_name = "FILE", requires = "dvl", conflicts_with_all = ["data", "trajectories"])]
     gt: Option<PathBuf>,
     /// The DVL velocity CSV file of that trajectory (with --gt).
@@ -163,7 +163,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "config": config,
     });
     let smoothed = if args.smooth {
-        let cross = estim::pipeline::CrossSource::Zero;
+        let cross = crate::study::CrossSource::Zero;
         Some(crate::smooth::smooth_all(&scenarios, &config, &cross)?)
     } else {
         None
@@ -209,7 +209,7 @@ fn print_report(out: &mut String, r: &TrajectoryReport) -> std::fmt::Result {
     )?;
     // LS first, then the learned sources.
     let mut rows: Vec<_> = r.velocity.iter().collect();
-    rows.sort_by_key(|(id, _)| (id.as_str() != estim::pipeline::LS, id.as_str()));
+    rows.sort_by_key(|(id, _)| (id.as_str() != crate::study::LS, id.as_str()));
     for (id, m) in rows {
         writeln!(
             out,
@@ -308,7 +308,7 @@ fn write_outputs(
     use crate::plots::{
         bar_chart, error_chart, line_chart, BarChart, ErrorPanel, LineChart, Series,
     };
-    use estim::pipeline::stats::GROUPS;
+    use crate::study::stats::GROUPS;
     use std::io::Write;
 
     std::fs::write(staged.path("report.json"), json).context("cannot write report.json")?;
@@ -322,9 +322,9 @@ fn write_outputs(
         );
         let mut header = vec!["filter_id".to_string(), "time_s".to_string()];
         header.extend(
-            GROUPS.iter().map(|(g, _)| {
-                format!("{}_std_sum", estim::pipeline::stats::group_key_with_unit(g))
-            }),
+            GROUPS
+                .iter()
+                .map(|(g, _)| format!("{}_std_sum", crate::study::stats::group_key_with_unit(g))),
         );
         header.extend(
             [

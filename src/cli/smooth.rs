@@ -4,9 +4,9 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::study::{apply_faults, smooth_scenario, Config, CrossSource, Scenario, SmoothReport};
 use anyhow::Context;
 use estim::datasets::data_root;
-use estim::pipeline::{apply_faults, smooth_scenario, Config, CrossSource, Scenario, SmoothReport};
 use rayon::prelude::*;
 
 /// Arguments of `estim smooth`.

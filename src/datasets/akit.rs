@@ -5,7 +5,7 @@
 //! [`super::columns`]). The file must end with a newline: a last line without one is
 //! reported as truncated (a partial write), even if it parses. CRLF line ends, a
 //! UTF-8 BOM and trailing blank lines are accepted. Every value is checked where it
-//! stands (file and line): a number, finite, within the physical range the pipeline
+//! stands (file and line): a number, finite, within the physical range the navigator
 //! models, and a strictly increasing time.
 
 use std::io::Read;

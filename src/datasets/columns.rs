@@ -131,7 +131,7 @@ pub(crate) struct Quantity {
     pub kind: Kind,
     /// Normalized names (see the module doc).
     pub aliases: &'static [Alias],
-    /// Values must satisfy |x| < max_abs (SI unit), the range the pipeline models.
+    /// Values must satisfy |x| < max_abs (SI unit), the range the navigator models.
     pub max_abs: f64,
 }
 

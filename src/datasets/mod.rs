@@ -33,6 +33,9 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum DatasetError {
+    /// The rows shared between trajectories could not be matched.
+    #[error(transparent)]
+    Overlap(#[from] estim_learned::Error),
     /// The file could not be opened or read.
     #[error("{}: cannot read: {error}", path.display())]
     Io {
@@ -92,7 +95,7 @@ pub enum DatasetError {
         /// What is wrong, naming the key.
         message: String,
     },
-    /// A value outside the range the pipeline models.
+    /// A value outside the range the navigator models.
     #[error("{}:{line}: column `{column}`: {value} {unit} is outside +-{limit} {unit}{}", path.display(), range_hint(unit))]
     OutOfRange {
         /// The file.

@@ -6,8 +6,7 @@ use std::path::Path;
 
 use estim_learned::{row_key, RowKey, RowOverlaps};
 
-use super::{load_dvl, load_gt, trajectory_files, DvlSample, GtSample};
-use crate::pipeline::Result;
+use super::{load_dvl, load_gt, trajectory_files, DvlSample, GtSample, Result};
 
 /// Fingerprint of each row: the GT values and the DVL values of the same row, time
 /// stamps excluded (the copies carry each file's own clock). Rows beyond the shorter

@@ -18,7 +18,7 @@ use estim_core::MeasurementModel;
 use estim_dvl::DvlVelocityModel;
 
 use super::{Config, PipelineError, Result, Scenario};
-use crate::datasets::{akit_dir, load_dvl_with, trajectories_in, trajectory_files};
+use estim::datasets::{akit_dir, load_dvl_with, trajectories_in, trajectory_files};
 
 /// Median of the chi-square distribution with one degree of freedom.
 pub const CHI_SQUARE_1_MEDIAN: f64 = 0.454_936_423_119_572_8;

@@ -1,9 +1,9 @@
-//! The README's result tables, regenerated from seeded runs (`estim report --markdown`).
+//! The result tables of docs/results.md, regenerated from seeded runs (`estim report --markdown`).
 //!
-//! Each table is a named region of README.md between two HTML comments,
+//! Each table is a named region of docs/results.md between two HTML comments,
 //! `<!-- estim-report:NAME begin -->` and `<!-- estim-report:NAME end -->`;
 //! [`splice`] replaces exactly those regions and [`region`] reads one back, so a test
-//! can compare the README with a fresh run byte for byte.
+//! can compare docs/results.md with a fresh run byte for byte.
 //!
 //! Sources:
 //! - [`results_tables`]: `velocity`, `filters`, `paper-std`, `rho`: the default
@@ -37,7 +37,7 @@ use std::path::Path;
 
 mod seeds;
 
-pub use seeds::{interval_cell, interval_seeds, learned_seed_tables, seed_interval_tables};
+pub use seeds::{learned_seed_tables, seed_interval_tables};
 
 use super::report::{BEAMSNET, BEAMSNET_NEGLECTED, BEAMSNET_SCALED, BEAMSNET_SENSITIVITY, LS};
 use super::{
@@ -46,18 +46,18 @@ use super::{
     ORACLE_NEGLECTED, ORACLE_SCALED, ORACLE_TRUE_M,
 };
 
-/// Missions of the README's Monte Carlo table.
+/// Missions of the Monte Carlo table.
 pub const MONTE_CARLO_RUNS: usize = 20;
 /// Seed of its first mission (missions use seeds 1000..1019).
 pub const MONTE_CARLO_FIRST_SEED: u64 = 1000;
-/// Seeds of the README's `filters-seeds` table.
+/// Seeds of the `filters-seeds` table.
 pub const SEED_INTERVAL_SEEDS: usize = 20;
 /// Its first seed (seeds 2000..2019).
 pub const SEED_INTERVAL_FIRST_SEED: u64 = 2000;
-/// A-KIT trajectories of the README (the paper's "Trajectory #1" and "#2").
+/// A-KIT trajectories of the results (the paper's "Trajectory #1" and "#2").
 pub const AKIT_TRAJECTORIES: [u32; 2] = [4, 13];
 
-/// One generated README region.
+/// One generated region of docs/results.md.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Table {
     /// Region name (`<!-- estim-report:NAME begin -->`).
@@ -671,7 +671,7 @@ fn test_outcome(log: &Log) -> Result<(bool, String)> {
     Ok((passed, format!("{seconds:.0} s")))
 }
 
-/// Parser and property of a `tests/fuzz_parsers.rs` property, by its name.
+/// Parser and property of a `src/study/tests/fuzz_parsers.rs` property, by its name.
 fn fuzz_property(test: &str) -> (usize, String, String) {
     let parsers = [
         ("gt_loader_", "A-KIT GT CSV (`datasets::parse_gt`)"),
@@ -682,11 +682,11 @@ fn fuzz_property(test: &str) -> (usize, String, String) {
         ),
         (
             "config_parser_",
-            "TOML configuration (`pipeline::Config::from_toml`, with its `[faults]` section)",
+            "TOML configuration (`Config::from_toml` of the study, with its `[faults]` section)",
         ),
         (
             "faults_parser_",
-            "Fault configuration (`pipeline::FaultConfig::from_toml`)",
+            "Fault configuration (`FaultConfig::from_toml` of the study)",
         ),
     ];
     for (rank, (prefix, parser)) in parsers.iter().enumerate() {
@@ -753,7 +753,7 @@ fn fuzz_table(logs: &[Log]) -> Result<Table> {
     );
     for (_, _, parser, property, cases, result, time, log) in rows {
         s.push_str(&format!(
-            "| {parser} | {property} | {} | {result} | {time} | [{}](results/{}) (`{}`) |\n",
+            "| {parser} | {property} | {} | {result} | {time} | [{}](../results/{}) (`{}`) |\n",
             thousands(cases),
             log.file,
             log.file,
@@ -766,7 +766,7 @@ fn fuzz_table(logs: &[Log]) -> Result<Table> {
     })
 }
 
-/// README wording of a cross-covariance model named in `tests/long_mission.rs`.
+/// docs/results.md wording of a cross-covariance model named in `src/study/tests/long_mission.rs`.
 fn long_mission_model(name: &str) -> String {
     match name {
         "Zero" => "`Zero` (M neglected)".into(),
@@ -775,7 +775,7 @@ fn long_mission_model(name: &str) -> String {
         }
         "ScaledCorrelation{0.42}" => "`ScaledCorrelation { rho: 0.42 }` (the paper)".into(),
         "SquareRoot Fixed(valid M)" => {
-            "the same valid `Fixed(M)`, square-root form (Cholesky factor held; tests/square_root_ins.rs; run time includes the covariance-form filter run beside it)".into()
+            "the same valid `Fixed(M)`, square-root form (Cholesky factor held; src/study/tests/square_root_ins.rs; run time includes the covariance-form filter run beside it)".into()
         }
         other => format!("`{other}`"),
     }
@@ -801,7 +801,7 @@ fn long_mission_table(logs: &[Log]) -> Result<Table> {
                     .ok_or_else(|| bad(i, "no \"generated in\" time"))?;
                 mission = Some(format!("{hours} h"));
                 notes.push(format!(
-                    "[{}](results/{}): {hours} h mission generated in {generated} s, commit `{}`, test {}, {total} in all",
+                    "[{}](../results/{}): {hours} h mission generated in {generated} s, commit `{}`, test {}, {total} in all",
                     log.file,
                     log.file,
                     &log.commit[..10],
@@ -970,7 +970,7 @@ mod tests {
         std::fs::write(
             dir.join("fuzz_parsers-gt_loader_survives_mutations.log"),
             format!(
-                "{hash} ESTIM_FUZZ_CASES=1000000 cargo test --release --test fuzz_parsers\n\
+                "{hash} ESTIM_FUZZ_CASES=1000000 cargo test --release --bin estim study::tests::fuzz_parsers\n\
                  running 1 test\ntest gt_loader_survives_mutations ... ok\n\n\
                  test result: ok. 1 passed; 0 failed; 0 ignored; 0 measured; 11 filtered out; finished in 58.71s\n"
             ),
@@ -979,7 +979,7 @@ mod tests {
         std::fs::write(
             dir.join("long_mission-10h.log"),
             format!(
-                "{hash} cargo test --release --test long_mission -- --ignored --nocapture\n\
+                "{hash} cargo test --release --bin estim study::tests::long_mission -- --ignored --nocapture\n\
                  test ten_hour ... ignored, 10-hour mission: about 75 s; run with --ignored\n\
                  10 h mission: 3600001 IMU steps, 36000 DVL epochs, generated in 70.2 s\n\
                  Zero                     run   25.1 s; 3636000 checks, Cholesky failures 0, non-finite 0, max asymmetry 1.1e-14, min eigenvalue of P 4.230e-12, of its correlation matrix 8.000e-3\n\

@@ -9,19 +9,19 @@
 
 use std::collections::HashSet;
 
+use crate::study::{fit_reference_mismatch, Config, Scenario, AKIT_TEST_TRAJECTORIES};
 use estim::datasets::{akit_dir, load_dvl, trajectories_in, trajectory_files};
-use estim::pipeline::{fit_reference_mismatch, Config, Scenario, AKIT_TEST_TRAJECTORIES};
 use estim_core::nalgebra::Vector3;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
-mod common;
+use super::common;
 use common::data_root;
 
 #[test]
 fn chi_square_median_constant() {
     let median = ChiSquared::new(1.0).unwrap().inverse_cdf(0.5);
     assert!(
-        (median - estim::pipeline::CHI_SQUARE_1_MEDIAN).abs() < 1e-12,
+        (median - crate::study::CHI_SQUARE_1_MEDIAN).abs() < 1e-12,
         "{median}"
     );
 }

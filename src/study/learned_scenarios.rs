@@ -6,7 +6,7 @@
 //! Monte Carlo.
 //!
 //! Outside the loss the filter is aided by BeamsNet (4 beams, M neglected: its
-//! network-derived M is about 1e-8, see README). During the loss the variants differ
+//! network-derived M is about 1e-8, see docs/results.md). During the loss the variants differ
 //! only in the two-beams network's M: from the network's sensitivity, empirical (Monte
 //! Carlo over IMU noise), neglected, or the paper's rho-heuristic at its largest valid
 //! rho; a fifth variant receives no update during the loss (INS only; least squares
@@ -56,7 +56,7 @@ pub const OUTAGE_SCALED: &str = "outage_m_rho";
 pub const INS_ONLY_DURING_OUTAGE: &str = "ins_only_during_outage";
 
 /// Realizations of the empirical M per update in `estim reproduce --scenario
-/// two-beams|outage` and the README's learned-scenario tables.
+/// two-beams|outage` and the learned-scenario tables of docs/results.md.
 pub const STUDY_EMPIRICAL_REALIZATIONS: usize = 400;
 
 /// The event of a learned-sensor study and the network that fills in during it.
@@ -391,26 +391,6 @@ pub struct LearnedStudy {
     /// Raw runs (not serialised).
     #[serde(skip)]
     pub runs: Vec<FilterRun>,
-}
-
-/// Run the two-beams study on `scenario` (the loss is applied here).
-pub fn two_beams_study(
-    scenario: &Scenario,
-    config: &Config,
-    beamsnet: &BeamsNet,
-    net: &TwoBeamsNet,
-    loss: &BeamLoss,
-    empirical_realizations: usize,
-    seed: u64,
-) -> Result<LearnedStudy> {
-    learned_study(
-        scenario,
-        config,
-        beamsnet,
-        &LearnedEvent::TwoBeams { net, loss: *loss },
-        empirical_realizations,
-        seed,
-    )
 }
 
 /// Run a learned-sensor study on `scenario` (the event is applied here): BeamsNet

@@ -2,9 +2,9 @@
 //! trajectory re-injected (`estim smooth`): on the embedded simulated mission and,
 //! when the data is present, on A-KIT trajectories 4 and 13.
 
-mod common;
+use super::common;
 
-use estim::pipeline::{
+use crate::study::{
     least_squares_measurements, run_filter, smooth_scenario, Config, CrossSource, Scenario,
     SmoothReport,
 };

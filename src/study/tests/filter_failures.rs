@@ -4,7 +4,7 @@
 //! independent re-run of the same variant through `run_filter`, whose error carries
 //! the epoch in `PipelineError::FilterStopped`.
 
-use estim::pipeline::{
+use crate::study::{
     apply_faults, filter_label, least_squares_velocities, run_filter, run_variant, Config,
     CrossSource, FaultConfig, MeasurementSet, PipelineError, Scenario, LS,
 };

@@ -9,7 +9,7 @@ use estim_ins::{ImuSpec, SensorSpec};
 use serde::{Deserialize, Serialize};
 
 use super::{FaultConfig, PipelineError, Result};
-use crate::datasets::ColumnMap;
+use estim::datasets::ColumnMap;
 
 /// The valid values of `imu.preset`.
 pub const IMU_PRESETS: [&str; 4] = [
@@ -140,7 +140,7 @@ pub struct SensorSection {
 #[serde(default, deny_unknown_fields)]
 pub struct DvlSection {
     /// Lever arm IMU -> DVL in the body frame \[m\]. Default: the mean of the
-    /// calibration on A-KIT training trajectories (estim-dvl README).
+    /// calibration on A-KIT training trajectories (estim-dvl/README.md).
     pub lever_arm_m: [f64; 3],
     /// A-KIT DVL time offset tau \[s\] (a sample stamped t measures the motion at t - tau).
     pub akit_time_offset_s: f64,
@@ -194,7 +194,7 @@ pub struct FilterSection {
     /// effect when the gate is off (`gate_probability = 0`).
     ///
     /// Default 25, chosen on the A-KIT training trajectories (1-3, 5-12; seeds
-    /// 2000-2004; README "Filters"): without the rule a filter whose P fell below its
+    /// 2000-2004; docs/results.md "Filters"): without the rule a filter whose P fell below its
     /// error stays locked out (mean position RMSE 25.1 m for BeamsNet, 60.6 m for LS,
     /// worst 301 / 1125 m); with 20, 25 or 30 the means are 4.7-5.5 m and the worst
     /// 21-36 m; below 20 the rule also accepts the long runs of bad DVL data on

@@ -12,12 +12,12 @@
 //!
 //! Skipped with a printed reason when the data is absent, unless `ESTIM_REQUIRE_DATA=1`.
 
-mod common;
+use super::common;
 
 use std::path::{Path, PathBuf};
 
+use crate::study::{Config, PipelineError, Scenario};
 use estim::datasets::{trajectory_files, DatasetError, SPAN_TIME_OFFSET_ALLOWANCE_S};
-use estim::pipeline::{Config, PipelineError, Scenario};
 use proptest::prelude::*;
 use proptest::test_runner::{Config as ProptestConfig, RngAlgorithm, TestRng, TestRunner};
 

@@ -3,13 +3,13 @@
 //! the runs, and `output_imu_correlation` for the BeamsNet variants. The per-run RMSEs
 //! are recomputed here by running each mission's least-squares filter on its own.
 
-use estim::dvl::BeamsNetProtocol;
-use estim::learned::BeamsNet;
-use estim::pipeline::{
+use crate::study::{
     apply_faults, beamsnet_inputs, least_squares_velocities, monte_carlo, run_variant, Config,
     LearnedSource, MeanInterval, MeasurementSet, Scenario, BEAMSNET_NEGLECTED,
     BEAMSNET_SENSITIVITY, LS,
 };
+use estim::dvl::BeamsNetProtocol;
+use estim::learned::BeamsNet;
 use estim_core::nalgebra::Matrix3;
 
 fn rmse(xs: &[f64]) -> f64 {
@@ -41,7 +41,7 @@ fn per_variant_intervals_and_correlation() {
             &scenario,
             &config,
             &set,
-            &estim::pipeline::CrossSource::Zero,
+            &crate::study::CrossSource::Zero,
             seed,
         )
         .unwrap()

@@ -14,10 +14,10 @@
 
 use std::path::Path;
 
-use estim::pipeline::markdown::default_beamsnet;
-use estim::pipeline::{analyse, Config, Scenario, BEAMSNET_NEGLECTED};
+use crate::study::markdown::default_beamsnet;
+use crate::study::{analyse, Config, Scenario, BEAMSNET_NEGLECTED};
 
-mod common;
+use super::common;
 
 /// Position RMSE [m] of filter `id` on A-KIT `trajectory` with the rule after `after`
 /// rejections (0: off).

@@ -22,15 +22,15 @@
 
 use std::path::Path;
 
-use estim::learned::BeamsNet;
-use estim::pipeline::markdown::default_beamsnet;
-use estim::pipeline::{
+use crate::study::markdown::default_beamsnet;
+use crate::study::{
     analyse, beamsnet_inputs, least_squares_velocities, monte_carlo, Config, PaperMBasis, Scenario,
     BEAMSNET_NEGLECTED, BEAMSNET_SCALED, ORACLE_SCALED, ORACLE_TRUE_M,
 };
+use estim::learned::BeamsNet;
 use estim_core::nalgebra::Vector3;
 
-mod common;
+use super::common;
 
 /// RMSE, MAE, R^2, VAF [%] of |predicted| against |reference| (paper Tables I/II),
 /// coded here from their definitions.

@@ -19,9 +19,7 @@
 
 use std::time::Instant;
 
-use estim::pipeline::{
-    error_state, initial_covariance, least_squares_velocities, Config, Scenario,
-};
+use crate::study::{error_state, initial_covariance, least_squares_velocities, Config, Scenario};
 use estim_core::nalgebra::{Matrix3, SMatrix, SVector};
 use estim_core::{
     check_joint_factor, covariance_factor, square_root_predict, square_root_update, Error,

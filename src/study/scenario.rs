@@ -11,7 +11,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::{Config, PipelineError, Result};
-use crate::datasets::{
+use estim::datasets::{
     check_spans, load_dvl_with, load_gt_with, trajectory_files, DatasetError, SpanCheck,
     SPAN_TIME_OFFSET_ALLOWANCE_S,
 };
@@ -153,7 +153,7 @@ impl Scenario {
     /// DVL velocity (time-shifted by the configured offset), beams by the protocol.
     ///
     /// The two files must cover the same time span (the rule of
-    /// [`crate::datasets::SpanCheck`], with an allowance of 1.5 s or the configured
+    /// [`estim::datasets::SpanCheck`], with an allowance of 1.5 s or the configured
     /// offset's magnitude if larger). With `allow_partial` a mismatch is accepted and
     /// the run covers the overlap only (the caller says so; [`Scenario::span`] holds
     /// both spans).

@@ -1,4 +1,4 @@
-//! The `*-seeds` tables: rows of the single-seed README tables over
+//! The `*-seeds` tables: rows of the single-seed tables over
 //! [`SEED_INTERVAL_SEEDS`] seeds from [`SEED_INTERVAL_FIRST_SEED`] (IMU synthesis,
 //! initial error, beam noise and the empirical M's draws redrawn per seed), each number
 //! as mean [2.5 %, 97.5 %] over the seeds ([`MeanInterval`]: percentiles by linear
@@ -17,7 +17,7 @@ use super::{
     rho_run, significant, velocity_rows, DataSet, Table, AKIT_TRAJECTORIES,
     SEED_INTERVAL_FIRST_SEED, SEED_INTERVAL_SEEDS,
 };
-use crate::pipeline::{
+use crate::study::{
     apply_faults, learned_study, BeamLoss, Config, DvlOutage, LearnedEvent, LearnedSource,
     LearnedStudy, MeanInterval, PipelineError, Result, Scenario, STUDY_EMPIRICAL_REALIZATIONS,
 };
@@ -502,7 +502,7 @@ mod tests {
         let m = MeanInterval::of(&xs);
         assert!((m.lo - 1.225).abs() < 1e-12 && (m.hi - 9.775).abs() < 1e-12);
         assert_eq!(m.mean, 5.5);
-        // Seeded draws of several sizes, 20 (the README's seeds) among them.
+        // Seeded draws of several sizes, 20 (the seeds of docs/results.md) among them.
         let mut state = 0x2545_f491_4f6c_dd1d_u64;
         let mut uniform = || {
             // xorshift64*: deterministic, no dependency.

@@ -15,13 +15,13 @@
 //!
 //! Parsers covered: the A-KIT GT and DVL loaders, the `estim dvl solve` beam file
 //! (`estim::datasets::parse_beams`), the TOML configuration
-//! (`estim::pipeline::Config::from_toml`) and the fault configuration
-//! (`estim::pipeline::FaultConfig::from_toml`).
+//! (`crate::study::Config::from_toml`) and the fault configuration
+//! (`crate::study::FaultConfig::from_toml`).
 
 use std::path::Path;
 
+use crate::study::{Config as PipelineConfig, FaultConfig};
 use estim::datasets::{parse_beams, parse_dvl, parse_gt, DVL_HEADER, GT_HEADER};
-use estim::pipeline::{Config as PipelineConfig, FaultConfig};
 use proptest::prelude::*;
 use proptest::test_runner::Config;
 

@@ -5,7 +5,7 @@
 //!
 //! `cargo test --release --test faults -- --nocapture` prints the measured figures.
 
-use estim::pipeline::{
+use crate::study::{
     apply_faults, least_squares_velocities, run_filter, Config, CrossSource, DvlOutage,
     FaultConfig, FilterRun, ImuGap, MeasurementSet, Scenario,
 };

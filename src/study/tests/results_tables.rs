@@ -1,7 +1,7 @@
-//! Every generated table of README.md equals a fresh run of its generator, byte for
-//! byte (`estim report --markdown`; runs are seeded, rounding is stated in
-//! `estim::pipeline::markdown`). When a table differs, regenerate it with
-//! `cargo run --release -- report --write README.md` and commit the README with the
+//! Every generated table of docs/results.md equals a fresh run of its generator, byte
+//! for byte (`estim report --markdown`; runs are seeded, rounding is stated in
+//! `crate::study::markdown`). When a table differs, regenerate it with
+//! `cargo run --release -- report --write docs/results.md` and commit the page with the
 //! change that moved it.
 //!
 //! The A-KIT tables need the data: they run when it is found and in CI
@@ -13,31 +13,31 @@
 
 use std::path::PathBuf;
 
-use estim::pipeline::markdown::{
+use crate::study::markdown::{
     default_beamsnet, learned_seed_tables, long_run_tables, monte_carlo_table, region,
     results_tables, seed_interval_tables, splice, Table,
 };
-use estim::pipeline::Config;
+use crate::study::Config;
 
-mod common;
+use super::common;
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
 fn readme() -> String {
-    std::fs::read_to_string(root().join("README.md")).expect("README.md")
+    std::fs::read_to_string(root().join("docs/results.md")).expect("docs/results.md")
 }
 
-/// The README region of `table` equals the fresh markdown.
+/// The region of `table` equals the fresh markdown.
 fn assert_matches(readme: &str, table: &Table) {
     let committed = region(readme, table.name)
-        .unwrap_or_else(|e| panic!("README.md: region {}: {e}", table.name));
+        .unwrap_or_else(|e| panic!("docs/results.md: region {}: {e}", table.name));
     assert!(
         committed == table.markdown,
-        "README.md region {:?} differs from a fresh run \
-         (regenerate: cargo run --release -- report --write README.md)\n\
-         --- README ---\n{committed}--- fresh ---\n{}",
+        "docs/results.md region {:?} differs from a fresh run \
+         (regenerate: cargo run --release -- report --write docs/results.md)\n\
+         --- docs/results.md ---\n{committed}--- fresh ---\n{}",
         table.name,
         table.markdown
     );
@@ -66,11 +66,11 @@ fn every_region_is_marked_once() {
         .map(|n| Table {
             name: n,
             markdown: region(&text, n)
-                .unwrap_or_else(|e| panic!("README.md: {e}"))
+                .unwrap_or_else(|e| panic!("docs/results.md: {e}"))
                 .to_string(),
         })
         .collect();
-    // Splicing the README's own regions back in is the identity.
+    // Splicing the page's own regions back in is the identity.
     assert_eq!(splice(&text, &tables).expect("markers"), text);
 }
 

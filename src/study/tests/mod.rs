@@ -1,0 +1,17 @@
+//! Tests of the study (run by `cargo test` as unit tests of the binary; the study
+//! is private to it).
+
+mod claims;
+mod common;
+mod data_span;
+mod faults;
+mod filter_failures;
+mod fuzz_parsers;
+mod gate_recovery;
+mod long_mission;
+mod montecarlo_fields;
+mod oracle_monte_carlo;
+mod reference_mismatch;
+mod results_tables;
+mod smooth_ins;
+mod square_root_ins;
