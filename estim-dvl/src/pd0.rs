@@ -1,12 +1,14 @@
 //! Teledyne RDI PD0 binary ensembles: reader, report of what was skipped, CSV writer.
 //!
-//! Format reference (cited as [WH] below): Teledyne RD Instruments, *WorkHorse Commands
-//! and Output Data Format*, P/N 957-6156-00 (March 2005), chapter "Output Data Format",
-//! section "PD0 Output Format" and its subsections "Header Data Format", "Fixed Leader
-//! Data Format", "Variable Leader Data Format", "Bottom-Track Data Format" and "Checksum
-//! Data Format". Ocean Surveyor, Ocean Observer and the DVL (Navigator) firmware write the
-//! same header, leaders and bottom-track layout; those leaders may be shorter or longer,
-//! so every field beyond the minimum this reader needs is read only when present.
+//! Format reference (cited as WH below, with the section name): Teledyne RD
+//! Instruments, *WorkHorse Commands and Output Data Format*, P/N 957-6156-00 (March
+//! 2005), chapter "Output Data Format", section "PD0 Output Format" and its subsections
+//! "Header Data Format", "Fixed Leader Data Format", "Variable Leader Data Format",
+//! "Bottom-Track Data Format" and "Checksum Data Format". Ocean Surveyor, Ocean Observer
+//! and DVL (Navigator) firmware write the same header, leaders and bottom-track layout,
+//! but their leaders may be shorter or longer (the Ocean Surveyor variable leader has no
+//! Y2K clock), so every field beyond the minimum this reader needs is read only when
+//! present. Public readers consulted for these differences: dolfyn's `io/rdi.py`.
 
 use std::fmt;
 use std::io::Write;
@@ -14,9 +16,9 @@ use std::path::Path;
 
 use crate::error::{Error, Result};
 
-/// Both bytes of the header ID ([WH] "Header Data Format": HEADER ID 7Fh, DATA SOURCE ID 7Fh).
+/// Both bytes of the header ID (WH "Header Data Format": HEADER ID 7Fh, DATA SOURCE ID 7Fh).
 const HEADER_ID: u8 = 0x7F;
-/// Bytes of the header before the data-type offset table ([WH] "Header Data Format").
+/// Bytes of the header before the data-type offset table (WH "Header Data Format").
 const HEADER_BYTES: usize = 6;
 /// The checksum that follows the `number of bytes in ensemble` counted bytes.
 const CHECKSUM_BYTES: usize = 2;
@@ -39,7 +41,7 @@ const BOTTOM_TRACK_MIN: usize = 32;
 const BOTTOM_TRACK_RANGE_MSB: usize = 77;
 
 /// The velocity value the instrument writes for a bad or missing velocity
-/// ([WH] "Bottom-Track Data Format", BT velocity: "-32768 = bad velocity").
+/// (WH "Bottom-Track Data Format", BT velocity: -32768 marks a bad velocity).
 const BAD_VELOCITY: i16 = i16::MIN;
 
 /// Header of the CSV written by [`write_pd0_csv`].
@@ -86,7 +88,7 @@ impl fmt::Display for CoordinateSystem {
     }
 }
 
-/// The fixed leader's coordinate-transform byte ([WH] "Fixed Leader Data Format",
+/// The fixed leader's coordinate-transform byte (WH "Fixed Leader Data Format",
 /// COORD XFRM, the EX command): `xxxCCTPB` with CC the coordinate system, T tilts used,
 /// P 3-beam solutions used, B bin mapping used.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -134,7 +136,7 @@ impl CoordinateTransform {
 }
 
 /// What an ensemble's fixed leader says about the instrument's set-up
-/// ([WH] "Fixed Leader Data Format"; byte numbers below are 1-based as in the manual).
+/// (WH "Fixed Leader Data Format"; byte numbers below are 1-based as in the manual).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FixedLeader {
     /// CPU firmware version (byte 3; e.g. 16 WorkHorse, 23 Ocean Surveyor).
@@ -186,7 +188,7 @@ impl FixedLeader {
     }
 }
 
-/// The instrument's real-time clock at the ensemble ([WH] "Variable Leader Data Format":
+/// The instrument's real-time clock at the ensemble (WH "Variable Leader Data Format":
 /// RTC bytes 5-11, two-digit year; Y2K RTC bytes 58-65, with century).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct RealTimeClock {
@@ -265,7 +267,7 @@ fn days_from_civil(year: i64, month: i64, day: i64) -> i64 {
     era * 146_097 + doe - 719_468
 }
 
-/// Bottom-track velocities and ranges of one ensemble ([WH] "Bottom-Track Data Format":
+/// Bottom-track velocities and ranges of one ensemble (WH "Bottom-Track Data Format":
 /// BT range bytes 17-24 in cm, with the range MSB bytes 78-81 where present; BT velocity
 /// bytes 25-32 in mm/s). `None` is a value the instrument marked bad: velocity -32768,
 /// range 0 (no bottom detection on that beam).
@@ -468,7 +470,7 @@ impl Pd0Read {
 /// Reads every good PD0 ensemble in `bytes`.
 ///
 /// An ensemble is good when it starts with 0x7F7F, its declared length fits in the
-/// input, its checksum (the 16-bit sum of its bytes, [WH] "Checksum Data Format")
+/// input, its checksum (the 16-bit sum of its bytes, WH "Checksum Data Format")
 /// verifies, its fixed and variable leaders are present and long enough, and its clock
 /// is valid. Anything else (a truncated or corrupt ensemble, bytes between ensembles) is
 /// skipped up to the next good ensemble and recorded in the report with its byte offset
@@ -622,7 +624,7 @@ enum Candidate {
 /// ensemble's length in the input, checksum included.
 fn frame(bytes: &[u8], sums: &[u16], start: usize) -> std::result::Result<usize, Rejection> {
     let available = bytes.len() - start;
-    // [WH] "Header Data Format": bytes 3-4 are the number of bytes in the ensemble,
+    // WH "Header Data Format": bytes 3-4 are the number of bytes in the ensemble,
     // counted from the header ID up to, not including, the checksum.
     let Some(declared) = u16_at(bytes, start + 2) else {
         let needed = HEADER_BYTES + CHECKSUM_BYTES;
@@ -642,8 +644,9 @@ fn frame(bytes: &[u8], sums: &[u16], start: usize) -> std::result::Result<usize,
         return Err((Pd0Issue::Truncated { needed, available }, needed));
     }
     let end = start + declared;
-    // [WH] "Checksum Data Format": the sum of all ensemble bytes, excluding the checksum,
-    // kept to 16 bits (the manual says "modulo 65535"; instruments wrap at 65536).
+    // WH "Checksum Data Format": the sum of all ensemble bytes, excluding the checksum,
+    // kept to 16 bits (the manual calls it modulo 65535; the sum wraps at 65536, which
+    // every ensemble of the real file in the tests confirms).
     let computed = sums[end].wrapping_sub(sums[start]);
     let stored = u16::from_le_bytes([bytes[end], bytes[end + 1]]);
     if computed != stored {
@@ -722,7 +725,7 @@ fn decode(bytes: &[u8], start: usize, length: usize) -> std::result::Result<Pd0E
     })
 }
 
-/// The data-type offset table of an ensemble ([WH] "Header Data Format": byte 6 the
+/// The data-type offset table of an ensemble (WH "Header Data Format": byte 6 the
 /// number of data types, then one 2-byte offset per data type from the header start).
 struct DataTypes {
     /// (offset, id), sorted by offset.
@@ -793,7 +796,7 @@ impl DataTypes {
     }
 }
 
-/// [WH] "Fixed Leader Data Format" (0-based byte indices here; the manual counts from 1).
+/// WH "Fixed Leader Data Format" (0-based byte indices here; the manual counts from 1).
 fn decode_fixed_leader(fixed: &[u8]) -> FixedLeader {
     let system_configuration = u16::from_le_bytes([fixed[4], fixed[5]]);
     // System configuration MSB bits 1-0: 00 15 deg, 01 20 deg, 10 30 deg, 11 other.
@@ -819,7 +822,7 @@ fn decode_fixed_leader(fixed: &[u8]) -> FixedLeader {
     }
 }
 
-/// [WH] "Variable Leader Data Format": RTC (bytes 5-11) or, when present with a nonzero
+/// WH "Variable Leader Data Format": RTC (bytes 5-11) or, when present with a nonzero
 /// century, the Y2K RTC (bytes 58-65).
 fn decode_clock(variable: &[u8]) -> RealTimeClock {
     if let Some(y2k) = variable.get(VARIABLE_LEADER_Y2K..VARIABLE_LEADER_Y2K + 8) {
@@ -849,7 +852,7 @@ fn decode_clock(variable: &[u8]) -> RealTimeClock {
     }
 }
 
-/// [WH] "Bottom-Track Data Format": range LSB words at bytes 17-24 (cm), velocities at
+/// WH "Bottom-Track Data Format": range LSB words at bytes 17-24 (cm), velocities at
 /// bytes 25-32 (mm/s), range MSB bytes at 78-81 where the data type is that long.
 fn decode_bottom_track(bottom: &[u8]) -> BottomTrack {
     let mut velocity_mps = [None; 4];
