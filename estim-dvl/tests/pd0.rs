@@ -194,6 +194,15 @@ fn encode(spec: &Spec) -> Vec<u8> {
     out
 }
 
+/// Rewrites the checksum of a single encoded ensemble after its bytes were edited.
+fn refresh_checksum(ensemble: &mut [u8]) {
+    let end = ensemble.len() - 2;
+    let sum = ensemble[..end]
+        .iter()
+        .fold(0u16, |s, &b| s.wrapping_add(u16::from(b)));
+    ensemble[end..].copy_from_slice(&sum.to_le_bytes());
+}
+
 fn is_leap(y: u16) -> bool {
     (y.is_multiple_of(4) && !y.is_multiple_of(100)) || y.is_multiple_of(400)
 }
@@ -401,6 +410,15 @@ fn known_clock_gives_known_unix_time() {
         assert!(!e.clock.y2k_century);
         assert_eq!(e.time_unix_s, expected);
     }
+    // A Y2K clock with century 0 (not set) falls back to the two-digit year.
+    let mut bytes = encode(&Spec::typical(1));
+    let variable_leader_at = 6 + 2 * 4 + 59;
+    assert_eq!(bytes[variable_leader_at], 0x80);
+    bytes[variable_leader_at + 57] = 0;
+    refresh_checksum(&mut bytes);
+    let e = &read_pd0(&bytes).ensembles[0];
+    assert!(!e.clock.y2k_century);
+    assert_eq!(e.time_unix_s, 1_647_286_150.08);
     // The Y2K century decides when present: 2099 is not 1999.
     let spec = Spec {
         year: 2099,
@@ -736,6 +754,40 @@ proptest! {
         assert_tiles(&read, bytes.len());
         let mut csv = Vec::new();
         write_pd0_csv(&read.ensembles, &mut csv).unwrap();
+    }
+
+    /// Ensembles whose checksum verifies but whose offset table and data types are
+    /// random (IDs often those the reader looks for): decoding never panics, and what
+    /// decodes spans exactly the declared bytes.
+    #[test]
+    fn checksummed_random_ensembles_never_panic(
+        count in 0u8..8,
+        offsets in proptest::collection::vec(any::<u16>(), 8),
+        ids in proptest::collection::vec(0usize..5, 8),
+        body in proptest::collection::vec(any::<u8>(), 0..300),
+    ) {
+        let table_end = 6 + 2 * usize::from(count);
+        let mut e = vec![0x7F, 0x7F, 0, 0, 0, count];
+        e.resize(table_end, 0);
+        e.extend_from_slice(&body);
+        let total = e.len();
+        put_u16(&mut e, 2, total as u16);
+        for i in 0..usize::from(count) {
+            let offset = usize::from(offsets[i]) % (total + 4);
+            put_u16(&mut e, 6 + 2 * i, offset as u16);
+            if offset >= table_end && offset + 2 <= total {
+                let id = [0x0000, 0x0080, 0x0600, 0x0100, offsets[i]][ids[i]];
+                put_u16(&mut e, offset, id);
+            }
+        }
+        e.extend_from_slice(&[0, 0]);
+        refresh_checksum(&mut e);
+        let read = read_pd0(&e);
+        assert_tiles(&read, e.len());
+        for ensemble in &read.ensembles {
+            prop_assert_eq!(ensemble.offset, 0);
+            prop_assert_eq!(ensemble.length, total + 2);
+        }
     }
 
     #[test]
