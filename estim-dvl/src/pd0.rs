@@ -53,11 +53,13 @@ coordinate_system";
 /// byte declares it (EX command; bits 4-3: 00 beam, 01 instrument, 10 ship, 11 earth).
 ///
 /// The four bottom-track values of an ensemble are in this system:
-/// - `Beam`: beams 1-4 along their own axes (positive toward the instrument when the
-///   bottom moves toward it, RDI's sign convention);
+/// - `Beam`: beams 1-4 along their own axes;
 /// - `Instrument`: X, Y, Z and error velocity in the instrument frame;
 /// - `Ship`: starboard, forward, mast and error velocity;
 /// - `Earth`: east, north, up and error velocity.
+///
+/// Values are passed on as the instrument wrote them, with RDI's sign convention (see
+/// the manual's bottom-track section); the reader changes no sign and no frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum CoordinateSystem {
     /// Radial beam velocities.
