@@ -42,6 +42,27 @@ pub enum Error {
         /// What happened.
         reason: String,
     },
+    /// A PD0 input has a span that is not a good ensemble (see
+    /// [`read_pd0`](crate::read_pd0)'s report, and [`Pd0Read::require_clean`](crate::Pd0Read::require_clean)).
+    #[error("PD0 input at byte {offset} ({length} bytes skipped): {issue}")]
+    Pd0 {
+        /// Byte offset of the span in the input.
+        offset: usize,
+        /// Bytes in the span.
+        length: usize,
+        /// Why it is not a good ensemble.
+        issue: crate::Pd0Issue,
+    },
+    /// A file could not be read.
+    #[error("cannot read {}: {message}", path.display())]
+    Io {
+        /// The file.
+        path: std::path::PathBuf,
+        /// The kind of I/O error.
+        kind: std::io::ErrorKind,
+        /// The operating system's message.
+        message: String,
+    },
     /// An error from estim-core.
     #[error(transparent)]
     Core(#[from] estim_core::Error),
