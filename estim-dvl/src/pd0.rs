@@ -1,14 +1,4 @@
 //! Teledyne RDI PD0 binary ensembles: reader, report of what was skipped, CSV writer.
-//!
-//! Format reference (cited as WH below, with the section name): Teledyne RD
-//! Instruments, *WorkHorse Commands and Output Data Format*, P/N 957-6156-00 (March
-//! 2005), chapter "Output Data Format", section "PD0 Output Format" and its subsections
-//! "Header Data Format", "Fixed Leader Data Format", "Variable Leader Data Format",
-//! "Bottom-Track Data Format" and "Checksum Data Format". Ocean Surveyor, Ocean Observer
-//! and DVL (Navigator) firmware write the same header, leaders and bottom-track layout,
-//! but their leaders may be shorter or longer (the Ocean Surveyor variable leader has no
-//! Y2K clock), so every field beyond the minimum this reader needs is read only when
-//! present. Public readers consulted for these differences: dolfyn's `io/rdi.py`.
 
 use std::fmt;
 use std::io::Write;
@@ -478,6 +468,16 @@ impl Pd0Read {
 /// skipped up to the next good ensemble and recorded in the report with its byte offset
 /// and reason. Never panics; allocates the output and one 16-bit prefix sum per input
 /// byte (so that every resynchronisation candidate is checked in constant time).
+///
+/// Format reference (cited as WH below, with the section name): Teledyne RD
+/// Instruments, *WorkHorse Commands and Output Data Format*, P/N 957-6156-00 (March
+/// 2005), chapter "Output Data Format", section "PD0 Output Format" and its subsections
+/// "Header Data Format", "Fixed Leader Data Format", "Variable Leader Data Format",
+/// "Bottom-Track Data Format" and "Checksum Data Format". Ocean Surveyor, Ocean Observer
+/// and DVL (Navigator) firmware write the same header, leaders and bottom-track layout,
+/// but their leaders may be shorter or longer (the Ocean Surveyor variable leader has no
+/// Y2K clock), so every field beyond the minimum this reader needs is read only when
+/// present. Public readers consulted for these differences: dolfyn's `io/rdi.py`.
 pub fn read_pd0(bytes: &[u8]) -> Pd0Read {
     let sums = prefix_sums(bytes);
     let mut ensembles = Vec::new();

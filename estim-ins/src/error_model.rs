@@ -1,40 +1,5 @@
 //! The 15-state INS error model: continuous F and G, discrete Phi and Q, injection and
 //! reset, as an estim-core [`ProcessModel`] + [`ErrorStateModel`].
-//!
-//! # Formulation
-//!
-//! Error state δx = \[δp (NED m), δv^n, ψ (NED rad), δb_a, δb_g\] with the pinned
-//! convention `true = nominal + error` (see [`InsState`](crate::InsState)). The
-//! continuous error dynamics δẋ = F δx + G w, w = \[w_a, w_g, w_ba, w_bg\], are those of
-//! Groves (2013) sec. 14.2.3-14.2.4 (local-navigation-frame error equations 14.63-14.71,
-//! with the gravity-gradient and transport-rate terms kept) and Farrell (2008) sec. 11.4,
-//! rewritten for (i) position error in metres N, E, D instead of δL, δλ, δh and (ii)
-//! errors defined as true minus nominal. Every sign is checked against finite
-//! differences of [`navigation_rates`](crate::navigation_rates) in the tests:
-//!
-//! ```text
-//! δṗ  = F_pp δp + δv
-//! δv̇  = F_vp δp + F_vv δv - [f^n×] ψ - C_b^n δb_a - C_b^n w_a
-//! ψ̇   = F_ψp δp + F_ψv δv - [ω_in^n×] ψ - C_b^n δb_g - C_b^n w_g
-//! δḃ_a = -δb_a / τ_a + w_ba,    δḃ_g = -δb_g / τ_g + w_bg
-//! ```
-//!
-//! with F_vp = [v×](2 W_ie + W_en) + ∂g/∂p, F_vv = \[v×\] ∂ω_en/∂v - \[(2ω_ie + ω_en)×\],
-//! F_ψp = -(W_ie + W_en), F_ψv = -∂ω_en/∂v, W = ∂ω/∂δp (Groves eqs. 14.64-14.69).
-//! Noise PSD Σ = diag(VRW² I, ARW² I, 2σ_a²/τ_a I, 2σ_g²/τ_g I) ([`ImuSpec`]).
-//!
-//! # Discretisation
-//!
-//! - Phi = I + F dt + (F dt)²/2 (Groves eq. 14.72 truncated after the second-order
-//!   term; Farrell 2008 eq. 4.115), evaluated column by column from the nonzero entries
-//!   of F's 3x3 blocks (F has 12 nonzero blocks out of 25).
-//! - Q_d = ∫_0^dt (I + F s) G Σ G' (I + F s)' ds
-//!   = Q_1 dt + (F Q_1 + Q_1 F') dt²/2 + F Q_1 F' dt³/3, Q_1 = G Σ G'
-//!   (the second-order expansion of the Van Loan integral, Groves eq. 14.82-14.83 /
-//!   Farrell eq. 4.124; the dt³ term keeps it positive semidefinite). Because each
-//!   triad's noise is isotropic, Q_1 = diag(0, VRW² I, ARW² I, ...) does not depend on
-//!   the attitude. [`InsErrorModel::van_loan`] gives the exact Van Loan result for
-//!   comparison (used by the tests).
 
 use estim_core::{ErrorStateModel, ProcessModel};
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
@@ -101,6 +66,41 @@ impl SystemBlocks {
 }
 
 /// The 15-state INS error model over a strapdown [`Mechanization`] and an [`ImuSpec`].
+///
+/// # Formulation
+///
+/// Error state δx = \[δp (NED m), δv^n, ψ (NED rad), δb_a, δb_g\] with the pinned
+/// convention `true = nominal + error` (see [`InsState`](crate::InsState)). The
+/// continuous error dynamics δẋ = F δx + G w, w = \[w_a, w_g, w_ba, w_bg\], are those of
+/// Groves (2013) sec. 14.2.3-14.2.4 (local-navigation-frame error equations 14.63-14.71,
+/// with the gravity-gradient and transport-rate terms kept) and Farrell (2008) sec. 11.4,
+/// rewritten for (i) position error in metres N, E, D instead of δL, δλ, δh and (ii)
+/// errors defined as true minus nominal. Every sign is checked against finite
+/// differences of [`navigation_rates`](crate::navigation_rates) in the tests:
+///
+/// ```text
+/// δṗ  = F_pp δp + δv
+/// δv̇  = F_vp δp + F_vv δv - [f^n×] ψ - C_b^n δb_a - C_b^n w_a
+/// ψ̇   = F_ψp δp + F_ψv δv - [ω_in^n×] ψ - C_b^n δb_g - C_b^n w_g
+/// δḃ_a = -δb_a / τ_a + w_ba,    δḃ_g = -δb_g / τ_g + w_bg
+/// ```
+///
+/// with F_vp = [v×](2 W_ie + W_en) + ∂g/∂p, F_vv = \[v×\] ∂ω_en/∂v - \[(2ω_ie + ω_en)×\],
+/// F_ψp = -(W_ie + W_en), F_ψv = -∂ω_en/∂v, W = ∂ω/∂δp (Groves eqs. 14.64-14.69).
+/// Noise PSD Σ = diag(VRW² I, ARW² I, 2σ_a²/τ_a I, 2σ_g²/τ_g I) ([`ImuSpec`]).
+///
+/// # Discretisation
+///
+/// - Phi = I + F dt + (F dt)²/2 (Groves eq. 14.72 truncated after the second-order
+///   term; Farrell 2008 eq. 4.115), evaluated column by column from the nonzero entries
+///   of F's 3x3 blocks (F has 12 nonzero blocks out of 25).
+/// - Q_d = ∫_0^dt (I + F s) G Σ G' (I + F s)' ds
+///   = Q_1 dt + (F Q_1 + Q_1 F') dt²/2 + F Q_1 F' dt³/3, Q_1 = G Σ G'
+///   (the second-order expansion of the Van Loan integral, Groves eq. 14.82-14.83 /
+///   Farrell eq. 4.124; the dt³ term keeps it positive semidefinite). Because each
+///   triad's noise is isotropic, Q_1 = diag(0, VRW² I, ARW² I, ...) does not depend on
+///   the attitude. [`InsErrorModel::van_loan`] gives the exact Van Loan result for
+///   comparison (used by the tests).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InsErrorModel {
     spec: ImuSpec,
@@ -253,7 +253,7 @@ impl InsErrorModel {
         self.spec.continuous_noise_psd()
     }
 
-    /// Phi and Q_d over `dt` in one pass (see the module docs for the formulas).
+    /// Phi and Q_d over `dt` in one pass (the formulas of [`InsErrorModel`]).
     #[must_use]
     pub fn transition_and_noise(
         &self,

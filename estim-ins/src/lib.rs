@@ -7,7 +7,7 @@
 //! - [`ImuSpec`]: checked IMU error specifications and presets;
 //! - [`Trajectory`], [`ImuErrorGenerator`], [`Mission`]: IMU from a trajectory, synthetic AUV missions.
 //!
-//! Conventions are pinned in [`InsState`]'s module docs: NED, body x forward y right z
+//! Conventions are pinned in [`InsState`]'s docs: NED, body x forward y right z
 //! down, `true = nominal + error`, misalignment ψ in NED with C_true = (I + \[ψ×\]) C_nominal.
 //!
 //! ```

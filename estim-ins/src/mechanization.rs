@@ -1,33 +1,4 @@
 //! Strapdown inertial navigation in the local NED frame.
-//!
-//! # Equations (Groves 2013, sec. 5.4 "Local-navigation-frame navigation equations")
-//!
-//! - attitude: Ċ_b^n = C_b^n \[ω_ib^b ×\] - \[ω_in^n ×\] C_b^n, ω_in^n = ω_ie^n + ω_en^n (eq. 5.46);
-//! - velocity: v̇^n = C_b^n f^b + g^n - (2 ω_ie^n + ω_en^n) × v^n (eq. 5.53);
-//! - position: L̇ = v_N/(R_N+h), λ̇ = v_E/((R_E+h) cos L), ḣ = -v_D (eq. 5.56).
-//!
-//! # Discretisation (second order in dt, documented replacement for coning/sculling)
-//!
-//! An [`ImuSample`] holds the *mean* specific force and angular rate over the step
-//! (Δv/dt and Δθ/dt, what an integrating IMU delivers). One step is a two-pass
-//! midpoint (predictor-corrector) scheme:
-//!
-//! 1. body rotation over the step: q(Δθ), Δθ = (ω - b_g) dt (exact for a constant rate);
-//!    navigation-frame rotation q(-ω_in^n dt) with ω_in^n at the mid-step position and
-//!    velocity;
-//! 2. specific-force velocity increment Δv^n = C_b^n(t + dt/2) Δv^b: the attitude at
-//!    mid-step, C_b^n(t+dt/2) = q(-ω_in dt/2) C_b^n(t) q(Δθ/2), which contains the
-//!    rotation compensation ½ Δθ × Δv of the classic velocity update (Savage 1998,
-//!    "Strapdown inertial navigation integration algorithm design part 2", eq. 19)
-//!    to second order;
-//! 3. gravity and Coriolis at the mid-step state; position by the trapezoidal rule on
-//!    velocity (Groves eq. 5.56 form).
-//!
-//! Pass 1 takes the mid-step state equal to the start of the step, pass 2 the average
-//! of the start and the end predicted by pass 1. Local error O(dt^3) for smooth
-//! motion; multi-sample coning and sculling corrections need sub-interval increments
-//! that one sample per step does not carry (their effect is O(dt^3) per step for smooth
-//! motion, see the round-trip tests for the measured figure).
 
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
@@ -67,7 +38,7 @@ impl ImuSample {
     }
 }
 
-/// Continuous-time rates of the navigation equations at one state (see the module docs).
+/// Continuous-time rates of the navigation equations at one state (the equations of [`Mechanization`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NavigationRates {
     /// L̇ \[rad/s\].
@@ -108,7 +79,36 @@ pub fn navigation_rates(state: &InsState, imu: &ImuSample) -> NavigationRates {
     }
 }
 
-/// The strapdown mechanization (stateless; see the module docs for the scheme).
+/// The strapdown mechanization (stateless; the scheme below).
+///
+/// # Equations (Groves 2013, sec. 5.4 "Local-navigation-frame navigation equations")
+///
+/// - attitude: Ċ_b^n = C_b^n \[ω_ib^b ×\] - \[ω_in^n ×\] C_b^n, ω_in^n = ω_ie^n + ω_en^n (eq. 5.46);
+/// - velocity: v̇^n = C_b^n f^b + g^n - (2 ω_ie^n + ω_en^n) × v^n (eq. 5.53);
+/// - position: L̇ = v_N/(R_N+h), λ̇ = v_E/((R_E+h) cos L), ḣ = -v_D (eq. 5.56).
+///
+/// # Discretisation (second order in dt, documented replacement for coning/sculling)
+///
+/// An [`ImuSample`] holds the *mean* specific force and angular rate over the step
+/// (Δv/dt and Δθ/dt, what an integrating IMU delivers). One step is a two-pass
+/// midpoint (predictor-corrector) scheme:
+///
+/// 1. body rotation over the step: q(Δθ), Δθ = (ω - b_g) dt (exact for a constant rate);
+///    navigation-frame rotation q(-ω_in^n dt) with ω_in^n at the mid-step position and
+///    velocity;
+/// 2. specific-force velocity increment Δv^n = C_b^n(t + dt/2) Δv^b: the attitude at
+///    mid-step, C_b^n(t+dt/2) = q(-ω_in dt/2) C_b^n(t) q(Δθ/2), which contains the
+///    rotation compensation ½ Δθ × Δv of the classic velocity update (Savage 1998,
+///    "Strapdown inertial navigation integration algorithm design part 2", eq. 19)
+///    to second order;
+/// 3. gravity and Coriolis at the mid-step state; position by the trapezoidal rule on
+///    velocity (Groves eq. 5.56 form).
+///
+/// Pass 1 takes the mid-step state equal to the start of the step, pass 2 the average
+/// of the start and the end predicted by pass 1. Local error O(dt^3) for smooth
+/// motion; multi-sample coning and sculling corrections need sub-interval increments
+/// that one sample per step does not carry (their effect is O(dt^3) per step for smooth
+/// motion, see the round-trip tests for the measured figure).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Mechanization;
 
@@ -187,7 +187,7 @@ type Components = [f64; 3];
 /// A quaternion's components, scalar first: \[w, x, y, z\].
 type QuaternionComponents = [f64; 4];
 
-/// One step (see the module docs for the scheme). Products of two terms summed are
+/// One step (the scheme of [`Mechanization`]). Products of two terms summed are
 /// written as multiply-adds in pairs (a b + c d as mad(a, b, c d): one multiply, then one
 /// multiply-add, instead of a chain through every term), each separately rounded in the
 /// portable build, fused in the FMA one.
@@ -207,7 +207,7 @@ fn step_body<M: MultiplyAdd>(state: &InsState, imu: &ImuSample, dt: f64) -> InsS
     // C_b^n(t) q(Δθ/2) and the specific-force increment resolved by it: neither depends
     // on the navigation-frame rotation, so both passes share them, and each pass only
     // rotates the increment by its small q(-ω_in dt/2) (C_b^n(t+dt/2) Δv^b =
-    // q(-ω_in dt/2) [C_b^n(t) q(Δθ/2) Δv^b], step 2 of the module docs).
+    // q(-ω_in dt/2) [C_b^n(t) q(Δθ/2) Δv^b], step 2 of the scheme in [`Mechanization`]).
     let attitude_body = product::<M>(&attitude0, &body_half);
     let delta_v_body = rotate::<M>(
         &attitude_body,

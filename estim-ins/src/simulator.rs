@@ -1,24 +1,5 @@
 //! IMU simulation: from a time-stamped trajectory to specific force and angular rate
 //! (inverse mechanization), and a seeded IMU error model.
-//!
-//! # Interpolation
-//!
-//! - Position: on each interval a cubic Hermite polynomial in (latitude, longitude,
-//!   height) whose end values are the samples and whose end derivatives are the sampled
-//!   velocities mapped by L̇ = v_N/(R_N+h), λ̇ = v_E/((R_E+h) cos L), ḣ = -v_D. The
-//!   curve passes through every sample's position *and* velocity; velocity is continuous
-//!   and acceleration piecewise linear.
-//! - Attitude: a natural cubic spline (C²) of roll, pitch and unwrapped yaw (ZYX
-//!   Euler angles of C_b^n); ω_nb^b follows from the Euler rates (Groves eq. 2.58
-//!   inverse). Fine for vehicles away from ±90° pitch (AUVs).
-//!
-//! # Inverse mechanization (Groves eqs. 5.46, 5.53 solved for the IMU outputs)
-//!
-//! f^b = C_n^b \[v̇^n + (2 ω_ie^n + ω_en^n) × v^n - g^n\],  ω_ib^b = ω_nb^b + C_n^b (ω_ie^n + ω_en^n).
-//!
-//! An [`ImuSample`] is the mean of these over its interval (3-point Gauss-Legendre on
-//! each piece between sample times, so the acceleration kinks are integrated exactly),
-//! which is what the [`Mechanization`](crate::Mechanization) expects.
 
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::SeedableRng;
@@ -118,7 +99,26 @@ impl CubicSpline {
     }
 }
 
-/// A smooth trajectory through time-stamped samples (see the module docs).
+/// A smooth trajectory through time-stamped samples (the interpolation of [`Trajectory`]).
+///
+/// # Interpolation
+///
+/// - Position: on each interval a cubic Hermite polynomial in (latitude, longitude,
+///   height) whose end values are the samples and whose end derivatives are the sampled
+///   velocities mapped by L̇ = v_N/(R_N+h), λ̇ = v_E/((R_E+h) cos L), ḣ = -v_D. The
+///   curve passes through every sample's position *and* velocity; velocity is continuous
+///   and acceleration piecewise linear.
+/// - Attitude: a natural cubic spline (C²) of roll, pitch and unwrapped yaw (ZYX
+///   Euler angles of C_b^n); ω_nb^b follows from the Euler rates (Groves eq. 2.58
+///   inverse). Fine for vehicles away from ±90° pitch (AUVs).
+///
+/// # Inverse mechanization (Groves eqs. 5.46, 5.53 solved for the IMU outputs)
+///
+/// f^b = C_n^b \[v̇^n + (2 ω_ie^n + ω_en^n) × v^n - g^n\],  ω_ib^b = ω_nb^b + C_n^b (ω_ie^n + ω_en^n).
+///
+/// An [`ImuSample`] is the mean of these over its interval (3-point Gauss-Legendre on
+/// each piece between sample times, so the acceleration kinks are integrated exactly),
+/// which is what the [`Mechanization`](crate::Mechanization) expects.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Trajectory {
     times: Vec<f64>,

@@ -1,17 +1,4 @@
 //! The INS nominal state and the 15-state error-state conventions.
-//!
-//! # Conventions (pinned; every Jacobian in estim-ins and estim-dvl follows them)
-//!
-//! - Navigation frame: local NED. Body frame: x forward, y right, z down.
-//! - `attitude` is the rotation body -> NED, C_b^n.
-//! - The error state is `true = nominal + error` ("true = nominal ⊕ error"):
-//!   - position error δp in metres along N, E, D: lat_true = lat + δp_N / (R_N + h),
-//!     lon_true = lon + δp_E / ((R_E + h) cos lat), h_true = h - δp_D;
-//!   - velocity error δv^n = v_true - v_nominal (NED);
-//!   - misalignment ψ (NED frame, small angle): C_b^n,true = (I + [ψ×]) C_b^n,nominal;
-//!   - accelerometer / gyroscope bias errors δb = b_true - b_nominal.
-//! - IMU measurements: f_meas = f_true + b_a + noise, ω_meas = ω_true + b_g + noise;
-//!   the mechanization uses f = f_meas - b_a,nominal, ω = ω_meas - b_g,nominal.
 
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -29,6 +16,19 @@ pub const ACC_BIAS: usize = 9;
 pub const GYRO_BIAS: usize = 12;
 
 /// The INS nominal (whole) state.
+///
+/// # Conventions (pinned; every Jacobian in estim-ins and estim-dvl follows them)
+///
+/// - Navigation frame: local NED. Body frame: x forward, y right, z down.
+/// - `attitude` is the rotation body -> NED, C_b^n.
+/// - The error state is `true = nominal + error` ("true = nominal ⊕ error"):
+///   - position error δp in metres along N, E, D: lat_true = lat + δp_N / (R_N + h),
+///     lon_true = lon + δp_E / ((R_E + h) cos lat), h_true = h - δp_D;
+///   - velocity error δv^n = v_true - v_nominal (NED);
+///   - misalignment ψ (NED frame, small angle): C_b^n,true = (I + [ψ×]) C_b^n,nominal;
+///   - accelerometer / gyroscope bias errors δb = b_true - b_nominal.
+/// - IMU measurements: f_meas = f_true + b_a + noise, ω_meas = ω_true + b_g + noise;
+///   the mechanization uses f = f_meas - b_a,nominal, ω = ω_meas - b_g,nominal.
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InsState {

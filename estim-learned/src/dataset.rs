@@ -1,37 +1,6 @@
 //! BeamsNet training data: IMU windows synthesized from a trajectory, beams simulated
 //! from DVL velocities with the BeamsNet protocol, and the file format the training
 //! script reads.
-//!
-//! # Synthesis
-//!
-//! 1. The trajectory (e.g. A-KIT ground truth at 1 Hz) is interpolated and inverted by
-//!    the estim-ins simulator into error-free 100 Hz IMU samples
-//!    ([`estim_ins::Trajectory::simulate`]).
-//! 2. A seeded [`estim_ins::ImuErrorGenerator`] corrupts them (white noise, turn-on
-//!    bias, Gauss-Markov drift, scale factor of the given [`estim_ins::ImuSpec`]).
-//! 3. For each DVL sample at time t_k, the window is the 100 IMU samples whose
-//!    intervals end at or before t_k (the second preceding the DVL sample); samples
-//!    without a full window are skipped.
-//! 4. Beams = the BeamsNet protocol applied to the DVL velocity
-//!    ([`estim_dvl::BeamsNetProtocol::beams`]); target = the DVL velocity.
-//!
-//! # File format (`.npy` + `.json` sidecar)
-//!
-//! `FILE.npy`: NumPy format 1.0, little-endian `float64`, C order, shape
-//! `(N, DATASET_COLUMNS)`; row layout:
-//!
-//! | columns | content |
-//! |---|---|
-//! | 0..300 | specific force, channel-major: x[0..100], y[0..100], z[0..100] (m/s^2) |
-//! | 300..600 | angular rate, same layout (rad/s) |
-//! | 600..604 | beams 1..4 (m/s) |
-//! | 604..607 | target DVL velocity x, y, z (body, m/s) |
-//! | 607 | trajectory number |
-//! | 608 | DVL sample time (s) |
-//! | 609 | realization index (IMU / beam noise draw) |
-//!
-//! `FILE.json` (same stem) records the column count, the IMU error model, the beam
-//! protocol and geometry, the trajectories and seeds (written by `estim dataset beamsnet`).
 
 use std::io::Write;
 use std::path::Path;
@@ -45,7 +14,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::beamsnet::{BeamsNetInput, BEAMSNET_WINDOW};
 use crate::{Error, Result};
 
-/// Columns of a dataset row (see the module docs).
+/// Columns of a dataset row (the layout in [`synthesize`]).
 pub const DATASET_COLUMNS: usize = 610;
 
 /// IMU rate of the synthesized windows \[Hz\].
@@ -81,6 +50,37 @@ pub struct SynthesizedRun {
 ///
 /// Seeds: the IMU errors use `seed`, the beam noise `seed + 1_000_003` (independent
 /// ChaCha8 streams).
+///
+/// # Synthesis
+///
+/// 1. The trajectory (e.g. A-KIT ground truth at 1 Hz) is interpolated and inverted by
+///    the estim-ins simulator into error-free 100 Hz IMU samples
+///    ([`estim_ins::Trajectory::simulate`]).
+/// 2. A seeded [`estim_ins::ImuErrorGenerator`] corrupts them (white noise, turn-on
+///    bias, Gauss-Markov drift, scale factor of the given [`estim_ins::ImuSpec`]).
+/// 3. For each DVL sample at time t_k, the window is the 100 IMU samples whose
+///    intervals end at or before t_k (the second preceding the DVL sample); samples
+///    without a full window are skipped.
+/// 4. Beams = the BeamsNet protocol applied to the DVL velocity
+///    ([`estim_dvl::BeamsNetProtocol::beams`]); target = the DVL velocity.
+///
+/// # File format (`.npy` + `.json` sidecar)
+///
+/// `FILE.npy`: NumPy format 1.0, little-endian `float64`, C order, shape
+/// `(N, DATASET_COLUMNS)`; row layout:
+///
+/// | columns | content |
+/// |---|---|
+/// | 0..300 | specific force, channel-major: x[0..100], y[0..100], z[0..100] (m/s^2) |
+/// | 300..600 | angular rate, same layout (rad/s) |
+/// | 600..604 | beams 1..4 (m/s) |
+/// | 604..607 | target DVL velocity x, y, z (body, m/s) |
+/// | 607 | trajectory number |
+/// | 608 | DVL sample time (s) |
+/// | 609 | realization index (IMU / beam noise draw) |
+///
+/// `FILE.json` (same stem) records the column count, the IMU error model, the beam
+/// protocol and geometry, the trajectories and seeds (written by `estim dataset beamsnet`).
 pub fn synthesize(
     trajectory: &Trajectory,
     dvl: &[(f64, Vector3<f64>)],
@@ -134,7 +134,7 @@ pub fn synthesize(
     })
 }
 
-/// One dataset row (see the module docs for the layout).
+/// One dataset row (the layout in [`synthesize`]).
 pub fn dataset_row(sample: &BeamsNetSample, trajectory: u32, realization: u32) -> Vec<f64> {
     let mut row = Vec::with_capacity(DATASET_COLUMNS);
     for m in [&sample.input.acc, &sample.input.gyro] {

@@ -1,10 +1,4 @@
 //! Accuracy metrics of the BeamsNet paper, computed on the velocity norm |v|.
-//!
-//! With y the reference speeds, ŷ the predictions and e = y - ŷ (n samples):
-//! - RMSE = sqrt(mean(e^2)), MAE = mean(|e|),
-//! - R^2 = 1 - sum(e^2) / sum((y - mean(y))^2) (coefficient of determination),
-//! - VAF = 100 (1 - var(e) / var(y)) \[%\] (variance accounted for; a constant offset
-//!   in e does not lower it, which is why the paper's LS VAF exceeds its R^2).
 
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
@@ -25,6 +19,12 @@ pub struct Metrics {
 }
 
 /// Metrics of scalar predictions against a reference series.
+///
+/// With y the reference speeds, ŷ the predictions and e = y - ŷ (n samples):
+/// - RMSE = sqrt(mean(e^2)), MAE = mean(|e|),
+/// - R^2 = 1 - sum(e^2) / sum((y - mean(y))^2) (coefficient of determination),
+/// - VAF = 100 (1 - var(e) / var(y)) \[%\] (variance accounted for; a constant offset
+///   in e does not lower it, which is why the paper's LS VAF exceeds its R^2).
 pub fn metrics(reference: &[f64], predicted: &[f64]) -> Result<Metrics> {
     if reference.len() != predicted.len() {
         return Err(Error::Metrics(format!(

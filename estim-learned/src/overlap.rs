@@ -1,14 +1,5 @@
 //! Rows shared between recorded trajectories, and the rule that keeps anything touching a
 //! held-out trajectory out of training and validation.
-//!
-//! Public datasets cut from one long recording can share rows: in A-KIT, trajectory 13's
-//! first 101 rows (GT and DVL) are trajectory 10's last 101 rows, and trajectories 1
-//! and 8 share 102 rows. A training window built from such rows is test data seen during
-//! training. [`RowOverlaps::find`] finds the shared rows from exact value fingerprints
-//! (time stamps excluded: the copies carry each file's own clock), and
-//! [`RowOverlaps::touches`] tells whether a window's row span reaches a row shared with
-//! a held-out trajectory. [`RowOverlaps::groups`] gives the trajectories linked by shared
-//! rows, which a train / validation split must not separate.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
@@ -27,6 +18,15 @@ pub fn row_key(values: &[f64]) -> RowKey {
 }
 
 /// Rows shared between trajectories.
+///
+/// Public datasets cut from one long recording can share rows: in A-KIT, trajectory 13's
+/// first 101 rows (GT and DVL) are trajectory 10's last 101 rows, and trajectories 1
+/// and 8 share 102 rows. A training window built from such rows is test data seen during
+/// training. [`RowOverlaps::find`] finds the shared rows from exact value fingerprints
+/// (time stamps excluded: the copies carry each file's own clock), and
+/// [`RowOverlaps::touches`] tells whether a window's row span reaches a row shared with
+/// a held-out trajectory. [`RowOverlaps::groups`] gives the trajectories linked by shared
+/// rows, which a train / validation split must not separate.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct RowOverlaps {
     /// Per trajectory: row index -> the other trajectories holding an identical row.

@@ -1,40 +1,6 @@
 //! Cross-covariance between a process driven by measured samples and a learned
 //! measurement fed with the same samples, derived from the model's own sensitivity,
 //! over the process steps the filter recorded (estim-core [`StepWindow`]).
-//!
-//! ## The generic piece: [`LearnedCrossCovariance`]
-//!
-//! Window sample j (one per process step, oldest first) carries a white noise n_j
-//! (K channels, covariance Σ_j per sample, [`InputNoise::input_noise_covariance`]).
-//! The same measured sample drives the process and feeds the model, so n_j enters
-//! - the error state after step j as A_j n_j ([`InputNoise::input_noise_jacobian`],
-//!   sign included: `true = nominal + error` and the nominal integrates the
-//!   *measured* sample, hence A_j = -(d f / d u) for an additive input), and
-//! - the model output as J_j n_j (J_j = d y / d u_j, Jacobian-vector products of the
-//!   [`LearnedMeasurement`]).
-//!
-//! Hence (first order) D_j = Cov(A_j n_j, v) = A_j Σ_j J_j', the quantity estim-core's
-//! [`WindowedCrossCovariance`] asks for, in its sign convention (stated once, in its
-//! docs). Two evaluations:
-//! - per step ([`WindowedCrossCovariance::step_cross_covariances`], used when other
-//!   updates lie inside the window): K JVP directions per step, K L in one batch;
-//! - adjoint ([`WindowedCrossCovariance::transported_cross_covariance`], used when the
-//!   window holds no other update): row r of M = sum_j Phi(k, j+1) A_j Σ_j J_j' is
-//!   J d_r with d_r the stacked rows r of Phi(k, j+1) A_j Σ_j: N directions (zero rows
-//!   skipped) instead of K L, in one batch.
-//!
-//! Layout: the model's first input streams read the process samples, one column per
-//! step (their channel counts sum to K, [`InputNoise::input_channels`] gives the
-//! channels in that order, and their window is the window L of the update); the
-//! remaining streams are per-update values (e.g. the DVL beams of BeamsNet), set when
-//! the struct is built and replaced per update.
-//!
-//! Allocation: the struct is built once and kept; its workspace (the model's inputs,
-//! the direction sets, the products) is sized from the declared input shapes and,
-//! for the directions, at the first update. After that an update allocates nothing
-//! of estim's; the model's own [`LearnedMeasurement::measure`] and
-//! [`LearnedMeasurement::sensitivity`] write into those buffers (a pure-Rust model
-//! can then run allocation-free: `tests/no_allocation.rs`).
 
 use std::cell::RefCell;
 
@@ -75,7 +41,7 @@ pub trait InputNoise<T: Scalar, const N: usize, const K: usize>: ProcessModel<T,
 }
 
 /// D_j = A_j Σ_j J_j' for a [`LearnedMeasurement`] fed with the samples of the window
-/// (see the module docs).
+/// (derivation below).
 ///
 /// Build it once, beside the filter, and keep it from one update to the next: it
 /// borrows the model and the process model and owns a workspace (the model's inputs,
@@ -85,6 +51,40 @@ pub trait InputNoise<T: Scalar, const N: usize, const K: usize>: ProcessModel<T,
 /// inputs ([`set_update_input`](Self::set_update_input), e.g. this update's fix), then
 /// `measure` the window and pass `self` to `update_windowed`. Building one per update
 /// works too; it then allocates its workspace each time.
+///
+/// ## The generic piece: [`LearnedCrossCovariance`]
+///
+/// Window sample j (one per process step, oldest first) carries a white noise n_j
+/// (K channels, covariance Σ_j per sample, [`InputNoise::input_noise_covariance`]).
+/// The same measured sample drives the process and feeds the model, so n_j enters
+/// - the error state after step j as A_j n_j ([`InputNoise::input_noise_jacobian`],
+///   sign included: `true = nominal + error` and the nominal integrates the
+///   *measured* sample, hence A_j = -(d f / d u) for an additive input), and
+/// - the model output as J_j n_j (J_j = d y / d u_j, Jacobian-vector products of the
+///   [`LearnedMeasurement`]).
+///
+/// Hence (first order) D_j = Cov(A_j n_j, v) = A_j Σ_j J_j', the quantity estim-core's
+/// [`WindowedCrossCovariance`] asks for, in its sign convention (stated once, in its
+/// docs). Two evaluations:
+/// - per step ([`WindowedCrossCovariance::step_cross_covariances`], used when other
+///   updates lie inside the window): K JVP directions per step, K L in one batch;
+/// - adjoint ([`WindowedCrossCovariance::transported_cross_covariance`], used when the
+///   window holds no other update): row r of M = sum_j Phi(k, j+1) A_j Σ_j J_j' is
+///   J d_r with d_r the stacked rows r of Phi(k, j+1) A_j Σ_j: N directions (zero rows
+///   skipped) instead of K L, in one batch.
+///
+/// Layout: the model's first input streams read the process samples, one column per
+/// step (their channel counts sum to K, [`InputNoise::input_channels`] gives the
+/// channels in that order, and their window is the window L of the update); the
+/// remaining streams are per-update values (e.g. the DVL beams of BeamsNet), set when
+/// the struct is built and replaced per update.
+///
+/// Allocation: the struct is built once and kept; its workspace (the model's inputs,
+/// the direction sets, the products) is sized from the declared input shapes and,
+/// for the directions, at the first update. After that an update allocates nothing
+/// of estim's; the model's own [`LearnedMeasurement::measure`] and
+/// [`LearnedMeasurement::sensitivity`] write into those buffers (a pure-Rust model
+/// can then run allocation-free: `tests/no_allocation.rs`).
 #[derive(Debug)]
 pub struct LearnedCrossCovariance<'a, T, L, P, const M: usize, const K: usize>
 where

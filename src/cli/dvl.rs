@@ -1,5 +1,5 @@
-//! `estim dvl`: beam least squares on a CSV file, and DVL calibration against a
-//! reference trajectory.
+//! `estim dvl`: beam least squares on a CSV file, Teledyne RDI PD0 files decoded to
+//! CSV, and DVL calibration against a reference trajectory.
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -40,6 +40,28 @@ enum Command {
     /// epochs and axes as sqrt(mean square). The held-out trajectories (default 4 and
     /// 13) and every epoch whose DVL row also occurs in one of them are left out.
     Mismatch(MismatchArgs),
+    /// Decode a Teledyne RDI PD0 binary file (bottom track) to CSV on stdout.
+    ///
+    /// One row per good ensemble: `time_unix_s` (the ensemble's real-time clock, UTC),
+    /// the four bottom-track beam velocities [m/s] and ranges [m] in the file's own
+    /// coordinate system (beam, instrument, ship or earth, as its fixed leader
+    /// declares; named in the last column), with an empty cell where the instrument
+    /// marked a value bad (-32768 mm/s, range 0) and eight empty cells for an ensemble
+    /// without bottom track. A truncated or corrupt ensemble (checksum, header) and
+    /// bytes between ensembles are skipped, each named on stderr with its byte offset;
+    /// every good ensemble is kept. Exit status 2 when the file holds no good ensemble,
+    /// or with `--strict` when anything was skipped.
+    Pd0(Pd0Args),
+}
+
+#[derive(Debug, clap::Args)]
+struct Pd0Args {
+    /// The PD0 file (e.g. `*.pd0`, `*.000`, VmDas `*.ENR`).
+    #[arg(value_name = "FILE")]
+    input: PathBuf,
+    /// Refuse the file (exit status 2, nothing on stdout) when any span was skipped.
+    #[arg(long)]
+    strict: bool,
 }
 
 #[derive(Debug, clap::Args)]
@@ -104,6 +126,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Command::Solve(a) => solve(&a)?,
         Command::Calibrate(a) => calibrate(&a)?,
         Command::Mismatch(a) => mismatch(&a)?,
+        Command::Pd0(a) => pd0(&a)?,
     };
     crate::output::emit(&output)
 }
@@ -148,6 +171,36 @@ fn solve(args: &SolveArgs) -> anyhow::Result<String> {
         let _ = writeln!(out, ",{}", solution.beams_used());
     }
     Ok(out)
+}
+
+fn pd0(args: &Pd0Args) -> anyhow::Result<String> {
+    let read = estim_dvl::read_pd0_file(&args.input)?;
+    let name = args.input.display();
+    for skip in &read.report.skipped {
+        eprintln!("warning: {name}: {skip}");
+    }
+    if read.ensembles.is_empty() {
+        anyhow::bail!(
+            "{name}: no good PD0 ensemble in {} bytes ({} spans skipped)",
+            read.report.input_bytes,
+            read.report.skipped.len()
+        );
+    }
+    if args.strict {
+        if let Some(skip) = read.report.skipped.first() {
+            anyhow::bail!("{name}: {skip} (--strict)");
+        }
+    }
+    eprintln!(
+        "{name}: {} ensembles decoded ({} with bottom track), {} spans skipped ({} bytes)",
+        read.report.decoded,
+        read.report.with_bottom_track,
+        read.report.skipped.len(),
+        read.report.skipped_bytes()
+    );
+    let mut out = Vec::new();
+    estim_dvl::write_pd0_csv(&read.ensembles, &mut out)?;
+    Ok(String::from_utf8(out)?)
 }
 
 fn calibrate(args: &CalibrateArgs) -> anyhow::Result<String> {
@@ -310,12 +363,14 @@ fn mismatch(args: &MismatchArgs) -> anyhow::Result<String> {
 /// error under a key naming its unit.
 fn calibration_json(args: &CalibrateArgs, c: &estim_dvl::Calibration) -> anyhow::Result<String> {
     use crate::schema::{document, path_json};
+    // Vectors (lever arm, misalignment) as arrays, scalars as numbers.
     let estimate = |e: &[&estim_dvl::Estimate]| {
         serde_json::json!({
             "estimate": e.iter().map(|x| x.value).collect::<Vec<_>>(),
             "standard_error": e.iter().map(|x| x.standard_error).collect::<Vec<_>>(),
         })
     };
+    let scalar = |e: &estim_dvl::Estimate| serde_json::json!({ "estimate": e.value, "standard_error": e.standard_error });
     let v = |v: &Vector3<f64>| [v.x, v.y, v.z];
     let inputs = serde_json::json!({
         "gt": path_json(Some(&args.gt)),
@@ -329,13 +384,13 @@ fn calibration_json(args: &CalibrateArgs, c: &estim_dvl::Calibration) -> anyhow:
         0,
         serde_json::json!({
             "lever_arm_m": estimate(&[&c.lever_arm[0], &c.lever_arm[1], &c.lever_arm[2]]),
-            "scale_factor_error": estimate(&[&c.scale_factor_error]),
+            "scale_factor_error": scalar(&c.scale_factor_error),
             "mounting_misalignment_rad": estimate(&[
                 &c.mounting_misalignment[0],
                 &c.mounting_misalignment[1],
                 &c.mounting_misalignment[2],
             ]),
-            "time_offset_s": estimate(&[&c.time_offset]),
+            "time_offset_s": scalar(&c.time_offset),
             "samples": c.samples,
             "residual_rms_uncalibrated_mps": v(&c.residual_rms_uncalibrated),
             "residual_rms_mps": v(&c.residual_rms),
