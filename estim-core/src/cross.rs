@@ -3,6 +3,7 @@
 use nalgebra::{DMatrix, SMatrix, SVector};
 
 use crate::gaussian::{all_zero, check_finite};
+use crate::linalg::{certify_block, certify_psd};
 use crate::scalar::{lit, to_f64};
 use crate::{CrossCovariance, CrossCovarianceContext, Error, Result, Scalar};
 
@@ -214,108 +215,6 @@ pub fn joint_tolerance<T: Scalar>() -> T {
     crate::scalar::relative_tolerance()
 }
 
-/// Certify [[Q, B], [B', C]] (already scaled to unit diagonal) positive semidefinite by
-/// an LDL' elimination in static storage, without pivoting: pivots above the tolerance
-/// are eliminated; a pivot within [-tol, tol] is accepted as a zero variance only if the
-/// rest of its row is within tol too (a semidefinite matrix with a zero pivot has a zero
-/// row), so the matrix is L D L' + E with D >= 0 and |E| <= tol entrywise. Returns the
-/// smallest pivot (clamped at 0), or `None` when this does not certify it (a negative pivot, or a near
-/// zero pivot with a nonzero row: invalid, or too close to call without an eigen
-/// decomposition).
-fn certify_psd<T: Scalar, const N: usize, const M: usize>(
-    a: SMatrix<T, N, N>,
-    b: SMatrix<T, N, M>,
-    c: SMatrix<T, M, M>,
-    tol: T,
-) -> Option<T> {
-    let correlated = !all_zero(b.as_slice());
-    certify_psd_with(a, b, c, tol, correlated)
-}
-
-/// [`certify_psd`]; `correlated` false skips the eliminations involving B (only
-/// valid when B = 0).
-#[inline(always)]
-fn certify_psd_with<T: Scalar, const N: usize, const M: usize>(
-    mut a: SMatrix<T, N, N>,
-    mut b: SMatrix<T, N, M>,
-    mut c: SMatrix<T, M, M>,
-    tol: T,
-    correlated: bool,
-) -> Option<T> {
-    // Only the upper triangles of the symmetric blocks A and C are read and updated.
-    // With B = 0 (M = 0, the common case) the eliminations that involve B subtract
-    // only zero products (B stays 0, C_ij - 0 = C_ij), so they are skipped: the
-    // result is the same bit for bit (up to the sign of exact zeros).
-    let mut smallest = T::one();
-    for k in 0..N {
-        let d = a[(k, k)];
-        smallest = smallest.min(d);
-        if d > tol {
-            let inv = T::one() / d;
-            for j in (k + 1)..N {
-                let f = a[(k, j)] * inv;
-                for i in (k + 1)..=j {
-                    let v = a[(k, i)] * f;
-                    a[(i, j)] -= v;
-                }
-            }
-            if !correlated {
-                continue;
-            }
-            for j in 0..M {
-                let f = b[(k, j)] * inv;
-                for i in (k + 1)..N {
-                    let v = a[(k, i)] * f;
-                    b[(i, j)] -= v;
-                }
-                for i in 0..=j {
-                    let v = b[(k, i)] * f;
-                    c[(i, j)] -= v;
-                }
-            }
-        } else if d < -tol
-            || ((k + 1)..N).any(|j| a[(k, j)].abs() > tol)
-            || (0..M).any(|j| b[(k, j)].abs() > tol)
-        {
-            return None;
-        }
-    }
-    if !eliminate_last_block(&mut c, tol, &mut smallest) {
-        return None;
-    }
-    // A pivot accepted as zero may be a round-off -tol..0: certified means >= 0.
-    Some(smallest.max(T::zero()))
-}
-
-/// The LDL' elimination of the last symmetric block C of [`certify_psd_with`] (upper
-/// triangle, in place, after the blocks before it have been eliminated into it), or of a
-/// block alone: `smallest` takes its pivots; false when a pivot is negative beyond `tol`
-/// or a zero pivot has a nonzero row (not certified).
-#[inline(always)]
-fn eliminate_last_block<T: Scalar, const K: usize>(
-    c: &mut SMatrix<T, K, K>,
-    tol: T,
-    smallest: &mut T,
-) -> bool {
-    for k in 0..K {
-        let d = c[(k, k)];
-        *smallest = smallest.min(d);
-        if d > tol {
-            let inv = T::one() / d;
-            for j in (k + 1)..K {
-                let f = c[(k, j)] * inv;
-                for i in (k + 1)..=j {
-                    let v = c[(k, i)] * f;
-                    c[(i, j)] -= v;
-                }
-            }
-        } else if d < -tol || ((k + 1)..K).any(|j| c[(k, j)].abs() > tol) {
-            return false;
-        }
-    }
-    true
-}
-
 /// How valid the joint covariance [[Q_acc, M], [M', R]] is, without allocating when it
 /// is valid: the number is >= -[`joint_tolerance`] iff the joint covariance is positive
 /// semidefinite (to that tolerance, on the correlation matrix C = D^-1/2 J D^-1/2).
@@ -364,12 +263,12 @@ fn correlation_upper<T: Scalar, const K: usize>(
 }
 
 /// The certificate of one symmetric block of an uncorrelated (M = 0) joint covariance,
-/// [`certify_psd_with`]'s elimination of that block alone: its smallest LDL' pivot
+/// the LDL' certificate of that block alone: its smallest LDL' pivot
 /// (not clamped), or `None` when the block is not certified.
 pub(crate) fn block_certificate<T: Scalar, const K: usize>(a: &SMatrix<T, K, K>) -> Option<T> {
     let (mut c, _) = correlation_upper(a);
     let mut smallest = T::one();
-    eliminate_last_block(&mut c, joint_tolerance::<T>(), &mut smallest).then_some(smallest)
+    certify_block(&mut c, joint_tolerance::<T>(), &mut smallest).then_some(smallest)
 }
 
 /// [`joint_validity_margin`], given the certificate of Q_acc's block when it is already
@@ -380,8 +279,8 @@ pub(crate) fn block_certificate<T: Scalar, const K: usize>(a: &SMatrix<T, K, K>)
 /// A known certificate vouches for its block's finiteness too (it was computed on a
 /// checked block): with M = 0 and both known, nothing is re-checked.
 ///
-/// With M = 0 the joint correlation matrix is block diagonal, and the static LDL' of
-/// [`certify_psd_with`] eliminates the two blocks independently (the eliminations through
+/// With M = 0 the joint correlation matrix is block diagonal, and the static LDL' certificate
+/// eliminates the two blocks independently (the eliminations through
 /// the zero block subtract nothing), so its smallest pivot is the smaller of the two
 /// blocks' and it certifies the joint iff it certifies both: the same margin, without
 /// forming the joint matrix.
@@ -523,6 +422,7 @@ pub fn largest_valid_scale<T: Scalar, const N: usize, const M: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::linalg::certify_psd_with;
     use nalgebra::{Matrix2, SMatrix};
     use rand::{RngExt, SeedableRng};
     use rand_chacha::ChaCha8Rng;

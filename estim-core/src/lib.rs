@@ -179,7 +179,7 @@ mod consistency;
 mod cross;
 mod error;
 mod gaussian;
-mod kernel;
+mod linalg;
 mod observer;
 mod runner;
 mod scalar;

@@ -65,7 +65,7 @@ use std::collections::VecDeque;
 use nalgebra::{SMatrix, SVector};
 
 use crate::gaussian::check_finite;
-use crate::update::mul_static;
+use crate::linalg::mul_static;
 use crate::{Error, Result, Scalar};
 
 /// One recorded process step, as a [`WindowedCrossCovariance`] sees it.
