@@ -39,7 +39,7 @@ impl<T: Scalar, S, const N: usize, const M: usize> CrossCovariance<T, S, N, M> f
 ///
 /// Valid (joint covariance PSD) only when rho^2 * q * m <= 1 for diagonal Q_acc and R,
 /// q = nonzero diagonal entries of Q_acc, m = measurement size; see
-/// [`ScaledCorrelation::largest_valid_rho`].
+/// [`ScaledCorrelation::largest_valid_rho`] and [`JointCovariance`].
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ScaledCorrelation<T: Scalar> {
@@ -67,7 +67,7 @@ impl<T: Scalar> ScaledCorrelation<T> {
     /// # Errors
     /// [`Error::NonFinite`] if Q or R holds NaN or infinity (checked before the square
     /// roots of [`ScaledCorrelation::unit`], which would clamp a NaN to 0); those of
-    /// [`largest_valid_scale`].
+    /// [`JointCovariance::largest_valid_scale`].
     pub fn largest_valid_rho<const N: usize, const M: usize>(
         accumulated_process_noise: &SMatrix<T, N, N>,
         measurement_noise: &SMatrix<T, M, M>,
@@ -109,7 +109,7 @@ impl<T: Scalar, S, const N: usize, const M: usize> CrossCovariance<T, S, N, M>
 }
 
 /// The joint covariance [[Q_acc, M], [M', R]] as a dynamic matrix.
-pub fn joint_covariance<T: Scalar, const N: usize, const M: usize>(
+pub(crate) fn joint_covariance<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
@@ -122,6 +122,172 @@ pub fn joint_covariance<T: Scalar, const N: usize, const M: usize>(
         .copy_from(&cross_covariance.transpose());
     j.view_mut((N, N), (M, M)).copy_from(measurement_noise);
     j
+}
+
+/// The joint covariance [[Q, M], [M', R]] of a process noise Q (the noise
+/// accumulated since the last update, Q_acc, for a runner's one-step update), a
+/// cross-covariance M = Cov(G w, v) and a measurement noise R, and the questions
+/// about it: is it a covariance at all (positive semidefinite), by how much, and how
+/// large a multiple of M would still be one.
+///
+/// Every check is scale invariant: it works on the correlation matrix
+/// C = D^-1/2 J D^-1/2 (D = diag J; zero variances left unscaled), so Q and R may be
+/// in any units, and one tolerance ([`JointCovariance::tolerance`]) serves every scale.
+///
+/// ```
+/// use estim_core::nalgebra::{Matrix1, Matrix2, Matrix2x1};
+/// use estim_core::{Error, JointCovariance, ScaledCorrelation};
+///
+/// // The paper's M = rho sqrt(diag Q) sqrt(diag R)' with q = 2 nonzero variances
+/// // and m = 1 measurement is valid iff rho^2 q m <= 1: rho <= 0.707.
+/// let q = Matrix2::new(0.04, 0.0, 0.0, 0.01);
+/// let r = Matrix1::new(0.1);
+/// let unit = ScaledCorrelation::<f64>::unit(&q, &r);
+/// let scale = JointCovariance::new(q, unit, r).largest_valid_scale()?;
+/// assert!((scale - 0.5f64.sqrt()).abs() < 1e-9);
+/// assert!(JointCovariance::new(q, unit * 0.42, r).check().is_ok());
+/// assert!(matches!(
+///     JointCovariance::new(q, unit * 0.9, r).check(),
+///     Err(Error::InvalidJointCovariance { .. })
+/// ));
+/// # Ok::<(), Error>(())
+/// ```
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointCovariance<T: Scalar, const N: usize, const M: usize> {
+    process_noise: SMatrix<T, N, N>,
+    cross_covariance: SMatrix<T, N, M>,
+    measurement_noise: SMatrix<T, M, M>,
+}
+
+impl<T: Scalar, const N: usize, const M: usize> JointCovariance<T, N, M> {
+    /// The joint covariance of Q, M and R (nothing is checked here: every question
+    /// below checks what it needs and says what is wrong).
+    pub fn new(
+        process_noise: SMatrix<T, N, N>,
+        cross_covariance: SMatrix<T, N, M>,
+        measurement_noise: SMatrix<T, M, M>,
+    ) -> Self {
+        Self {
+            process_noise,
+            cross_covariance,
+            measurement_noise,
+        }
+    }
+
+    /// Q (the accumulated process noise block).
+    pub fn process_noise(&self) -> &SMatrix<T, N, N> {
+        &self.process_noise
+    }
+
+    /// M (the cross-covariance block).
+    pub fn cross_covariance(&self) -> &SMatrix<T, N, M> {
+        &self.cross_covariance
+    }
+
+    /// R (the measurement noise block).
+    pub fn measurement_noise(&self) -> &SMatrix<T, M, M> {
+        &self.measurement_noise
+    }
+
+    /// The whole (N+M)-square matrix [[Q, M], [M', R]] (allocates).
+    pub fn matrix(&self) -> DMatrix<T> {
+        joint_covariance(
+            &self.process_noise,
+            &self.cross_covariance,
+            &self.measurement_noise,
+        )
+    }
+
+    /// Tolerance on the smallest eigenvalue (and the LDL' pivots) of the correlation
+    /// matrix: [`crate::numeric::relative_tolerance`], 9.3e-10 in f64 and 2.2e-5 in
+    /// f32. Why the square root of eps: Q_acc and M are products of many steps,
+    /// whose rounding (relative ~ steps x eps) moves a zero eigenvalue of a
+    /// semidefinite joint covariance (Q_acc is often singular) by far more than a few
+    /// eps, while an invalid M (e.g. rho beyond its bound by 1e-6) moves it by orders
+    /// of magnitude more.
+    pub fn tolerance() -> T {
+        joint_tolerance()
+    }
+
+    /// Smallest eigenvalue of the (symmetrised) joint covariance, in its units
+    /// (allocates: a dynamic eigen decomposition).
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`] if an entry is NaN or infinite.
+    pub fn min_eigenvalue(&self) -> Result<T> {
+        joint_min_eigenvalue(
+            &self.process_noise,
+            &self.cross_covariance,
+            &self.measurement_noise,
+        )
+    }
+
+    /// Smallest eigenvalue of the correlation matrix C (dimensionless; PSD iff >= 0;
+    /// allocates).
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`] if an entry is NaN or infinite.
+    pub fn min_correlation_eigenvalue(&self) -> Result<T> {
+        joint_min_correlation_eigenvalue(
+            &self.process_noise,
+            &self.cross_covariance,
+            &self.measurement_noise,
+        )
+    }
+
+    /// How valid the joint covariance is, without allocating when it is valid: at
+    /// least -[`JointCovariance::tolerance`] iff it is positive semidefinite.
+    ///
+    /// - Valid (certified by the static LDL' certificate of C): the smallest LDL'
+    ///   pivot of C, clamped at 0, so in [0, 1]. An upper bound on the smallest
+    ///   eigenvalue of C, 0 exactly when C is singular (to the tolerance); small means
+    ///   M is near the edge of what a covariance allows.
+    /// - Otherwise: the smallest eigenvalue of C (allocates).
+    ///
+    /// This is the number every [`crate::UpdateReport::joint_min_eigenvalue`] holds.
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`] if an entry is NaN or infinite.
+    pub fn validity_margin(&self) -> Result<T> {
+        joint_validity_margin(
+            &self.process_noise,
+            &self.cross_covariance,
+            &self.measurement_noise,
+        )
+    }
+
+    /// The [`JointCovariance::validity_margin`] if the joint covariance is positive
+    /// semidefinite (margin >= -tolerance), else an error.
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`] for non-finite input, [`Error::InvalidJointCovariance`]
+    /// otherwise (carrying the smallest eigenvalue of the correlation matrix).
+    pub fn check(&self) -> Result<T> {
+        check_joint_covariance(
+            &self.process_noise,
+            &self.cross_covariance,
+            &self.measurement_noise,
+        )
+    }
+
+    /// Read M as a direction U: the largest c >= 0 such that [[Q, c U], [c U', R]] is
+    /// PSD, for a PSD Q and a positive definite R.
+    ///
+    /// PSD iff every column of U lies in range(Q) and
+    /// c^2 lambda_max(R^-1/2 U' Q^+ U R^-1/2) <= 1 (Schur complement). 0 if U leaves
+    /// range(Q), infinity if U = 0.
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`] for non-finite input; [`Error::InvalidCovariance`] if R
+    /// is not positive definite.
+    pub fn largest_valid_scale(&self) -> Result<T> {
+        largest_valid_scale(
+            &self.process_noise,
+            &self.cross_covariance,
+            &self.measurement_noise,
+        )
+    }
 }
 
 /// Fail with [`Error::NonFinite`] naming the first of Q_acc, M, R that holds NaN or
@@ -145,7 +311,7 @@ fn check_joint_finite<T: Scalar, const N: usize, const M: usize>(
 ///
 /// # Errors
 /// [`Error::NonFinite`] if an entry is NaN or infinite.
-pub fn joint_min_eigenvalue<T: Scalar, const N: usize, const M: usize>(
+pub(crate) fn joint_min_eigenvalue<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
@@ -183,7 +349,7 @@ fn inverse_sqrt_or_one<T: Scalar>(d: T) -> T {
 ///
 /// # Errors
 /// [`Error::NonFinite`] if an entry is NaN or infinite.
-pub fn joint_min_correlation_eigenvalue<T: Scalar, const N: usize, const M: usize>(
+pub(crate) fn joint_min_correlation_eigenvalue<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
@@ -206,12 +372,12 @@ pub fn joint_min_correlation_eigenvalue<T: Scalar, const N: usize, const M: usiz
 }
 
 /// Tolerance on the smallest eigenvalue (and the LDL' pivots) of the joint correlation
-/// matrix: [`crate::relative_tolerance`], 9.3e-10 in f64 (the former fixed 1e-9) and
+/// matrix: [`crate::numeric::relative_tolerance`], 9.3e-10 in f64 (the former fixed 1e-9) and
 /// 2.2e-5 in f32. Why the square root of eps: Q_acc and M are products of many steps,
 /// whose rounding (relative ~ steps x eps) moves a zero eigenvalue of a semidefinite
 /// joint covariance (Q_acc is often singular) by far more than a few eps, while an
 /// invalid M (e.g. rho beyond its bound by 1e-6) moves it by orders of magnitude more.
-pub fn joint_tolerance<T: Scalar>() -> T {
+pub(crate) fn joint_tolerance<T: Scalar>() -> T {
     crate::scalar::relative_tolerance()
 }
 
@@ -228,7 +394,7 @@ pub fn joint_tolerance<T: Scalar>() -> T {
 ///
 /// # Errors
 /// [`Error::NonFinite`] if an entry is NaN or infinite.
-pub fn joint_validity_margin<T: Scalar, const N: usize, const M: usize>(
+pub(crate) fn joint_validity_margin<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
@@ -330,7 +496,7 @@ pub(crate) fn joint_validity_margin_reusing<T: Scalar, const N: usize, const M: 
 /// # Errors
 /// [`Error::NonFinite`] for non-finite input, [`Error::InvalidJointCovariance`]
 /// otherwise (carrying the smallest eigenvalue of the correlation matrix).
-pub fn check_joint_covariance<T: Scalar, const N: usize, const M: usize>(
+pub(crate) fn check_joint_covariance<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
@@ -353,7 +519,7 @@ pub fn check_joint_covariance<T: Scalar, const N: usize, const M: usize>(
 ///
 /// PSD iff every column of U lies in range(Q) and c^2 lambda_max(R^-1/2 U' Q^+ U R^-1/2) <= 1
 /// (Schur complement). Returns 0 if U leaves range(Q), infinity if U = 0.
-pub fn largest_valid_scale<T: Scalar, const N: usize, const M: usize>(
+pub(crate) fn largest_valid_scale<T: Scalar, const N: usize, const M: usize>(
     q: &SMatrix<T, N, N>,
     u: &SMatrix<T, N, M>,
     r: &SMatrix<T, M, M>,

@@ -96,10 +96,8 @@ pub struct ProcessStep<'a, T: Scalar, S, U, const N: usize> {
 ///
 /// ```
 /// use estim_core::nalgebra::{Matrix1, Matrix2x1, Vector1, Vector2, Matrix2};
-/// use estim_core::{
-///     ExtendedKalmanFilter, FilterConfig, MeasurementModel, ProcessModel, Result,
-///     StateAndCovariance, StepWindow, WindowedCrossCovariance,
-/// };
+/// use estim_core::{ExtendedKalmanFilter, FilterConfig, MeasurementModel, ProcessModel, Result, StateAndCovariance, WindowedCrossCovariance};
+/// use estim_core::window::StepWindow;
 ///
 /// /// Position/velocity driven by a measured acceleration (input); the acceleration
 /// /// noise (variance `q` per sample) enters the velocity error with a minus sign.

@@ -135,6 +135,7 @@ const PIVOT_TOLERANCE: f64 = 16.0;
 /// computed for them. Returns false if the matrix is not positive semidefinite to
 /// round-off: a pivot below -tol J_jj, or a zero pivot whose column does not vanish
 /// (for a PSD matrix |v_i|^2 <= d_j d_i <= tol J_jj J_ii), tol = 16 n eps.
+#[inline]
 pub(crate) fn semidefinite_cholesky<T: Scalar, L: Square<T>>(
     n: usize,
     given: usize,
@@ -285,6 +286,7 @@ fn careful_columns<T: Scalar, L: Square<T>>(
 ///
 /// For 8 or more states it runs a copy compiled for AVX-512 where the CPU has it
 /// (no FMA: the same bits; 7 % of the (15,3) predict + update).
+#[inline]
 pub(crate) fn joint_factor<T: Scalar, const N: usize, const M: usize>(
     covariance: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
@@ -381,6 +383,7 @@ pub(crate) fn joint_factor_general<T: Scalar, const N: usize, const M: usize>(
 
 /// The joint factor of [[S S', M], [M', R]] for a given lower-triangular S (the
 /// leading block is not refactored): L21 = M' S^-T, L22 L22' = R - L21 L21'.
+#[inline]
 pub(crate) fn joint_factor_from<T: Scalar, const N: usize, const M: usize>(
     factor: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
@@ -393,6 +396,7 @@ pub(crate) fn joint_factor_from<T: Scalar, const N: usize, const M: usize>(
 
 /// The rows of [M' R] of the joint factor, given its leading block `l.a` (lower
 /// triangular); false if the joint has no square root.
+#[inline]
 fn factor_rest<T: Scalar, const N: usize, const M: usize>(
     l: &mut Blocks<T, N, M, N, M>,
     cross_covariance: &SMatrix<T, N, M>,

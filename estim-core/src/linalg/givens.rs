@@ -25,6 +25,7 @@ impl<T: Scalar, const R1: usize, const R2: usize, const C1: usize, const C2: usi
     /// Theta with W Theta = [L, 0], L lower triangular with a nonnegative diagonal,
     /// so L L' = W W'; Golub & Van Loan, *Matrix Computations*, 4th ed., sec. 5.1.8).
     /// Requires R1 + R2 <= C1 + C2.
+    #[inline]
     pub(crate) fn lower_triangularize(&mut self) {
         let rows = R1 + R2;
         let cols = C1 + C2;
@@ -99,6 +100,7 @@ fn rotate_columns<T: Scalar, const R: usize, const C1: usize, const C2: usize>(
 /// [a, b] Theta = [L, 0] for two column blocks (R <= C1), L lower triangular with a
 /// nonnegative diagonal, by Givens rotations on contiguous columns (same algorithm
 /// as [`Blocks::lower_triangularize`], specialised to one row block).
+#[inline]
 pub(crate) fn lower_triangularize_pair<
     T: Scalar,
     const R: usize,

@@ -45,6 +45,7 @@ pub(crate) fn positive_normal<T: Scalar>(x: T) -> bool {
 /// division instead of a chain of square roots and divisions: the latency of a small
 /// update), where det(S) is a normal positive number; anything else (a pivot or
 /// determinant not positive, extreme scales) goes through the factor.
+#[inline]
 pub(crate) fn spd_inverse<T: Scalar, const M: usize>(
     s: &SMatrix<T, M, M>,
 ) -> Option<SMatrix<T, M, M>> {

@@ -68,6 +68,7 @@ fn eliminate<T: Scalar, U: Square<T>>(
 /// Certify [[A, B], [B', C]] (already scaled to unit diagonal; upper triangles of A
 /// and C read) positive semidefinite: its smallest LDL' pivot, clamped at 0, or
 /// `None` when the elimination does not certify it.
+#[inline]
 pub(crate) fn certify_psd<T: Scalar, const N: usize, const M: usize>(
     a: SMatrix<T, N, N>,
     b: SMatrix<T, N, M>,

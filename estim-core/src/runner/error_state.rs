@@ -71,7 +71,7 @@ impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ErrorStateKalmanFilter
     pub fn step_window(
         &self,
         steps: usize,
-    ) -> Result<crate::StepWindow<'_, T, P::State, P::Input, N>> {
+    ) -> Result<crate::window::StepWindow<'_, T, P::State, P::Input, N>> {
         self.shared.history.window(steps)
     }
 

@@ -59,7 +59,7 @@ impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ExtendedKalmanFilter<T
     pub fn step_window(
         &self,
         steps: usize,
-    ) -> Result<crate::StepWindow<'_, T, SVector<T, N>, P::Input, N>> {
+    ) -> Result<crate::window::StepWindow<'_, T, SVector<T, N>, P::Input, N>> {
         self.shared.history.window(steps)
     }
 

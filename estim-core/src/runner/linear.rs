@@ -5,9 +5,10 @@ use nalgebra::{SMatrix, SVector};
 
 use super::shared::{propagate_symmetric, propagate_symmetric_into, CrossSource, Shared};
 use super::UpdateReport;
-use crate::gaussian::{check_finite, check_symmetric};
+use crate::gaussian::check_finite;
 use crate::linalg::mul_static;
 use crate::observer::{NoObserver, Observer};
+use crate::square_root::covariance_factor;
 use crate::{
     CrossCovariance, FilterConfig, Result, Scalar, StateAndCovariance, WindowedCrossCovariance,
 };
@@ -44,7 +45,9 @@ impl<T: Scalar, const N: usize, const M: usize> KalmanFilter<T, N, M, NoObserver
     /// measurement noise R and the initial estimate; default configuration.
     ///
     /// # Errors
-    /// [`Error::NonFinite`] or [`Error::InvalidCovariance`] (Q or R not symmetric).
+    /// [`crate::Error::NonFinite`] or [`crate::Error::InvalidCovariance`] (Q or R not
+    /// symmetric, or not positive semidefinite to round-off: see
+    /// [`crate::square_root::covariance_factor`]).
     pub fn new(
         transition: SMatrix<T, N, N>,
         process_noise: SMatrix<T, N, N>,
@@ -56,8 +59,10 @@ impl<T: Scalar, const N: usize, const M: usize> KalmanFilter<T, N, M, NoObserver
         check_finite(process_noise.as_slice(), "process noise covariance")?;
         check_finite(observation.as_slice(), "observation matrix")?;
         check_finite(measurement_noise.as_slice(), "measurement noise covariance")?;
-        check_symmetric(&process_noise, "process noise covariance")?;
-        check_symmetric(&measurement_noise, "measurement noise covariance")?;
+        // Symmetric and positive semidefinite to round-off (the semidefinite
+        // Cholesky of `crate::linalg::cholesky`; the factors are not kept).
+        covariance_factor(&process_noise, "process noise covariance")?;
+        covariance_factor(&measurement_noise, "measurement noise covariance")?;
         Ok(Self {
             transition,
             process_noise,

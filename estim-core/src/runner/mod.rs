@@ -56,7 +56,7 @@ pub struct UpdateReport<T: Scalar, const N: usize, const M: usize> {
     /// E[v | other updates in the window].
     pub noise_mean: SVector<T, M>,
     /// Validity margin of the joint covariance, dimensionless, valid iff >= 0 (see
-    /// [`crate::joint_validity_margin`]: for a valid joint covariance the smallest
+    /// [`crate::JointCovariance::validity_margin`]: for a valid joint covariance the smallest
     /// pivot of a static LDL' of its correlation matrix, clamped to [0, 1]; for an
     /// invalid one the smallest eigenvalue of that matrix): [[Q_acc, M], [M', R]] for a
     /// one-step update, [[P, M], [M', Var(v)]] (the covariance of the error state

@@ -43,6 +43,7 @@ pub(super) struct Accumulator<T: Scalar, const N: usize> {
 }
 
 impl<T: Scalar, const N: usize> Accumulator<T, N> {
+    #[inline]
     pub(super) fn new() -> Self {
         Self {
             noise: SMatrix::zeros(),
@@ -78,6 +79,7 @@ impl<T: Scalar, const N: usize> Accumulator<T, N> {
     /// `compose` its product of transitions (the same structure as P's, so a sparse
     /// override speeds up both). `fixed`: the caller's transition and noise are the
     /// same on every call (a linear filter's).
+    #[inline]
     pub(super) fn push(
         &mut self,
         fixed: bool,
@@ -105,6 +107,7 @@ impl<T: Scalar, const N: usize> Accumulator<T, N> {
         self.filled = true;
     }
 
+    #[inline]
     pub(super) fn reset(&mut self) {
         self.steps = 0;
         self.filled = false;
@@ -154,13 +157,17 @@ pub(super) fn propagate_symmetric_into<T: Scalar, const N: usize>(
     }
 }
 
+#[inline]
 pub(super) fn check_dt<T: Scalar>(dt: T) -> Result<()> {
     if dt.is_finite() && dt > T::zero() {
         Ok(())
     } else {
         Err(Error::InvalidParameter {
             name: "dt",
-            reason: format!("{} is not a positive finite time step", crate::to_f64(dt)),
+            reason: format!(
+                "{} is not a positive finite time step",
+                crate::numeric::to_f64(dt)
+            ),
         })
     }
 }
@@ -216,12 +223,14 @@ impl<T: Scalar, S, U, const N: usize> Shared<T, S, U, N, NoObserver> {
 
 impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
     /// New configuration; the recorded window restarts with its capacity.
+    #[inline]
     pub(super) fn set_config(&mut self, config: FilterConfig) {
         self.history = History::new(config.window_capacity());
         self.config = config;
         self.rejections_in_a_row = 0;
     }
 
+    #[inline]
     pub(super) fn with_observer<O2>(self, observer: O2) -> Shared<T, S, U, N, O2> {
         Shared {
             accumulated: self.accumulated,
@@ -236,6 +245,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
     /// Record a committed predict: accumulation (if tracked) and window (if kept).
     /// `fixed`: as for [`Accumulator::push`].
     #[allow(clippy::too_many_arguments)]
+    #[inline]
     pub(super) fn record_predict(
         &mut self,
         fixed: bool,
@@ -471,6 +481,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
 
     /// After the runner committed an attempt: record it for later windows (with the
     /// reset Jacobian J of an error-state filter), close the accumulation interval.
+    #[inline]
     pub(super) fn record_update<const M: usize>(
         &mut self,
         attempt: &Attempt<T, N, M>,
@@ -504,6 +515,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         self.accumulated.reset();
     }
 
+    #[inline]
     pub(super) fn notify_predict(
         &mut self,
         dt: Option<T>,
@@ -526,6 +538,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
     }
 
     #[allow(clippy::too_many_arguments)]
+    #[inline]
     pub(super) fn notify_update<const M: usize>(
         &mut self,
         report: &UpdateReport<T, N, M>,
@@ -571,6 +584,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
 /// leaves the NIS above the threshold. The NIS is non-increasing in lambda (H P H' is
 /// positive semidefinite), so bisection on log lambda brackets the boundary; the upper
 /// end of the final bracket is returned, so the inflated update passes the gate.
+#[inline]
 pub(super) fn recovery_inflation<T: Scalar, const N: usize, const M: usize>(
     factored: &FactoredInnovation<'_, T, N, M>,
     innovation: &SVector<T, M>,

@@ -289,28 +289,64 @@ fn untracked_accumulation_is_refused_where_needed() {
 #[test]
 fn joint_check_reuses_the_noise_certificate_only_while_q_acc_is_unchanged() {
     use crate::cross::joint_validity_margin;
-    for q in [
+    /// F x and a fixed Q, any Q: the indefinite one, which `KalmanFilter::new`
+    /// refuses, reaches the shared joint check through the EKF (whose Q_d comes from
+    /// the model at each step).
+    struct Linear(Matrix2<f64>, Matrix2<f64>);
+    impl ProcessModel<f64, 2> for Linear {
+        type State = SVector<f64, 2>;
+        type Input = ();
+        fn propagate(&self, x: &Self::State, _: &(), _: f64) -> Result<Self::State> {
+            Ok(self.0 * x)
+        }
+        fn transition(&self, _: &Self::State, _: &(), _: f64) -> Result<Matrix2<f64>> {
+            Ok(self.0)
+        }
+        fn process_noise(&self, _: &Self::State, _: &(), _: f64) -> Result<Matrix2<f64>> {
+            Ok(self.1)
+        }
+    }
+    struct First;
+    impl MeasurementModel<f64, 2, 1> for First {
+        type State = SVector<f64, 2>;
+        fn predict(&self, x: &Self::State) -> Result<Vector1<f64>> {
+            Ok(Vector1::new(x[0]))
+        }
+        fn jacobian(&self, _: &Self::State) -> Result<nalgebra::Matrix1x2<f64>> {
+            Ok(nalgebra::Matrix1x2::new(1.0, 0.0))
+        }
+        fn noise_covariance(&self, _: &Self::State) -> Result<nalgebra::Matrix1<f64>> {
+            Ok(nalgebra::Matrix1::new(0.1))
+        }
+    }
+    for (case, q) in [
         Matrix2::<f64>::new(0.01, 0.02, 0.02, 0.04),
         Matrix2::new(0.04, 0.01, 0.01, -0.01),
-    ] {
+    ]
+    .into_iter()
+    .enumerate()
+    {
         let f = Matrix2::new(1.0, 1.0, 0.0, 1.0);
         let r = nalgebra::Matrix1::new(0.1);
-        let mut kf = KalmanFilter::new(
-            f,
-            q,
-            nalgebra::Matrix1x2::new(1.0, 0.0),
-            r,
-            StateAndCovariance::new(Vector2::zeros(), Matrix2::identity()).unwrap(),
-        )
-        .unwrap();
+        let initial = StateAndCovariance::new(Vector2::zeros(), Matrix2::identity()).unwrap();
+        let mut kf = (case == 0).then(|| {
+            KalmanFilter::new(f, q, nalgebra::Matrix1x2::new(1.0, 0.0), r, initial.clone()).unwrap()
+        });
+        let mut ekf = ExtendedKalmanFilter::new(Linear(f, q), initial);
         let mut margins: Vec<f64> = Vec::new();
         for predicts in [1, 2, 1, 3, 1] {
             let mut q_acc = Matrix2::zeros();
             for _ in 0..predicts {
-                kf.predict().unwrap();
+                match kf.as_mut() {
+                    Some(kf) => kf.predict().unwrap(),
+                    None => ekf.predict(&(), 1.0).unwrap(),
+                }
                 q_acc = f * q_acc * f.transpose() + q;
             }
-            let report = kf.update(&Vector1::new(0.1), &Zero).unwrap();
+            let report = match kf.as_mut() {
+                Some(kf) => kf.update(&Vector1::new(0.1), &Zero).unwrap(),
+                None => ekf.update(&First, &Vector1::new(0.1), &Zero).unwrap(),
+            };
             let margin: f64 = report.joint_min_eigenvalue.unwrap();
             let fresh = joint_validity_margin(&q_acc, &Matrix2x1::zeros(), &r).unwrap();
             assert!(
@@ -553,4 +589,42 @@ fn hand_tuned_builds_of_the_linear_runner_equal_the_portable_one() {
 
     compare::<4, 2>(91);
     compare::<15, 3>(92);
+}
+
+/// `KalmanFilter::new` refuses a process or measurement noise that is not positive
+/// semidefinite (Q = -0.01 I was accepted, and P's smallest eigenvalue then reached
+/// -1 after 200 predicts), and accepts a singular PSD Q = G G' q.
+#[test]
+fn linear_filter_refuses_noise_that_is_not_a_covariance() {
+    use nalgebra::{Matrix1, Matrix1x2};
+    let initial = || StateAndCovariance::new(Vector2::zeros(), Matrix2::identity()).unwrap();
+    let (f, q) = cv_model();
+    let h = Matrix1x2::new(1.0, 0.0);
+    for bad in [
+        Matrix2::identity() * -0.01,
+        Matrix2::new(0.01, 0.0, 0.0, -1e-4),
+        Matrix2::new(0.01, 0.02, 0.02, 0.01),
+    ] {
+        let err = KalmanFilter::new(f, bad, h, Matrix1::new(0.1), initial()).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                Error::InvalidCovariance {
+                    what: "process noise covariance",
+                    ..
+                }
+            ),
+            "{err}"
+        );
+    }
+    let err = KalmanFilter::new(f, q, h, Matrix1::new(-0.1), initial()).unwrap_err();
+    assert!(matches!(
+        err,
+        Error::InvalidCovariance {
+            what: "measurement noise covariance",
+            ..
+        }
+    ));
+    // Q = G G' q is singular (rank 1) and valid.
+    assert!(KalmanFilter::new(f, q, h, Matrix1::new(0.1), initial()).is_ok());
 }
