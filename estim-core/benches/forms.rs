@@ -7,10 +7,9 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use estim_core::nalgebra::{SMatrix, SVector};
-use estim_core::{
-    correlated_update, covariance_factor, square_root_predict, square_root_update,
-    unscented_predict, unscented_update, CovarianceUpdate, StateAndCovariance, UnscentedTransform,
-};
+use estim_core::sigma_point::{unscented_predict, unscented_update, UnscentedTransform};
+use estim_core::square_root::{covariance_factor, square_root_predict, square_root_update};
+use estim_core::{correlated_update, CovarianceUpdate, StateAndCovariance};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};

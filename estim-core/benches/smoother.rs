@@ -14,9 +14,9 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use estim_core::nalgebra::{SMatrix, SVector};
+use estim_core::smoother::{ForwardRecorder, RecordAt};
 use estim_core::{
-    ExtendedKalmanFilter, Fixed, FixedLagSmoother, ForwardRecorder, NoObserver, Observer, RecordAt,
-    StateAndCovariance,
+    ExtendedKalmanFilter, Fixed, FixedLagSmoother, NoObserver, Observer, StateAndCovariance,
 };
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -5,8 +5,9 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use estim_core::nalgebra::{SMatrix, SVector};
+use estim_core::window::StepWindow;
 use estim_core::{
-    ExtendedKalmanFilter, FilterConfig, JointCheck, Result, StateAndCovariance, StepWindow,
+    ExtendedKalmanFilter, FilterConfig, JointCheck, Result, StateAndCovariance,
     WindowedCrossCovariance, Zero,
 };
 use std::hint::black_box;

@@ -118,11 +118,11 @@ fn chi_square_quantile(_m: usize, _probability: f64) -> Result<f64> {
 
 /// What a runner does with the joint covariance [[Q_acc, M], [M', R]] at each update.
 ///
-/// Both checking policies use [`crate::joint_validity_margin`]: a static LDL' of the
+/// Both checking policies use [`crate::JointCovariance::validity_margin`]: a static LDL' of the
 /// joint correlation matrix first (no allocation, about (N+M)^3/6 multiply-adds), and
 /// an allocating (N+M)-square eigen decomposition only when that factorisation does
 /// not certify the matrix (invalid, or too close to call). The reported number is >=
-/// -[`crate::joint_tolerance`] iff the joint covariance is valid: for a valid one it is
+/// -[`crate::JointCovariance::tolerance`] iff the joint covariance is valid: for a valid one it is
 /// the smallest LDL' pivot of the correlation matrix (0 when singular, at most 1; an
 /// upper bound on its smallest eigenvalue), for an invalid one the smallest eigenvalue.
 /// `Skip` avoids even the factorisation and reports `None`. With M = 0 the joint is
@@ -140,7 +140,7 @@ pub enum JointCheck {
     Report,
     /// Compute it and fail with [`Error::InvalidJointCovariance`] when the joint
     /// covariance is not positive semidefinite (tolerance of
-    /// [`crate::check_joint_covariance`]); the state is left untouched.
+    /// [`crate::JointCovariance::check`]); the state is left untouched.
     Reject,
 }
 
@@ -184,6 +184,11 @@ impl Default for FilterConfig {
 }
 
 impl FilterConfig {
+    /// The largest [`FilterConfigBuilder::window_capacity`]: 2^16 recorded steps
+    /// (11 minutes of a 100 Hz process; each step keeps an N x N transition, the
+    /// state and the input, allocated once when the runner starts).
+    pub const MAX_WINDOW_CAPACITY: usize = 1 << 16;
+
     /// Start a configuration from the defaults.
     pub fn builder() -> FilterConfigBuilder {
         FilterConfigBuilder {
@@ -328,7 +333,9 @@ impl FilterConfigBuilder {
     /// updates among them, so that a [`crate::WindowedCrossCovariance`] whose
     /// measurement noise shares up to `steps` steps of process noise gets its exact
     /// M (default 0: nothing kept, windowed updates fail with
-    /// [`Error::WindowUnavailable`]). Memory: `steps` records, allocated once.
+    /// [`Error::WindowUnavailable`]). Memory: `steps` records, allocated once; at
+    /// most [`FilterConfig::MAX_WINDOW_CAPACITY`] (checked by
+    /// [`FilterConfigBuilder::build`]).
     pub fn window_capacity(self, steps: usize) -> Self {
         Self {
             window_capacity: steps,
@@ -339,9 +346,20 @@ impl FilterConfigBuilder {
     /// Validate and precompute the gate thresholds.
     ///
     /// # Errors
-    /// [`Error::InvalidParameter`] for an invalid gate, and for a
-    /// [`GateRecovery::Inflate`] with `after = 0` or without a gate.
+    /// [`Error::InvalidParameter`] for an invalid gate, for a
+    /// [`GateRecovery::Inflate`] with `after = 0` or without a gate, and for a
+    /// window capacity above [`FilterConfig::MAX_WINDOW_CAPACITY`].
     pub fn build(self) -> Result<FilterConfig> {
+        if self.window_capacity > FilterConfig::MAX_WINDOW_CAPACITY {
+            return Err(Error::InvalidParameter {
+                name: "window_capacity",
+                reason: format!(
+                    "{} steps exceeds the bound of {} recorded steps",
+                    self.window_capacity,
+                    FilterConfig::MAX_WINDOW_CAPACITY
+                ),
+            });
+        }
         let mut thresholds = [None; CACHED_SIZES];
         for (i, t) in thresholds.iter_mut().enumerate() {
             *t = self.gate.threshold(i + 1)?;
@@ -445,5 +463,29 @@ mod tests {
             .build()
             .unwrap();
         assert_eq!(ok.gate_recovery(), GateRecovery::Inflate { after: 3 });
+    }
+
+    /// A window capacity beyond the bound is a typed error at `build`, naming the
+    /// key and the bound (it used to build and then fail allocating the window).
+    #[test]
+    fn window_capacity_is_bounded() {
+        for steps in [usize::MAX, FilterConfig::MAX_WINDOW_CAPACITY + 1] {
+            let err = FilterConfig::builder()
+                .window_capacity(steps)
+                .build()
+                .unwrap_err();
+            match err {
+                Error::InvalidParameter { name, reason } => {
+                    assert_eq!(name, "window_capacity");
+                    assert!(reason.contains("65536"), "{reason}");
+                }
+                other => panic!("{other}"),
+            }
+        }
+        let config = FilterConfig::builder()
+            .window_capacity(FilterConfig::MAX_WINDOW_CAPACITY)
+            .build()
+            .unwrap();
+        assert_eq!(config.window_capacity(), FilterConfig::MAX_WINDOW_CAPACITY);
     }
 }

@@ -6,6 +6,11 @@
 //! Bar-Shalom, Li & Kirubarajan, *Estimation with Applications to Tracking and
 //! Navigation*, 2001, sec. 5.4.2.
 
+/// The generator [`monte_carlo`] hands each run (re-exported so callers need not
+/// guess its version).
+#[cfg(feature = "consistency")]
+pub use rand_chacha;
+
 use nalgebra::{SMatrix, SVector};
 #[cfg(feature = "consistency")]
 use rand::SeedableRng;

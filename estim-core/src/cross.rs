@@ -3,6 +3,7 @@
 use nalgebra::{DMatrix, SMatrix, SVector};
 
 use crate::gaussian::{all_zero, check_finite};
+use crate::linalg::{certify_block, certify_psd};
 use crate::scalar::{lit, to_f64};
 use crate::{CrossCovariance, CrossCovarianceContext, Error, Result, Scalar};
 
@@ -38,7 +39,7 @@ impl<T: Scalar, S, const N: usize, const M: usize> CrossCovariance<T, S, N, M> f
 ///
 /// Valid (joint covariance PSD) only when rho^2 * q * m <= 1 for diagonal Q_acc and R,
 /// q = nonzero diagonal entries of Q_acc, m = measurement size; see
-/// [`ScaledCorrelation::largest_valid_rho`].
+/// [`ScaledCorrelation::largest_valid_rho`] and [`JointCovariance`].
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ScaledCorrelation<T: Scalar> {
@@ -66,7 +67,7 @@ impl<T: Scalar> ScaledCorrelation<T> {
     /// # Errors
     /// [`Error::NonFinite`] if Q or R holds NaN or infinity (checked before the square
     /// roots of [`ScaledCorrelation::unit`], which would clamp a NaN to 0); those of
-    /// [`largest_valid_scale`].
+    /// [`JointCovariance::largest_valid_scale`].
     pub fn largest_valid_rho<const N: usize, const M: usize>(
         accumulated_process_noise: &SMatrix<T, N, N>,
         measurement_noise: &SMatrix<T, M, M>,
@@ -108,7 +109,7 @@ impl<T: Scalar, S, const N: usize, const M: usize> CrossCovariance<T, S, N, M>
 }
 
 /// The joint covariance [[Q_acc, M], [M', R]] as a dynamic matrix.
-pub fn joint_covariance<T: Scalar, const N: usize, const M: usize>(
+pub(crate) fn joint_covariance<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
@@ -121,6 +122,172 @@ pub fn joint_covariance<T: Scalar, const N: usize, const M: usize>(
         .copy_from(&cross_covariance.transpose());
     j.view_mut((N, N), (M, M)).copy_from(measurement_noise);
     j
+}
+
+/// The joint covariance [[Q, M], [M', R]] of a process noise Q (the noise
+/// accumulated since the last update, Q_acc, for a runner's one-step update), a
+/// cross-covariance M = Cov(G w, v) and a measurement noise R, and the questions
+/// about it: is it a covariance at all (positive semidefinite), by how much, and how
+/// large a multiple of M would still be one.
+///
+/// Every check is scale invariant: it works on the correlation matrix
+/// C = D^-1/2 J D^-1/2 (D = diag J; zero variances left unscaled), so Q and R may be
+/// in any units, and one tolerance ([`JointCovariance::tolerance`]) serves every scale.
+///
+/// ```
+/// use estim_core::nalgebra::{Matrix1, Matrix2, Matrix2x1};
+/// use estim_core::{Error, JointCovariance, ScaledCorrelation};
+///
+/// // The paper's M = rho sqrt(diag Q) sqrt(diag R)' with q = 2 nonzero variances
+/// // and m = 1 measurement is valid iff rho^2 q m <= 1: rho <= 0.707.
+/// let q = Matrix2::new(0.04, 0.0, 0.0, 0.01);
+/// let r = Matrix1::new(0.1);
+/// let unit = ScaledCorrelation::<f64>::unit(&q, &r);
+/// let scale = JointCovariance::new(q, unit, r).largest_valid_scale()?;
+/// assert!((scale - 0.5f64.sqrt()).abs() < 1e-9);
+/// assert!(JointCovariance::new(q, unit * 0.42, r).check().is_ok());
+/// assert!(matches!(
+///     JointCovariance::new(q, unit * 0.9, r).check(),
+///     Err(Error::InvalidJointCovariance { .. })
+/// ));
+/// # Ok::<(), Error>(())
+/// ```
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointCovariance<T: Scalar, const N: usize, const M: usize> {
+    process_noise: SMatrix<T, N, N>,
+    cross_covariance: SMatrix<T, N, M>,
+    measurement_noise: SMatrix<T, M, M>,
+}
+
+impl<T: Scalar, const N: usize, const M: usize> JointCovariance<T, N, M> {
+    /// The joint covariance of Q, M and R (nothing is checked here: every question
+    /// below checks what it needs and says what is wrong).
+    pub fn new(
+        process_noise: SMatrix<T, N, N>,
+        cross_covariance: SMatrix<T, N, M>,
+        measurement_noise: SMatrix<T, M, M>,
+    ) -> Self {
+        Self {
+            process_noise,
+            cross_covariance,
+            measurement_noise,
+        }
+    }
+
+    /// Q (the accumulated process noise block).
+    pub fn process_noise(&self) -> &SMatrix<T, N, N> {
+        &self.process_noise
+    }
+
+    /// M (the cross-covariance block).
+    pub fn cross_covariance(&self) -> &SMatrix<T, N, M> {
+        &self.cross_covariance
+    }
+
+    /// R (the measurement noise block).
+    pub fn measurement_noise(&self) -> &SMatrix<T, M, M> {
+        &self.measurement_noise
+    }
+
+    /// The whole (N+M)-square matrix [[Q, M], [M', R]] (allocates).
+    pub fn matrix(&self) -> DMatrix<T> {
+        joint_covariance(
+            &self.process_noise,
+            &self.cross_covariance,
+            &self.measurement_noise,
+        )
+    }
+
+    /// Tolerance on the smallest eigenvalue (and the LDL' pivots) of the correlation
+    /// matrix: [`crate::numeric::relative_tolerance`], 9.3e-10 in f64 and 2.2e-5 in
+    /// f32. Why the square root of eps: Q_acc and M are products of many steps,
+    /// whose rounding (relative ~ steps x eps) moves a zero eigenvalue of a
+    /// semidefinite joint covariance (Q_acc is often singular) by far more than a few
+    /// eps, while an invalid M (e.g. rho beyond its bound by 1e-6) moves it by orders
+    /// of magnitude more.
+    pub fn tolerance() -> T {
+        joint_tolerance()
+    }
+
+    /// Smallest eigenvalue of the (symmetrised) joint covariance, in its units
+    /// (allocates: a dynamic eigen decomposition).
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`] if an entry is NaN or infinite.
+    pub fn min_eigenvalue(&self) -> Result<T> {
+        joint_min_eigenvalue(
+            &self.process_noise,
+            &self.cross_covariance,
+            &self.measurement_noise,
+        )
+    }
+
+    /// Smallest eigenvalue of the correlation matrix C (dimensionless; PSD iff >= 0;
+    /// allocates).
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`] if an entry is NaN or infinite.
+    pub fn min_correlation_eigenvalue(&self) -> Result<T> {
+        joint_min_correlation_eigenvalue(
+            &self.process_noise,
+            &self.cross_covariance,
+            &self.measurement_noise,
+        )
+    }
+
+    /// How valid the joint covariance is, without allocating when it is valid: at
+    /// least -[`JointCovariance::tolerance`] iff it is positive semidefinite.
+    ///
+    /// - Valid (certified by the static LDL' certificate of C): the smallest LDL'
+    ///   pivot of C, clamped at 0, so in [0, 1]. An upper bound on the smallest
+    ///   eigenvalue of C, 0 exactly when C is singular (to the tolerance); small means
+    ///   M is near the edge of what a covariance allows.
+    /// - Otherwise: the smallest eigenvalue of C (allocates).
+    ///
+    /// This is the number every [`crate::UpdateReport::joint_min_eigenvalue`] holds.
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`] if an entry is NaN or infinite.
+    pub fn validity_margin(&self) -> Result<T> {
+        joint_validity_margin(
+            &self.process_noise,
+            &self.cross_covariance,
+            &self.measurement_noise,
+        )
+    }
+
+    /// The [`JointCovariance::validity_margin`] if the joint covariance is positive
+    /// semidefinite (margin >= -tolerance), else an error.
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`] for non-finite input, [`Error::InvalidJointCovariance`]
+    /// otherwise (carrying the smallest eigenvalue of the correlation matrix).
+    pub fn check(&self) -> Result<T> {
+        check_joint_covariance(
+            &self.process_noise,
+            &self.cross_covariance,
+            &self.measurement_noise,
+        )
+    }
+
+    /// Read M as a direction U: the largest c >= 0 such that [[Q, c U], [c U', R]] is
+    /// PSD, for a PSD Q and a positive definite R.
+    ///
+    /// PSD iff every column of U lies in range(Q) and
+    /// c^2 lambda_max(R^-1/2 U' Q^+ U R^-1/2) <= 1 (Schur complement). 0 if U leaves
+    /// range(Q), infinity if U = 0.
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`] for non-finite input; [`Error::InvalidCovariance`] if R
+    /// is not positive definite.
+    pub fn largest_valid_scale(&self) -> Result<T> {
+        largest_valid_scale(
+            &self.process_noise,
+            &self.cross_covariance,
+            &self.measurement_noise,
+        )
+    }
 }
 
 /// Fail with [`Error::NonFinite`] naming the first of Q_acc, M, R that holds NaN or
@@ -144,7 +311,7 @@ fn check_joint_finite<T: Scalar, const N: usize, const M: usize>(
 ///
 /// # Errors
 /// [`Error::NonFinite`] if an entry is NaN or infinite.
-pub fn joint_min_eigenvalue<T: Scalar, const N: usize, const M: usize>(
+pub(crate) fn joint_min_eigenvalue<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
@@ -182,7 +349,7 @@ fn inverse_sqrt_or_one<T: Scalar>(d: T) -> T {
 ///
 /// # Errors
 /// [`Error::NonFinite`] if an entry is NaN or infinite.
-pub fn joint_min_correlation_eigenvalue<T: Scalar, const N: usize, const M: usize>(
+pub(crate) fn joint_min_correlation_eigenvalue<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
@@ -205,115 +372,13 @@ pub fn joint_min_correlation_eigenvalue<T: Scalar, const N: usize, const M: usiz
 }
 
 /// Tolerance on the smallest eigenvalue (and the LDL' pivots) of the joint correlation
-/// matrix: [`crate::relative_tolerance`], 9.3e-10 in f64 (the former fixed 1e-9) and
+/// matrix: [`crate::numeric::relative_tolerance`], 9.3e-10 in f64 (the former fixed 1e-9) and
 /// 2.2e-5 in f32. Why the square root of eps: Q_acc and M are products of many steps,
 /// whose rounding (relative ~ steps x eps) moves a zero eigenvalue of a semidefinite
 /// joint covariance (Q_acc is often singular) by far more than a few eps, while an
 /// invalid M (e.g. rho beyond its bound by 1e-6) moves it by orders of magnitude more.
-pub fn joint_tolerance<T: Scalar>() -> T {
+pub(crate) fn joint_tolerance<T: Scalar>() -> T {
     crate::scalar::relative_tolerance()
-}
-
-/// Certify [[Q, B], [B', C]] (already scaled to unit diagonal) positive semidefinite by
-/// an LDL' elimination in static storage, without pivoting: pivots above the tolerance
-/// are eliminated; a pivot within [-tol, tol] is accepted as a zero variance only if the
-/// rest of its row is within tol too (a semidefinite matrix with a zero pivot has a zero
-/// row), so the matrix is L D L' + E with D >= 0 and |E| <= tol entrywise. Returns the
-/// smallest pivot (clamped at 0), or `None` when this does not certify it (a negative pivot, or a near
-/// zero pivot with a nonzero row: invalid, or too close to call without an eigen
-/// decomposition).
-fn certify_psd<T: Scalar, const N: usize, const M: usize>(
-    a: SMatrix<T, N, N>,
-    b: SMatrix<T, N, M>,
-    c: SMatrix<T, M, M>,
-    tol: T,
-) -> Option<T> {
-    let correlated = !all_zero(b.as_slice());
-    certify_psd_with(a, b, c, tol, correlated)
-}
-
-/// [`certify_psd`]; `correlated` false skips the eliminations involving B (only
-/// valid when B = 0).
-#[inline(always)]
-fn certify_psd_with<T: Scalar, const N: usize, const M: usize>(
-    mut a: SMatrix<T, N, N>,
-    mut b: SMatrix<T, N, M>,
-    mut c: SMatrix<T, M, M>,
-    tol: T,
-    correlated: bool,
-) -> Option<T> {
-    // Only the upper triangles of the symmetric blocks A and C are read and updated.
-    // With B = 0 (M = 0, the common case) the eliminations that involve B subtract
-    // only zero products (B stays 0, C_ij - 0 = C_ij), so they are skipped: the
-    // result is the same bit for bit (up to the sign of exact zeros).
-    let mut smallest = T::one();
-    for k in 0..N {
-        let d = a[(k, k)];
-        smallest = smallest.min(d);
-        if d > tol {
-            let inv = T::one() / d;
-            for j in (k + 1)..N {
-                let f = a[(k, j)] * inv;
-                for i in (k + 1)..=j {
-                    let v = a[(k, i)] * f;
-                    a[(i, j)] -= v;
-                }
-            }
-            if !correlated {
-                continue;
-            }
-            for j in 0..M {
-                let f = b[(k, j)] * inv;
-                for i in (k + 1)..N {
-                    let v = a[(k, i)] * f;
-                    b[(i, j)] -= v;
-                }
-                for i in 0..=j {
-                    let v = b[(k, i)] * f;
-                    c[(i, j)] -= v;
-                }
-            }
-        } else if d < -tol
-            || ((k + 1)..N).any(|j| a[(k, j)].abs() > tol)
-            || (0..M).any(|j| b[(k, j)].abs() > tol)
-        {
-            return None;
-        }
-    }
-    if !eliminate_last_block(&mut c, tol, &mut smallest) {
-        return None;
-    }
-    // A pivot accepted as zero may be a round-off -tol..0: certified means >= 0.
-    Some(smallest.max(T::zero()))
-}
-
-/// The LDL' elimination of the last symmetric block C of [`certify_psd_with`] (upper
-/// triangle, in place, after the blocks before it have been eliminated into it), or of a
-/// block alone: `smallest` takes its pivots; false when a pivot is negative beyond `tol`
-/// or a zero pivot has a nonzero row (not certified).
-#[inline(always)]
-fn eliminate_last_block<T: Scalar, const K: usize>(
-    c: &mut SMatrix<T, K, K>,
-    tol: T,
-    smallest: &mut T,
-) -> bool {
-    for k in 0..K {
-        let d = c[(k, k)];
-        *smallest = smallest.min(d);
-        if d > tol {
-            let inv = T::one() / d;
-            for j in (k + 1)..K {
-                let f = c[(k, j)] * inv;
-                for i in (k + 1)..=j {
-                    let v = c[(k, i)] * f;
-                    c[(i, j)] -= v;
-                }
-            }
-        } else if d < -tol || ((k + 1)..K).any(|j| c[(k, j)].abs() > tol) {
-            return false;
-        }
-    }
-    true
 }
 
 /// How valid the joint covariance [[Q_acc, M], [M', R]] is, without allocating when it
@@ -329,7 +394,7 @@ fn eliminate_last_block<T: Scalar, const K: usize>(
 ///
 /// # Errors
 /// [`Error::NonFinite`] if an entry is NaN or infinite.
-pub fn joint_validity_margin<T: Scalar, const N: usize, const M: usize>(
+pub(crate) fn joint_validity_margin<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
@@ -364,12 +429,12 @@ fn correlation_upper<T: Scalar, const K: usize>(
 }
 
 /// The certificate of one symmetric block of an uncorrelated (M = 0) joint covariance,
-/// [`certify_psd_with`]'s elimination of that block alone: its smallest LDL' pivot
+/// the LDL' certificate of that block alone: its smallest LDL' pivot
 /// (not clamped), or `None` when the block is not certified.
 pub(crate) fn block_certificate<T: Scalar, const K: usize>(a: &SMatrix<T, K, K>) -> Option<T> {
     let (mut c, _) = correlation_upper(a);
     let mut smallest = T::one();
-    eliminate_last_block(&mut c, joint_tolerance::<T>(), &mut smallest).then_some(smallest)
+    certify_block(&mut c, joint_tolerance::<T>(), &mut smallest).then_some(smallest)
 }
 
 /// [`joint_validity_margin`], given the certificate of Q_acc's block when it is already
@@ -380,8 +445,8 @@ pub(crate) fn block_certificate<T: Scalar, const K: usize>(a: &SMatrix<T, K, K>)
 /// A known certificate vouches for its block's finiteness too (it was computed on a
 /// checked block): with M = 0 and both known, nothing is re-checked.
 ///
-/// With M = 0 the joint correlation matrix is block diagonal, and the static LDL' of
-/// [`certify_psd_with`] eliminates the two blocks independently (the eliminations through
+/// With M = 0 the joint correlation matrix is block diagonal, and the static LDL' certificate
+/// eliminates the two blocks independently (the eliminations through
 /// the zero block subtract nothing), so its smallest pivot is the smaller of the two
 /// blocks' and it certifies the joint iff it certifies both: the same margin, without
 /// forming the joint matrix.
@@ -431,7 +496,7 @@ pub(crate) fn joint_validity_margin_reusing<T: Scalar, const N: usize, const M: 
 /// # Errors
 /// [`Error::NonFinite`] for non-finite input, [`Error::InvalidJointCovariance`]
 /// otherwise (carrying the smallest eigenvalue of the correlation matrix).
-pub fn check_joint_covariance<T: Scalar, const N: usize, const M: usize>(
+pub(crate) fn check_joint_covariance<T: Scalar, const N: usize, const M: usize>(
     accumulated_process_noise: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,
@@ -454,7 +519,7 @@ pub fn check_joint_covariance<T: Scalar, const N: usize, const M: usize>(
 ///
 /// PSD iff every column of U lies in range(Q) and c^2 lambda_max(R^-1/2 U' Q^+ U R^-1/2) <= 1
 /// (Schur complement). Returns 0 if U leaves range(Q), infinity if U = 0.
-pub fn largest_valid_scale<T: Scalar, const N: usize, const M: usize>(
+pub(crate) fn largest_valid_scale<T: Scalar, const N: usize, const M: usize>(
     q: &SMatrix<T, N, N>,
     u: &SMatrix<T, N, M>,
     r: &SMatrix<T, M, M>,
@@ -523,6 +588,7 @@ pub fn largest_valid_scale<T: Scalar, const N: usize, const M: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::linalg::certify_psd_with;
     use nalgebra::{Matrix2, SMatrix};
     use rand::{RngExt, SeedableRng};
     use rand_chacha::ChaCha8Rng;

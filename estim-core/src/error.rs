@@ -31,7 +31,7 @@ pub enum Error {
     #[error("joint covariance [[Q_acc, M], [M', R]] is not positive semidefinite (smallest eigenvalue of its correlation matrix {min_eigenvalue:e})")]
     InvalidJointCovariance {
         /// Smallest eigenvalue of the joint correlation matrix
-        /// diag(J)^-1/2 J diag(J)^-1/2 (below -[`crate::joint_tolerance`], 9.3e-10 in f64).
+        /// diag(J)^-1/2 J diag(J)^-1/2 (below -[`crate::JointCovariance::tolerance`], 9.3e-10 in f64).
         min_eigenvalue: f64,
     },
     /// A covariance matrix that must be positive (semi)definite is not.
@@ -92,13 +92,25 @@ pub enum Error {
         steps_before_end: usize,
     },
     /// The recorded forward pass is outside what the smoother handles exactly (see
-    /// `estim_core::ForwardRecorder`); nothing was smoothed.
+    /// `estim_core::smoother::ForwardRecorder`); nothing was smoothed.
     #[error("the smoother does not cover this recording: {reason} (epoch {epoch})")]
     SmootherUnsupported {
         /// The first epoch (index in the recording) where it happened.
         epoch: usize,
         /// What the forward pass did.
         reason: &'static str,
+    },
+    /// A [`crate::ProcessModel`] speed hook (`transition_and_noise`,
+    /// `propagate_covariance`, `compose_transitions`) does not equal its default
+    /// (found by `estim_core::testing::check_speed_hooks`).
+    #[error("ProcessModel::{hook} differs from its default by {difference:e} relative (tolerance {tolerance:e})")]
+    SpeedHookMismatch {
+        /// The hook.
+        hook: &'static str,
+        /// Largest entrywise difference, relative to the largest entry of the default.
+        difference: f64,
+        /// The tolerance it exceeded.
+        tolerance: f64,
     },
     /// A model (process, measurement or learned) failed to evaluate.
     #[error("model evaluation failed: {0}")]

@@ -8,7 +8,7 @@ use crate::{Error, Result, Scalar};
 ///
 /// Fields are private so the pair stays consistent: the constructor checks that
 /// every value is finite and the covariance is symmetric (to a relative
-/// [`crate::relative_tolerance`]).
+/// [`crate::numeric::relative_tolerance`]).
 ///
 /// With the `serde` feature it serializes as `{ "state": [...], "covariance": [...] }`
 /// (nalgebra's column-major arrays); deserialization goes through
@@ -116,17 +116,25 @@ pub fn check_finite<T: Scalar>(values: &[T], what: &'static str) -> Result<()> {
     }
 }
 
-/// Fail with [`Error::InvalidCovariance`] unless `m` is symmetric to a relative
-/// [`crate::relative_tolerance`] of its largest entry (9.3e-10 in f64, 2.2e-5 in f32).
+/// Fail with [`Error::InvalidCovariance`] unless `m` is symmetric entry by entry:
+/// |m_ij - m_ji| <= tol s_ij with s_ij = max(sqrt|m_ii| sqrt|m_jj|, |m_ij|, |m_ji|)
+/// and tol = [`crate::numeric::relative_tolerance`] (9.3e-10 in f64, 2.2e-5 in f32).
+///
+/// s_ij is the scale of entry (i, j) itself (for a covariance |m_ij| <= sqrt(m_ii
+/// m_jj)), so the check does not depend on the units of the other components: a
+/// large variance elsewhere does not hide an asymmetric pair.
 pub fn check_symmetric<T: Scalar, const N: usize>(
     m: &SMatrix<T, N, N>,
     what: &'static str,
 ) -> Result<()> {
-    let scale = m.amax();
-    let tol = crate::scalar::relative_tolerance::<T>() * scale;
+    let tol = crate::scalar::relative_tolerance::<T>();
     for i in 0..N {
         for j in (i + 1)..N {
-            if (m[(i, j)] - m[(j, i)]).abs() > tol {
+            let (upper, lower) = (m[(i, j)], m[(j, i)]);
+            let scale = (m[(i, i)].abs().sqrt() * m[(j, j)].abs().sqrt())
+                .max(upper.abs())
+                .max(lower.abs());
+            if (upper - lower).abs() > tol * scale {
                 return Err(Error::InvalidCovariance {
                     what,
                     reason: format!("not symmetric at ({i}, {j})"),
@@ -141,4 +149,35 @@ pub fn check_symmetric<T: Scalar, const N: usize>(
 #[inline]
 pub fn symmetrize<T: Scalar, const N: usize>(m: &SMatrix<T, N, N>) -> SMatrix<T, N, N> {
     (m + m.transpose()) * crate::scalar::lit::<T>(0.5)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Matrix4;
+
+    /// The symmetry check is per entry: an asymmetric pair of unit-scale entries is
+    /// refused beside a variance of 1e12 (a check relative to the largest entry let
+    /// it pass), and round-off asymmetry at every scale is accepted.
+    #[test]
+    fn symmetry_is_checked_entry_by_entry() {
+        let mut p = Matrix4::<f64>::identity();
+        p[(3, 3)] = 1e12;
+        p[(0, 1)] = 0.5;
+        p[(1, 0)] = -0.5;
+        assert!(matches!(
+            check_symmetric(&p, "P"),
+            Err(Error::InvalidCovariance { what: "P", .. })
+        ));
+        assert!(StateAndCovariance::new(SVector::zeros(), p).is_err());
+        for scale in [1e-200, 1e-8, 1.0, 1e12, 1e200] {
+            let mut q = Matrix4::<f64>::identity() * scale;
+            q[(0, 1)] = 0.5 * scale;
+            q[(1, 0)] = 0.5 * scale * (1.0 + 4.0 * f64::EPSILON);
+            q[(3, 3)] = 1e12 * scale;
+            q[(2, 3)] = 1e5 * scale;
+            q[(3, 2)] = 1e5 * scale * (1.0 - 4.0 * f64::EPSILON);
+            assert!(check_symmetric(&q, "Q").is_ok(), "{scale:e}");
+        }
+    }
 }

@@ -71,8 +71,8 @@
 //! With M = 0 this is the textbook Kalman update. It is implemented once, in
 //! [`correlated_update`], and every runner calls it. The joint covariance
 //! [[Q_acc, M], [M', R]] must be positive semidefinite for M to be a covariance at
-//! all: [`check_joint_covariance`] tests it (scale invariant, on the correlation
-//! matrix), [`largest_valid_scale`] gives the largest valid multiple of a given M,
+//! all: [`JointCovariance::check`] tests it (scale invariant, on the correlation
+//! matrix), [`JointCovariance::largest_valid_scale`] gives the largest valid multiple of a given M,
 //! and [`JointCheck`] decides what a runner does with it (skip, report in every
 //! [`UpdateReport`], or reject with [`Error::InvalidJointCovariance`]). For the
 //! paper's [`ScaledCorrelation`] (M = rho sqrt(diag Q) sqrt(diag R)') with diagonal Q
@@ -90,9 +90,9 @@
 //! ## Square-root and sigma-point forms
 //!
 //! [`SquareRootKalmanFilter`] keeps a Cholesky factor of P and refuses an M whose
-//! joint covariance with Q_acc has no square root; [`square_root_predict`] and
-//! [`square_root_update`] are its steps as free functions (for error-state
-//! runners). [`unscented_predict`] and [`unscented_update`] are the sigma-point
+//! joint covariance with Q_acc has no square root; [`square_root::square_root_predict`] and
+//! [`square_root::square_root_update`] are its steps as free functions (for error-state
+//! runners). [`sigma_point::unscented_predict`] and [`sigma_point::unscented_update`] are the sigma-point
 //! (unscented) steps, the update drawing sigma points over the joint [x; v] with
 //! covariance [[P, M], [M', R]].
 //!
@@ -117,7 +117,7 @@
 //!
 //! ## Consistency
 //!
-//! [`nees`], [`nis`], `chi_square_band` (two-sided band of the average of R
+//! Module [`consistency`]: [`consistency::nees`], [`consistency::nis`], `chi_square_band` (two-sided band of the average of R
 //! chi-square(dof) values, `chi2_{dof R}` quantiles divided by R) and
 //! `monte_carlo` (rayon, run i seeded with `ChaCha8Rng::seed_from_u64(i)`,
 //! deterministic).
@@ -175,18 +175,19 @@
 #![warn(missing_docs)]
 
 mod config;
-mod consistency;
+pub mod consistency;
 mod cross;
 mod error;
 mod gaussian;
-mod kernel;
+mod linalg;
+pub mod numeric;
 mod observer;
 mod runner;
 mod scalar;
-mod sigma_point;
-mod smoother;
-mod square_root;
-#[cfg(feature = "testing")]
+pub mod sigma_point;
+pub mod smoother;
+pub mod square_root;
+#[cfg(any(test, feature = "testing"))]
 pub mod testing;
 
 /// Helpers of the unit tests.
@@ -211,38 +212,24 @@ pub(crate) mod test_support {
     }
 }
 mod traits;
-mod update;
+pub mod update;
 pub mod window;
 
 pub use config::{FilterConfig, FilterConfigBuilder, Gate, GateRecovery, JointCheck};
-pub use consistency::{average_over_runs, nees, nis};
-#[cfg(feature = "consistency")]
-pub use consistency::{chi_square_band, monte_carlo, ChiSquareBand};
+pub use cross::{Fixed, JointCovariance, ScaledCorrelation, Zero};
+pub use error::{Error, Result};
+pub use gaussian::StateAndCovariance;
 pub use observer::{NisRecorder, NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
 pub use runner::{ErrorStateKalmanFilter, ExtendedKalmanFilter, KalmanFilter, UpdateReport};
-
-pub use cross::{
-    check_joint_covariance, joint_covariance, joint_min_correlation_eigenvalue,
-    joint_min_eigenvalue, joint_tolerance, joint_validity_margin, largest_valid_scale, Fixed,
-    ScaledCorrelation, Zero,
-};
-pub use error::{Error, Result};
-pub use gaussian::{check_finite, check_symmetric, symmetrize, StateAndCovariance};
-pub use scalar::{lit, relative_tolerance, to_f64, Scalar};
-pub use sigma_point::{unscented_predict, unscented_update, UnscentedOutcome, UnscentedTransform};
-pub use smoother::{FixedLagSmoother, ForwardRecorder, RecordAt, Smoothed};
-pub use square_root::{
-    check_joint_factor, covariance_factor, square_root_predict, square_root_update,
-    SquareRootKalmanFilter, SquareRootOutcome,
-};
+pub use scalar::Scalar;
+pub use smoother::FixedLagSmoother;
+pub use square_root::SquareRootKalmanFilter;
 pub use traits::{
     CrossCovariance, CrossCovarianceContext, ErrorStateModel, InputSpec, LearnedMeasurement,
     MeasurementModel, ProcessModel,
 };
-pub use update::{
-    correlated_update, innovation_covariance, joseph_covariance, CovarianceUpdate, UpdateOutcome,
-};
-pub use window::{ProcessStep, StepWindow, WindowedCrossCovariance};
+pub use update::{correlated_update, CovarianceUpdate};
+pub use window::WindowedCrossCovariance;
 
 pub use nalgebra;
 
@@ -251,7 +238,3 @@ pub use nalgebra;
 #[cfg(doctest)]
 #[doc = include_str!("../README.md")]
 pub struct ReadmeDoctests;
-/// The generator [`monte_carlo`] hands each run (re-exported so callers need not
-/// guess its version).
-#[cfg(feature = "consistency")]
-pub use rand_chacha;

@@ -36,9 +36,10 @@
 use nalgebra::{SMatrix, SVector};
 
 use crate::gaussian::check_finite;
+use crate::linalg::{joint_factor, mul_static, spd_inverse};
 use crate::scalar::{lit, to_f64};
-use crate::square_root::{covariance_factor, joint_factor};
-use crate::update::{check_innovation_conditioning, mul_static, spd_inverse};
+use crate::square_root::covariance_factor;
+use crate::update::check_innovation_conditioning;
 use crate::{Error, Result, Scalar, StateAndCovariance};
 
 /// Parameters of the scaled unscented transform (see the module docs), validated.

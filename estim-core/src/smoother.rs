@@ -168,7 +168,8 @@ impl<T: Scalar, S, const N: usize> Smoothed<T, S, N> {
 ///
 /// ```
 /// use estim_core::nalgebra::{Matrix1, Matrix1x2, Matrix2, Vector1, Vector2};
-/// use estim_core::{ForwardRecorder, KalmanFilter, RecordAt, StateAndCovariance, Zero};
+/// use estim_core::{KalmanFilter, StateAndCovariance, Zero};
+/// use estim_core::smoother::{ForwardRecorder, RecordAt};
 ///
 /// let f = Matrix2::new(1.0, 1.0, 0.0, 1.0);
 /// let initial = StateAndCovariance::new(Vector2::zeros(), Matrix2::identity())?;
@@ -527,7 +528,8 @@ impl<T: Scalar, S: Clone, const N: usize> Observer<T, S, N> for ForwardRecorder<
 ///
 /// ```
 /// use estim_core::nalgebra::{Matrix1, Matrix1x2, Matrix2, Vector1, Vector2};
-/// use estim_core::{FixedLagSmoother, KalmanFilter, RecordAt, StateAndCovariance, Zero};
+/// use estim_core::{FixedLagSmoother, KalmanFilter, StateAndCovariance, Zero};
+/// use estim_core::smoother::RecordAt;
 ///
 /// let initial = StateAndCovariance::new(Vector2::zeros(), Matrix2::identity())?;
 /// let mut kf = KalmanFilter::new(Matrix2::new(1.0, 1.0, 0.0, 1.0),

@@ -45,9 +45,104 @@
 //! # Ok::<(), estim_core::Error>(())
 //! ```
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, SMatrix};
 
-use crate::{Error, Result};
+use crate::scalar::to_f64;
+use crate::{Error, ProcessModel, Result, Scalar};
+
+/// Check that a [`ProcessModel`]'s speed hooks equal their defaults at one point
+/// (state, input, dt, covariance), each entry within `tolerance` relative to the
+/// largest entry of the default's result:
+///
+/// - `transition_and_noise` against `transition` and `process_noise` called apart;
+/// - `propagate_covariance(P, Phi, Q_d)` against Phi P Phi' + Q_d (nalgebra's
+///   products);
+/// - `compose_transitions(Phi_2, Phi)` against Phi_2 Phi, with Phi_2 the transition
+///   at the propagated state.
+///
+/// A tolerance of 0 asks for the same bits; a sparse override that skips exact zeros
+/// usually meets it, one that reorders sums needs a few eps.
+///
+/// ```
+/// use estim_core::nalgebra::{Matrix2, SMatrix, Vector2};
+/// use estim_core::testing::check_speed_hooks;
+/// use estim_core::{ProcessModel, Result};
+///
+/// /// Constant velocity, with Phi P Phi' written out for Phi = [[1, dt], [0, 1]].
+/// struct ConstantVelocity;
+/// impl ProcessModel<f64, 2> for ConstantVelocity {
+///     type State = Vector2<f64>;
+///     type Input = ();
+///     fn propagate(&self, x: &Vector2<f64>, _: &(), dt: f64) -> Result<Vector2<f64>> {
+///         Ok(Vector2::new(x[0] + dt * x[1], x[1]))
+///     }
+///     fn transition(&self, _: &Vector2<f64>, _: &(), dt: f64) -> Result<Matrix2<f64>> {
+///         Ok(Matrix2::new(1.0, dt, 0.0, 1.0))
+///     }
+///     fn process_noise(&self, _: &Vector2<f64>, _: &(), dt: f64) -> Result<Matrix2<f64>> {
+///         Ok(Matrix2::new(dt * dt * dt / 3.0, dt * dt / 2.0, dt * dt / 2.0, dt) * 0.01)
+///     }
+///     fn propagate_covariance(&self, p: &Matrix2<f64>, phi: &Matrix2<f64>, q: &Matrix2<f64>) -> Matrix2<f64> {
+///         let dt = phi[(0, 1)];
+///         let p01 = p[(0, 1)] + dt * p[(1, 1)];
+///         let p00 = p[(0, 0)] + dt * p[(1, 0)] + dt * p01;
+///         Matrix2::new(p00, p01, p01, p[(1, 1)]) + q
+///     }
+/// }
+///
+/// let p = Matrix2::new(2.0, 0.3, 0.3, 1.0);
+/// check_speed_hooks(&ConstantVelocity, &Vector2::new(0.0, 1.0), &(), 0.1, &p, 1e-14)?;
+/// # Ok::<(), estim_core::Error>(())
+/// ```
+///
+/// # Errors
+/// [`Error::SpeedHookMismatch`] naming the first hook that differs; the model's own
+/// errors.
+pub fn check_speed_hooks<T, P, const N: usize>(
+    model: &P,
+    state: &P::State,
+    input: &P::Input,
+    dt: T,
+    covariance: &SMatrix<T, N, N>,
+    tolerance: T,
+) -> Result<()>
+where
+    T: Scalar,
+    P: ProcessModel<T, N>,
+{
+    let compare =
+        |hook: &'static str, got: &SMatrix<T, N, N>, want: &SMatrix<T, N, N>| -> Result<()> {
+            let scale = want.amax();
+            let difference = (got - want).amax();
+            let relative = if scale > T::zero() {
+                difference / scale
+            } else {
+                difference
+            };
+            // NaN differences fail too.
+            if relative <= tolerance {
+                Ok(())
+            } else {
+                Err(Error::SpeedHookMismatch {
+                    hook,
+                    difference: to_f64(relative),
+                    tolerance: to_f64(tolerance),
+                })
+            }
+        };
+    let transition = model.transition(state, input, dt)?;
+    let noise = model.process_noise(state, input, dt)?;
+    let (joint_transition, joint_noise) = model.transition_and_noise(state, input, dt)?;
+    compare("transition_and_noise", &joint_transition, &transition)?;
+    compare("transition_and_noise", &joint_noise, &noise)?;
+    let propagated = model.propagate_covariance(covariance, &transition, &noise);
+    let want = transition * covariance * transition.transpose() + noise;
+    compare("propagate_covariance", &propagated, &want)?;
+    let next = model.propagate(state, input, dt)?;
+    let later = model.transition(&next, input, dt)?;
+    let composed = model.compose_transitions(&later, &transition);
+    compare("compose_transitions", &composed, &(later * transition))
+}
 
 /// One linear predict + update with correlated noise, in dynamic sizes (n states,
 /// p process-noise inputs, m measurements).
@@ -234,5 +329,90 @@ mod tests {
             stacked_reference(&s),
             Err(Error::Dimension { what: "R", .. })
         ));
+    }
+
+    /// The speed-hook check passes the defaults and a correct sparse override, and
+    /// names each hook an override gets wrong.
+    #[test]
+    fn speed_hooks_are_checked_against_their_defaults() {
+        use crate::ProcessModel;
+        use nalgebra::{Matrix2, Vector2};
+        #[derive(Clone, Copy)]
+        enum Wrong {
+            Nothing,
+            Joint,
+            Propagate,
+            Compose,
+        }
+        struct Cv(Wrong);
+        impl ProcessModel<f64, 2> for Cv {
+            type State = Vector2<f64>;
+            type Input = ();
+            fn propagate(&self, x: &Vector2<f64>, _: &(), dt: f64) -> Result<Vector2<f64>> {
+                Ok(Vector2::new(x[0] + dt * x[1], x[1]))
+            }
+            fn transition(&self, _: &Vector2<f64>, _: &(), dt: f64) -> Result<Matrix2<f64>> {
+                Ok(Matrix2::new(1.0, dt, 0.0, 1.0))
+            }
+            fn process_noise(&self, _: &Vector2<f64>, _: &(), dt: f64) -> Result<Matrix2<f64>> {
+                Ok(Matrix2::new(0.0, 0.0, 0.0, dt * 0.01))
+            }
+            fn transition_and_noise(
+                &self,
+                x: &Vector2<f64>,
+                u: &(),
+                dt: f64,
+            ) -> Result<(Matrix2<f64>, Matrix2<f64>)> {
+                let q = self.process_noise(x, u, dt)?;
+                let q = match self.0 {
+                    Wrong::Joint => q * 2.0,
+                    _ => q,
+                };
+                Ok((self.transition(x, u, dt)?, q))
+            }
+            fn propagate_covariance(
+                &self,
+                p: &Matrix2<f64>,
+                phi: &Matrix2<f64>,
+                q: &Matrix2<f64>,
+            ) -> Matrix2<f64> {
+                // Phi P Phi' for Phi = [[1, dt], [0, 1]], written out.
+                let dt = phi[(0, 1)];
+                let p01 = p[(0, 1)] + dt * p[(1, 1)];
+                let p00 = p[(0, 0)] + dt * p[(1, 0)] + dt * p01;
+                let wrong = if matches!(self.0, Wrong::Propagate) {
+                    1e-3
+                } else {
+                    0.0
+                };
+                Matrix2::new(p00 + wrong, p01, p01, p[(1, 1)]) + q
+            }
+            fn compose_transitions(
+                &self,
+                later: &Matrix2<f64>,
+                earlier: &Matrix2<f64>,
+            ) -> Matrix2<f64> {
+                match self.0 {
+                    Wrong::Compose => earlier * later * 1.5,
+                    _ => later * earlier,
+                }
+            }
+        }
+        let p = Matrix2::new(2.0, 0.3, 0.3, 1.0);
+        let x = Vector2::new(0.0, 1.0);
+        assert_eq!(
+            check_speed_hooks(&Cv(Wrong::Nothing), &x, &(), 0.1, &p, 1e-14),
+            Ok(())
+        );
+        for (wrong, hook) in [
+            (Wrong::Joint, "transition_and_noise"),
+            (Wrong::Propagate, "propagate_covariance"),
+            (Wrong::Compose, "compose_transitions"),
+        ] {
+            match check_speed_hooks(&Cv(wrong), &x, &(), 0.1, &p, 1e-14) {
+                Err(Error::SpeedHookMismatch { hook: got, .. }) => assert_eq!(got, hook),
+                other => panic!("{hook}: {other:?}"),
+            }
+        }
     }
 }

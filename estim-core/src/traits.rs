@@ -103,7 +103,7 @@ pub trait ProcessModel<T: Scalar, const N: usize> {
         later: &SMatrix<T, N, N>,
         earlier: &SMatrix<T, N, N>,
     ) -> SMatrix<T, N, N> {
-        crate::update::mul_static(later, earlier)
+        crate::linalg::mul_static(later, earlier)
     }
 }
 

@@ -13,6 +13,10 @@
 use nalgebra::{SMatrix, SVector};
 
 use crate::gaussian::{all_finite, all_zero, check_finite, symmetrize};
+use crate::linalg::{
+    gram_pair_into, joint_factor_into, minus_product_into, mul_lower_into, mul_static,
+    mul_transpose_static, positive_normal, product_transposed, spd_inverse, Blocks,
+};
 use crate::scalar::{lit, to_f64};
 use crate::{Error, Result, Scalar, StateAndCovariance};
 
@@ -218,8 +222,8 @@ fn square_root_into<T: Scalar, const N: usize, const M: usize>(
     gain: &SMatrix<T, N, M>,
     out: &mut SMatrix<T, N, N>,
 ) -> bool {
-    let mut l = crate::square_root::Blocks::<T, N, M, N, M>::zeros();
-    if !crate::square_root::joint_factor_into(
+    let mut l = Blocks::<T, N, M, N, M>::zeros();
+    if !joint_factor_into(
         covariance,
         cross_covariance,
         factored.measurement_noise,
@@ -239,10 +243,10 @@ fn square_root_into<T: Scalar, const N: usize, const M: usize>(
         hl += l.c;
     }
     let mut b1 = SMatrix::<T, N, N>::zeros();
-    crate::kernel::minus_product_into(&l.a, gain, &hl, &mut b1);
+    minus_product_into(&l.a, gain, &hl, &mut b1);
     let mut b2 = SMatrix::<T, N, M>::zeros();
     mul_lower_into(gain, &l.d, &mut b2);
-    if crate::kernel::gram_pair_into(&b1, &b2, out) {
+    if gram_pair_into(&b1, &b2, out) {
         return true;
     }
     // Column (axpy) order over the whole matrix: column j of B B' is the sum over k of
@@ -271,63 +275,6 @@ fn square_root_into<T: Scalar, const N: usize, const M: usize>(
     true
 }
 
-/// A B' for static sizes as plain loops (see [`mul_static`]).
-#[inline(always)]
-pub(crate) fn mul_transpose_static<T: Scalar, const R: usize, const K: usize, const C: usize>(
-    a: &SMatrix<T, R, K>,
-    b: &SMatrix<T, C, K>,
-) -> SMatrix<T, R, C> {
-    let mut out = SMatrix::<T, R, C>::zeros();
-    for j in 0..C {
-        for k in 0..K {
-            let bjk = b[(j, k)];
-            for i in 0..R {
-                out[(i, j)] += a[(i, k)] * bjk;
-            }
-        }
-    }
-    out
-}
-
-/// A L for a lower-triangular L (static sizes, plain loops): column j of the product
-/// only reads rows k >= j of L. Equal bit for bit to [`mul_static`] on the same
-/// arguments (the skipped terms a * 0 come first, while each sum is still +0).
-/// Written into `out`, which must be zero.
-#[inline(always)]
-fn mul_lower_into<T: Scalar, const R: usize, const K: usize>(
-    a: &SMatrix<T, R, K>,
-    lower: &SMatrix<T, K, K>,
-    out: &mut SMatrix<T, R, K>,
-) {
-    for j in 0..K {
-        for k in j..K {
-            let lkj = lower[(k, j)];
-            for i in 0..R {
-                out[(i, j)] += a[(i, k)] * lkj;
-            }
-        }
-    }
-}
-
-/// A B for static sizes as plain loops, inlined into the caller (nalgebra's product
-/// is an out-of-line call, which dominates at the sizes of a measurement update).
-#[inline(always)]
-pub(crate) fn mul_static<T: Scalar, const R: usize, const K: usize, const C: usize>(
-    a: &SMatrix<T, R, K>,
-    b: &SMatrix<T, K, C>,
-) -> SMatrix<T, R, C> {
-    let mut out = SMatrix::<T, R, C>::zeros();
-    for j in 0..C {
-        for k in 0..K {
-            let bkj = b[(k, j)];
-            for i in 0..R {
-                out[(i, j)] += a[(i, k)] * bkj;
-            }
-        }
-    }
-    out
-}
-
 /// Multiple of machine epsilon below which S counts as numerically singular (see
 /// [`Error::InnovationIllConditioned`]).
 pub(crate) const RCOND_FLOOR: f64 = 1000.0;
@@ -347,106 +294,6 @@ pub(crate) struct FactoredInnovation<'a, T: Scalar, const N: usize, const M: usi
     pub(crate) measurement_noise: &'a SMatrix<T, M, M>,
     /// H (for the product and square-root forms).
     pub(crate) jacobian: &'a SMatrix<T, M, N>,
-}
-
-/// Whether `x` is a finite positive normal number (at least 4 / MAX, the smallest
-/// normal of IEEE binary formats; positive and finite for a type without a maximum):
-/// where a closed form keeps full precision.
-#[inline(always)]
-fn positive_normal<T: Scalar>(x: T) -> bool {
-    x.is_finite()
-        && match T::max_value() {
-            Some(max) => x >= lit::<T>(4.0) / max,
-            None => x > T::zero(),
-        }
-}
-
-/// Inverse of a symmetric positive definite matrix through its Cholesky factor
-/// S = L L', S^-1 = L^-T L^-1 (Golub & Van Loan, *Matrix Computations*, 4th ed.,
-/// alg. 4.2.1); exactly symmetric. `None` if a pivot is not positive.
-///
-/// Written out for static sizes: for the small S of a measurement update it is
-/// several times faster than the generic `nalgebra` Cholesky + inverse.
-///
-/// One and two measurements take the closed forms 1 / s and adj(S) / det(S) (one
-/// division instead of a chain of square roots and divisions: the latency of a small
-/// update), where det(S) is a normal positive number; anything else (a pivot or
-/// determinant not positive, extreme scales) goes through the factor.
-pub(crate) fn spd_inverse<T: Scalar, const M: usize>(
-    s: &SMatrix<T, M, M>,
-) -> Option<SMatrix<T, M, M>> {
-    if M == 1 || M == 2 {
-        let a = s[(0, 0)];
-        let (b, d) = if M == 2 {
-            (s[(M - 1, 0)], s[(M - 1, M - 1)])
-        } else {
-            (T::zero(), T::one())
-        };
-        let det = a * d - b * b;
-        if a > T::zero() && positive_normal(det) {
-            let r = T::one() / det;
-            if r.is_finite() {
-                let mut inv = SMatrix::<T, M, M>::zeros();
-                if M == 2 {
-                    inv[(0, 0)] = d * r;
-                    inv[(M - 1, 0)] = -b * r;
-                    inv[(0, M - 1)] = -b * r;
-                    inv[(M - 1, M - 1)] = a * r;
-                } else {
-                    inv[(0, 0)] = r;
-                }
-                return Some(inv);
-            }
-        }
-    }
-    // One division per column (1 / L_jj, also W's diagonal), none per entry: square
-    // roots and divisions queue on one unit, the bottleneck of a small update.
-    let mut l = SMatrix::<T, M, M>::zeros();
-    let mut w = SMatrix::<T, M, M>::zeros();
-    for j in 0..M {
-        let mut d = s[(j, j)];
-        for k in 0..j {
-            d -= l[(j, k)] * l[(j, k)];
-        }
-        // `d` is finite (S was checked); also refuses NaN from round-off.
-        if d <= T::zero() || !d.is_finite() {
-            return None;
-        }
-        let ljj = d.sqrt();
-        let inverse = T::one() / ljj;
-        l[(j, j)] = ljj;
-        w[(j, j)] = inverse;
-        for i in (j + 1)..M {
-            let mut v = s[(i, j)];
-            for k in 0..j {
-                v -= l[(i, k)] * l[(j, k)];
-            }
-            l[(i, j)] = v * inverse;
-        }
-    }
-    // W = L^-1 (lower triangular), by forward substitution.
-    for j in 0..M {
-        for i in (j + 1)..M {
-            let mut v = T::zero();
-            for k in j..i {
-                v -= l[(i, k)] * w[(k, j)];
-            }
-            w[(i, j)] = v * w[(i, i)];
-        }
-    }
-    // S^-1 = W' W, upper triangle then mirrored.
-    let mut inv = SMatrix::<T, M, M>::zeros();
-    for j in 0..M {
-        for i in 0..=j {
-            let mut v = T::zero();
-            for k in j..M {
-                v += w[(k, i)] * w[(k, j)];
-            }
-            inv[(i, j)] = v;
-            inv[(j, i)] = v;
-        }
-    }
-    Some(inv)
 }
 
 /// Numerical singularity test of S, invariant to the units of each measurement
@@ -521,7 +368,7 @@ pub(crate) fn factor_innovation<'a, T: Scalar, const N: usize, const M: usize>(
 ) -> Result<FactoredInnovation<'a, T, N, M>> {
     let p = prior.covariance();
     let correlated = !all_zero(cross_covariance.as_slice());
-    let pht = crate::kernel::product_transposed(p, jacobian);
+    let pht = product_transposed(p, jacobian);
     let s = if correlated {
         innovation_covariance(p, jacobian, measurement_noise, cross_covariance)
     } else {
@@ -709,7 +556,7 @@ mod tests {
         cross_covariance: &SMatrix<f64, N, M>,
         gain: &SMatrix<f64, N, M>,
     ) -> Option<SMatrix<f64, N, N>> {
-        let l = crate::square_root::joint_factor_general(
+        let l = crate::linalg::joint_factor_general(
             covariance,
             cross_covariance,
             factored.measurement_noise,
@@ -906,13 +753,13 @@ mod tests {
         assert!(compared > 200, "{compared}");
     }
 
-    /// At (15, 3) the products run through the fused AVX-512 kernel where the CPU has
-    /// it (`crate::kernel`): the posterior then equals the reference to round-off
+    /// At (15, 3) the products run through the fused AVX-512 product where the CPU has
+    /// it (`crate::linalg::fused_product`): the posterior then equals the reference to round-off
     /// (each entry within 64 eps of the largest prior variance; a fused multiply-add
     /// differs from a separate one by at most half an ulp of each term) and stays
-    /// exactly symmetric; without the kernel it is the reference bit for bit.
+    /// exactly symmetric; without it the posterior is the reference bit for bit.
     #[test]
-    fn square_root_form_equals_the_reference_to_round_off_at_kernel_sizes() {
+    fn square_root_form_equals_the_reference_to_round_off_at_fused_product_sizes() {
         let mut rng = ChaCha8Rng::seed_from_u64(4);
         let mut compared = 0;
         for case in 0..100 {
@@ -945,7 +792,7 @@ mod tests {
                 "case {case}: {worst:e} (scale {scale:e})"
             );
             assert_eq!(fast, fast.transpose(), "case {case}");
-            if !crate::kernel::available() {
+            if !crate::linalg::fused_product::available() {
                 assert_eq!(fast, reference, "case {case}");
             }
             compared += 1;

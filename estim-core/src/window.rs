@@ -65,7 +65,7 @@ use std::collections::VecDeque;
 use nalgebra::{SMatrix, SVector};
 
 use crate::gaussian::check_finite;
-use crate::update::mul_static;
+use crate::linalg::mul_static;
 use crate::{Error, Result, Scalar};
 
 /// One recorded process step, as a [`WindowedCrossCovariance`] sees it.
@@ -96,10 +96,8 @@ pub struct ProcessStep<'a, T: Scalar, S, U, const N: usize> {
 ///
 /// ```
 /// use estim_core::nalgebra::{Matrix1, Matrix2x1, Vector1, Vector2, Matrix2};
-/// use estim_core::{
-///     ExtendedKalmanFilter, FilterConfig, MeasurementModel, ProcessModel, Result,
-///     StateAndCovariance, StepWindow, WindowedCrossCovariance,
-/// };
+/// use estim_core::{ExtendedKalmanFilter, FilterConfig, MeasurementModel, ProcessModel, Result, StateAndCovariance, WindowedCrossCovariance};
+/// use estim_core::window::StepWindow;
 ///
 /// /// Position/velocity driven by a measured acceleration (input); the acceleration
 /// /// noise (variance `q` per sample) enters the velocity error with a minus sign.

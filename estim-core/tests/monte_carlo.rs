@@ -2,10 +2,10 @@
 //! noises are truly correlated. The M-aware filter's average NEES must lie in the
 //! 95 % chi-square band; the M-neglecting filter's must not.
 
+use estim_core::consistency::{average_over_runs, chi_square_band, monte_carlo, nees};
 use estim_core::nalgebra::{Matrix1, Matrix1x2, Matrix2, Matrix2x1, Vector1, Vector2};
 use estim_core::{
-    average_over_runs, chi_square_band, monte_carlo, nees, CrossCovariance, FilterConfig, Fixed,
-    JointCheck, KalmanFilter, StateAndCovariance, Zero,
+    CrossCovariance, FilterConfig, Fixed, JointCheck, KalmanFilter, StateAndCovariance, Zero,
 };
 use rand_distr::{Distribution, StandardNormal};
 

@@ -9,8 +9,8 @@ use estim_core::nalgebra::{
     DMatrix, Matrix1, Matrix2, SMatrix, SVector, Vector1, Vector2, Vector4,
 };
 use estim_core::{
-    check_joint_covariance, correlated_update, largest_valid_scale, CovarianceUpdate, Error,
-    ScaledCorrelation, StateAndCovariance,
+    correlated_update, CovarianceUpdate, Error, JointCovariance, ScaledCorrelation,
+    StateAndCovariance,
 };
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -76,13 +76,19 @@ fn m_at_the_validity_boundary() {
     let boundary = (q * r).sqrt();
     let qm = Matrix1::new(q);
     let rm = Matrix1::new(r);
-    assert!(check_joint_covariance(&qm, &Matrix1::new(boundary), &rm).is_ok());
-    assert!(check_joint_covariance(&qm, &Matrix1::new(-boundary), &rm).is_ok());
+    assert!(JointCovariance::new(qm, Matrix1::new(boundary), rm)
+        .check()
+        .is_ok());
+    assert!(JointCovariance::new(qm, Matrix1::new(-boundary), rm)
+        .check()
+        .is_ok());
     assert!(matches!(
-        check_joint_covariance(&qm, &Matrix1::new(boundary * (1.0 + 1e-6)), &rm),
+        JointCovariance::new(qm, Matrix1::new(boundary * (1.0 + 1e-6)), rm).check(),
         Err(Error::InvalidJointCovariance { .. })
     ));
-    let c = largest_valid_scale(&qm, &Matrix1::new(1.0), &rm).unwrap();
+    let c = JointCovariance::new(qm, Matrix1::new(1.0), rm)
+        .largest_valid_scale()
+        .unwrap();
     assert!(
         (c - boundary).abs() <= 1e-14 * boundary,
         "{c} vs {boundary}"
@@ -204,7 +210,9 @@ fn scales_from_1e_minus_9_to_1e9() {
         CovarianceUpdate::JosephLike,
     )
     .unwrap();
-    let c_max = largest_valid_scale(&sys.qd(), &sys.m(), &sys.r).unwrap();
+    let c_max = JointCovariance::new(sys.qd(), sys.m(), sys.r)
+        .largest_valid_scale()
+        .unwrap();
     let exps = [-9, -6, -3, 0, 3, 6, 9];
     for es in exps {
         for et in exps {
@@ -227,11 +235,11 @@ fn scales_from_1e_minus_9_to_1e9() {
             }
             let qd = sys.qd() * (s * s);
             assert!(
-                check_joint_covariance(&qd, &m, &r).is_ok(),
+                JointCovariance::new(qd, m, r).check().is_ok(),
                 "s {s:e} t {t:e}"
             );
             assert!(matches!(
-                check_joint_covariance(&qd, &(m * (c_max * 1.01)), &r),
+                JointCovariance::new(qd, m * (c_max * 1.01), r).check(),
                 Err(Error::InvalidJointCovariance { .. })
             ));
         }

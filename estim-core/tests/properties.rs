@@ -19,9 +19,9 @@ mod common;
 use common::*;
 use estim_core::nalgebra::{DMatrix, DVector, SMatrix, SVector};
 use estim_core::{
-    check_joint_covariance, correlated_update, largest_valid_scale, CovarianceUpdate, Error,
-    ErrorStateKalmanFilter, ErrorStateModel, ExtendedKalmanFilter, FilterConfig, Fixed, JointCheck,
-    KalmanFilter, MeasurementModel, ProcessModel, Result, StateAndCovariance, Zero,
+    correlated_update, CovarianceUpdate, Error, ErrorStateKalmanFilter, ErrorStateModel,
+    ExtendedKalmanFilter, FilterConfig, Fixed, JointCheck, JointCovariance, KalmanFilter,
+    MeasurementModel, ProcessModel, Result, StateAndCovariance, Zero,
 };
 use proptest::prelude::*;
 use proptest::test_runner::{FileFailurePersistence, RngSeed, TestCaseError};
@@ -308,7 +308,9 @@ fn properties<const N: usize, const M: usize>(
     // The boundary is cross-checked against eigenvalues computed here.
     let qd = sys.qd();
     let u = sys.m();
-    let c_max = largest_valid_scale(&qd, &u, &sys.r).unwrap();
+    let c_max = JointCovariance::new(qd, u, sys.r)
+        .largest_valid_scale()
+        .unwrap();
     prop_assert!(c_max >= 1.0 - 1e-9, "valid M must be within: {c_max}");
     let joint = |c: f64| {
         let mut j = DMatrix::zeros(N + M, N + M);
@@ -323,7 +325,7 @@ fn properties<const N: usize, const M: usize>(
     prop_assert!(min_eig(&joint(c_max * 0.999)) >= -1e-12 * eig_scale);
     prop_assert!(min_eig(&joint(c_max * 1.01)) < 0.0);
     let bad = u * (c_max * 1.01);
-    let err = check_joint_covariance(&qd, &bad, &sys.r).unwrap_err();
+    let err = JointCovariance::new(qd, bad, sys.r).check().unwrap_err();
     let rejected =
         matches!(err, Error::InvalidJointCovariance { min_eigenvalue } if min_eigenvalue < 0.0);
     prop_assert!(rejected, "{:?}", err);

@@ -7,11 +7,13 @@
 //! dev-dependencies.
 #![cfg(feature = "serde")]
 
+use estim_core::consistency::chi_square_band;
 use estim_core::nalgebra::{Matrix2, Matrix2x1, SMatrix, SVector, Vector1, Vector2};
+use estim_core::sigma_point::UnscentedTransform;
+use estim_core::update::UpdateOutcome;
 use estim_core::{
-    chi_square_band, correlated_update, CovarianceUpdate, FilterConfig, Fixed, Gate, InputSpec,
-    JointCheck, KalmanFilter, ScaledCorrelation, StateAndCovariance, UnscentedTransform,
-    UpdateOutcome, UpdateReport, UpdateStatus, Zero,
+    correlated_update, CovarianceUpdate, FilterConfig, Fixed, Gate, InputSpec, JointCheck,
+    KalmanFilter, ScaledCorrelation, StateAndCovariance, UpdateReport, UpdateStatus, Zero,
 };
 use serde::de::DeserializeOwned;
 use serde::Serialize;

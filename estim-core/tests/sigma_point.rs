@@ -8,11 +8,10 @@
 mod common;
 
 use common::*;
+use estim_core::consistency::chi_square_band;
 use estim_core::nalgebra::{DMatrix, Matrix2, Matrix2x4, Matrix4, Matrix4x2, Vector2, Vector4};
-use estim_core::{
-    chi_square_band, correlated_update, unscented_predict, unscented_update, CovarianceUpdate,
-    Error, StateAndCovariance, UnscentedTransform,
-};
+use estim_core::sigma_point::{unscented_predict, unscented_update, UnscentedTransform};
+use estim_core::{correlated_update, CovarianceUpdate, Error, StateAndCovariance};
 use proptest::prelude::*;
 use proptest::test_runner::{FileFailurePersistence, RngSeed, TestCaseError};
 use rand::SeedableRng;

@@ -5,10 +5,10 @@
 //! former fixed 1e-9 symmetry tolerance rejected).
 
 use estim_core::nalgebra::{Matrix1, Matrix1x2, Matrix2, Matrix2x1, Vector1, Vector2};
+use estim_core::numeric::relative_tolerance;
 use estim_core::{
-    relative_tolerance, ErrorStateKalmanFilter, ErrorStateModel, ExtendedKalmanFilter,
-    FilterConfig, Fixed, JointCheck, KalmanFilter, MeasurementModel, ProcessModel, Result,
-    StateAndCovariance,
+    ErrorStateKalmanFilter, ErrorStateModel, ExtendedKalmanFilter, FilterConfig, Fixed, JointCheck,
+    KalmanFilter, MeasurementModel, ProcessModel, Result, StateAndCovariance,
 };
 
 const DT: f64 = 0.1;

@@ -11,10 +11,10 @@ mod common;
 
 use common::*;
 use estim_core::nalgebra::{DMatrix, DVector, SMatrix, SVector};
+use estim_core::square_root::{covariance_factor, square_root_predict, square_root_update};
 use estim_core::{
-    covariance_factor, square_root_predict, square_root_update, CrossCovariance,
-    CrossCovarianceContext, Error, Fixed, KalmanFilter, ScaledCorrelation, SquareRootKalmanFilter,
-    StateAndCovariance,
+    CrossCovariance, CrossCovarianceContext, Error, Fixed, KalmanFilter, ScaledCorrelation,
+    SquareRootKalmanFilter, StateAndCovariance,
 };
 use proptest::prelude::*;
 use proptest::test_runner::{FileFailurePersistence, RngSeed, TestCaseError};

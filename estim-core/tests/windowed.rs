@@ -14,9 +14,10 @@ mod common;
 
 use common::{dm, dv, inv, rel_err};
 use estim_core::nalgebra::{DMatrix, DVector, SMatrix, SVector};
+use estim_core::window::StepWindow;
 use estim_core::{
     Error, ErrorStateKalmanFilter, ErrorStateModel, ExtendedKalmanFilter, FilterConfig,
-    KalmanFilter, MeasurementModel, ProcessModel, Result, StateAndCovariance, StepWindow,
+    KalmanFilter, MeasurementModel, ProcessModel, Result, StateAndCovariance,
     WindowedCrossCovariance, Zero,
 };
 use proptest::prelude::*;

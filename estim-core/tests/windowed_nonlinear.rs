@@ -8,9 +8,10 @@ mod common;
 
 use common::{inv, rel_err};
 use estim_core::nalgebra::{DMatrix, DVector, Matrix1, Matrix1x2, Matrix2, Vector1, Vector2};
+use estim_core::window::StepWindow;
 use estim_core::{
     ErrorStateKalmanFilter, ErrorStateModel, ExtendedKalmanFilter, FilterConfig, MeasurementModel,
-    ProcessModel, Result, StateAndCovariance, StepWindow, WindowedCrossCovariance, Zero,
+    ProcessModel, Result, StateAndCovariance, WindowedCrossCovariance, Zero,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;

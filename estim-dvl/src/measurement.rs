@@ -168,8 +168,8 @@ impl DvlVelocityModelBuilder {
             name: "noise_covariance",
             hint: "call noise_std(..) or noise_covariance(..)",
         })?;
-        estim_core::check_finite(r.as_slice(), "DVL noise covariance")?;
-        estim_core::check_symmetric(&r, "DVL noise covariance")?;
+        estim_core::numeric::check_finite(r.as_slice(), "DVL noise covariance")?;
+        estim_core::numeric::check_symmetric(&r, "DVL noise covariance")?;
         if r.cholesky().is_none() {
             return Err(Error::InvalidParameter {
                 name: "noise_covariance",
@@ -239,7 +239,7 @@ impl MeasurementModel<f64, ERROR_STATES, 3> for DvlVelocityModel {
             .copy_from(&(gain * nav_to_body * state.velocity_ned.cross_matrix()));
         h.fixed_view_mut::<3, 3>(0, GYRO_BIAS)
             .copy_from(&(gain * self.lever_arm.cross_matrix()));
-        estim_core::check_finite(h.as_slice(), "DVL Jacobian")?;
+        estim_core::numeric::check_finite(h.as_slice(), "DVL Jacobian")?;
         Ok(h)
     }
 

@@ -4,9 +4,8 @@
 
 use std::cell::RefCell;
 
-use estim_core::{
-    InputSpec, LearnedMeasurement, ProcessModel, Scalar, StepWindow, WindowedCrossCovariance,
-};
+use estim_core::window::StepWindow;
+use estim_core::{InputSpec, LearnedMeasurement, ProcessModel, Scalar, WindowedCrossCovariance};
 use estim_ins::{
     earth::radii_of_curvature, ImuSample, InsErrorModel, InsState, Mechanization, ERROR_STATES,
 };

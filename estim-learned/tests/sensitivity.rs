@@ -3,7 +3,8 @@
 //! both read from the window an error-state filter recorded; and the adjoint and
 //! per-step forms of NetworkSensitivity agree.
 
-use estim_core::{ErrorStateKalmanFilter, FilterConfig, StepWindow, WindowedCrossCovariance};
+use estim_core::window::StepWindow;
+use estim_core::{ErrorStateKalmanFilter, FilterConfig, WindowedCrossCovariance};
 use estim_ins::{
     ImuSample, ImuSpec, InsErrorModel, InsState, Mission, MissionConfig, ERROR_STATES,
 };

@@ -9,7 +9,8 @@
 mod common;
 use common::{flatten, record};
 
-use estim_core::{ErrorStateKalmanFilter, StepWindow, WindowedCrossCovariance};
+use estim_core::window::StepWindow;
+use estim_core::{ErrorStateKalmanFilter, WindowedCrossCovariance};
 use estim_ins::{
     ImuSample, ImuSpec, InsErrorModel, InsState, Mission, MissionConfig, SimulatedMission,
     ERROR_STATES,

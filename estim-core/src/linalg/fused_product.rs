@@ -1,32 +1,42 @@
-//! Dense products of the runners' hot loops (F P F', Phi_acc, the square-root
-//! update's Gram product) through a register-blocked AVX-512 kernel with fused
-//! multiply-adds, for `f64` (8 lanes) and `f32` (16 lanes) on CPUs that have
-//! AVX-512F; everywhere else (other CPUs, small products) the plain loops of
-//! [`mul_static`].
+//! The fused product: the dense products of the runners' hot loops (F P F', Phi_acc,
+//! the square-root update's Gram product) through a register-blocked AVX-512 loop
+//! with fused multiply-adds, for `f64` (8 lanes) and `f32` (16 lanes) on CPUs that
+//! have AVX-512F ([`super::dispatch::avx512f`]); everywhere else (other CPUs, small
+//! products, `ESTIM_FORCE_PORTABLE=1`) the plain loops of [`mul_static`].
 //!
-//! Why by hand: at the sizes of a filter (N = 8..30) the loops of `mul_static`, even
-//! compiled for AVX-512, run at 12-15 multiply-adds per ns on the Zen 5 machine the
-//! benches run on, and the crates that do products well (matrixmultiply, gemm) pack
-//! their operands, which costs more than the product at these sizes (14 and 11 per
-//! ns at N = 15, measured in the same session). The kernel keeps a panel of up to 24
-//! rows by 4 columns of the product in 24 registers and streams A's columns through
-//! them: 28 per ns at N = 15, 35 at N = 30 (F P F' + Q 566 -> 241 ns at N = 15).
+//! **What it computes.** `out = start + A B` or `start + A X'` (`start` zero, `out`
+//! itself, or another matrix), column-major static matrices.
 //!
-//! Results: each entry is the sum over k in increasing order, as in `mul_static`, but
-//! with every multiply-add rounded once (fused) instead of twice; so the two builds
-//! differ by round-off (tested against a separately coded product, `tests` below).
-//! A A' computed by the kernel is exactly symmetric: entry (i, j) and (j, i) run the
-//! same fused operations on the same products (a b = b a exactly).
+//! **Why by hand.** At the sizes of a filter (N = 8..30) the loops of `mul_static`,
+//! even compiled for AVX-512, run at 12-15 multiply-adds per ns on the Zen 5 machine
+//! the benches run on, and the crates that do products well (matrixmultiply, gemm)
+//! pack their operands, which costs more than the product at these sizes (14 and 11
+//! per ns at N = 15, measured in the same session). The loop keeps a panel of up to
+//! 24 rows by 4 columns of the product in 24 registers and streams A's columns
+//! through them: 28 per ns at N = 15, 35 at N = 30 (F P F' + Q 566 -> 241 ns at
+//! N = 15).
+//!
+//! **Results.** Each entry is the sum over k in increasing order, as in `mul_static`,
+//! but with every multiply-add rounded once (fused) instead of twice; so the two
+//! paths differ by round-off, within the error bound of a product (Higham,
+//! *Accuracy and Stability of Numerical Algorithms*, 2nd ed., eq. 3.5; tested below
+//! against a separately coded product, and against the portable path). A A'
+//! computed here is exactly symmetric: entry (i, j) and (j, i) run the same fused
+//! operations on the same products (a b = b a exactly).
+//!
+//! **Failure.** None: every function either runs the fused loop or the portable one;
+//! the `*_into` functions that report which (`gram_pair_into`) leave `out` untouched
+//! when they do not run.
 
 use nalgebra::SMatrix;
 
+use super::static_products::{mul_static, mul_transpose_static};
 use crate::scalar::Scalar;
-use crate::update::{mul_static, mul_transpose_static};
 
-/// Products with fewer multiply-adds than this use `mul_static`: the kernel's masked
-/// panels do not pay below about N = 8 (F P F' + Q at N = 6: 41 ns by the kernel, 29
+/// Products with fewer multiply-adds than this use `mul_static`: the fused loop's masked
+/// panels do not pay below about N = 8 (F P F' + Q at N = 6: 41 ns by the fused loop, 29
 /// ns by the loops; N = 8: 48 against 100 ns).
-const KERNEL_MIN_WORK: usize = 512;
+const FUSED_MIN_WORK: usize = 512;
 
 /// What the product is added to.
 #[derive(Clone, Copy, Debug)]
@@ -60,7 +70,7 @@ pub(crate) fn product<T: Scalar, const R: usize, const K: usize, const C: usize>
     out
 }
 
-/// `out` = A B (every entry written; no zeroing first when the kernel runs).
+/// `out` = A B (every entry written; no zeroing first when the fused loop runs).
 #[inline(always)]
 pub(crate) fn product_into<T: Scalar, const R: usize, const K: usize, const C: usize>(
     a: &SMatrix<T, R, K>,
@@ -121,7 +131,7 @@ pub(crate) fn minus_product<T: Scalar, const R: usize, const K: usize, const C: 
     out
 }
 
-/// `out` = C - A B (every entry written; no zeroing first when the kernel runs).
+/// `out` = C - A B (every entry written; no zeroing first when the fused loop runs).
 #[inline(always)]
 pub(crate) fn minus_product_into<T: Scalar, const R: usize, const K: usize, const C: usize>(
     c: &SMatrix<T, R, C>,
@@ -142,7 +152,7 @@ pub(crate) fn minus_product_into<T: Scalar, const R: usize, const K: usize, cons
     }
 }
 
-/// `out` = A A' + B B' (A is N x K, B is N x L), exactly symmetric, when the kernel
+/// `out` = A A' + B B' (A is N x K, B is N x L), exactly symmetric, when the fused loop
 /// runs (f64 or f32, AVX-512F, large enough); false, with `out` untouched, otherwise (the
 /// caller's own loops then).
 #[inline(always)]
@@ -151,7 +161,7 @@ pub(crate) fn gram_pair_into<T: Scalar, const N: usize, const K: usize, const L:
     b: &SMatrix<T, N, L>,
     out: &mut SMatrix<T, N, N>,
 ) -> bool {
-    if N * (K + L) * N < KERNEL_MIN_WORK
+    if N * (K + L) * N < FUSED_MIN_WORK
         || !fused_any_size(
             out.as_mut_slice(),
             a.as_slice(),
@@ -163,7 +173,7 @@ pub(crate) fn gram_pair_into<T: Scalar, const N: usize, const K: usize, const L:
     {
         return false;
     }
-    // The first call ran the kernel, so this one does too (same scalar, same CPU).
+    // The first call ran the fused loop, so this one does too (same scalar, same CPU).
     L == 0
         || fused_any_size(
             out.as_mut_slice(),
@@ -175,21 +185,16 @@ pub(crate) fn gram_pair_into<T: Scalar, const N: usize, const K: usize, const L:
         )
 }
 
-/// Whether this CPU runs the kernel (for `f64` and `f32`).
+/// Whether the fused loop runs (for `f64` and `f32`): the CPU has AVX-512F and the
+/// portable path is not forced ([`super::dispatch`]).
 #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+#[inline(always)]
 pub(crate) fn available() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        avx512::available()
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+    cfg!(target_arch = "x86_64") && super::dispatch::avx512f()
 }
 
-/// `out` (R x C) = `start` + A B through the kernel when it applies
-/// (f64 or f32, the CPU, at least [`KERNEL_MIN_WORK`]); false (nothing written) when
+/// `out` (R x C) = `start` + A B through the fused loop when it applies
+/// (f64 or f32, the CPU, at least [`FUSED_MIN_WORK`]); false (nothing written) when
 /// not.
 #[inline(always)]
 fn fused<T: Scalar>(
@@ -200,10 +205,10 @@ fn fused<T: Scalar>(
     second: Second,
     start: Start<'_, T>,
 ) -> bool {
-    r * k * c >= KERNEL_MIN_WORK && fused_any_size(out, a, b, (r, k, c), second, start)
+    r * k * c >= FUSED_MIN_WORK && fused_any_size(out, a, b, (r, k, c), second, start)
 }
 
-/// The kernel on slices of `T` read as `E`.
+/// The fused loop on slices of `T` read as `E`.
 ///
 /// # Safety
 /// `T` must be `E` (the callers compare their `TypeId`s).
@@ -220,6 +225,7 @@ unsafe fn run_as<T: Scalar, E: avx512::Lanes>(
     // SAFETY: T is E (the caller's contract), so the memory holds E values of the
     // same lengths.
     let cast = |s: &[T]| unsafe { std::slice::from_raw_parts(s.as_ptr().cast::<E>(), s.len()) };
+    // SAFETY: as above; `out` is borrowed mutably for the lifetime of the cast.
     let out = unsafe { std::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<E>(), out.len()) };
     let start = match start {
         Start::Zero => avx512::Start::Zero,
@@ -273,23 +279,51 @@ mod avx512 {
         _mm512_set1_pd, _mm512_set1_ps, _mm512_setzero_pd, _mm512_setzero_ps,
     };
 
-    /// Whether the CPU runs the kernel (AVX-512F; its FMA is part of AVX-512F).
+    /// Whether the CPU itself has AVX-512F (its FMA is part of AVX-512F), whatever
+    /// the dispatch decided: the safety condition of `product_avx512`.
     #[inline(always)]
-    pub(super) fn available() -> bool {
+    fn cpu_has_avx512f() -> bool {
         std::arch::is_x86_feature_detected!("avx512f")
     }
 
     /// A scalar with its 512-bit register: 8 f64 or 16 f32 lanes. The methods are
     /// only called (inlined) inside `product_avx512`, which has AVX-512F.
+    ///
+    /// Safety of every `unsafe` method: the CPU must have AVX-512F (the methods are AVX-512F intrinsics); `load` and
+    /// `store` also need every lane set in `mask` to be valid for reads (writes) of
+    /// `Self` at `from` (`to`) plus the lane's index.
     pub(super) trait Lanes: Copy {
         type Vector: Copy;
         type Mask: Copy;
         const LANES: usize;
+        /// The mask of the first `n` lanes (all lanes for `n >= LANES`).
         fn mask(n: usize) -> Self::Mask;
+        /// All lanes zero.
+        ///
+        /// # Safety
+        /// The CPU has AVX-512F.
         unsafe fn zero() -> Self::Vector;
+        /// The lanes of `mask` read from `from`, the others zero.
+        ///
+        /// # Safety
+        /// The CPU has AVX-512F; `from.add(i)` is valid for reads for every lane i of
+        /// `mask`.
         unsafe fn load(mask: Self::Mask, from: *const Self) -> Self::Vector;
+        /// `value` in every lane.
+        ///
+        /// # Safety
+        /// The CPU has AVX-512F.
         unsafe fn splat(value: Self) -> Self::Vector;
+        /// a b + c, rounded once per lane.
+        ///
+        /// # Safety
+        /// The CPU has AVX-512F.
         unsafe fn multiply_add(a: Self::Vector, b: Self::Vector, c: Self::Vector) -> Self::Vector;
+        /// The lanes of `mask` written to `to`, the others untouched.
+        ///
+        /// # Safety
+        /// The CPU has AVX-512F; `to.add(i)` is valid for writes for every lane i of
+        /// `mask`.
         unsafe fn store(to: *mut Self, mask: Self::Mask, value: Self::Vector);
     }
 
@@ -305,22 +339,32 @@ mod avx512 {
                 ((1u16 << n) - 1) as __mmask8
             }
         }
+        /// # Safety
+        /// As the trait method.
         #[inline(always)]
         unsafe fn zero() -> __m512d {
             _mm512_setzero_pd()
         }
+        /// # Safety
+        /// As the trait method.
         #[inline(always)]
         unsafe fn load(mask: __mmask8, from: *const f64) -> __m512d {
             _mm512_maskz_loadu_pd(mask, from)
         }
+        /// # Safety
+        /// As the trait method.
         #[inline(always)]
         unsafe fn splat(value: f64) -> __m512d {
             _mm512_set1_pd(value)
         }
+        /// # Safety
+        /// As the trait method.
         #[inline(always)]
         unsafe fn multiply_add(a: __m512d, b: __m512d, c: __m512d) -> __m512d {
             _mm512_fmadd_pd(a, b, c)
         }
+        /// # Safety
+        /// As the trait method.
         #[inline(always)]
         unsafe fn store(to: *mut f64, mask: __mmask8, value: __m512d) {
             _mm512_mask_storeu_pd(to, mask, value)
@@ -339,22 +383,32 @@ mod avx512 {
                 ((1u32 << n) - 1) as __mmask16
             }
         }
+        /// # Safety
+        /// As the trait method.
         #[inline(always)]
         unsafe fn zero() -> __m512 {
             _mm512_setzero_ps()
         }
+        /// # Safety
+        /// As the trait method.
         #[inline(always)]
         unsafe fn load(mask: __mmask16, from: *const f32) -> __m512 {
             _mm512_maskz_loadu_ps(mask, from)
         }
+        /// # Safety
+        /// As the trait method.
         #[inline(always)]
         unsafe fn splat(value: f32) -> __m512 {
             _mm512_set1_ps(value)
         }
+        /// # Safety
+        /// As the trait method.
         #[inline(always)]
         unsafe fn multiply_add(a: __m512, b: __m512, c: __m512) -> __m512 {
             _mm512_fmadd_ps(a, b, c)
         }
+        /// # Safety
+        /// As the trait method.
         #[inline(always)]
         unsafe fn store(to: *mut f32, mask: __mmask16, value: __m512) {
             _mm512_mask_storeu_ps(to, mask, value)
@@ -381,7 +435,7 @@ mod avx512 {
         strides: (usize, usize),
         start: Start<'_, E>,
     ) {
-        assert!(available());
+        assert!(cpu_has_avx512f());
         assert!(out.len() >= r * c && a.len() >= r * k);
         assert!(k == 0 || c == 0 || b.len() > (k - 1) * strides.0 + (c - 1) * strides.1);
         let start = match start {
@@ -392,11 +446,17 @@ mod avx512 {
                 initial.as_ptr()
             }
         };
-        // SAFETY: the CPU has AVX-512F (asserted), and every index the kernel reads or
+        // SAFETY: the CPU has AVX-512F (asserted), and every index the fused loop reads or
         // writes is within the lengths asserted above (masked lanes are not accessed).
         unsafe { product_avx512(out, a, b, (r, k, c), strides, start) }
     }
 
+    /// The panels of [`product`], compiled for AVX-512F.
+    ///
+    /// # Safety
+    /// The CPU has AVX-512F; `out` holds r x c values, `a` r x k, `b` every
+    /// `kk * strides.0 + j * strides.1` (kk < k, j < c), and `start`, unless null,
+    /// r x c (as [`product`] asserts).
     #[target_feature(enable = "avx512f")]
     unsafe fn product_avx512<E: Lanes>(
         out: &mut [E],
@@ -472,6 +532,11 @@ mod avx512 {
 
     impl<E: Lanes> Panel<E> {
         /// Inlined into `product_avx512`, whose AVX-512 code it becomes.
+        ///
+        /// # Safety
+        /// The CPU has AVX-512F; the panel's pointers address the rows of `masks` and
+        /// the `W` columns (through the strides and leading dimensions) within the
+        /// slices of `product_avx512`'s contract.
         #[inline(always)]
         unsafe fn run<const H: usize, const W: usize>(&self) {
             let lanes = E::LANES;
@@ -544,7 +609,7 @@ mod tests {
 
     /// Every row count 1..=50 (panels of one, two, three registers and a remainder:
     /// 8/16/24 rows in f64, 16/32/48 in f32), inner and column counts around the
-    /// panel edges, both orientations, the three starts; the kernel runs where the
+    /// panel edges, both orientations, the three starts; the fused loop runs where the
     /// CPU has AVX-512F, otherwise the test checks the fallback's refusal. Inputs are
     /// drawn in `T`, the reference is computed in f64 from the same values.
     fn every_shape<T: Scalar>(seed: u64) {
@@ -584,7 +649,7 @@ mod tests {
                     } else {
                         vec![lit::<T>(f64::NAN); r * c]
                     };
-                    // One more column of room: the kernel must not write past r x c.
+                    // One more column of room: the fused loop must not write past r x c.
                     got.push(lit::<T>(7.0));
                     let from = match mode {
                         0 => Start::Zero,
@@ -594,7 +659,7 @@ mod tests {
                     let ran = fused(&mut got, &a, &b, (r, k, c), second, from);
                     assert_eq!(to_f64(got[r * c]), 7.0, "wrote past the product");
                     if !ran {
-                        assert!(r * k * c < KERNEL_MIN_WORK || !available());
+                        assert!(r * k * c < FUSED_MIN_WORK || !available());
                         continue;
                     }
                     ran_any = true;
@@ -613,7 +678,7 @@ mod tests {
     }
 
     #[test]
-    fn kernel_products_equal_the_textbook_product_for_every_shape() {
+    fn fused_products_equal_the_textbook_product_for_every_shape() {
         every_shape::<f64>(71);
         every_shape::<f32>(73);
     }
@@ -634,15 +699,66 @@ mod tests {
             assert_eq!(
                 got,
                 got.transpose(),
-                "the kernel's Gram product is exactly symmetric"
+                "the fused loop's Gram product is exactly symmetric"
             );
         } else {
             assert!(!available());
         }
         assert!((minus_product(&want, &a, &x) - (want - a * x)).amax() < tol * 10.0);
-        // Small sizes never take the kernel.
+        // Small sizes never take the fused loop.
         let mut small = SMatrix::<f64, 4, 4>::identity();
         let zeros = SMatrix::<f64, 4, 2>::zeros();
         assert!(!gram_pair_into(&small.clone(), &zeros, &mut small));
+    }
+
+    /// The fused path against the portable one, in the same process: where the CPU has
+    /// AVX-512F the products differ by round-off within the bound of a product
+    /// (Higham eq. 3.5, doubled, as `every_shape`), the Gram pair is exactly symmetric
+    /// on both; with the portable path forced, `product` is `mul_static` bit for bit
+    /// and `gram_pair_into` declines.
+    #[test]
+    fn fused_and_portable_paths_agree() {
+        use crate::linalg::dispatch::{with_features, Features};
+        let mut rng = ChaCha8Rng::seed_from_u64(74);
+        let a = SMatrix::<f64, 15, 15>::from_fn(|_, _| rng.random_range(-1.0..1.0));
+        let x = SMatrix::<f64, 15, 15>::from_fn(|_, _| rng.random_range(-1.0..1.0));
+        let b = SMatrix::<f64, 15, 3>::from_fn(|_, _| rng.random_range(-1.0..1.0));
+        let portable = with_features(Features::PORTABLE, || {
+            let mut gram = SMatrix::<f64, 15, 15>::zeros();
+            assert!(!gram_pair_into(&a, &b, &mut gram));
+            (product(&a, &x), product_transposed(&a, &x))
+        });
+        assert_eq!(portable.0, mul_static(&a, &x));
+        assert_eq!(portable.1, mul_transpose_static(&a, &x));
+        let all = Features {
+            avx2: true,
+            avx512f: true,
+        };
+        let (fused_ax, fused_axt, gram) = with_features(all, || {
+            let mut gram = SMatrix::<f64, 15, 15>::zeros();
+            let ran = gram_pair_into(&a, &b, &mut gram);
+            assert_eq!(ran, crate::linalg::dispatch::cpu().avx512f);
+            (
+                product(&a, &x),
+                product_transposed(&a, &x),
+                ran.then_some(gram),
+            )
+        });
+        let bound = |i: usize, j: usize, transposed: bool| {
+            let s: f64 = (0..15)
+                .map(|k| (a[(i, k)] * if transposed { x[(j, k)] } else { x[(k, j)] }).abs())
+                .sum();
+            2.0 * 16.0 * f64::EPSILON * s
+        };
+        for i in 0..15 {
+            for j in 0..15 {
+                assert!((fused_ax[(i, j)] - portable.0[(i, j)]).abs() <= bound(i, j, false));
+                assert!((fused_axt[(i, j)] - portable.1[(i, j)]).abs() <= bound(i, j, true));
+            }
+        }
+        if let Some(gram) = gram {
+            assert_eq!(gram, gram.transpose());
+            assert!((gram - (a * a.transpose() + b * b.transpose())).amax() < 1e-13);
+        }
     }
 }

@@ -1,0 +1,241 @@
+//! The error-state Kalman filter: a nominal state propagated by the model, an error
+//! covariance, updates that inject the estimated error and reset the covariance.
+
+use nalgebra::{SMatrix, SVector};
+
+use super::shared::{check_dt, CrossSource, Shared};
+use super::UpdateReport;
+use crate::gaussian::{check_finite, check_symmetric, symmetrize};
+use crate::observer::{NoObserver, Observer};
+use crate::{
+    CrossCovariance, ErrorStateModel, FilterConfig, MeasurementModel, ProcessModel, Result, Scalar,
+    StateAndCovariance, WindowedCrossCovariance,
+};
+
+/// Error-state Kalman filter: a nominal state propagated by the [`ErrorStateModel`],
+/// an N-dimensional error covariance, updates that estimate the error, inject it into
+/// the nominal state and reset the covariance (P <- J P J', J = `reset_jacobian`
+/// evaluated at the nominal state before injection and the injected error). The
+/// error estimate is zero between updates; the windowed bookkeeping applies J to the
+/// carried cross-covariance too.
+///
+/// Kept state, the reset rule of Q_acc / Phi_acc and the commit rule: as for
+/// [`KalmanFilter`].
+#[derive(Debug, Clone)]
+pub struct ErrorStateKalmanFilter<T, P, const N: usize, O = NoObserver>
+where
+    T: Scalar,
+    P: ProcessModel<T, N>,
+{
+    process: P,
+    nominal: P::State,
+    covariance: SMatrix<T, N, N>,
+    /// The update's posterior covariance buffer; after an accepted update it holds
+    /// the prior covariance (swapped, not copied).
+    spare: SMatrix<T, N, N>,
+    shared: Shared<T, P::State, P::Input, N, O>,
+}
+
+impl<T, P, const N: usize> ErrorStateKalmanFilter<T, P, N, NoObserver>
+where
+    T: Scalar,
+    P: ErrorStateModel<T, N>,
+{
+    /// A filter for `process` from a nominal state and its error covariance.
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`] / [`Error::InvalidCovariance`] for a bad covariance.
+    pub fn new(process: P, nominal: P::State, covariance: SMatrix<T, N, N>) -> Result<Self> {
+        check_finite(covariance.as_slice(), "error covariance")?;
+        check_symmetric(&covariance, "error covariance")?;
+        Ok(Self {
+            process,
+            nominal,
+            covariance,
+            spare: SMatrix::zeros(),
+            shared: Shared::new(),
+        })
+    }
+}
+
+impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ErrorStateKalmanFilter<T, P, N, O> {
+    shared_accessors!();
+
+    /// The last `steps` recorded process steps (states before propagation, inputs,
+    /// dt, transitions), e.g. to build a learned measurement's input window from the
+    /// samples the filter itself consumed (the runner is the ring buffer of its
+    /// input stream).
+    ///
+    /// # Errors
+    /// [`Error::WindowUnavailable`] if fewer steps are recorded (or `steps` is 0).
+    pub fn step_window(
+        &self,
+        steps: usize,
+    ) -> Result<crate::window::StepWindow<'_, T, P::State, P::Input, N>> {
+        self.shared.history.window(steps)
+    }
+
+    /// Replace the observer.
+    #[must_use]
+    pub fn with_observer<O2>(self, observer: O2) -> ErrorStateKalmanFilter<T, P, N, O2> {
+        ErrorStateKalmanFilter {
+            process: self.process,
+            nominal: self.nominal,
+            covariance: self.covariance,
+            spare: self.spare,
+            shared: self.shared.with_observer(observer),
+        }
+    }
+
+    /// The process model.
+    pub fn process(&self) -> &P {
+        &self.process
+    }
+
+    /// The nominal state.
+    pub fn nominal(&self) -> &P::State {
+        &self.nominal
+    }
+
+    /// The error covariance.
+    pub fn covariance(&self) -> &SMatrix<T, N, N> {
+        &self.covariance
+    }
+}
+
+impl<T, P, const N: usize, O> ErrorStateKalmanFilter<T, P, N, O>
+where
+    T: Scalar,
+    P: ErrorStateModel<T, N>,
+    P::Input: Clone,
+    O: Observer<T, P::State, N>,
+{
+    /// Propagate the nominal state with [`ProcessModel::propagate`] and the error
+    /// covariance with [`ProcessModel::propagate_covariance`] (Phi and Q_d evaluated
+    /// at the nominal state before propagation).
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for dt not positive and finite, the model's errors,
+    /// [`Error::NonFinite`] if the covariance is not finite; observer errors.
+    pub fn predict(&mut self, input: &P::Input, dt: T) -> Result<()> {
+        check_dt(dt)?;
+        let (phi, qd) = self
+            .process
+            .transition_and_noise(&self.nominal, input, dt)?;
+        check_finite(phi.as_slice(), "transition matrix")?;
+        check_finite(qd.as_slice(), "process noise covariance")?;
+        let nominal = self.process.propagate(&self.nominal, input, dt)?;
+        let covariance = self
+            .process
+            .propagate_covariance(&self.covariance, &phi, &qd);
+        check_finite(covariance.as_slice(), "predicted covariance")?;
+        let before = std::mem::replace(&mut self.nominal, nominal);
+        self.covariance = covariance;
+        let process = &self.process;
+        self.shared.record_predict(
+            false,
+            &before,
+            input,
+            Some(dt),
+            &phi,
+            &qd,
+            |q, phi, qd| process.propagate_covariance(q, phi, qd),
+            |later, earlier| process.compose_transitions(later, earlier),
+        );
+        self.shared
+            .notify_predict(Some(dt), &self.nominal, &self.covariance, &phi, &qd)
+    }
+
+    fn update_from<Mm, C, W, const M: usize>(
+        &mut self,
+        model: &Mm,
+        measurement: &SVector<T, M>,
+        source: CrossSource<'_, C, W>,
+    ) -> Result<UpdateReport<T, N, M>>
+    where
+        Mm: MeasurementModel<T, N, M, State = P::State> + ?Sized,
+        C: CrossCovariance<T, P::State, N, M> + ?Sized,
+        W: WindowedCrossCovariance<T, P::State, P::Input, N, M> + ?Sized,
+    {
+        let predicted = model.predict(&self.nominal)?;
+        let jacobian = model.jacobian(&self.nominal)?;
+        let noise = model.noise_covariance(&self.nominal)?;
+        let prior = StateAndCovariance::new_unchecked(SVector::zeros(), self.covariance);
+        let windowed = matches!(source, CrossSource::Windowed(_));
+        // Filled in place by the attempt (the copies of returned matrices were a
+        // tenth of an update at N = 15).
+        let mut report = UpdateReport::blank();
+        let attempt = self.shared.attempt(
+            source,
+            &prior,
+            &self.nominal,
+            measurement,
+            predicted,
+            &jacobian,
+            &noise,
+            None,
+            &mut self.spare,
+            &mut report,
+        )?;
+        // Everything that can fail happens before the commit; the posterior
+        // covariance (reset when J != I) is in `spare`.
+        let mut committed = None;
+        let mut reset = None;
+        if let Some(error) = attempt.posterior.as_ref() {
+            let j = self.process.reset_jacobian(&self.nominal, error);
+            check_finite(j.as_slice(), "reset jacobian")?;
+            let nominal = self.process.inject(&self.nominal, error)?;
+            if j != SMatrix::<T, N, N>::identity() {
+                self.spare = symmetrize(&(j * self.spare * j.transpose()));
+                reset = Some(j);
+            }
+            committed = Some(nominal);
+        }
+        self.shared
+            .record_update(&attempt, &report, &jacobian, reset.as_ref());
+        let prior_covariance = match committed {
+            Some(nominal) => {
+                self.nominal = nominal;
+                std::mem::swap(&mut self.covariance, &mut self.spare);
+                &self.spare
+            }
+            None => &self.covariance,
+        };
+        self.shared.notify_update(
+            &report,
+            &self.nominal,
+            &self.covariance,
+            prior_covariance,
+            &jacobian,
+            windowed,
+            reset.as_ref(),
+        )?;
+        Ok(report)
+    }
+
+    update_methods! {
+        state: P::State,
+        input: P::Input,
+        model: [model: Mm],
+        size: [M],
+        predict: [input: &P::Input, dt: T],
+        /// Estimate the error from measurement y (prior error zero), inject it into the
+        /// nominal state, reset the covariance.
+        ///
+        /// # Errors
+        /// As [`ExtendedKalmanFilter::update`], plus the injection's errors; on any error
+        /// other than the observer's the filter is left untouched.
+        update;
+        /// Windowed update (exact M, Var(v | ...), E[v | ...]; see [`crate::window`]),
+        /// then injection and reset as [`ErrorStateKalmanFilter::update`].
+        ///
+        /// # Errors
+        /// As [`ExtendedKalmanFilter::update_windowed`], plus the injection's errors.
+        update_windowed;
+        /// One time step: predict over `dt`, then update if a measurement is present.
+        ///
+        /// # Errors
+        /// Those of [`ErrorStateKalmanFilter::predict`] and [`ErrorStateKalmanFilter::update`].
+        step;
+    }
+}

@@ -1,0 +1,212 @@
+//! The extended Kalman filter over a [`ProcessModel`] whose state is `SVector<T, N>`.
+
+use nalgebra::{SMatrix, SVector};
+
+use super::shared::{check_dt, CrossSource, Shared};
+use super::UpdateReport;
+use crate::gaussian::check_finite;
+use crate::observer::{NoObserver, Observer};
+use crate::{
+    CrossCovariance, FilterConfig, MeasurementModel, ProcessModel, Result, Scalar,
+    StateAndCovariance, WindowedCrossCovariance,
+};
+
+/// Extended Kalman filter over a [`ProcessModel`] whose state is `SVector<T, N>`,
+/// updated with any [`MeasurementModel`] and [`CrossCovariance`] (one-step) or
+/// [`WindowedCrossCovariance`] (exact over a window).
+///
+/// F and Q_d are evaluated at the state before propagation. Kept state, the reset
+/// rule of Q_acc / Phi_acc and the commit rule: as for [`KalmanFilter`].
+#[derive(Debug, Clone)]
+pub struct ExtendedKalmanFilter<T: Scalar, P, const N: usize, O = NoObserver>
+where
+    P: ProcessModel<T, N>,
+{
+    process: P,
+    estimate: StateAndCovariance<T, N>,
+    /// The update's posterior covariance buffer; after an accepted update it holds
+    /// the prior covariance (swapped, not copied).
+    spare: SMatrix<T, N, N>,
+    shared: Shared<T, SVector<T, N>, P::Input, N, O>,
+}
+
+impl<T, P, const N: usize> ExtendedKalmanFilter<T, P, N, NoObserver>
+where
+    T: Scalar,
+    P: ProcessModel<T, N, State = SVector<T, N>>,
+{
+    /// A filter for `process` starting from `initial`; default configuration.
+    pub fn new(process: P, initial: StateAndCovariance<T, N>) -> Self {
+        Self {
+            process,
+            estimate: initial,
+            spare: SMatrix::zeros(),
+            shared: Shared::new(),
+        }
+    }
+}
+
+impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ExtendedKalmanFilter<T, P, N, O> {
+    shared_accessors!();
+
+    /// The last `steps` recorded process steps (states before propagation, inputs,
+    /// dt, transitions), e.g. to build a learned measurement's input window from the
+    /// samples the filter itself consumed (the runner is the ring buffer of its
+    /// input stream).
+    ///
+    /// # Errors
+    /// [`Error::WindowUnavailable`] if fewer steps are recorded (or `steps` is 0).
+    pub fn step_window(
+        &self,
+        steps: usize,
+    ) -> Result<crate::window::StepWindow<'_, T, SVector<T, N>, P::Input, N>> {
+        self.shared.history.window(steps)
+    }
+
+    /// Replace the observer.
+    #[must_use]
+    pub fn with_observer<O2>(self, observer: O2) -> ExtendedKalmanFilter<T, P, N, O2> {
+        ExtendedKalmanFilter {
+            process: self.process,
+            estimate: self.estimate,
+            spare: self.spare,
+            shared: self.shared.with_observer(observer),
+        }
+    }
+
+    /// The process model.
+    pub fn process(&self) -> &P {
+        &self.process
+    }
+
+    /// The current estimate.
+    pub fn estimate(&self) -> &StateAndCovariance<T, N> {
+        &self.estimate
+    }
+}
+
+impl<T, P, const N: usize, O> ExtendedKalmanFilter<T, P, N, O>
+where
+    T: Scalar,
+    P: ProcessModel<T, N, State = SVector<T, N>>,
+    P::Input: Clone,
+    O: Observer<T, SVector<T, N>, N>,
+{
+    /// Prior over `dt`: x <- f(x, u), P <- Phi P Phi' + Q_d (via
+    /// [`ProcessModel::propagate_covariance`]).
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for dt not positive and finite, the model's errors,
+    /// [`Error::NonFinite`] if the prediction is not finite; observer errors.
+    pub fn predict(&mut self, input: &P::Input, dt: T) -> Result<()> {
+        check_dt(dt)?;
+        let x = self.estimate.state();
+        let (phi, qd) = self.process.transition_and_noise(x, input, dt)?;
+        check_finite(phi.as_slice(), "transition matrix")?;
+        check_finite(qd.as_slice(), "process noise covariance")?;
+        let state = self.process.propagate(x, input, dt)?;
+        let covariance = self
+            .process
+            .propagate_covariance(self.estimate.covariance(), &phi, &qd);
+        check_finite(state.as_slice(), "predicted state")?;
+        check_finite(covariance.as_slice(), "predicted covariance")?;
+        let before = std::mem::replace(
+            &mut self.estimate,
+            StateAndCovariance::new_unchecked(state, covariance),
+        );
+        let process = &self.process;
+        self.shared.record_predict(
+            false,
+            before.state(),
+            input,
+            Some(dt),
+            &phi,
+            &qd,
+            |q, phi, qd| process.propagate_covariance(q, phi, qd),
+            |later, earlier| process.compose_transitions(later, earlier),
+        );
+        self.shared.notify_predict(
+            Some(dt),
+            self.estimate.state(),
+            self.estimate.covariance(),
+            &phi,
+            &qd,
+        )
+    }
+
+    fn update_from<Mm, C, W, const M: usize>(
+        &mut self,
+        model: &Mm,
+        measurement: &SVector<T, M>,
+        source: CrossSource<'_, C, W>,
+    ) -> Result<UpdateReport<T, N, M>>
+    where
+        Mm: MeasurementModel<T, N, M, State = SVector<T, N>> + ?Sized,
+        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
+        W: WindowedCrossCovariance<T, SVector<T, N>, P::Input, N, M> + ?Sized,
+    {
+        let x = self.estimate.state();
+        let predicted = model.predict(x)?;
+        let jacobian = model.jacobian(x)?;
+        let noise = model.noise_covariance(x)?;
+        let windowed = matches!(source, CrossSource::Windowed(_));
+        // Filled in place by the attempt (the copies of returned matrices were a
+        // tenth of an update at N = 15).
+        let mut report = UpdateReport::blank();
+        let attempt = self.shared.attempt(
+            source,
+            &self.estimate,
+            x,
+            measurement,
+            predicted,
+            &jacobian,
+            &noise,
+            None,
+            &mut self.spare,
+            &mut report,
+        )?;
+        self.shared
+            .record_update(&attempt, &report, &jacobian, None);
+        let prior_covariance = match attempt.posterior {
+            Some(state) => {
+                self.estimate.commit(state, &mut self.spare);
+                &self.spare
+            }
+            None => self.estimate.covariance(),
+        };
+        self.shared.notify_update(
+            &report,
+            self.estimate.state(),
+            self.estimate.covariance(),
+            prior_covariance,
+            &jacobian,
+            windowed,
+            None,
+        )?;
+        Ok(report)
+    }
+
+    update_methods! {
+        state: SVector<T, N>,
+        input: P::Input,
+        model: [model: Mm],
+        size: [M],
+        predict: [input: &P::Input, dt: T],
+        /// Update with `model`, measurement y and the one-step cross-covariance `cross`.
+        ///
+        /// # Errors
+        /// As [`KalmanFilter::update`], plus the measurement model's errors.
+        update;
+        /// Update with a measurement whose noise shares a window of recorded process
+        /// steps: exact M, Var(v | ...) and E[v | ...] (see [`crate::window`]).
+        ///
+        /// # Errors
+        /// As [`KalmanFilter::update_windowed`], plus the measurement model's errors.
+        update_windowed;
+        /// One time step: predict over `dt`, then update if a measurement is present.
+        ///
+        /// # Errors
+        /// Those of [`ExtendedKalmanFilter::predict`] and [`ExtendedKalmanFilter::update`].
+        step;
+    }
+}
