@@ -25,8 +25,8 @@ use adskalman::{
 use criterion::{criterion_group, criterion_main, Criterion};
 use estim_core::nalgebra::{Matrix2, Matrix2x4, Matrix4, Matrix4x2, SMatrix, SVector, U2, U4};
 use estim_core::{
-    correlated_update, joint_validity_margin, CovarianceUpdate, CrossCovariance, FilterConfig,
-    Fixed, JointCheck, KalmanFilter, StateAndCovariance, Zero,
+    correlated_update, CovarianceUpdate, CrossCovariance, FilterConfig, Fixed, JointCheck,
+    JointCovariance, KalmanFilter, StateAndCovariance, Zero,
 };
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -496,7 +496,9 @@ fn floor_filter(
         r_pivots,
         x: [0.0; 4],
         p: columns(&Matrix4::identity()),
-        joint_margin: joint_validity_margin(&q, &Matrix4x2::zeros(), &r).expect("margin"),
+        joint_margin: JointCovariance::new(q, Matrix4x2::zeros(), r)
+            .validity_margin()
+            .expect("margin"),
     }
 }
 
@@ -773,7 +775,7 @@ fn state_size(c: &mut Criterion<ThreadCpuTime>) {
 fn single_precision(c: &mut Criterion<ThreadCpuTime>) {
     fn predict_only<T: estim_core::Scalar>(c: &mut Criterion<ThreadCpuTime>, name: &str) {
         let (f, q, h, r) = random_model::<18, 3>(18);
-        let cast = |x: f64| -> T { estim_core::lit(x) };
+        let cast = |x: f64| -> T { estim_core::numeric::lit(x) };
         let mut kf = KalmanFilter::new(
             f.map(cast),
             q.map(cast),

@@ -19,9 +19,10 @@ use common::ThreadCpuTime;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use estim_core::nalgebra::SMatrix;
+use estim_core::window::StepWindow;
 use estim_core::{
-    ErrorStateKalmanFilter, FilterConfig, MeasurementModel, ProcessModel, StepWindow,
-    WindowedCrossCovariance, Zero,
+    ErrorStateKalmanFilter, FilterConfig, MeasurementModel, ProcessModel, WindowedCrossCovariance,
+    Zero,
 };
 use estim_dvl::DvlVelocityModel;
 use estim_ins::{

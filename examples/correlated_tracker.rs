@@ -18,11 +18,11 @@
 //!
 //! Run: `cargo run --release --example correlated_tracker`
 
+use estim_core::consistency::{average_over_runs, chi_square_band, monte_carlo, nees};
 use estim_core::nalgebra::{Matrix2, SMatrix, Vector2};
 use estim_core::{
-    average_over_runs, chi_square_band, monte_carlo, nees, CrossCovariance, CrossCovarianceContext,
-    ExtendedKalmanFilter, FilterConfig, JointCheck, MeasurementModel, ProcessModel, Result,
-    StateAndCovariance, Zero,
+    CrossCovariance, CrossCovarianceContext, ExtendedKalmanFilter, FilterConfig, JointCheck,
+    MeasurementModel, ProcessModel, Result, StateAndCovariance, Zero,
 };
 use rand_distr::{Distribution, StandardNormal};
 

@@ -22,11 +22,14 @@
 //! (its `#[test]`s run with `cargo test --workspace --release --example learned_odometry_fix`,
 //! and with every `cargo test --workspace`).
 
+use estim_core::consistency::rand_chacha::ChaCha8Rng;
+use estim_core::consistency::{
+    average_over_runs, chi_square_band, monte_carlo, nees, ChiSquareBand,
+};
 use estim_core::nalgebra::{DMatrix, Matrix2, Vector2};
-use estim_core::rand_chacha::ChaCha8Rng;
 use estim_core::{
-    average_over_runs, chi_square_band, monte_carlo, nees, ChiSquareBand, ExtendedKalmanFilter,
-    FilterConfig, InputSpec, LearnedMeasurement, ProcessModel, Result, StateAndCovariance, Zero,
+    ExtendedKalmanFilter, FilterConfig, InputSpec, LearnedMeasurement, ProcessModel, Result,
+    StateAndCovariance, Zero,
 };
 use estim_learned::{InputNoise, LearnedCrossCovariance, LearnedSensor, LinearObservation};
 use rand_distr::{Distribution, StandardNormal};

@@ -21,9 +21,10 @@
 //! `cargo run --release --example windowed_tracker`
 
 use estim_core::nalgebra::{Matrix1, Matrix1x2, Matrix2, Matrix2x1, Vector1, Vector2};
+use estim_core::window::StepWindow;
 use estim_core::{
     CrossCovariance, CrossCovarianceContext, ExtendedKalmanFilter, FilterConfig, MeasurementModel,
-    ProcessModel, Result, StateAndCovariance, StepWindow, WindowedCrossCovariance, Zero,
+    ProcessModel, Result, StateAndCovariance, WindowedCrossCovariance, Zero,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -181,7 +182,7 @@ fn run(seed: u64, variant: Variant, position_fix: bool) -> Result<(f64, Matrix2x
         }
         if update >= 10 {
             let e = truth - filter.estimate().state();
-            nees_sum += estim_core::nees(&e, filter.estimate().covariance())?;
+            nees_sum += estim_core::consistency::nees(&e, filter.estimate().covariance())?;
             count += 1;
         }
     }
@@ -189,7 +190,7 @@ fn run(seed: u64, variant: Variant, position_fix: bool) -> Result<(f64, Matrix2x
 }
 
 fn main() -> Result<()> {
-    let band = estim_core::chi_square_band(2, RUNS * (UPDATES - 10), 0.95)?;
+    let band = estim_core::consistency::chi_square_band(2, RUNS * (UPDATES - 10), 0.95)?;
     println!(
         "{RUNS} runs x {UPDATES} velocity updates, {STEPS_PER_UPDATE} predicts each, the last {SHARED_STEPS} shared;"
     );

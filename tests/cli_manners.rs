@@ -544,3 +544,59 @@ fn print_config_and_preset_errors_help_the_user() {
         assert!(stderr.contains(p), "{stderr}");
     }
 }
+
+#[test]
+fn smooth_json_is_one_document_in_the_schema() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = estim(&["smooth", "--json"], dir.path());
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let doc = json_of(&out);
+    assert_schema(&doc, "smooth");
+    let reports = doc["reports"].as_array().expect("reports");
+    assert_eq!(reports.len(), 1, "the embedded simulated mission");
+    assert!(doc["inputs"]["seed"].is_u64());
+}
+
+#[test]
+fn trajectory_without_data_finds_the_data_through_estim_data_dir() {
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let run = |data_dir: &Path| {
+        Command::new(env!("CARGO_BIN_EXE_estim"))
+            .args(["reproduce", "--trajectory", "13", "--json"])
+            .env("ESTIM_DATA_DIR", data_dir)
+            .current_dir(dir.path())
+            .output()
+            .expect("run estim")
+    };
+    let out = run(&root);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let doc = json_of(&out);
+    let numbers: Vec<u64> = doc["trajectories"]
+        .as_array()
+        .expect("trajectories")
+        .iter()
+        .filter_map(|t| t["trajectory"].as_u64())
+        .collect();
+    assert_eq!(
+        numbers,
+        [13],
+        "--trajectory 13 ran A-KIT 13, not the simulated mission"
+    );
+    // A data folder without the trajectory: exit 2 naming it, never a silent fallback.
+    let out = run(dir.path());
+    assert_eq!(out.status.code(), Some(2));
+    assert!(out.stdout.is_empty());
+}

@@ -15,9 +15,9 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
 use estim_core::nalgebra::{SMatrix, SVector};
+use estim_core::window::StepWindow;
 use estim_core::{
-    ErrorStateKalmanFilter, FilterConfig, MeasurementModel, StepWindow, WindowedCrossCovariance,
-    Zero,
+    ErrorStateKalmanFilter, FilterConfig, MeasurementModel, WindowedCrossCovariance, Zero,
 };
 use estim_dvl::DvlVelocityModel;
 use estim_ins::{

@@ -69,7 +69,25 @@ pub struct BeamsNet {
 impl BeamsNet {
     /// Load an ONNX file and its metadata (`<model>.json` beside it).
     pub fn load(model_path: &Path) -> Result<Self> {
-        let inner = OnnxMeasurement::<3>::from_model_path(model_path)?;
+        Self::from_measurement(
+            OnnxMeasurement::<3>::from_model_path(model_path)?,
+            model_path,
+        )
+    }
+
+    /// [`BeamsNet::load`] from the bytes of the ONNX file and the text of its metadata
+    /// JSON (e.g. embedded in a binary); `name` names the model in errors.
+    ///
+    /// # Errors
+    /// As [`BeamsNet::load`].
+    pub fn from_bytes(onnx: &[u8], metadata_json: &str, name: &Path) -> Result<Self> {
+        Self::from_measurement(
+            OnnxMeasurement::<3>::from_bytes(onnx, metadata_json, name)?,
+            name,
+        )
+    }
+
+    fn from_measurement(inner: OnnxMeasurement<3>, model_path: &Path) -> Result<Self> {
         inner.require_inputs(
             model_path,
             "BeamsNet",

@@ -7,7 +7,7 @@ use std::sync::Mutex;
 use estim_core::{InputSpec, LearnedMeasurement};
 use nalgebra::{DMatrix, SMatrix, SVector};
 
-use crate::metadata::ModelMetadata;
+use crate::metadata::{InputMetadata, ModelMetadata, OutputMetadata};
 use crate::onnx::OnnxModel;
 use crate::{Error, Result};
 
@@ -65,7 +65,28 @@ impl<const M: usize> OnnxMeasurement<M> {
         Self::new(model_path, metadata, &metadata_path)
     }
 
+    /// Load from the bytes of an ONNX file and the text of its metadata JSON (e.g. a
+    /// model embedded in a binary with `include_bytes!`); `name` names the model in
+    /// errors (its metadata as `name` with the extension `.json`).
+    pub fn from_bytes(onnx: &[u8], metadata_json: &str, name: &Path) -> Result<Self> {
+        let metadata_path = name.with_extension("json");
+        let metadata = ModelMetadata::from_json(metadata_json, &metadata_path)?;
+        Self::with_model(metadata, &metadata_path, |inputs, output| {
+            OnnxModel::load_bytes(onnx, name, inputs, output)
+        })
+    }
+
     fn new(model_path: &Path, metadata: ModelMetadata, metadata_path: &Path) -> Result<Self> {
+        Self::with_model(metadata, metadata_path, |inputs, output| {
+            OnnxModel::load(model_path, inputs, output)
+        })
+    }
+
+    fn with_model(
+        metadata: ModelMetadata,
+        metadata_path: &Path,
+        load: impl FnOnce(&[InputMetadata], &OutputMetadata) -> Result<OnnxModel>,
+    ) -> Result<Self> {
         if metadata.output.size != M {
             return Err(Error::MalformedMetadata {
                 path: metadata_path.to_path_buf(),
@@ -82,7 +103,7 @@ impl<const M: usize> OnnxMeasurement<M> {
                 reason: "noise_covariance is not positive definite".into(),
             });
         }
-        let model = OnnxModel::load(model_path, &metadata.inputs, &metadata.output)?;
+        let model = load(&metadata.inputs, &metadata.output)?;
         let specs = metadata
             .inputs
             .iter()

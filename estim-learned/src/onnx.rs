@@ -95,11 +95,41 @@ impl OnnxModel {
                 what: "ONNX model",
             });
         }
+        let model = tract_onnx::onnx()
+            .model_for_path(path)
+            .map_err(|e| Error::MalformedModel {
+                path: path.to_path_buf(),
+                reason: format!("{e:#}"),
+            })?;
+        Self::from_inference_model(model, path, inputs, output)
+    }
+
+    /// [`Self::load`] from the bytes of an ONNX file; `path` names them in errors.
+    pub(crate) fn load_bytes(
+        bytes: &[u8],
+        path: &Path,
+        inputs: &[InputMetadata],
+        output: &OutputMetadata,
+    ) -> Result<Self> {
+        let model = tract_onnx::onnx()
+            .model_for_read(&mut std::io::Cursor::new(bytes))
+            .map_err(|e| Error::MalformedModel {
+                path: path.to_path_buf(),
+                reason: format!("{e:#}"),
+            })?;
+        Self::from_inference_model(model, path, inputs, output)
+    }
+
+    fn from_inference_model(
+        mut model: InferenceModel,
+        path: &Path,
+        inputs: &[InputMetadata],
+        output: &OutputMetadata,
+    ) -> Result<Self> {
         let malformed = |e: TractError| Error::MalformedModel {
             path: path.to_path_buf(),
             reason: format!("{e:#}"),
         };
-        let mut model = tract_onnx::onnx().model_for_path(path).map_err(malformed)?;
 
         // Inputs: names and count must match, declared dtype/rank/fixed dims too.
         let outlets = model.input_outlets().map_err(malformed)?.to_vec();

@@ -36,7 +36,25 @@ impl OutageNet {
     /// gyro windows of 100 samples, a 3-vector and a scalar, or the maximum elapsed time
     /// is not positive.
     pub fn load(model_path: &Path) -> Result<Self> {
-        let inner = OnnxMeasurement::<3>::from_model_path(model_path)?;
+        Self::from_measurement(
+            OnnxMeasurement::<3>::from_model_path(model_path)?,
+            model_path,
+        )
+    }
+
+    /// [`OutageNet::load`] from the bytes of the ONNX file and the text of its metadata
+    /// JSON (e.g. embedded in a binary); `name` names the model in errors.
+    ///
+    /// # Errors
+    /// As [`OutageNet::load`].
+    pub fn from_bytes(onnx: &[u8], metadata_json: &str, name: &Path) -> Result<Self> {
+        Self::from_measurement(
+            OnnxMeasurement::<3>::from_bytes(onnx, metadata_json, name)?,
+            name,
+        )
+    }
+
+    fn from_measurement(inner: OnnxMeasurement<3>, model_path: &Path) -> Result<Self> {
         let meta = inner.metadata();
         let bad = |reason: String| Error::MalformedMetadata {
             path: model_path.with_extension("json"),

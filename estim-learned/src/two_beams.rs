@@ -30,7 +30,25 @@ impl TwoBeamsNet {
     /// Load an ONNX file and its metadata (`<model>.json` beside it). The beams used
     /// are read from the metadata's `training.beams_used` (1-based; default 1 and 2).
     pub fn load(model_path: &Path) -> Result<Self> {
-        let inner = OnnxMeasurement::<3>::from_model_path(model_path)?;
+        Self::from_measurement(
+            OnnxMeasurement::<3>::from_model_path(model_path)?,
+            model_path,
+        )
+    }
+
+    /// [`TwoBeamsNet::load`] from the bytes of the ONNX file and the text of its metadata
+    /// JSON (e.g. embedded in a binary); `name` names the model in errors.
+    ///
+    /// # Errors
+    /// As [`TwoBeamsNet::load`].
+    pub fn from_bytes(onnx: &[u8], metadata_json: &str, name: &Path) -> Result<Self> {
+        Self::from_measurement(
+            OnnxMeasurement::<3>::from_bytes(onnx, metadata_json, name)?,
+            name,
+        )
+    }
+
+    fn from_measurement(inner: OnnxMeasurement<3>, model_path: &Path) -> Result<Self> {
         let meta = inner.metadata();
         let bad = |reason: String| Error::MalformedMetadata {
             path: model_path.with_extension("json"),

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use estim_dvl::BeamsNetProtocol;
 use estim_ins::{Mission, MissionConfig};
-use estim_learned::{default_model_path, evaluate, synthesize, BeamsNet, Evaluation};
+use estim_learned::{evaluate, synthesize, BeamsNet, Evaluation};
 
 use crate::study::{filter_label, BEAMSNET, LS};
 
@@ -54,9 +54,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 fn eval(args: EvalArgs) -> anyhow::Result<()> {
-    let model_path = args.model.clone().unwrap_or_else(default_model_path);
-    let beamsnet = BeamsNet::load(&model_path)
-        .with_context(|| format!("loading BeamsNet from {}", model_path.display()))?;
+    let beamsnet = match &args.model {
+        Some(path) => BeamsNet::load(path)
+            .with_context(|| format!("loading BeamsNet from {}", path.display()))?,
+        None => estim::models::beamsnet().context("the embedded BeamsNet model")?,
+    };
+    let model_json = match &args.model {
+        Some(path) => path_json(Some(path)),
+        None => serde_json::Value::from(estim::models::BEAMSNET_NAME),
+    };
     let protocol = BeamsNetProtocol::v1();
     let seed = match args.data {
         Some(_) => args.seed + u64::from(args.trajectory),
@@ -102,7 +108,7 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
         let inputs = serde_json::json!({
             "data": path_json(args.data.as_deref()),
             "trajectory": trajectory_json,
-            "model": path_json(Some(&model_path)),
+            "model": model_json,
             "seed": seed,
             "base_seed": args.seed,
         });

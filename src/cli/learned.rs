@@ -12,7 +12,7 @@ pub fn sensor(config: &Config, model: Option<&Path>) -> anyhow::Result<Option<Bo
     let net = match model {
         Some(path) => BeamsNet::load(path)
             .with_context(|| format!("{}: cannot load model", path.display()))?,
-        None => BeamsNet::load_default().context("the committed BeamsNet model")?,
+        None => estim::models::beamsnet().context("the committed BeamsNet model")?,
     };
     let protocol = if config.dvl.protocol == "v2" {
         estim::dvl::BeamsNetProtocol::v2()

@@ -53,15 +53,15 @@ pub struct Networks {
 impl Networks {
     /// BeamsNet and the network of `outage` (true) or the two-beams scenario.
     pub fn load(outage: bool) -> anyhow::Result<Self> {
-        let beamsnet = BeamsNet::load_default().context("the committed BeamsNet model")?;
+        let beamsnet = estim::models::beamsnet().context("the committed BeamsNet model")?;
         let (two_beams, outage) = if outage {
             (
                 None,
-                Some(OutageNet::load_default().context("the committed outage model")?),
+                Some(estim::models::outage().context("the committed outage model")?),
             )
         } else {
             (
-                Some(TwoBeamsNet::load_default().context("the committed two-beams model")?),
+                Some(estim::models::two_beams().context("the committed two-beams model")?),
                 None,
             )
         };

@@ -18,7 +18,8 @@ pub struct Args {
     /// Without it, the embedded simulated mission is used.
     #[arg(long, value_name = "DIR")]
     data: Option<PathBuf>,
-    /// A-KIT trajectories to run (repeatable); default 4 and 13.
+    /// A-KIT trajectories to run (repeatable); default 4 and 13. Without --data the
+    /// data is found through `ESTIM_DATA_DIR`, then `../shared/data`.
     #[arg(long = "trajectory", value_name = "N")]
     trajectories: Vec<u32>,
     /// A ground-truth CSV file at any path (one trajectory; with --dvl). Columns are
@@ -83,8 +84,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 )?],
                 None,
             ),
-            (Some(dir), _, _) => {
-                let dir = data_root(Some(dir)).context("no data folder")?;
+            (Some(_), _, _) | (None, None, None)
+                if args.data.is_some() || !args.trajectories.is_empty() =>
+            {
+                let dir = data_root(args.data.as_deref()).context(
+                    "--trajectory needs the A-KIT data: pass --data DIR, set ESTIM_DATA_DIR, \
+                     or place it at ../shared/data",
+                )?;
                 let list = if args.trajectories.is_empty() {
                     vec![4, 13]
                 } else {
@@ -157,7 +163,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "data": path_json(args.data.as_deref()),
         "trajectories": trajectories,
         "config_file": path_json(args.config.as_deref()),
-        "model": path_json(args.model.as_deref()),
+        "model": match &args.model {
+            Some(path) => path_json(Some(path)),
+            None => serde_json::Value::from(estim::models::BEAMSNET_NAME),
+        },
         "out": path_json(args.out.as_deref()),
         "seed": config.seed,
         "config": config,
@@ -473,7 +482,7 @@ fn write_outputs(
         line_chart(&staged.path(&format!("{stem}_track")), &chart).map_err(plot_err)?;
         // NEES over time with the per-epoch 95 % band of chi-square(15); the line
         // breaks where P was not positive definite (NEES undefined).
-        let band = estim::core::chi_square_band(15, 1, 0.95)?;
+        let band = estim::core::consistency::chi_square_band(15, 1, 0.95)?;
         let chart = LineChart {
             title: &format!("{}: NEES (15 states) against truth", r.name),
             x_label: "time [s]",

@@ -16,7 +16,8 @@ pub struct Args {
     /// trajectories are smoothed besides the embedded simulated mission.
     #[arg(long, value_name = "DIR")]
     data: Option<PathBuf>,
-    /// A-KIT trajectories to run with --data (repeatable); default 4 and 13.
+    /// A-KIT trajectories to run (repeatable); default 4 and 13 with --data. Without
+    /// --data the data is found through `ESTIM_DATA_DIR`, then `../shared/data`.
     #[arg(long = "trajectory", value_name = "N")]
     trajectories: Vec<u32>,
     /// TOML configuration (as for `estim reproduce`).
@@ -46,8 +47,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(rho) => anyhow::bail!("--rho {rho}: a correlation must be finite and in [-1, 1]"),
     };
     let mut scenarios = vec![Scenario::simulated(&config, config.seed)?];
-    if let Some(dir) = &args.data {
-        let dir = data_root(Some(dir)).context("no data folder")?;
+    if args.data.is_some() || !args.trajectories.is_empty() {
+        let dir = data_root(args.data.as_deref()).context(
+            "--trajectory needs the A-KIT data: pass --data DIR, set ESTIM_DATA_DIR, \
+             or place it at ../shared/data",
+        )?;
         let list = if args.trajectories.is_empty() {
             vec![4, 13]
         } else {
@@ -65,7 +69,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         write_outputs(dir, &reports)?;
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&reports)?);
+        use crate::schema::{document, path_json};
+        let inputs = serde_json::json!({
+            "data": path_json(args.data.as_deref()),
+            "trajectories": args.trajectories,
+            "config_file": path_json(args.config.as_deref()),
+            "rho": args.rho,
+            "out": path_json(args.out.as_deref()),
+            "seed": config.seed,
+            "config": config,
+        });
+        let doc = document(
+            "smooth",
+            inputs,
+            0,
+            serde_json::json!({ "reports": reports }),
+        );
+        crate::output::emit(&format!("{}\n", serde_json::to_string_pretty(&doc)?))?;
     } else {
         print_reports(&reports);
     }

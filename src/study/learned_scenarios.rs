@@ -12,9 +12,10 @@
 //! rho; a fifth variant receives no update during the loss (INS only; least squares
 //! needs three beams).
 
+use estim_core::consistency::chi_square_band;
 use estim_core::nalgebra::DMatrix;
 use estim_core::nalgebra::{Matrix3, SMatrix, Vector3};
-use estim_core::{chi_square_band, ErrorStateKalmanFilter, FilterConfig, WindowedCrossCovariance};
+use estim_core::{ErrorStateKalmanFilter, FilterConfig, WindowedCrossCovariance};
 use estim_dvl::BeamGeometry;
 use estim_ins::{InsErrorModel, ERROR_STATES};
 use estim_learned::{
@@ -802,7 +803,7 @@ mod tests {
 
     #[test]
     fn outage_extras_hold_the_last_least_squares_velocity_and_the_elapsed_time() {
-        let Ok(net) = OutageNet::load_default() else {
+        let Ok(net) = estim::models::outage() else {
             panic!("the committed outage model must load");
         };
         let config = Config::default();

@@ -203,7 +203,7 @@ pub fn thousands(n: usize) -> String {
 /// The committed BeamsNet model as the pipeline's learned sensor, with M from the
 /// network's sensitivity (what `estim reproduce` and `estim montecarlo` use).
 pub fn default_beamsnet(config: &Config) -> Result<Box<LearnedSource>> {
-    let net = estim_learned::BeamsNet::load_default()?;
+    let net = estim::models::beamsnet()?;
     let protocol = if config.dvl.protocol == "v2" {
         estim_dvl::BeamsNetProtocol::v2()
     } else {

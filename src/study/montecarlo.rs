@@ -3,7 +3,7 @@
 
 use std::collections::BTreeMap;
 
-use estim_core::chi_square_band;
+use estim_core::consistency::chi_square_band;
 use rayon::prelude::*;
 use serde::Serialize;
 

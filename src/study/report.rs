@@ -2,7 +2,7 @@
 
 use std::collections::BTreeMap;
 
-use estim_core::chi_square_band;
+use estim_core::consistency::chi_square_band;
 use estim_core::nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;

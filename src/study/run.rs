@@ -1,10 +1,11 @@
 //! One filter run over a scenario: the 15-state INS error-state EKF aided by a DVL
 //! velocity (least squares or a learned model), with a chosen cross-covariance.
 
+use estim_core::consistency::nees;
 use estim_core::nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 use estim_core::{
-    largest_valid_scale, nees, CrossCovariance, ErrorStateKalmanFilter, FilterConfig, Fixed, Gate,
-    GateRecovery, NoObserver, Observer, ProcessModel, ScaledCorrelation, Zero,
+    CrossCovariance, ErrorStateKalmanFilter, FilterConfig, Fixed, Gate, GateRecovery,
+    JointCovariance, NoObserver, Observer, ProcessModel, ScaledCorrelation, Zero,
 };
 use estim_dvl::DvlVelocityModel;
 use estim_ins::{
@@ -436,11 +437,10 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
                 None => SMatrix::zeros(),
             };
             let step_unit = ScaledCorrelation::unit(&step_noise, &r);
-            run.largest_valid_rho_per_step.push(largest_valid_scale(
-                filter.accumulated_process_noise(),
-                &step_unit,
-                &r,
-            )?);
+            run.largest_valid_rho_per_step.push(
+                JointCovariance::new(*filter.accumulated_process_noise(), step_unit, r)
+                    .largest_valid_scale()?,
+            );
             let scaled;
             let fixed;
             let source: &dyn CrossCovariance<f64, InsState, ERROR_STATES, 3> = match cross {

@@ -1,11 +1,12 @@
 //! Smoothing a survey: the 15-state INS/DVL error-state filter recorded with
-//! [`estim_core::ForwardRecorder`] (one epoch per DVL update, the IMU predicts between
+//! [`estim_core::smoother::ForwardRecorder`] (one epoch per DVL update, the IMU predicts between
 //! updates composed), smoothed by the RTS smoother of estim-core and re-injected into
 //! the recorded nominal trajectory (`true = nominal + error`, estim-ins convention),
 //! then compared with the filter against ground truth at the same epochs.
 
+use estim_core::consistency::nees;
 use estim_core::nalgebra::{Matrix3, SMatrix};
-use estim_core::{nees, ForwardRecorder, RecordAt, Smoothed};
+use estim_core::smoother::{ForwardRecorder, RecordAt, Smoothed};
 use estim_ins::{InsErrorModel, InsState, ATT, ERROR_STATES, POS, VEL};
 use serde::Serialize;
 

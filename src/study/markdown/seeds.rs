@@ -337,9 +337,9 @@ pub fn seed_interval_tables(
 /// # Errors
 /// Missing or bad data files or model files; the pipeline's errors.
 pub fn learned_seed_tables(config: &Config, data: &Path) -> Result<Vec<Table>> {
-    let beamsnet = estim_learned::BeamsNet::load_default()?;
-    let two_beams = estim_learned::TwoBeamsNet::load_default()?;
-    let outage = estim_learned::OutageNet::load_default()?;
+    let beamsnet = estim::models::beamsnet()?;
+    let two_beams = estim::models::two_beams()?;
+    let outage = estim::models::outage()?;
     let events = [
         (
             "two-beams-seeds",

@@ -118,7 +118,7 @@ fn beamsnet_claims(data: &Path, trajectory: u32, seed: u64) {
         ..Config::default()
     };
     let scenario = Scenario::akit(data, trajectory, &config, seed).expect("A-KIT scenario");
-    let net = BeamsNet::load_default().expect("committed model");
+    let net = estim::models::beamsnet().expect("committed model");
     let geometry = estim::dvl::BeamsNetProtocol::v1().geometry().clone();
     let learned = beamsnet_inputs(&net, &scenario, &geometry, false).expect("inference");
     let ls = least_squares_velocities(&scenario, &config);

@@ -20,7 +20,7 @@ fn rmse(xs: &[f64]) -> f64 {
 fn per_variant_intervals_and_correlation() {
     let config = Config::default();
     let (runs, first_seed) = (3, 4100);
-    let net = BeamsNet::load_default().unwrap();
+    let net = estim::models::beamsnet().unwrap();
     let geometry = BeamsNetProtocol::v1().geometry().clone();
     let source: Box<LearnedSource> =
         Box::new(move |scenario| beamsnet_inputs(&net, scenario, &geometry, true));

@@ -21,9 +21,11 @@ use std::time::Instant;
 
 use crate::study::{error_state, initial_covariance, least_squares_velocities, Config, Scenario};
 use estim_core::nalgebra::{Matrix3, SMatrix, SVector};
+use estim_core::square_root::{
+    check_joint_factor, covariance_factor, square_root_predict, square_root_update,
+};
 use estim_core::{
-    check_joint_factor, covariance_factor, square_root_predict, square_root_update, Error,
-    ErrorStateKalmanFilter, ErrorStateModel, Fixed, MeasurementModel, ProcessModel,
+    Error, ErrorStateKalmanFilter, ErrorStateModel, Fixed, MeasurementModel, ProcessModel,
     ScaledCorrelation,
 };
 use estim_dvl::DvlVelocityModel;
@@ -215,8 +217,9 @@ fn square_root_mission(hours: f64, refuse_paper_rho: bool) -> Health {
             check_p(&mut health, s, k == dvl.imu_index);
         }
         if let Some(y) = velocities[epoch] {
-            let margin =
-                estim_core::joint_validity_margin(&sqrt_filter.accumulated_noise, &m, &r).unwrap();
+            let margin = estim_core::JointCovariance::new(sqrt_filter.accumulated_noise, m, r)
+                .validity_margin()
+                .unwrap();
             health.joint_margin = health.joint_margin.min(margin);
             sqrt_filter.update(&model, &y, &m).unwrap();
             reference.update(&model, &y, &Fixed(m)).unwrap();

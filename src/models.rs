@@ -1,0 +1,100 @@
+//! The committed learned models, embedded in the library: no model file is read at run
+//! time, so a built binary does not depend on where the source tree was.
+//!
+//! Each is the ONNX file and metadata JSON of `models/` (written by `training/`, see
+//! training/README.md), compiled in with `include_bytes!`. Loading one builds its tract
+//! plan (tens of milliseconds for BeamsNet); keep the result.
+//!
+//! ```
+//! let beamsnet = estim::models::beamsnet()?;
+//! assert_eq!(beamsnet.measurement().input_specs().len(), 3); // acc, gyro, beams
+//! # Ok::<(), estim::learned::Error>(())
+//! ```
+
+use std::path::Path;
+
+use estim_learned::{BeamsNet, OutageNet, Result, TwoBeamsNet};
+
+/// How the embedded models are named in errors and in `--json` inputs.
+pub const BEAMSNET_NAME: &str = "embedded:models/beamsnet.onnx";
+/// See [`BEAMSNET_NAME`].
+pub const TWO_BEAMS_NAME: &str = "embedded:models/two_beams.onnx";
+/// See [`BEAMSNET_NAME`].
+pub const OUTAGE_NAME: &str = "embedded:models/outage.onnx";
+
+/// BeamsNetV1 (IMU window + 4 beams -> body velocity), `models/beamsnet.onnx`.
+///
+/// # Errors
+/// The loader's errors (none for the committed files; tested).
+pub fn beamsnet() -> Result<BeamsNet> {
+    BeamsNet::from_bytes(
+        include_bytes!("../models/beamsnet.onnx"),
+        include_str!("../models/beamsnet.json"),
+        Path::new(BEAMSNET_NAME),
+    )
+}
+
+/// The two-beams network (IMU window + beams 1 and 2 -> body velocity),
+/// `models/two_beams.onnx`.
+///
+/// # Errors
+/// The loader's errors (none for the committed files; tested).
+pub fn two_beams() -> Result<TwoBeamsNet> {
+    TwoBeamsNet::from_bytes(
+        include_bytes!("../models/two_beams.onnx"),
+        include_str!("../models/two_beams.json"),
+        Path::new(TWO_BEAMS_NAME),
+    )
+}
+
+/// The outage network (IMU window, last velocity, elapsed time -> body velocity),
+/// `models/outage.onnx`.
+///
+/// # Errors
+/// The loader's errors (none for the committed files; tested).
+pub fn outage() -> Result<OutageNet> {
+    OutageNet::from_bytes(
+        include_bytes!("../models/outage.onnx"),
+        include_str!("../models/outage.json"),
+        Path::new(OUTAGE_NAME),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use estim_core::LearnedMeasurement;
+    use estim_learned::{default_model_path, default_outage_model_path, OnnxMeasurement};
+    use nalgebra::DMatrix;
+
+    /// The embedded model computes what the file in the source tree computes.
+    fn same_output(embedded: &OnnxMeasurement<3>, file: &OnnxMeasurement<3>) {
+        let inputs: Vec<DMatrix<f64>> = embedded
+            .input_specs()
+            .iter()
+            .enumerate()
+            .map(|(k, s)| {
+                DMatrix::from_fn(s.channels, s.window, |i, j| {
+                    0.01 * (i as f64 + 1.0) - 0.002 * j as f64 + 0.1 * k as f64
+                })
+            })
+            .collect();
+        let a = embedded.measure(&inputs).expect("embedded model runs");
+        let b = file.measure(&inputs).expect("file model runs");
+        assert_eq!(a, b);
+        assert_eq!(embedded.noise_covariance(), file.noise_covariance());
+    }
+
+    #[test]
+    fn embedded_models_equal_the_committed_files() {
+        let beamsnet = super::beamsnet().expect("embedded BeamsNet");
+        let file = estim_learned::BeamsNet::load(&default_model_path()).expect("file");
+        same_output(beamsnet.measurement(), file.measurement());
+        let outage = super::outage().expect("embedded outage network");
+        let file = estim_learned::OutageNet::load(&default_outage_model_path()).expect("file");
+        same_output(outage.measurement(), file.measurement());
+        let two_beams = super::two_beams().expect("embedded two-beams network");
+        let path = default_model_path().with_file_name("two_beams.onnx");
+        let file = estim_learned::TwoBeamsNet::load(&path).expect("file");
+        same_output(two_beams.measurement(), file.measurement());
+    }
+}
