@@ -6,6 +6,8 @@
 //! plan (tens of milliseconds for BeamsNet); keep the result.
 //!
 //! ```
+//! use estim::core::LearnedMeasurement;
+//!
 //! let beamsnet = estim::models::beamsnet()?;
 //! assert_eq!(beamsnet.measurement().input_specs().len(), 3); // acc, gyro, beams
 //! # Ok::<(), estim::learned::Error>(())

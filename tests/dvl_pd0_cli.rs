@@ -57,11 +57,12 @@ fn real_file_gives_one_row_per_ensemble_in_beam_coordinates() {
             "{t}"
         );
         previous = t;
-        // Bottom ranges of a deep-water profiler: about 330-350 m where present.
+        // Bottom ranges where present: positive and within the reach of a 75 kHz
+        // profiler's bottom track (under 1,000 m; this file's are mostly 330-350 m).
         for cell in &row[5..9] {
             if !cell.is_empty() {
                 let r: f64 = cell.parse().expect("range");
-                assert!((250.0..450.0).contains(&r), "{r}");
+                assert!(r > 0.0 && r < 1000.0, "{r}");
             }
         }
     }
