@@ -54,6 +54,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 fn eval(args: EvalArgs) -> anyhow::Result<()> {
+    crate::schema::check_seeds("--seed", args.seed, u64::from(args.trajectory))?;
     let model_path = args.model.clone().unwrap_or_else(default_model_path);
     let beamsnet = BeamsNet::load(&model_path)
         .with_context(|| format!("loading BeamsNet from {}", model_path.display()))?;

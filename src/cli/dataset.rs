@@ -89,12 +89,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
+    crate::schema::check_count(
+        "--realizations",
+        args.realizations as usize,
+        1,
+        crate::schema::MAX_REALIZATIONS,
+    )?;
+    // The largest seed: trajectory 13, the last realization, the beam-noise offset.
+    crate::schema::check_seeds(
+        "--seed",
+        args.seed,
+        1000 * 13 + u64::from(args.realizations) + 1_000_003,
+    )?;
     let Some(root) = data_root(args.data.as_deref()) else {
         bail!("no data folder: pass --data DIR or set ESTIM_DATA_DIR");
     };
-    if args.realizations == 0 {
-        bail!("--realizations must be at least 1");
-    }
     let protocol = BeamsNetProtocol::v1();
     let spec = imu_spec();
     // Rows shared between trajectories (identical GT and DVL values): every example
