@@ -101,6 +101,24 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
         args.seed,
         1000 * 13 + u64::from(args.realizations) + 1_000_003,
     )?;
+    // Checked before any work: the folder of --out is created, locked and written to
+    // now; the .npy and its .json appear together at the end, or neither does.
+    let (Some(npy_name), Some(json_name)) = (
+        args.out.file_name(),
+        args.out
+            .with_extension("json")
+            .file_name()
+            .map(ToOwned::to_owned),
+    ) else {
+        bail!("--out {}: not a file name", args.out.display());
+    };
+    let folder = match args.out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let staged = crate::output::StagedDir::for_files(&folder)?;
+    let npy_path = staged.path(&npy_name.to_string_lossy());
+    let staged_meta = staged.path(&json_name.to_string_lossy());
     let Some(root) = data_root(args.data.as_deref()) else {
         bail!("no data folder: pass --data DIR or set ESTIM_DATA_DIR");
     };
@@ -161,7 +179,7 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
             })
         })
         .collect();
-    write_npy(&args.out, DATASET_COLUMNS, &data)?;
+    write_npy(&npy_path, DATASET_COLUMNS, &data)?;
     let geometry = protocol.geometry();
     let a = spec.accelerometer();
     let g = spec.gyroscope();
@@ -223,8 +241,9 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
         "command": std::env::args().collect::<Vec<_>>().join(" ")
     });
     let meta_path = args.out.with_extension("json");
-    std::fs::write(&meta_path, serde_json::to_string_pretty(&meta)?)
+    std::fs::write(&staged_meta, serde_json::to_string_pretty(&meta)?)
         .with_context(|| format!("writing {}", meta_path.display()))?;
+    staged.commit()?;
     eprintln!(
         "wrote {} rows to {} and {}",
         data.len() / DATASET_COLUMNS,
