@@ -54,6 +54,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 fn eval(args: EvalArgs) -> anyhow::Result<()> {
+    crate::schema::check_seeds("--seed", args.seed, u64::from(args.trajectory))?;
     let beamsnet = match &args.model {
         Some(path) => BeamsNet::load(path)
             .with_context(|| format!("loading BeamsNet from {}", path.display()))?,

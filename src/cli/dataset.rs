@@ -89,12 +89,39 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
+    crate::schema::check_count(
+        "--realizations",
+        args.realizations as usize,
+        1,
+        crate::schema::MAX_REALIZATIONS,
+    )?;
+    // The largest seed: trajectory 13, the last realization, the beam-noise offset.
+    crate::schema::check_seeds(
+        "--seed",
+        args.seed,
+        1000 * 13 + u64::from(args.realizations) + 1_000_003,
+    )?;
+    // Checked before any work: the folder of --out is created, locked and written to
+    // now; the .npy and its .json appear together at the end, or neither does.
+    let (Some(npy_name), Some(json_name)) = (
+        args.out.file_name(),
+        args.out
+            .with_extension("json")
+            .file_name()
+            .map(ToOwned::to_owned),
+    ) else {
+        bail!("--out {}: not a file name", args.out.display());
+    };
+    let folder = match args.out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let staged = crate::output::StagedDir::for_files(&folder)?;
+    let npy_path = staged.path(&npy_name.to_string_lossy());
+    let staged_meta = staged.path(&json_name.to_string_lossy());
     let Some(root) = data_root(args.data.as_deref()) else {
         bail!("no data folder: pass --data DIR or set ESTIM_DATA_DIR");
     };
-    if args.realizations == 0 {
-        bail!("--realizations must be at least 1");
-    }
     let protocol = BeamsNetProtocol::v1();
     let spec = imu_spec();
     // Rows shared between trajectories (identical GT and DVL values): every example
@@ -152,7 +179,7 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
             })
         })
         .collect();
-    write_npy(&args.out, DATASET_COLUMNS, &data)?;
+    write_npy(&npy_path, DATASET_COLUMNS, &data)?;
     let geometry = protocol.geometry();
     let a = spec.accelerometer();
     let g = spec.gyroscope();
@@ -214,8 +241,9 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
         "command": std::env::args().collect::<Vec<_>>().join(" ")
     });
     let meta_path = args.out.with_extension("json");
-    std::fs::write(&meta_path, serde_json::to_string_pretty(&meta)?)
+    std::fs::write(&staged_meta, serde_json::to_string_pretty(&meta)?)
         .with_context(|| format!("writing {}", meta_path.display()))?;
+    staged.commit()?;
     eprintln!(
         "wrote {} rows to {} and {}",
         data.len() / DATASET_COLUMNS,

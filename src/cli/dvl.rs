@@ -5,9 +5,7 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use estim::datasets::{
-    check_spans, load_dvl, load_gt, BeamFile, DatasetError, SPAN_TIME_OFFSET_ALLOWANCE_S,
-};
+use estim::datasets::{check_spans, load_dvl, load_gt, BeamFile, SPAN_TIME_OFFSET_ALLOWANCE_S};
 use estim_dvl::nalgebra::Vector3;
 use estim_dvl::{BeamGeometry, Calibrator, DvlMeasurement, TrajectorySample};
 
@@ -131,20 +129,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     crate::output::emit(&output)
 }
 
+/// Largest `dvl calibrate --max-time-offset` \[s\].
+const MAX_TIME_OFFSET_S: f64 = 60.0;
+
 fn solve(args: &SolveArgs) -> anyhow::Result<String> {
+    let (angle, azimuth) = (args.beam_angle, args.azimuth_offset);
+    if !(angle.is_finite() && angle > 0.0 && angle < 90.0) {
+        anyhow::bail!("--beam-angle {angle} is outside (0, 90) deg");
+    }
+    if !(azimuth.is_finite() && azimuth.abs() <= 360.0) {
+        anyhow::bail!("--azimuth-offset {azimuth} is outside [-360, 360] deg");
+    }
     let geometry = BeamGeometry::janus(args.beam_angle)
         .azimuth_offset(args.azimuth_offset)
         .build()
         .context("beam geometry")?;
     let file = if args.input.as_os_str() == "-" {
         let stdin = std::path::Path::new("<stdin>");
-        let mut bytes = Vec::new();
-        std::io::Read::read_to_end(&mut std::io::stdin().lock(), &mut bytes).map_err(|error| {
-            DatasetError::Io {
-                path: stdin.to_path_buf(),
-                error,
-            }
-        })?;
+        // At most MAX_INPUT_BYTES, binary streams refused after one block.
+        let bytes = estim::datasets::read_input(std::io::stdin().lock(), stdin)?;
         BeamFile::parse(&bytes, stdin)?
     } else {
         BeamFile::load(&args.input)?
@@ -174,8 +177,18 @@ fn solve(args: &SolveArgs) -> anyhow::Result<String> {
 }
 
 fn pd0(args: &Pd0Args) -> anyhow::Result<String> {
-    let read = estim_dvl::read_pd0_file(&args.input)?;
     let name = args.input.display();
+    // Binary input, read up to the input-size limit of every loader (an endless
+    // stream such as /dev/zero stops there).
+    let limit = estim::datasets::MAX_INPUT_BYTES;
+    let file = std::fs::File::open(&args.input).with_context(|| format!("{name}: cannot read"))?;
+    let mut bytes = Vec::new();
+    std::io::Read::read_to_end(&mut std::io::Read::take(file, limit + 1), &mut bytes)
+        .with_context(|| format!("{name}: cannot read"))?;
+    if bytes.len() as u64 > limit {
+        anyhow::bail!("{name}: larger than {limit} bytes, the most an input file may hold");
+    }
+    let read = estim_dvl::read_pd0(&bytes);
     for skip in &read.report.skipped {
         eprintln!("warning: {name}: {skip}");
     }
@@ -204,6 +217,10 @@ fn pd0(args: &Pd0Args) -> anyhow::Result<String> {
 }
 
 fn calibrate(args: &CalibrateArgs) -> anyhow::Result<String> {
+    let offset = args.max_time_offset;
+    if !(offset.is_finite() && offset > 0.0 && offset <= MAX_TIME_OFFSET_S) {
+        anyhow::bail!("--max-time-offset {offset} is outside (0, {MAX_TIME_OFFSET_S}] s");
+    }
     let gt = load_gt(&args.gt)?;
     let dvl = load_dvl(&args.dvl)?;
     // The span rule of `reproduce`, with the searched time offset as the allowance.

@@ -49,6 +49,8 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    // First, before any other thread starts: SIGINT / SIGTERM remove staging folders.
+    output::install_signal_cleanup();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Reproduce(args) => reproduce::run(args),

@@ -43,8 +43,11 @@ pub struct Args {
     empirical_realizations: usize,
 }
 
+/// Without a terminal, a progress line at least every this many missions.
+const PROGRESS_EVERY: usize = 100;
+
 /// Progress on stderr: a bar when stderr is a terminal, otherwise one plain line per
-/// tenth of the missions (logs and CI keep a readable trace; stdout stays clean).
+/// tenth of the missions and per 100 missions (logs and CI keep a readable trace; stdout stays clean).
 struct Progress {
     bar: Option<ProgressBar>,
     total: usize,
@@ -78,9 +81,13 @@ impl Progress {
         match &self.bar {
             Some(bar) => bar.inc(1),
             None => {
-                // A line when the completed tenth changes (and at the end).
+                // A line when the completed tenth changes, every 100 missions (a long
+                // run is never silent for long) and at the end.
                 let tenth = |k: usize| k * 10 / self.total;
-                if tenth(done) != tenth(done - 1) || done == self.total {
+                if tenth(done) != tenth(done - 1)
+                    || done.is_multiple_of(PROGRESS_EVERY)
+                    || done == self.total
+                {
                     eprintln!(
                         "montecarlo: {done}/{} missions done ({:.1} s)",
                         self.total,
@@ -100,9 +107,14 @@ impl Progress {
 
 /// Run it. Exit status: see `schema` (3 when a filter variant failed in some run).
 pub fn run(args: Args) -> anyhow::Result<()> {
-    if args.runs == 0 {
-        anyhow::bail!("--runs must be at least 1");
-    }
+    crate::schema::check_count("--runs", args.runs, 1, crate::schema::MAX_RUNS)?;
+    crate::schema::check_count(
+        "--empirical-realizations",
+        args.empirical_realizations,
+        0,
+        crate::schema::MAX_REALIZATIONS,
+    )?;
+    crate::schema::check_seeds("--seed", args.seed, args.runs as u64 - 1)?;
     let mut config = match &args.config {
         Some(path) => Config::from_file(path)?,
         None => Config::default(),

@@ -1,6 +1,6 @@
 //! `estim report`: regenerate the result tables (docs/results.md) from seeded runs.
 
-use std::io::Write;
+use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use crate::study::markdown::{
@@ -79,10 +79,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         eprintln!("{}: regions {} rewritten", path.display(), names.join(", "));
     }
     if args.markdown || args.write.is_none() {
-        let mut out = std::io::stdout().lock();
+        let mut out = String::new();
         for t in &tables {
             writeln!(out, "{}", t.with_markers())?;
         }
+        crate::output::emit(&out)?;
     }
     Ok(())
 }

@@ -183,11 +183,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let json = serde_json::to_string_pretty(&document("reproduce", inputs, failures, payload))?;
     // Outputs first: on failure nothing is printed as if it had succeeded.
+    // Everything, the smoothing files included, in one commit.
     if let Some(staged) = staged {
-        write_outputs(staged, &reports, &json)?;
-        if let (Some(s), Some(dir)) = (&smoothed, &args.out) {
-            crate::smooth::write_outputs(&dir.join("smoothing"), s)?;
+        if let Some(s) = &smoothed {
+            let dir = staged.path("smoothing");
+            std::fs::create_dir(&dir)
+                .with_context(|| format!("{}: cannot create", dir.display()))?;
+            crate::smooth::write_files(&dir, s)?;
         }
+        write_outputs(staged, &reports, &json)?;
     }
     if args.json {
         emit(&format!("{json}\n"))?;
@@ -197,7 +201,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             print_report(&mut text, r)?;
         }
         if let Some(s) = &smoothed {
-            crate::smooth::print_reports(s);
+            crate::smooth::print_reports(&mut text, s)?;
         }
         emit(&text)?;
     }

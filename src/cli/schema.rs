@@ -79,3 +79,33 @@ pub fn document(command: &str, inputs: Value, failures: usize, body: Value) -> V
 pub fn path_json(path: Option<&std::path::Path>) -> Value {
     path.map_or(Value::Null, |p| json!(p.to_string_lossy()))
 }
+
+/// Most missions of `montecarlo --runs` (about 1.5 h on two cores at the default
+/// 400 s mission; larger studies run in several seed blocks).
+pub const MAX_RUNS: usize = 10_000;
+
+/// Most draws of `montecarlo --empirical-realizations` and realizations of
+/// `dataset beamsnet --realizations`.
+pub const MAX_REALIZATIONS: usize = 10_000;
+
+/// `value` of `flag` within `[min, max]`, or an error naming the flag and the bounds.
+pub fn check_count(flag: &str, value: usize, min: usize, max: usize) -> anyhow::Result<()> {
+    if (min..=max).contains(&value) {
+        Ok(())
+    } else {
+        anyhow::bail!("{flag} {value} is outside [{min}, {max}]")
+    }
+}
+
+/// The seeds `first ..= first + span` all at most [`crate::study::MAX_SEED`] (2^53):
+/// a seed never wraps around to 0, and JSON readers keep every seed exactly.
+pub fn check_seeds(flag: &str, first: u64, span: u64) -> anyhow::Result<()> {
+    let max = crate::study::MAX_SEED;
+    match first.checked_add(span) {
+        Some(last) if last <= max => Ok(()),
+        _ => anyhow::bail!(
+            "{flag} {first}: the seeds used run up to {first} + {span}, above {max} (2^53, \
+             the largest seed; seeds never wrap around)"
+        ),
+    }
+}

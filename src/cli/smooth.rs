@@ -2,6 +2,7 @@
 //! filter, recorded and smoothed (RTS, exact with correlated noise), smoothed against
 //! filtered errors versus ground truth, plus NEES.
 
+use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use crate::study::{apply_faults, smooth_scenario, Config, CrossSource, Scenario, SmoothReport};
@@ -46,6 +47,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(rho) if rho.is_finite() && (-1.0..=1.0).contains(&rho) => CrossSource::Scaled(rho),
         Some(rho) => anyhow::bail!("--rho {rho}: a correlation must be finite and in [-1, 1]"),
     };
+    // Checked before any work: an unwritable --out fails now, naming the folder.
+    let staged = match &args.out {
+        Some(dir) => Some(crate::output::StagedDir::new(dir)?),
+        None => None,
+    };
     let mut scenarios = vec![Scenario::simulated(&config, config.seed)?];
     if args.data.is_some() || !args.trajectories.is_empty() {
         let dir = data_root(args.data.as_deref()).context(
@@ -65,9 +71,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         apply_faults(s, &config.faults, config.seed)?;
     }
     let reports = smooth_all(&scenarios, &config, &cross)?;
-    if let Some(dir) = &args.out {
-        write_outputs(dir, &reports)?;
+    if let Some(staged) = staged {
+        write_files(&staged.path(""), &reports)?;
+        staged.commit()?;
     }
+    let mut text = String::new();
     if args.json {
         use crate::schema::{document, path_json};
         let inputs = serde_json::json!({
@@ -85,11 +93,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             0,
             serde_json::json!({ "reports": reports }),
         );
-        crate::output::emit(&format!("{}\n", serde_json::to_string_pretty(&doc)?))?;
+        writeln!(text, "{}", serde_json::to_string_pretty(&doc)?)?;
     } else {
-        print_reports(&reports);
+        print_reports(&mut text, &reports)?;
     }
-    Ok(())
+    crate::output::emit(&text)
 }
 
 /// Smooth every scenario (in parallel), M = 0 or the given cross-covariance.
@@ -108,23 +116,26 @@ pub fn smooth_all(
 }
 
 /// The filtered-against-smoothed tables.
-pub fn print_reports(reports: &[SmoothReport]) {
+pub fn print_reports(out: &mut String, reports: &[SmoothReport]) -> std::fmt::Result {
     for r in reports {
-        println!(
+        writeln!(
+            out,
             "== {} (LS DVL, {}, {} epochs): filtered vs smoothed against ground truth",
             r.name,
             r.cross,
             r.time.len()
-        );
-        println!(
+        )?;
+        writeln!(
+            out,
             "{:<10} {:>12} {:>12} {:>14} {:>14} {:>10}",
             "", "pos RMSE m", "pos final m", "vel RMSE m/s", "att RMSE deg", "mean NEES"
-        );
+        )?;
         for (name, s) in [
             ("filtered", &r.filtered_summary),
             ("smoothed", &r.smoothed_summary),
         ] {
-            println!(
+            writeln!(
+                out,
                 "{:<10} {:>12.3} {:>12.3} {:>14.4} {:>14.4} {:>10.2}",
                 name,
                 s.position_m.rmse,
@@ -132,11 +143,14 @@ pub fn print_reports(reports: &[SmoothReport]) {
                 s.velocity_mps.rmse,
                 s.attitude_deg.rmse,
                 s.mean_nees
-            );
+            )?;
         }
-        println!("(NEES of the 15-state error; 15 for a consistent estimate)");
-        println!();
+        writeln!(
+            out,
+            "(NEES of the 15-state error; 15 for a consistent estimate)\n"
+        )?;
     }
+    Ok(())
 }
 
 /// File-name stem of a report.
@@ -147,22 +161,21 @@ fn slug(r: &SmoothReport) -> String {
     }
 }
 
-/// CSV time series and the position-error plot of every report, into `dir`
-/// (complete or not at all).
-pub fn write_outputs(dir: &Path, reports: &[SmoothReport]) -> anyhow::Result<()> {
-    use crate::output::StagedDir;
+/// CSV time series and the position-error plot of every report, into `dir` (a
+/// folder inside a staging folder: the caller commits it with its other outputs).
+pub fn write_files(dir: &Path, reports: &[SmoothReport]) -> anyhow::Result<()> {
     use crate::plots::{line_chart, LineChart, Series};
     use std::io::Write;
 
-    let staged = StagedDir::new(dir)?;
+    let file = |name: &str| dir.join(name);
     std::fs::write(
-        staged.path("smoothing.json"),
+        file("smoothing.json"),
         serde_json::to_string_pretty(reports)?,
     )
     .context("cannot write smoothing.json")?;
     for r in reports {
         let stem = slug(r);
-        let path = staged.path(&format!("{stem}_smoothing.csv"));
+        let path = file(&format!("{stem}_smoothing.csv"));
         let mut w = std::io::BufWriter::new(
             std::fs::File::create(&path)
                 .with_context(|| format!("{}: cannot create", path.display()))?,
@@ -225,8 +238,8 @@ pub fn write_outputs(dir: &Path, reports: &[SmoothReport]) -> anyhow::Result<()>
             log_y: false,
             equal_axes: false,
         };
-        line_chart(&staged.path(&format!("{stem}_smoothed_position")), &chart)
+        line_chart(&file(&format!("{stem}_smoothed_position")), &chart)
             .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
     }
-    staged.commit()
+    Ok(())
 }

@@ -6,31 +6,18 @@
 //! reported as truncated (a partial write), even if it parses. CRLF line ends, a
 //! UTF-8 BOM and trailing blank lines are accepted. Every value is checked where it
 //! stands (file and line): a number, finite, within the physical range the navigator
-//! models, and a strictly increasing time.
+//! models, and a strictly increasing time. Time must also be plausible as a whole: two
+//! rows closer than [`MIN_INTERVAL_FRACTION`] (1/10) of the file's typical interval
+//! (the upper quartile of its intervals) are refused, naming both lines, never merged.
+//! Files are read through [`super::read_input`] (size limit, encoding) and parsed in
+//! one pass: line numbers are counted once, forward.
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use super::columns::{flipped, resolve, same, Alias, Kind, Quantity};
-use super::{ColumnMap, DatasetError, Result};
-
-fn read_all(mut reader: impl Read, path: &Path) -> Result<Vec<u8>> {
-    let mut bytes = Vec::new();
-    reader
-        .read_to_end(&mut bytes)
-        .map_err(|error| DatasetError::Io {
-            path: path.to_path_buf(),
-            error,
-        })?;
-    Ok(bytes)
-}
-
-pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>> {
-    std::fs::read(path).map_err(|error| DatasetError::Io {
-        path: path.to_path_buf(),
-        error,
-    })
-}
+use super::input::{read_file, read_input, Lines};
+use super::{ColumnMap, DatasetError, Result, MIN_INTERVAL_FRACTION};
 
 /// Header of A-KIT's `GT_trajectoryN.csv` (one accepted layout among many).
 pub const GT_HEADER: [&str; 10] = [
@@ -259,7 +246,7 @@ pub fn load_gt_with(path: &Path, map: &ColumnMap) -> Result<Vec<GtSample>> {
 /// # Errors
 /// As [`load_gt`].
 pub fn parse_gt(reader: impl Read, path: &Path) -> Result<Vec<GtSample>> {
-    gt_from_bytes(&read_all(reader, path)?, path, &ColumnMap::default())
+    gt_from_bytes(&read_input(reader, path)?, path, &ColumnMap::default())
 }
 
 fn gt_from_bytes(bytes: &[u8], path: &Path, map: &ColumnMap) -> Result<Vec<GtSample>> {
@@ -299,7 +286,7 @@ pub fn load_dvl_with(path: &Path, map: &ColumnMap) -> Result<Vec<DvlSample>> {
 /// # Errors
 /// As [`load_gt`].
 pub fn parse_dvl(reader: impl Read, path: &Path) -> Result<Vec<DvlSample>> {
-    dvl_from_bytes(&read_all(reader, path)?, path, &ColumnMap::default())
+    dvl_from_bytes(&read_input(reader, path)?, path, &ColumnMap::default())
 }
 
 fn dvl_from_bytes(bytes: &[u8], path: &Path, map: &ColumnMap) -> Result<Vec<DvlSample>> {
@@ -325,20 +312,12 @@ pub(crate) fn truncated_line(bytes: &[u8]) -> Option<u64> {
     Some(1 + bytes[..tail_start].iter().filter(|&&c| c == b'\n').count() as u64)
 }
 
-/// 1-based line of the record at byte offset `byte` (the csv crate's own line counter
-/// skips blank lines, and a record's offset may point at the blank lines before it).
-pub(crate) fn line_at(bytes: &[u8], byte: u64) -> u64 {
-    let mut start = usize::try_from(byte).unwrap_or(usize::MAX).min(bytes.len());
-    while start < bytes.len() && matches!(bytes[start], b'\n' | b'\r') {
-        start += 1;
-    }
-    1 + bytes[..start].iter().filter(|&&c| c == b'\n').count() as u64
-}
-
 pub(crate) fn csv_error(bytes: &[u8], path: &Path, e: &csv::Error) -> DatasetError {
     DatasetError::Csv {
         path: path.to_path_buf(),
-        line: e.position().map_or(1, |p| line_at(bytes, p.byte())),
+        line: e
+            .position()
+            .map_or(1, |p| Lines::new(bytes).line_at(p.byte())),
         message: e.to_string(),
     }
 }
@@ -386,9 +365,10 @@ fn read_table<const C: usize>(
     let columns = resolve(path, &header, quantities, map, section)?;
     let mut rows: Vec<(u64, [f64; C])> = Vec::new();
     let mut previous: Option<f64> = None;
+    let mut lines = Lines::new(bytes);
     for record in records {
         let record = record.map_err(|e| csv_error(bytes, path, &e))?;
-        let line = record.position().map_or(0, |p| line_at(bytes, p.byte()));
+        let line = record.position().map_or(0, |p| lines.line_at(p.byte()));
         if record.len() <= 1 && record.iter().all(|c| c.trim().is_empty()) {
             continue; // blank line
         }
@@ -449,7 +429,45 @@ fn read_table<const C: usize>(
             min: min_rows,
         });
     }
+    check_intervals(path, rows.iter().map(|(line, r)| (*line, r[0])))?;
     Ok(rows)
+}
+
+/// The interval every other one is compared with: the upper quartile of the
+/// intervals. Not the median: in a file whose every row is doubled, half the
+/// intervals are the duplicates' and the median may be one of them.
+fn reference_interval(times: &[f64]) -> Option<f64> {
+    let mut intervals: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
+    if intervals.is_empty() {
+        return None;
+    }
+    let k = (intervals.len() * 3) / 4;
+    let (_, q, _) = intervals.select_nth_unstable_by(k, f64::total_cmp);
+    Some(*q)
+}
+
+/// Refuse two rows closer in time than [`MIN_INTERVAL_FRACTION`] of the reference
+/// interval (the upper quartile of the file's intervals): a row duplicated 1e-10 s
+/// after its neighbour, or every row doubled at +1e-6 s, would otherwise be used as a
+/// second sample (twice the DVL updates; a GT velocity from 1e-10 s).
+fn check_intervals(path: &Path, rows: impl Iterator<Item = (u64, f64)>) -> Result<()> {
+    let rows: Vec<(u64, f64)> = rows.collect();
+    let times: Vec<f64> = rows.iter().map(|r| r.1).collect();
+    let Some(reference) = reference_interval(&times) else {
+        return Ok(());
+    };
+    let floor = MIN_INTERVAL_FRACTION * reference;
+    if let Some(w) = rows.windows(2).find(|w| w[1].1 - w[0].1 < floor) {
+        return Err(DatasetError::ImplausibleInterval {
+            path: path.to_path_buf(),
+            line: w[1].0,
+            previous_line: w[0].0,
+            time: w[1].1,
+            interval: w[1].1 - w[0].1,
+            reference,
+        });
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -621,6 +639,58 @@ mod tests {
         ));
         let missing = load_dvl(Path::new("/nonexistent/DVL.csv")).unwrap_err();
         assert!(missing.to_string().contains("/nonexistent/DVL.csv"));
+    }
+
+    #[test]
+    fn rows_closer_than_a_tenth_of_the_typical_interval_are_refused() {
+        let h = "Time [s],DVL X [m/s],DVL Y [m/s],DVL Z [m/s]\n";
+        let p = Path::new("d.csv");
+        let rows = |times: &[f64]| {
+            let mut s = h.to_string();
+            for t in times {
+                s.push_str(&format!("{t},1,0,0\n"));
+            }
+            s
+        };
+        let regular: Vec<f64> = (0..50).map(|k| k as f64 * 1.0025).collect();
+        assert!(parse_dvl(rows(&regular).as_bytes(), p).is_ok());
+        // One row duplicated 1e-10 s after its neighbour (line 12 = row 11 + header).
+        let mut dup = regular.clone();
+        dup.insert(11, dup[10] + 1e-10);
+        let e = parse_dvl(rows(&dup).as_bytes(), p).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                DatasetError::ImplausibleInterval {
+                    line: 13,
+                    previous_line: 12,
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert!(e.to_string().starts_with("d.csv:13:"), "{e}");
+        // Every row doubled at +1e-6 s: the median interval is a duplicate's, the upper
+        // quartile is not.
+        let doubled: Vec<f64> = regular.iter().flat_map(|&t| [t, t + 1e-6]).collect();
+        let e = parse_dvl(rows(&doubled).as_bytes(), p).unwrap_err();
+        assert!(
+            matches!(e, DatasetError::ImplausibleInterval { line: 3, .. }),
+            "{e}"
+        );
+        // Gaps (an outage) and jitter of +-30 % are not refused.
+        let mut gappy: Vec<f64> = (0..40)
+            .map(|k| k as f64 + 0.3 * ((k % 3) as f64 - 1.0))
+            .collect();
+        gappy.extend((0..20).map(|k| 100.0 + k as f64));
+        assert!(parse_dvl(rows(&gappy).as_bytes(), p).is_ok());
+        // GT too.
+        let gt = format!("{GT_A_KIT}1.00000000001,0.6,0.57,-20.6,1,0,0,0,0,0.1\n2,0.6,0.57,-20.6,1,0,0,0,0,0.1\n3,0.6,0.57,-20.6,1,0,0,0,0,0.1\n");
+        let e = parse_gt(gt.as_bytes(), p).unwrap_err();
+        assert!(
+            matches!(e, DatasetError::ImplausibleInterval { line: 4, .. }),
+            "{e}"
+        );
     }
 
     #[test]

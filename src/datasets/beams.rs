@@ -8,8 +8,9 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use super::akit::{csv_error, line_at, read_file, truncated_line, MAX_ABS_SPEED_MPS};
+use super::akit::{csv_error, truncated_line, MAX_ABS_SPEED_MPS};
 use super::columns::{resolve, same, Kind, Quantity, Resolved};
+use super::input::{check_text, read_file, Lines};
 use super::{DatasetError, Result};
 
 /// Beam velocities of one row \[m/s\]; `None` = missing beam.
@@ -108,6 +109,7 @@ impl BeamFile {
     /// error names the file and the 1-based line.
     ///
     /// # Errors
+    /// [`DatasetError::NotText`] (UTF-16, CR-only line ends, binary data),
     /// [`DatasetError::Header`] (empty file), [`DatasetError::Truncated`],
     /// [`DatasetError::MissingColumn`], [`DatasetError::AmbiguousColumn`],
     /// [`DatasetError::Unit`], [`DatasetError::Csv`], [`DatasetError::FieldCount`]
@@ -115,6 +117,7 @@ impl BeamFile {
     /// [`DatasetError::NonFinite`], [`DatasetError::OutOfRange`],
     /// [`DatasetError::TimeNotIncreasing`].
     pub fn parse(bytes: &[u8], path: &Path) -> Result<Self> {
+        check_text(bytes, path, true)?;
         if let Some(line) = truncated_line(bytes).filter(|_| !bytes.is_empty()) {
             return Err(DatasetError::Truncated {
                 path: path.to_path_buf(),
@@ -146,9 +149,10 @@ impl BeamFile {
         };
         let mut times = time.as_ref().map(|_| Vec::new());
         let mut rows = Vec::new();
+        let mut lines = Lines::new(bytes);
         for record in records {
             let record = record.map_err(|e| csv_error(bytes, path, &e))?;
-            let line = record.position().map_or(0, |p| line_at(bytes, p.byte()));
+            let line = record.position().map_or(0, |p| lines.line_at(p.byte()));
             if record.iter().all(|c| c.trim().is_empty()) && record.len() <= 1 {
                 continue; // blank line
             }

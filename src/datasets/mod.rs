@@ -10,6 +10,7 @@
 mod akit;
 mod beams;
 mod columns;
+mod input;
 mod locate;
 mod overlaps;
 mod span;
@@ -21,6 +22,7 @@ pub use akit::{
 };
 pub use beams::{load_beams, parse_beams, BeamFile, BeamRow};
 pub use columns::ColumnMap;
+pub use input::{read_input, MAX_INPUT_BYTES};
 pub use locate::{
     akit_dir, data_root, trajectories_in, trajectory_files, TrajectoryFiles, DATA_DIR_ENV,
 };
@@ -44,6 +46,40 @@ pub enum DatasetError {
         /// The underlying error (in the message, not chained as a source, so that a
         /// report of the whole chain names it once).
         error: std::io::Error,
+    },
+    /// The input is larger than the limit (an endless stream, or not a log file).
+    #[error("{}: larger than {limit} bytes, the most an input file may hold (MAX_INPUT_BYTES); not read further", path.display())]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// The limit \[bytes\].
+        limit: u64,
+    },
+    /// The bytes are not UTF-8 text with LF or CRLF line ends: UTF-16 or UTF-32, CR-only
+    /// line ends, binary data.
+    #[error("{}: {what}", path.display())]
+    NotText {
+        /// The file.
+        path: PathBuf,
+        /// What the file is (encoding or kind, with the offset and line where known).
+        what: String,
+    },
+    /// Two rows closer in time than the file's rate makes plausible (a duplicated row,
+    /// a stamp in the wrong unit).
+    #[error("{}:{line}: time {time} is {interval:.3e} s after line {previous_line}, less than {fraction} of the file's typical interval {reference:.6} s (upper quartile of its intervals): a duplicated or misstamped row? rows that close are refused, never merged", path.display(), fraction = MIN_INTERVAL_FRACTION)]
+    ImplausibleInterval {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line of the later row.
+        line: u64,
+        /// 1-based line of the earlier row.
+        previous_line: u64,
+        /// Time on this line \[s\].
+        time: f64,
+        /// Interval to the previous row \[s\].
+        interval: f64,
+        /// The file's typical interval: the upper quartile of its intervals \[s\].
+        reference: f64,
     },
     /// The last line does not end with a newline: the file was cut (a partial write).
     #[error("{}:{line}: truncated: the last line has no newline at its end", path.display())]
@@ -214,6 +250,10 @@ pub enum DatasetError {
         what: String,
     },
 }
+
+/// Rows of a GT or DVL file closer in time than this fraction of the file's typical
+/// interval (the upper quartile of its intervals) are refused ([`DatasetError::ImplausibleInterval`]).
+pub const MIN_INTERVAL_FRACTION: f64 = 0.1;
 
 /// A hint for an angle out of range: degrees read as radians.
 fn range_hint(unit: &str) -> &'static str {

@@ -65,6 +65,37 @@ const KEY_DOCS: &[(&str, &str, &str)] = &[
     ("faults.imu_gaps", "samples", "[samples] consecutive IMU samples removed"),
 ];
 
+/// Bounds of the numeric keys: `(key, lowest, highest, unit)`. Chosen so that the
+/// filter's covariances stay finite and positive definite in f64 (stds squared
+/// within 1e-18..1e12) and a run stays within memory and hours, not days.
+pub const LIMITS: &[(&str, f64, f64, &str)] = &[
+    ("mission.duration_s", 1e-3, 1e6, "s"),
+    ("mission.imu_rate_hz", 1.0, 1e4, "Hz"),
+    ("mission.dvl_period_s", 1e-3, 3600.0, "s"),
+    ("dvl.ls_noise_std_mps", 1e-6, 100.0, "m/s"),
+    ("dvl.akit_reference_mismatch_std_mps", 0.0, 100.0, "m/s"),
+    ("dvl.akit_time_offset_s", -10.0, 10.0, "s"),
+    ("filter.initial_position_std_m", 1e-6, 1e6, "m"),
+    ("filter.initial_velocity_std_mps", 1e-6, 1e3, "m/s"),
+    ("filter.initial_level_std_deg", 1e-6, 90.0, "deg"),
+    ("filter.initial_heading_std_deg", 1e-6, 180.0, "deg"),
+    ("filter.initial_bias_std_scale", 1e-6, 1e6, "-"),
+    ("filter.rho", -1.0, 1.0, "-"),
+    ("filter.gate_probability", 0.0, 0.999_999_999, "-"),
+    ("filter.gate_recovery_after", 0.0, 1e6, "updates"),
+];
+
+/// Most IMU samples of the simulated mission (`mission.duration_s *
+/// mission.imu_rate_hz`), as for a recorded trajectory.
+pub const MAX_MISSION_IMU_SAMPLES: f64 = super::scenario::MAX_SYNTHESIZED_IMU_SAMPLES;
+
+/// Largest seed (`seed`, `--seed`; and `--seed` + runs - 1): 2^53, the largest integer
+/// every JSON reader keeps exactly, far from wrapping around u64.
+pub const MAX_SEED: u64 = 1 << 53;
+
+/// Largest |component| of `dvl.lever_arm_m` \[m\].
+pub const MAX_LEVER_ARM_M: f64 = 100.0;
+
 /// The whole configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -398,68 +429,63 @@ impl Config {
         out
     }
 
-    /// Validate ranges; the message names the key.
+    /// Validate ranges; the message names the key and its bounds. Every value is
+    /// bounded (see [`LIMITS`]), so that a configuration is refused here, naming the
+    /// key, instead of failing later inside the filter (a std of 1e200 squares to
+    /// infinity, one of 1e-200 to zero) or allocating without end.
     pub fn check(&self) -> std::result::Result<(), String> {
-        let positive = |name: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(format!("{name} must be finite and > 0, got {v}"))
+        for &(key, lo, hi, unit) in LIMITS {
+            let Some(v) = self.limited_value(key) else {
+                continue;
+            };
+            if !(v.is_finite() && v >= lo && v <= hi) {
+                return Err(format!("{key} = {v} is outside [{lo:e}, {hi:e}] {unit}"));
             }
-        };
-        positive("mission.duration_s", self.mission.duration_s)?;
-        positive("mission.imu_rate_hz", self.mission.imu_rate_hz)?;
-        positive("mission.dvl_period_s", self.mission.dvl_period_s)?;
-        if self.mission.dvl_period_s * self.mission.imu_rate_hz < 1.0 {
+        }
+        let m = &self.mission;
+        if m.dvl_period_s * m.imu_rate_hz < 1.0 {
             return Err("mission.dvl_period_s must span at least one IMU sample".into());
         }
-        if self.mission.duration_s < 2.0 * self.mission.dvl_period_s {
+        if m.duration_s < 2.0 * m.dvl_period_s {
             return Err("mission.duration_s must hold at least two DVL periods".into());
         }
-        positive("dvl.ls_noise_std_mps", self.dvl.ls_noise_std)?;
-        let mismatch = self.dvl.akit_reference_mismatch_std;
-        if !(mismatch.is_finite() && mismatch >= 0.0) {
+        let samples = m.duration_s * m.imu_rate_hz;
+        if samples > MAX_MISSION_IMU_SAMPLES {
             return Err(format!(
-                "dvl.akit_reference_mismatch_std_mps must be finite and >= 0, got {mismatch}"
+                "mission.duration_s * mission.imu_rate_hz = {samples:.3e} IMU samples, more \
+                 than {MAX_MISSION_IMU_SAMPLES:e} (13.9 h at 100 Hz)"
             ));
         }
-        positive(
-            "filter.initial_position_std_m",
-            self.filter.initial_position_std_m,
-        )?;
-        positive(
-            "filter.initial_velocity_std_mps",
-            self.filter.initial_velocity_std_mps,
-        )?;
-        positive(
-            "filter.initial_level_std_deg",
-            self.filter.initial_level_std_deg,
-        )?;
-        positive(
-            "filter.initial_heading_std_deg",
-            self.filter.initial_heading_std_deg,
-        )?;
-        positive(
-            "filter.initial_bias_std_scale",
-            self.filter.initial_bias_std_scale,
-        )?;
-        if !self.dvl.lever_arm_m.iter().all(|x| x.is_finite()) {
-            return Err("dvl.lever_arm_m must be finite".into());
-        }
-        if !self.dvl.akit_time_offset_s.is_finite() || self.dvl.akit_time_offset_s.abs() > 10.0 {
-            return Err("dvl.akit_time_offset_s must be finite and within +-10 s".into());
-        }
-        if !(self.filter.rho.is_finite() && self.filter.rho.abs() <= 1.0) {
+        if self.seed > MAX_SEED {
             return Err(format!(
-                "filter.rho must be within [-1, 1], got {}",
-                self.filter.rho
+                "seed = {} is above {MAX_SEED} (2^53, the largest integer a JSON reader \
+                 keeps exactly)",
+                self.seed
             ));
         }
-        let g = self.filter.gate_probability;
-        if !(g.is_finite() && (0.0..1.0).contains(&g)) {
-            return Err(format!(
-                "filter.gate_probability must be in [0, 1), got {g}"
-            ));
+        for (i, x) in self.dvl.lever_arm_m.iter().enumerate() {
+            if !(x.is_finite() && x.abs() <= MAX_LEVER_ARM_M) {
+                return Err(format!(
+                    "dvl.lever_arm_m[{i}] = {x} is outside [-{MAX_LEVER_ARM_M:e}, {MAX_LEVER_ARM_M:e}] m"
+                ));
+            }
+        }
+        for (name, sensor) in [
+            ("imu.accelerometer", &self.imu.accelerometer),
+            ("imu.gyroscope", &self.imu.gyroscope),
+        ] {
+            let Some(s) = sensor else { continue };
+            for (key, v, lo, hi) in [
+                ("white_noise_density", s.white_noise_density, 1e-9, 1.0),
+                ("bias_instability", s.bias_instability, 0.0, 1.0),
+                ("bias_time_constant_s", s.bias_time_constant, 1e-2, 1e7),
+                ("turn_on_bias", s.turn_on_bias, 0.0, 1.0),
+                ("scale_factor", s.scale_factor, 0.0, 0.1),
+            ] {
+                if !(v.is_finite() && v >= lo && v <= hi) {
+                    return Err(format!("{name}.{key} = {v} is outside [{lo:e}, {hi:e}]"));
+                }
+            }
         }
         if !matches!(self.dvl.protocol.as_str(), "v1" | "v2") {
             return Err(format!(
@@ -470,6 +496,27 @@ impl Config {
         self.faults.check().map_err(|e| e.to_string())?;
         self.columns.check()?;
         self.imu_spec().map(|_| ())
+    }
+
+    /// The value of a key of [`LIMITS`].
+    fn limited_value(&self, key: &str) -> Option<f64> {
+        Some(match key {
+            "mission.duration_s" => self.mission.duration_s,
+            "mission.imu_rate_hz" => self.mission.imu_rate_hz,
+            "mission.dvl_period_s" => self.mission.dvl_period_s,
+            "dvl.ls_noise_std_mps" => self.dvl.ls_noise_std,
+            "dvl.akit_reference_mismatch_std_mps" => self.dvl.akit_reference_mismatch_std,
+            "dvl.akit_time_offset_s" => self.dvl.akit_time_offset_s,
+            "filter.initial_position_std_m" => self.filter.initial_position_std_m,
+            "filter.initial_velocity_std_mps" => self.filter.initial_velocity_std_mps,
+            "filter.initial_level_std_deg" => self.filter.initial_level_std_deg,
+            "filter.initial_heading_std_deg" => self.filter.initial_heading_std_deg,
+            "filter.initial_bias_std_scale" => self.filter.initial_bias_std_scale,
+            "filter.rho" => self.filter.rho,
+            "filter.gate_probability" => self.filter.gate_probability,
+            "filter.gate_recovery_after" => self.filter.gate_recovery_after as f64,
+            _ => return None,
+        })
     }
 
     /// The preset named by `imu.preset`, without overrides.

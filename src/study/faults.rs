@@ -24,6 +24,17 @@ use serde::{Deserialize, Serialize};
 
 use super::{PipelineError, Result, Scenario};
 
+/// Largest `beam_outlier_magnitude_mps` \[m/s\] (the loaders' speed limit).
+pub const MAX_OUTLIER_MPS: f64 = 1000.0;
+/// Largest `imu_gap_rate_per_s` \[1/s\].
+pub const MAX_GAP_RATE_PER_S: f64 = 10.0;
+/// Largest `imu_gap_samples` and `imu_gaps[].samples`.
+pub const MAX_GAP_SAMPLES: usize = 1_000_000;
+/// Most entries of `dvl_outages` and of `imu_gaps`.
+pub const MAX_LISTED_FAULTS: usize = 10_000;
+/// Largest |start_s| and duration_s of a listed fault \[s\].
+pub const MAX_FAULT_TIME_S: f64 = 1e7;
+
 /// A full DVL outage: every beam missing from `start_s` for `duration_s`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -144,31 +155,47 @@ impl FaultConfig {
         probability("beam_dropout_probability", self.beam_dropout_probability)?;
         probability("beam_outlier_probability", self.beam_outlier_probability)?;
         let [lo, hi] = self.beam_outlier_magnitude_mps;
-        if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo <= hi) {
+        if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo <= hi && hi <= MAX_OUTLIER_MPS) {
             return bad(format!(
-                "beam_outlier_magnitude_mps must be finite with 0 <= low <= high, got [{lo}, {hi}]"
+                "beam_outlier_magnitude_mps must be finite with 0 <= low <= high <= \
+                 {MAX_OUTLIER_MPS} m/s, got [{lo}, {hi}]"
             ));
         }
         let rate = self.imu_gap_rate_per_s;
-        if !(rate.is_finite() && rate >= 0.0) {
+        if !(rate.is_finite() && (0.0..=MAX_GAP_RATE_PER_S).contains(&rate)) {
             return bad(format!(
-                "imu_gap_rate_per_s must be finite and >= 0, got {rate}"
+                "imu_gap_rate_per_s = {rate} is outside [0, {MAX_GAP_RATE_PER_S}] 1/s"
             ));
         }
-        if self.imu_gap_samples == 0 {
-            return bad("imu_gap_samples must be >= 1".into());
+        let samples_ok = |n: usize| (1..=MAX_GAP_SAMPLES).contains(&n);
+        if !samples_ok(self.imu_gap_samples) {
+            return bad(format!(
+                "imu_gap_samples = {} is outside [1, {MAX_GAP_SAMPLES}]",
+                self.imu_gap_samples
+            ));
         }
+        for (key, n) in [
+            ("dvl_outages", self.dvl_outages.len()),
+            ("imu_gaps", self.imu_gaps.len()),
+        ] {
+            if n > MAX_LISTED_FAULTS {
+                return bad(format!("{key}: {n} entries, at most {MAX_LISTED_FAULTS}"));
+            }
+        }
+        let time_ok = |t: f64| t.is_finite() && t.abs() <= MAX_FAULT_TIME_S;
         for (i, o) in self.dvl_outages.iter().enumerate() {
-            if !(o.start_s.is_finite() && o.duration_s.is_finite() && o.duration_s > 0.0) {
+            if !(time_ok(o.start_s) && time_ok(o.duration_s) && o.duration_s > 0.0) {
                 return bad(format!(
-                    "dvl_outages[{i}] needs a finite start_s and a finite duration_s > 0"
+                    "dvl_outages[{i}] needs start_s within +-{MAX_FAULT_TIME_S:e} s and \
+                     0 < duration_s <= {MAX_FAULT_TIME_S:e} s"
                 ));
             }
         }
         for (i, g) in self.imu_gaps.iter().enumerate() {
-            if !(g.start_s.is_finite() && g.samples >= 1) {
+            if !(time_ok(g.start_s) && samples_ok(g.samples)) {
                 return bad(format!(
-                    "imu_gaps[{i}] needs a finite start_s and samples >= 1"
+                    "imu_gaps[{i}] needs start_s within +-{MAX_FAULT_TIME_S:e} s and \
+                     samples in [1, {MAX_GAP_SAMPLES}]"
                 ));
             }
         }

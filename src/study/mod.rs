@@ -21,7 +21,7 @@ mod scenario;
 mod smooth;
 pub mod stats;
 
-pub use config::{Config, PaperMBasis};
+pub use config::{Config, PaperMBasis, MAX_SEED};
 pub use faults::{apply_faults, DvlOutage, FaultConfig, ImuGap};
 pub use learned::beamsnet_inputs;
 pub use learned_scenarios::{

@@ -20,6 +20,9 @@ use estim::datasets::{
 /// 1.4 GB of states and samples): a longer span is refused before allocating.
 pub const MAX_SYNTHESIZED_IMU_SAMPLES: f64 = 5e6;
 
+/// Fewest DVL updates a recorded trajectory must give for its figures to be defined.
+pub const MIN_DVL_EPOCHS: usize = 2;
+
 /// One DVL epoch: what the DVL measured and the beams simulated from it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DvlEpoch {
@@ -161,7 +164,8 @@ impl Scenario {
     /// # Errors
     /// Every loader error (file and line), [`DatasetError::SpanMismatch`] naming both
     /// files and their spans, [`DatasetError::Unusable`] for a span too long to
-    /// synthesize or too short for one IMU step.
+    /// synthesize or too short for one IMU step, two DVL rows on one IMU sample, or
+    /// fewer than [`MIN_DVL_EPOCHS`] DVL rows inside the GT span.
     pub fn recorded(
         gt_path: &Path,
         dvl_path: &Path,
@@ -233,7 +237,8 @@ impl Scenario {
         let protocol = protocol(config);
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xD71);
         let t0 = truth.first().map_or(0.0, |s| s.time);
-        let mut dvl = Vec::with_capacity(dvl_log.len());
+        let mut dvl: Vec<DvlEpoch> = Vec::with_capacity(dvl_log.len());
+        let mut previous_line: Option<u64> = None;
         for d in &dvl_log {
             // A sample stamped t measures the motion at t - tau.
             let t = d.time - config.dvl.akit_time_offset_s;
@@ -241,12 +246,44 @@ impl Scenario {
             if i < 1.0 || i >= truth.len() as f64 {
                 continue;
             }
+            // Two DVL rows on one IMU sample would be applied twice at one instant.
+            if let (Some(last), Some(line)) = (dvl.last(), previous_line) {
+                if last.imu_index == i as usize {
+                    return Err(PipelineError::Dataset(DatasetError::Unusable {
+                        path: dvl_path.to_path_buf(),
+                        message: format!(
+                            "lines {line} and {} fall on the same IMU sample at \
+                             mission.imu_rate_hz = {} (DVL rows must be at least one IMU \
+                             period apart; refused, not merged)",
+                            d.line, config.mission.imu_rate_hz
+                        ),
+                    }));
+                }
+            }
+            previous_line = Some(d.line);
             let reference = Vector3::from(d.velocity_body);
             dvl.push(DvlEpoch {
                 imu_index: i as usize,
                 reference_velocity: reference,
                 beams: protocol.beams(&reference, &mut rng),
             });
+        }
+        // Fewer updates than that gives no figure worth reporting (a two-row trajectory
+        // used to run with status "ok" and NaN statistics).
+        if dvl.len() < MIN_DVL_EPOCHS {
+            return Err(PipelineError::Dataset(DatasetError::Unusable {
+                path: dvl_path.to_path_buf(),
+                message: format!(
+                    "{} DVL rows fall inside the GT span {:.3}-{:.3} s of {} (after the \
+                     time offset dvl.akit_time_offset_s = {} s); at least {MIN_DVL_EPOCHS} \
+                     are needed",
+                    dvl.len(),
+                    first.time,
+                    last.time,
+                    gt_path.display(),
+                    config.dvl.akit_time_offset_s
+                ),
+            }));
         }
         Ok(Self {
             name: gt_path.display().to_string(),

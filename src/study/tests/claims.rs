@@ -27,7 +27,6 @@ use crate::study::{
     analyse, beamsnet_inputs, least_squares_velocities, monte_carlo, Config, PaperMBasis, Scenario,
     BEAMSNET_NEGLECTED, BEAMSNET_SCALED, ORACLE_SCALED, ORACLE_TRUE_M,
 };
-use estim::learned::BeamsNet;
 use estim_core::nalgebra::Vector3;
 
 use super::common;

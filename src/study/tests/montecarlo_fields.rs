@@ -9,7 +9,6 @@ use crate::study::{
     BEAMSNET_SENSITIVITY, LS,
 };
 use estim::dvl::BeamsNetProtocol;
-use estim::learned::BeamsNet;
 use estim_core::nalgebra::Matrix3;
 
 fn rmse(xs: &[f64]) -> f64 {
