@@ -11,10 +11,12 @@
 //! - [`dvl`]: DVL beams, least squares, DVL measurement model, calibration;
 //! - [`learned`]: ONNX learned measurements, BeamsNet, network-derived cross-covariance;
 //!
-//! and holds the A-KIT [`datasets`] loaders.
+//! and holds the [`navigator`] (the INS/DVL error-state filter fed with real logs)
+//! and the [`datasets`] loaders (A-KIT and users' CSV files).
 #![warn(missing_docs)]
 
 pub mod datasets;
+pub mod navigator;
 
 pub use estim_core as core;
 pub use estim_dvl as dvl;
