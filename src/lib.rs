@@ -11,12 +11,14 @@
 //! - [`dvl`]: DVL beams, least squares, DVL measurement model, calibration;
 //! - [`learned`]: ONNX learned measurements, BeamsNet, network-derived cross-covariance;
 //!
-//! and holds the readers of A-KIT and users' log files ([`datasets`]) and the committed
-//! learned models, embedded ([`models`]).
+//! and holds the [`navigator`] (the INS/DVL error-state filter fed with real logs),
+//! the readers of A-KIT and users' log files ([`datasets`]) and the committed learned
+//! models, embedded ([`models`]).
 #![warn(missing_docs)]
 
 pub mod datasets;
 pub mod models;
+pub mod navigator;
 
 pub use estim_core as core;
 pub use estim_dvl as dvl;

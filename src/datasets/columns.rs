@@ -21,6 +21,12 @@ pub(crate) enum Kind {
     Angle,
     Length,
     Speed,
+    /// Specific force (m/s^2 or g).
+    Acceleration,
+    /// Angular rate (rad/s or deg/s).
+    AngularRate,
+    /// A dimensionless value (a validity flag).
+    Flag,
 }
 
 impl Kind {
@@ -59,6 +65,25 @@ impl Kind {
                 ("cm/s", 1e-2),
                 ("mm/s", 1e-3),
             ],
+            Kind::Acceleration => &[
+                ("m/s^2", 1.0),
+                ("m/s2", 1.0),
+                ("m/s/s", 1.0),
+                ("mps2", 1.0),
+                ("ms-2", 1.0),
+                ("ms^-2", 1.0),
+                ("g", 9.80665),
+            ],
+            Kind::AngularRate => &[
+                ("rad/s", 1.0),
+                ("radps", 1.0),
+                ("rads-1", 1.0),
+                ("deg/s", DEG),
+                ("dps", DEG),
+                ("degps", DEG),
+                ("°/s", DEG),
+            ],
+            Kind::Flag => &[("", 1.0), ("-", 1.0)],
         }
     }
 
@@ -74,6 +99,9 @@ impl Kind {
             Kind::Angle => "rad",
             Kind::Length => "m",
             Kind::Speed => "m/s",
+            Kind::Acceleration => "m/s^2",
+            Kind::AngularRate => "rad/s",
+            Kind::Flag => "",
         }
     }
 
@@ -84,6 +112,9 @@ impl Kind {
             Kind::Angle => &[("rad", "rad"), ("deg", "deg")],
             Kind::Length => &[("m", "m")],
             Kind::Speed => &[("mps", "m/s"), ("mmps", "mm/s"), ("cmps", "cm/s")],
+            Kind::Acceleration => &[("mps2", "m/s^2"), ("g", "g")],
+            Kind::AngularRate => &[("radps", "rad/s"), ("degps", "deg/s")],
+            Kind::Flag => &[],
         }
     }
 

@@ -10,10 +10,14 @@
 mod akit;
 mod beams;
 mod columns;
+mod dvl_log;
+mod fixes;
+mod imu;
 mod input;
 mod locate;
 mod overlaps;
 mod span;
+mod table;
 
 pub use akit::{
     load_dvl, load_dvl_with, load_gt, load_gt_with, parse_dvl, parse_gt, DvlSample, GtSample,
@@ -22,6 +26,9 @@ pub use akit::{
 };
 pub use beams::{load_beams, parse_beams, BeamFile, BeamRow};
 pub use columns::ColumnMap;
+pub use dvl_log::{DvlLog, RDI_BAD_VELOCITY_MPS};
+pub use fixes::{load_depth, load_fixes, parse_depth, parse_fixes};
+pub use imu::{ImuLog, MAX_ABS_ANGULAR_RATE_RADPS, MAX_ABS_SPECIFIC_FORCE_MPS2};
 pub use input::{read_input, MAX_INPUT_BYTES};
 pub use locate::{
     akit_dir, data_root, trajectories_in, trajectory_files, TrajectoryFiles, DATA_DIR_ENV,

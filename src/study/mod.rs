@@ -86,6 +86,9 @@ pub enum PipelineError {
     /// The DVL crate.
     #[error(transparent)]
     Dvl(#[from] estim_dvl::Error),
+    /// The navigator (its configuration; numerical failures are `FilterStopped`).
+    #[error(transparent)]
+    Navigator(#[from] estim::navigator::NavigatorError),
     /// The learned-measurement crate (model files, inference).
     #[error(transparent)]
     Learned(#[from] estim_learned::Error),

@@ -1,17 +1,15 @@
 //! One filter run over a scenario: the 15-state INS error-state EKF aided by a DVL
 //! velocity (least squares or a learned model), with a chosen cross-covariance.
 
+use estim::navigator::{
+    DvlConfig, DvlCross, GateConfig, Navigator, NavigatorConfig, NavigatorError, NavigatorSettings,
+};
 use estim_core::consistency::nees;
 use estim_core::nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 use estim_core::{
-    CrossCovariance, ErrorStateKalmanFilter, FilterConfig, Fixed, Gate, GateRecovery,
-    JointCovariance, NoObserver, Observer, ProcessModel, ScaledCorrelation, Zero,
+    Fixed, JointCovariance, NoObserver, Observer, ProcessModel, ScaledCorrelation, Zero,
 };
-use estim_dvl::DvlVelocityModel;
-use estim_ins::{
-    inject, ImuSpec, InsErrorModel, InsState, SensorSpec, ACC_BIAS, ATT, ERROR_STATES, GYRO_BIAS,
-    POS, VEL,
-};
+use estim_ins::{inject, ImuSpec, InsState, ACC_BIAS, ATT, ERROR_STATES, GYRO_BIAS, POS, VEL};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -119,35 +117,12 @@ pub fn error_state(truth: &InsState, nominal: &InsState) -> SVector<f64, ERROR_S
     e
 }
 
-/// Correlation time the filter gives the bias states \[s\]: long enough that the
-/// turn-on bias (a random constant in the simulator) is not forgotten.
-pub const FILTER_BIAS_TIME_CONSTANT: f64 = 1.0e6;
-
-/// The IMU model the filter uses: the simulator's, with each bias modelled as a
-/// Gauss-Markov process of correlation time [`FILTER_BIAS_TIME_CONSTANT`] and the same
-/// driving-noise PSD 2 sigma^2 / tau as the simulated drift.
-///
-/// The simulator's bias is a random constant (turn-on) plus a first-order Gauss-Markov
-/// drift (tau = 600 s for the default preset). A filter bias state with the drift's own
-/// tau would pull the turn-on bias towards zero over a few hundred seconds and report a
-/// bias covariance far smaller than the error (measured: NEES of the accelerometer-bias
-/// block near 100 instead of 3 on the simulated mission). Keeping the driving PSD and
-/// removing the decay represents both components (a random walk on top of the turn-on
-/// bias) to first order over a mission.
+/// The IMU model the filter uses ([`estim::navigator::filter_imu_spec`]: each bias a
+/// Gauss-Markov process of correlation time
+/// [`estim::navigator::FILTER_BIAS_TIME_CONSTANT`] with the
+/// sensor drift's driving-noise PSD).
 pub fn filter_imu_spec(spec: &ImuSpec) -> Result<ImuSpec> {
-    let slow = |s: &SensorSpec| {
-        let mut out = *s;
-        if s.bias_time_constant.is_finite() {
-            out.bias_time_constant = FILTER_BIAS_TIME_CONSTANT;
-            out.bias_instability =
-                s.bias_instability * (FILTER_BIAS_TIME_CONSTANT / s.bias_time_constant).sqrt();
-        }
-        out
-    };
-    Ok(ImuSpec::builder()
-        .accelerometer(slow(spec.accelerometer()))
-        .gyroscope(slow(spec.gyroscope()))
-        .build()?)
+    estim::navigator::filter_imu_spec(spec).map_err(|e| PipelineError::Invalid(e.to_string()))
 }
 
 /// Initial covariance from the configuration and the IMU spec.
@@ -228,11 +203,7 @@ pub fn run_filter(
     )
 }
 
-/// Largest relative difference between a timestamp difference and the nominal IMU
-/// period for which the nominal period is used as dt (timestamps are a fixed-rate
-/// clock written in floating point; this keeps a fault-free run independent of
-/// their rounding).
-pub const IMU_PERIOD_SNAP: f64 = 1e-6;
+use estim::navigator::IMU_PERIOD_SNAP;
 
 /// [`run_filter`] reporting every predict and update to `observer`.
 ///
@@ -298,6 +269,30 @@ pub fn run_filter_per_epoch_noise(
     )
 }
 
+/// The navigator settings of a study run: the scenario's IMU spec, the configured
+/// gate, the configured DVL lever arm and R.
+fn navigator_settings(
+    config: &Config,
+    scenario: &Scenario,
+    noise_covariance: Matrix3<f64>,
+) -> Result<NavigatorSettings> {
+    let nav = NavigatorConfig {
+        dvl: DvlConfig {
+            lever_arm_m: config.dvl.lever_arm_m,
+            ..DvlConfig::default()
+        },
+        gate: GateConfig {
+            probability: config.filter.gate_probability,
+            recovery_after: config.filter.gate_recovery_after,
+        },
+        ..NavigatorConfig::default()
+    };
+    Ok(nav
+        .check()?
+        .with_sensor_spec(scenario.imu_spec)?
+        .with_dvl_noise_covariance(noise_covariance)?)
+}
+
 #[allow(clippy::too_many_arguments)]
 fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
     name: &str,
@@ -316,33 +311,14 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
         .ok_or_else(|| PipelineError::Invalid("empty scenario".into()))?;
     let p0 = initial_covariance(config, scenario);
     let nominal0 = initial_nominal(truth0, &p0, seed);
-    let gate = if config.filter.gate_probability > 0.0 {
-        Gate::Nis {
-            probability: config.filter.gate_probability,
-        }
-    } else {
-        Gate::None
-    };
-    // The rule acts on the gate's rejections: nothing to recover from without a gate.
-    let recovery = match config.filter.gate_recovery_after {
-        after if after > 0 && config.filter.gate_probability > 0.0 => {
-            GateRecovery::Inflate { after }
-        }
-        _ => GateRecovery::None,
-    };
-    let filter_config = FilterConfig::builder()
-        .gate(gate)
-        .gate_recovery(recovery)
-        .build()?;
-    let process = InsErrorModel::new(filter_imu_spec(&scenario.imu_spec)?);
-    let mut filter = ErrorStateKalmanFilter::new(process, nominal0, p0)?
-        .with_config(filter_config)
-        .with_observer(observer);
     let r = measurements.noise_covariance;
-    let model = DvlVelocityModel::builder()
-        .lever_arm(Vector3::from(config.dvl.lever_arm_m))
-        .noise_covariance(r)
-        .build()?;
+    let settings = navigator_settings(config, scenario, r)?;
+    let imu = &scenario.imu;
+    let period = scenario.imu_dt;
+    let tolerance = IMU_PERIOD_SNAP * period;
+    let mut nav = Navigator::new(&settings, nominal0, p0, period)
+        .map_err(|e| PipelineError::Invalid(e.to_string()))?
+        .with_observer(observer);
     let n = scenario.dvl.len();
     let mut run = FilterRun {
         id: name.to_string(),
@@ -364,15 +340,12 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
         covariance_not_positive_definite: 0,
     };
     let (rn0, re0) = estim_ins::earth::radii_of_curvature(truth0.latitude);
-    let imu = &scenario.imu;
-    let period = scenario.imu_dt;
-    let tolerance = IMU_PERIOD_SNAP * period;
-    // Sample in effect and the filter's clock.
-    let mut k = 0;
-    let mut clock = truth0.time;
-    // The last propagation step (IMU sample index, dt): its Q_k is the per-step basis
-    // of the paper's heuristic M.
-    let mut last_step: Option<(usize, f64)> = None;
+    let first_imu = imu
+        .first()
+        .ok_or_else(|| PipelineError::Invalid("the scenario has no IMU samples".into()))?;
+    // The IMU in effect covers up to the next sample, the last one over one period.
+    let imu_end = imu.last().map_or(first_imu.time, |s| s.time) + period;
+    let mut fed = 0;
     for (epoch, dvl) in scenario.dvl.iter().enumerate() {
         let truth = scenario.truth.get(dvl.imu_index).ok_or_else(|| {
             PipelineError::Invalid(format!(
@@ -382,47 +355,35 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
             ))
         })?;
         let target = truth.time;
-        if target < clock - tolerance {
+        if target < nav.clock() - tolerance {
             return Err(PipelineError::Invalid(format!(
-                "DVL epoch {epoch} at t = {target} s is before the previous one ({clock} s)"
+                "DVL epoch {epoch} at t = {target} s is before the previous one ({} s)",
+                nav.clock()
             )));
         }
-        while target - clock > tolerance {
-            while k + 1 < imu.len() && imu[k + 1].time <= clock + tolerance {
-                k += 1;
-            }
-            let sample = imu
-                .get(k)
-                .ok_or_else(|| PipelineError::Invalid("the scenario has no IMU samples".into()))?;
-            let next = imu.get(k + 1).map_or(sample.time + period, |s| s.time);
-            if next <= clock + tolerance {
-                return Err(PipelineError::Invalid(format!(
-                    "DVL epoch {epoch} at t = {target} s is after the end of the IMU ({next} s)"
-                )));
-            }
-            let end = next.min(target);
-            let mut dt = end - clock;
-            if (dt - period).abs() <= tolerance {
-                dt = period;
-            }
-            filter
-                .predict(sample, dt)
-                .map_err(|source| stopped(epoch, clock - truth0.time, source))?;
-            last_step = Some((k, dt));
-            clock = end;
+        if target - imu_end > tolerance {
+            return Err(PipelineError::Invalid(format!(
+                "DVL epoch {epoch} at t = {target} s is after the end of the IMU ({imu_end} s)"
+            )));
         }
+        // The IMU samples up to the epoch (a sample stamped at the epoch goes first),
+        // then the propagation to the epoch itself (the navigator's arithmetic).
+        let at_epoch = |e: NavigatorError| nav_error(epoch, truth0.time, e);
+        while let Some(sample) = imu.get(fed).filter(|s| s.time <= target) {
+            nav.imu(sample).map_err(at_epoch)?;
+            fed += 1;
+        }
+        nav.propagate_to(target).map_err(at_epoch)?;
         if let Some(y) = measurements.velocities.get(epoch).copied().flatten() {
             let epoch_model;
             let (model, r) = match noise_per_epoch.and_then(|v| v.get(epoch).copied().flatten()) {
                 Some(r_k) => {
-                    epoch_model = DvlVelocityModel::builder()
-                        .lever_arm(Vector3::from(config.dvl.lever_arm_m))
-                        .noise_covariance(r_k)
-                        .build()?;
+                    epoch_model = settings.dvl_model_with_noise(r_k)?;
                     (&epoch_model, r_k)
                 }
-                None => (&model, r),
+                None => (settings.dvl_model(), r),
             };
+            let filter = nav.filter();
             run.largest_valid_rho
                 .push(ScaledCorrelation::largest_valid_rho(
                     filter.accumulated_process_noise(),
@@ -430,10 +391,12 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
                 )?);
             // Q_k of the last step, at the nominal state after it (the attitude moves
             // by one IMU period in between: negligible at the rounding of a heuristic).
-            let step_noise = match last_step {
-                Some((i, dt)) => filter
-                    .process()
-                    .process_noise(filter.nominal(), &imu[i], dt)?,
+            let step_noise = match nav.last_step() {
+                Some((sample, dt)) => {
+                    filter
+                        .process()
+                        .process_noise(filter.nominal(), sample, dt)?
+                }
                 None => SMatrix::zeros(),
             };
             let step_unit = ScaledCorrelation::unit(&step_noise, &r);
@@ -443,7 +406,7 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
             );
             let scaled;
             let fixed;
-            let source: &dyn CrossCovariance<f64, InsState, ERROR_STATES, 3> = match cross {
+            let source: &DvlCross<'_> = match cross {
                 CrossSource::Zero => &Zero,
                 CrossSource::Scaled(rho) => {
                     scaled = ScaledCorrelation { rho: *rho };
@@ -458,9 +421,9 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
                     &fixed
                 }
             };
-            let report = filter
-                .update(model, &y, source)
-                .map_err(|source| stopped(epoch, target - truth0.time, source))?;
+            let report = nav
+                .dvl_velocity_with(target, &y, model, source)
+                .map_err(|e| nav_error(epoch, truth0.time, e))?;
             run.nis.push(report.nis);
             if let Some(eig) = report.joint_min_eigenvalue {
                 run.joint_min_eigenvalue.push(eig);
@@ -471,8 +434,8 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
                 run.rejected += 1;
             }
         }
-        let nominal = filter.nominal();
-        let p = filter.covariance();
+        let nominal = nav.nominal();
+        let p = nav.covariance();
         let e = error_state(truth, nominal);
         run.time.push(truth.time - truth0.time);
         run.covariance_diagonal
@@ -497,6 +460,15 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
         ]);
     }
     Ok(run)
+}
+
+/// A navigator error at a DVL epoch: a numerical failure of the filter is a finding
+/// about this variant (with the time since the start), anything else invalid input.
+fn nav_error(epoch: usize, start: f64, error: NavigatorError) -> PipelineError {
+    match error {
+        NavigatorError::Filter { time, source } => stopped(epoch, time - start, source),
+        other => PipelineError::Invalid(format!("DVL epoch {epoch}: {other}")),
+    }
 }
 
 /// A numerical failure of the filter at a DVL epoch: a finding about this filter

@@ -1,0 +1,287 @@
+//! The CSV layer shared by the survey readers (IMU, DVL log, depth, fixes): a header
+//! resolved by name and unit, rows streamed with their 1-based line numbers, numbers
+//! checked where they stand, and times read relative to an epoch without losing the
+//! digits of a Unix time.
+
+use std::path::{Path, PathBuf};
+
+use super::akit::{csv_error, truncated_line, MAX_ABS_TIME_S};
+use super::columns::{resolve, same, Kind, Quantity, Resolved};
+use super::input::Lines;
+use super::{DatasetError, Result};
+
+/// The time column of every survey file.
+pub(crate) const TIME: Quantity = Quantity {
+    key: "time",
+    kind: Kind::Time,
+    aliases: &[
+        same("time"),
+        same("t"),
+        same("timestamp"),
+        same("timeunix"),
+        same("unixtime"),
+    ],
+    max_abs: MAX_ABS_TIME_S,
+};
+
+/// The header of a table and the resolution of its columns.
+pub(crate) struct Header<'a> {
+    pub path: &'a Path,
+    pub cells: Vec<String>,
+}
+
+impl Header<'_> {
+    /// Resolve quantities that must all be present.
+    pub fn require(&self, quantities: &[Quantity]) -> Result<Vec<Resolved>> {
+        resolve(
+            self.path,
+            &self.cells,
+            quantities,
+            &Default::default(),
+            "columns",
+        )
+    }
+
+    /// Resolve a quantity that may be absent.
+    pub fn optional(&self, quantity: Quantity) -> Result<Option<Resolved>> {
+        match resolve(
+            self.path,
+            &self.cells,
+            &[quantity],
+            &Default::default(),
+            "columns",
+        ) {
+            Ok(mut r) => Ok(r.pop()),
+            Err(DatasetError::MissingColumn { .. }) => Ok(None),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Resolve all of `quantities`, or none of them (`Ok(None)`); some only is an
+    /// error naming the first missing one.
+    pub fn all_or_none(&self, quantities: &[Quantity]) -> Result<Option<Vec<Resolved>>> {
+        let mut found = Vec::new();
+        for q in quantities {
+            found.push(self.optional(*q)?);
+        }
+        if found.iter().all(Option::is_none) {
+            return Ok(None);
+        }
+        if found.iter().all(Option::is_some) {
+            return Ok(Some(found.into_iter().flatten().collect()));
+        }
+        // Name the missing one.
+        self.require(quantities).map(Some)
+    }
+}
+
+/// One data row: its line and cells.
+pub(crate) struct Row<'a> {
+    pub path: &'a Path,
+    pub line: u64,
+    pub record: &'a csv::StringRecord,
+}
+
+impl Row<'_> {
+    /// The trimmed text of a column.
+    pub fn text(&self, column: &Resolved) -> &str {
+        self.record.get(column.index).unwrap_or("").trim()
+    }
+
+    fn pb(&self) -> PathBuf {
+        self.path.to_path_buf()
+    }
+
+    /// A finite number within +-`max_abs` (SI, after the column's unit factor).
+    pub fn number(&self, column: &Resolved, quantity: &Quantity) -> Result<f64> {
+        let read = self.parse(column)?;
+        if !read.is_finite() {
+            return Err(DatasetError::NonFinite {
+                path: self.pb(),
+                line: self.line,
+                column: column.header.clone(),
+            });
+        }
+        self.in_range(column, quantity, read * column.factor)
+    }
+
+    /// A number or "no value" (`Ok(None)` for an empty cell or NaN).
+    pub fn maybe_number(&self, column: &Resolved, quantity: &Quantity) -> Result<Option<f64>> {
+        let text = self.text(column);
+        if text.is_empty() || text.eq_ignore_ascii_case("nan") {
+            return Ok(None);
+        }
+        self.number(column, quantity).map(Some)
+    }
+
+    fn parse(&self, column: &Resolved) -> Result<f64> {
+        let text = self.text(column);
+        text.parse().map_err(|_| DatasetError::Parse {
+            path: self.pb(),
+            line: self.line,
+            column: column.header.clone(),
+            value: text.chars().take(40).collect(),
+        })
+    }
+
+    fn in_range(&self, column: &Resolved, quantity: &Quantity, value: f64) -> Result<f64> {
+        if value.abs() >= quantity.max_abs {
+            return Err(DatasetError::OutOfRange {
+                path: self.pb(),
+                line: self.line,
+                column: column.header.clone(),
+                value,
+                limit: quantity.max_abs,
+                unit: quantity.kind.si_unit(),
+            });
+        }
+        Ok(value)
+    }
+
+    /// The time of this row in seconds relative to `epoch_s` (an integer number of
+    /// seconds). A plain decimal in seconds (`1700000003.485`) has its integer part
+    /// subtracted before it becomes an f64, so a Unix time keeps every digit it was
+    /// written with: the result is the f64 of the text `3.485`, the same as for a
+    /// file written relative to the epoch.
+    pub fn time(&self, column: &Resolved, epoch_s: f64) -> Result<f64> {
+        let text = self.text(column);
+        if let Some(t) = relative_decimal(text, column.factor, epoch_s) {
+            return Ok(t);
+        }
+        let absolute = self.number(column, &TIME)?;
+        Ok(absolute - epoch_s)
+    }
+
+    /// The integer seconds of this row's time (the epoch of a file that has none).
+    pub fn whole_seconds(&self, column: &Resolved) -> Result<f64> {
+        Ok((self.number(column, &TIME)?).floor())
+    }
+
+    /// A time-ordering error at this row.
+    pub fn not_increasing(&self, time: f64, previous: f64) -> DatasetError {
+        DatasetError::TimeNotIncreasing {
+            path: self.pb(),
+            line: self.line,
+            time,
+            previous,
+        }
+    }
+}
+
+/// `text - epoch` for a plain non-negative decimal in seconds whose integer part is
+/// at least the epoch, computed on the digits; `None` otherwise.
+fn relative_decimal(text: &str, factor: f64, epoch_s: f64) -> Option<f64> {
+    if factor != 1.0 || epoch_s.fract() != 0.0 || epoch_s.abs() > 1e15 {
+        return None;
+    }
+    let (whole, fraction) = text.split_once('.').unwrap_or((text, ""));
+    let digits = |s: &str| s.bytes().all(|b| b.is_ascii_digit());
+    if whole.is_empty() || whole.len() > 15 || !digits(whole) || !digits(fraction) {
+        return None;
+    }
+    let whole: i64 = whole.parse().ok()?;
+    let relative = whole.checked_sub(epoch_s as i64)?;
+    if relative < 0 {
+        return None;
+    }
+    let value: f64 = format!("{relative}.{fraction}0").parse().ok()?;
+    (value.abs() < MAX_ABS_TIME_S).then_some(value)
+}
+
+/// Stream a table: truncation check, header (resolved by `columns`), then every
+/// non-blank row with as many fields as the header, handed to `row`.
+pub(crate) fn for_each_row<C>(
+    bytes: &[u8],
+    path: &Path,
+    columns: impl FnOnce(&Header<'_>) -> Result<C>,
+    mut row: impl FnMut(&C, &Row<'_>) -> Result<()>,
+) -> Result<()> {
+    if bytes.iter().all(|c| c.is_ascii_whitespace()) {
+        return Err(DatasetError::TooFewRows {
+            path: path.to_path_buf(),
+            found: 0,
+            min: 1,
+        });
+    }
+    if let Some(line) = truncated_line(bytes) {
+        return Err(DatasetError::Truncated {
+            path: path.to_path_buf(),
+            line,
+        });
+    }
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .flexible(true)
+        .from_reader(bytes);
+    let mut record = csv::StringRecord::new();
+    let got = reader
+        .read_record(&mut record)
+        .map_err(|e| csv_error(bytes, path, &e))?;
+    if !got {
+        return Err(DatasetError::TooFewRows {
+            path: path.to_path_buf(),
+            found: 0,
+            min: 1,
+        });
+    }
+    let header = Header {
+        path,
+        cells: record.iter().map(str::to_string).collect(),
+    };
+    let resolved = columns(&header)?;
+    let width = header.cells.len();
+    // Line numbers in one pass over the file (linear time).
+    let mut lines = Lines::new(bytes);
+    loop {
+        let got = reader
+            .read_record(&mut record)
+            .map_err(|e| csv_error(bytes, path, &e))?;
+        if !got {
+            break;
+        }
+        let line = record.position().map_or(0, |p| lines.line_at(p.byte()));
+        if record.len() <= 1 && record.iter().all(|c| c.trim().is_empty()) {
+            continue; // blank line
+        }
+        if record.len() != width {
+            return Err(DatasetError::FieldCount {
+                path: path.to_path_buf(),
+                line,
+                expected: width,
+                found: record.len(),
+            });
+        }
+        row(
+            &resolved,
+            &Row {
+                path,
+                line,
+                record: &record,
+            },
+        )?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unix_times_keep_their_digits() {
+        let unshifted: f64 = "3.0025062656641603".parse().unwrap();
+        assert_eq!(
+            relative_decimal("1700000003.0025062656641603", 1.0, 1.7e9),
+            Some(unshifted)
+        );
+        assert_eq!(
+            relative_decimal("3.0025062656641603", 1.0, 0.0),
+            Some(unshifted)
+        );
+        assert_eq!(relative_decimal("12", 1.0, 0.0), Some(12.0));
+        assert_eq!(relative_decimal("-1.5", 1.0, 0.0), None);
+        assert_eq!(relative_decimal("1e3", 1.0, 0.0), None);
+        assert_eq!(relative_decimal("5.5", 1.0, 10.0), None);
+        assert_eq!(relative_decimal("5.5", 1e-3, 0.0), None);
+    }
+}

@@ -1,0 +1,513 @@
+//! The vehicle configuration of the navigator: IMU and sensor noise, lever arms, DVL
+//! mounting, time offsets, the innovation gate and the initial state. Deserialized with
+//! serde (unknown keys refused) and checked once by [`NavigatorConfig::check`] into
+//! [`NavigatorSettings`], which cannot be invalid.
+
+use estim_core::{FilterConfig, Gate, GateRecovery};
+use estim_dvl::{BeamGeometry, DvlVelocityModel};
+use estim_ins::{ImuSpec, SensorSpec};
+use nalgebra::{Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use super::{NavigatorError, Result};
+
+/// The whole vehicle configuration (every key optional; defaults documented per field).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NavigatorConfig {
+    /// IMU noise model.
+    pub imu: ImuConfig,
+    /// DVL mounting, geometry, time offset and noise.
+    pub dvl: DvlConfig,
+    /// Depth (pressure) sensor.
+    pub depth: DepthConfig,
+    /// Position fixes (GNSS at the surface, USBL).
+    pub fixes: FixConfig,
+    /// Innovation gate.
+    pub gate: GateConfig,
+    /// Initial state and its uncertainty.
+    pub initial: InitialConfig,
+}
+
+/// IMU noise model: a preset, optionally with per-sensor densities replacing it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ImuConfig {
+    /// `akit_observed` (default), `tactical_mems`, `navigation_grade_fog`, `consumer_mems`.
+    pub preset: String,
+    /// Accelerometer error parameters (SI units, see [`estim_ins::SensorSpec`]),
+    /// replacing the preset's.
+    pub accelerometer: Option<SensorConfig>,
+    /// Gyroscope error parameters, replacing the preset's.
+    pub gyroscope: Option<SensorConfig>,
+    /// Nominal IMU rate \[Hz\]: a time step within the timestamps' rounding of 1 / rate
+    /// is taken as exactly 1 / rate. `None`: from the median interval of the IMU file.
+    pub rate_hz: Option<f64>,
+}
+
+impl Default for ImuConfig {
+    fn default() -> Self {
+        Self {
+            preset: "akit_observed".into(),
+            accelerometer: None,
+            gyroscope: None,
+            rate_hz: None,
+        }
+    }
+}
+
+/// One sensor triad's error parameters (SI units; the fields of
+/// [`estim_ins::SensorSpec`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorConfig {
+    /// White-noise density [m/s/sqrt(s) or rad/sqrt(s)].
+    pub white_noise_density: f64,
+    /// Gauss-Markov bias instability sigma [m/s^2 or rad/s].
+    pub bias_instability: f64,
+    /// Gauss-Markov correlation time \[s\].
+    pub bias_time_constant_s: f64,
+    /// Turn-on bias sigma [m/s^2 or rad/s].
+    pub turn_on_bias: f64,
+    /// Scale-factor error sigma (dimensionless; the filter does not estimate it).
+    #[serde(default)]
+    pub scale_factor: f64,
+}
+
+impl From<SensorConfig> for SensorSpec {
+    fn from(s: SensorConfig) -> Self {
+        SensorSpec {
+            white_noise_density: s.white_noise_density,
+            bias_instability: s.bias_instability,
+            bias_time_constant: s.bias_time_constant_s,
+            turn_on_bias: s.turn_on_bias,
+            scale_factor: s.scale_factor,
+        }
+    }
+}
+
+/// DVL mounting and noise.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DvlConfig {
+    /// Lever arm IMU -> DVL in the body frame \[m\] (default zero).
+    pub lever_arm_m: [f64; 3],
+    /// Mounting misalignment, rotation vector DVL -> body \[rad\] (roll, pitch, yaw
+    /// axes; default zero), as `estim dvl calibrate` estimates it.
+    pub mounting_misalignment_rad: [f64; 3],
+    /// Scale factor 1 + s of the DVL velocity (default 1).
+    pub scale_factor: f64,
+    /// Beam angle from the z axis \[deg\] (default 30, a Teledyne RDI Workhorse Navigator).
+    pub beam_angle_deg: f64,
+    /// Azimuth of beam 1 \[deg\]; beams i = 1..4 at `beam1_azimuth_deg + (i-1) 90`
+    /// (default 45).
+    pub beam1_azimuth_deg: f64,
+    /// Time offset tau \[s\]: a sample stamped t measures the motion at t - tau
+    /// (default 0; A-KIT's DVL is -1.48 s, which is never applied unless configured).
+    pub time_offset_s: f64,
+    /// Measurement noise std per axis of the DVL velocity \[m/s\] (default 0.02).
+    pub noise_std_mps: f64,
+}
+
+impl Default for DvlConfig {
+    fn default() -> Self {
+        Self {
+            lever_arm_m: [0.0; 3],
+            mounting_misalignment_rad: [0.0; 3],
+            scale_factor: 1.0,
+            beam_angle_deg: 30.0,
+            beam1_azimuth_deg: 45.0,
+            time_offset_s: 0.0,
+            noise_std_mps: 0.02,
+        }
+    }
+}
+
+/// Depth sensor.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DepthConfig {
+    /// Lever arm IMU -> pressure sensor in the body frame \[m\].
+    pub lever_arm_m: [f64; 3],
+    /// Noise std \[m\] (default 0.1).
+    pub noise_std_m: f64,
+    /// Time offset \[s\] (as for the DVL; default 0).
+    pub time_offset_s: f64,
+}
+
+impl Default for DepthConfig {
+    fn default() -> Self {
+        Self {
+            lever_arm_m: [0.0; 3],
+            noise_std_m: 0.1,
+            time_offset_s: 0.0,
+        }
+    }
+}
+
+/// Position fixes; each fix carries its own 1-sigma.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FixConfig {
+    /// Lever arm IMU -> antenna / transponder in the body frame \[m\].
+    pub lever_arm_m: [f64; 3],
+    /// Time offset \[s\] (default 0).
+    pub time_offset_s: f64,
+}
+
+/// The innovation gate.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GateConfig {
+    /// Chi-square probability of the NIS gate (default 0.9999); 0 disables it.
+    pub probability: f64,
+    /// After this many consecutive rejections the next measurement the gate would
+    /// reject is accepted with P inflated onto the gate boundary (default 25; 0 = never).
+    pub recovery_after: usize,
+}
+
+impl Default for GateConfig {
+    fn default() -> Self {
+        Self {
+            probability: 0.9999,
+            recovery_after: 25,
+        }
+    }
+}
+
+/// Initial state: what is not given is found from the data (position from the first
+/// fix, attitude by coarse alignment).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct InitialConfig {
+    /// Latitude \[deg\] (with `longitude_deg`); `None`: the first position fix.
+    pub latitude_deg: Option<f64>,
+    /// Longitude \[deg\].
+    pub longitude_deg: Option<f64>,
+    /// Depth \[m\] (positive down); `None`: the first depth sample, else 0.
+    pub depth_m: Option<f64>,
+    /// Velocity NED \[m/s\] (default zero).
+    pub velocity_ned_mps: [f64; 3],
+    /// Roll, pitch, heading \[deg\]; `None`: coarse alignment (levelling from the mean
+    /// specific force over the first `alignment_s`, heading = `heading_deg`).
+    pub attitude_deg: Option<[f64; 3]>,
+    /// Heading for the coarse alignment \[deg\] (default 0).
+    pub heading_deg: f64,
+    /// Length of the coarse alignment window \[s\] (default 10).
+    pub alignment_s: f64,
+    /// Position 1-sigma per axis \[m\] (default 1).
+    pub position_std_m: f64,
+    /// Velocity 1-sigma per axis \[m/s\] (default 0.05).
+    pub velocity_std_mps: f64,
+    /// Roll and pitch 1-sigma \[deg\] (default 0.05).
+    pub level_std_deg: f64,
+    /// Heading 1-sigma \[deg\] (default 0.2).
+    pub heading_std_deg: f64,
+    /// Accelerometer bias 1-sigma \[m/s^2\]; `None`: from the IMU spec
+    /// (sqrt(turn-on^2 + instability^2)).
+    pub acc_bias_std_mps2: Option<f64>,
+    /// Gyroscope bias 1-sigma \[rad/s\]; `None`: from the IMU spec.
+    pub gyro_bias_std_radps: Option<f64>,
+}
+
+impl Default for InitialConfig {
+    fn default() -> Self {
+        Self {
+            latitude_deg: None,
+            longitude_deg: None,
+            depth_m: None,
+            velocity_ned_mps: [0.0; 3],
+            attitude_deg: None,
+            heading_deg: 0.0,
+            alignment_s: 10.0,
+            position_std_m: 1.0,
+            velocity_std_mps: 0.05,
+            level_std_deg: 0.05,
+            heading_std_deg: 0.2,
+            acc_bias_std_mps2: None,
+            gyro_bias_std_radps: None,
+        }
+    }
+}
+
+/// The IMU presets by name.
+pub const IMU_PRESETS: [&str; 4] = [
+    "akit_observed",
+    "tactical_mems",
+    "navigation_grade_fog",
+    "consumer_mems",
+];
+
+/// The IMU spec of a preset name.
+///
+/// # Errors
+/// [`NavigatorError::Config`] for an unknown name, listing the valid ones.
+pub fn imu_preset(name: &str) -> Result<ImuSpec> {
+    match name {
+        "akit_observed" => Ok(ImuSpec::akit_observed()),
+        "tactical_mems" => Ok(ImuSpec::tactical_mems()),
+        "navigation_grade_fog" => Ok(ImuSpec::navigation_grade_fog()),
+        "consumer_mems" => Ok(ImuSpec::consumer_mems()),
+        other => Err(NavigatorError::Config(format!(
+            "imu.preset: unknown preset `{other}` (valid: {})",
+            IMU_PRESETS.join(", ")
+        ))),
+    }
+}
+
+/// Correlation time the filter gives the bias states \[s\]: long enough that the
+/// turn-on bias (a random constant) is not forgotten.
+pub const FILTER_BIAS_TIME_CONSTANT: f64 = 1.0e6;
+
+/// The IMU model the filter uses for a sensor spec: each bias modelled as a
+/// Gauss-Markov process of correlation time [`FILTER_BIAS_TIME_CONSTANT`] with the
+/// same driving-noise PSD 2 sigma^2 / tau as the sensor's drift.
+///
+/// A sensor bias is a random constant (turn-on) plus a first-order Gauss-Markov
+/// drift. A filter bias state with the drift's own tau would pull the turn-on bias
+/// towards zero over a few tau and report a bias covariance far smaller than the error
+/// (measured: NEES of the accelerometer-bias block near 100 instead of 3 on the
+/// simulated mission). Keeping the driving PSD and removing the decay represents both
+/// components (a random walk on top of the turn-on bias) to first order over a mission.
+///
+/// # Errors
+/// The spec builder's (not reachable from a valid spec).
+pub fn filter_imu_spec(spec: &ImuSpec) -> Result<ImuSpec> {
+    let slow = |s: &SensorSpec| {
+        let mut out = *s;
+        if s.bias_time_constant.is_finite() {
+            out.bias_time_constant = FILTER_BIAS_TIME_CONSTANT;
+            out.bias_instability =
+                s.bias_instability * (FILTER_BIAS_TIME_CONSTANT / s.bias_time_constant).sqrt();
+        }
+        out
+    };
+    Ok(ImuSpec::builder()
+        .accelerometer(slow(spec.accelerometer()))
+        .gyroscope(slow(spec.gyroscope()))
+        .build()?)
+}
+
+/// A checked configuration: the models the navigator is assembled from.
+#[derive(Debug, Clone)]
+pub struct NavigatorSettings {
+    pub(crate) config: NavigatorConfig,
+    pub(crate) sensor_spec: ImuSpec,
+    pub(crate) filter_spec: ImuSpec,
+    pub(crate) filter_config: FilterConfig,
+    pub(crate) dvl: DvlVelocityModel,
+    pub(crate) geometry: BeamGeometry,
+}
+
+impl NavigatorSettings {
+    /// The configuration it was checked from.
+    pub fn config(&self) -> &NavigatorConfig {
+        &self.config
+    }
+
+    /// The IMU error spec of the sensor (preset or given).
+    pub fn sensor_spec(&self) -> &ImuSpec {
+        &self.sensor_spec
+    }
+
+    /// The IMU model the filter propagates with ([`filter_imu_spec`] of the sensor's).
+    pub fn filter_spec(&self) -> &ImuSpec {
+        &self.filter_spec
+    }
+
+    /// Gate and recovery rule of the filter.
+    pub fn filter_config(&self) -> &FilterConfig {
+        &self.filter_config
+    }
+
+    /// The DVL velocity model (lever arm, misalignment, scale factor, R).
+    pub fn dvl_model(&self) -> &DvlVelocityModel {
+        &self.dvl
+    }
+
+    /// The DVL beam geometry.
+    pub fn beam_geometry(&self) -> &BeamGeometry {
+        &self.geometry
+    }
+
+    /// The same settings with another sensor IMU spec (the filter's model follows by
+    /// [`filter_imu_spec`]).
+    ///
+    /// # Errors
+    /// Not reachable from a valid spec (the spec builder's).
+    pub fn with_sensor_spec(mut self, spec: ImuSpec) -> Result<Self> {
+        self.filter_spec = filter_imu_spec(&spec)?;
+        self.sensor_spec = spec;
+        Ok(self)
+    }
+
+    /// The configured DVL model with another measurement-noise covariance R.
+    ///
+    /// # Errors
+    /// [`NavigatorError::Dvl`] for an R that is not symmetric positive definite.
+    pub fn dvl_model_with_noise(&self, r: Matrix3<f64>) -> Result<DvlVelocityModel> {
+        dvl_model(&self.config.dvl, r)
+    }
+
+    /// The same settings with another DVL measurement-noise covariance R (e.g. a
+    /// learned sensor's).
+    ///
+    /// # Errors
+    /// [`NavigatorError::Dvl`] for an R that is not symmetric positive definite.
+    pub fn with_dvl_noise_covariance(mut self, r: Matrix3<f64>) -> Result<Self> {
+        self.dvl = dvl_model(&self.config.dvl, r)?;
+        Ok(self)
+    }
+}
+
+fn vector(v: [f64; 3]) -> Vector3<f64> {
+    Vector3::from(v)
+}
+
+pub(crate) fn dvl_model(dvl: &DvlConfig, r: Matrix3<f64>) -> Result<DvlVelocityModel> {
+    Ok(DvlVelocityModel::builder()
+        .lever_arm(vector(dvl.lever_arm_m))
+        .mounting_misalignment(vector(dvl.mounting_misalignment_rad))
+        .scale_factor_error(dvl.scale_factor - 1.0)
+        .noise_covariance(r)
+        .build()?)
+}
+
+fn finite(name: &str, values: &[f64]) -> Result<()> {
+    if values.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(NavigatorError::Config(format!("{name}: not finite")))
+    }
+}
+
+fn positive(name: &str, value: f64) -> Result<()> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(NavigatorError::Config(format!(
+            "{name}: {value} is not a positive finite number"
+        )))
+    }
+}
+
+impl NavigatorConfig {
+    /// Validate every value once and assemble the models.
+    ///
+    /// # Errors
+    /// [`NavigatorError::Config`] naming the key; the member crates' errors for
+    /// invalid model parameters.
+    pub fn check(&self) -> Result<NavigatorSettings> {
+        let mut sensor = imu_preset(&self.imu.preset)?;
+        if self.imu.accelerometer.is_some() || self.imu.gyroscope.is_some() {
+            sensor = ImuSpec::builder()
+                .accelerometer(
+                    self.imu
+                        .accelerometer
+                        .map_or(*sensor.accelerometer(), SensorSpec::from),
+                )
+                .gyroscope(
+                    self.imu
+                        .gyroscope
+                        .map_or(*sensor.gyroscope(), SensorSpec::from),
+                )
+                .build()?;
+        }
+        if let Some(rate) = self.imu.rate_hz {
+            positive("imu.rate_hz", rate)?;
+        }
+        let filter_spec = filter_imu_spec(&sensor)?;
+        let d = &self.dvl;
+        finite("dvl.lever_arm_m", &d.lever_arm_m)?;
+        finite("dvl.time_offset_s", &[d.time_offset_s])?;
+        positive("dvl.scale_factor", d.scale_factor)?;
+        positive("dvl.noise_std_mps", d.noise_std_mps)?;
+        let dvl = dvl_model(
+            d,
+            Matrix3::from_diagonal_element(d.noise_std_mps * d.noise_std_mps),
+        )?;
+        if !(d.beam_angle_deg > 0.0 && d.beam_angle_deg < 90.0) {
+            return Err(NavigatorError::Config(format!(
+                "dvl.beam_angle_deg: {} is not in (0, 90)",
+                d.beam_angle_deg
+            )));
+        }
+        finite("dvl.beam1_azimuth_deg", &[d.beam1_azimuth_deg])?;
+        let geometry = BeamGeometry::janus(d.beam_angle_deg)
+            .azimuth_offset(d.beam1_azimuth_deg)
+            .build()?;
+        finite("depth.lever_arm_m", &self.depth.lever_arm_m)?;
+        finite("depth.time_offset_s", &[self.depth.time_offset_s])?;
+        positive("depth.noise_std_m", self.depth.noise_std_m)?;
+        finite("fixes.lever_arm_m", &self.fixes.lever_arm_m)?;
+        finite("fixes.time_offset_s", &[self.fixes.time_offset_s])?;
+        let g = &self.gate;
+        if !(g.probability == 0.0 || (g.probability > 0.0 && g.probability < 1.0)) {
+            return Err(NavigatorError::Config(format!(
+                "gate.probability: {} is not 0 (off) or in (0, 1)",
+                g.probability
+            )));
+        }
+        let i = &self.initial;
+        match (i.latitude_deg, i.longitude_deg) {
+            (Some(lat), Some(lon)) => {
+                if !(lat.abs() < 85.0 && lon.is_finite()) {
+                    return Err(NavigatorError::Config(format!(
+                        "initial: latitude {lat} deg / longitude {lon} deg out of range (|lat| < 85)"
+                    )));
+                }
+            }
+            (None, None) => {}
+            _ => {
+                return Err(NavigatorError::Config(
+                    "initial: give both latitude_deg and longitude_deg, or neither".into(),
+                ))
+            }
+        }
+        finite("initial.depth_m", &[i.depth_m.unwrap_or(0.0)])?;
+        finite("initial.velocity_ned_mps", &i.velocity_ned_mps)?;
+        finite("initial.attitude_deg", &i.attitude_deg.unwrap_or([0.0; 3]))?;
+        finite("initial.heading_deg", &[i.heading_deg])?;
+        positive("initial.alignment_s", i.alignment_s)?;
+        positive("initial.position_std_m", i.position_std_m)?;
+        positive("initial.velocity_std_mps", i.velocity_std_mps)?;
+        positive("initial.level_std_deg", i.level_std_deg)?;
+        positive("initial.heading_std_deg", i.heading_std_deg)?;
+        if let Some(s) = i.acc_bias_std_mps2 {
+            positive("initial.acc_bias_std_mps2", s)?;
+        }
+        if let Some(s) = i.gyro_bias_std_radps {
+            positive("initial.gyro_bias_std_radps", s)?;
+        }
+        Ok(NavigatorSettings {
+            config: self.clone(),
+            sensor_spec: sensor,
+            filter_spec,
+            filter_config: filter_config(g.probability, g.recovery_after)?,
+            dvl,
+            geometry,
+        })
+    }
+}
+
+/// The filter configuration of a gate probability (0 = off) and a recovery rule
+/// (0 = none; no effect without a gate).
+///
+/// # Errors
+/// The core's, for a probability outside (0, 1).
+pub fn filter_config(probability: f64, recovery_after: usize) -> Result<FilterConfig> {
+    let gate = if probability > 0.0 {
+        Gate::Nis { probability }
+    } else {
+        Gate::None
+    };
+    // The rule acts on the gate's rejections: nothing to recover from without a gate.
+    let recovery = match recovery_after {
+        after if after > 0 && probability > 0.0 => GateRecovery::Inflate { after },
+        _ => GateRecovery::None,
+    };
+    Ok(FilterConfig::builder()
+        .gate(gate)
+        .gate_recovery(recovery)
+        .build()?)
+}

@@ -1,0 +1,87 @@
+//! The INS/DVL navigator: the 15-state error-state filter assembled from estim-ins
+//! (mechanization, error model) and estim-dvl (the DVL velocity model), with optional
+//! depth and position fixes, fed with real logs and producing a navigation solution
+//! with its uncertainty. No ground truth is needed.
+//!
+//! - [`NavigatorConfig`]: the vehicle configuration (serde; unknown keys refused),
+//!   checked once by [`NavigatorConfig::check`] into [`NavigatorSettings`];
+//! - [`Navigator`]: feed IMU samples and measurements in time order, read
+//!   [`NavSolution`]s (state and 1-sigma per state group);
+//! - [`navigate`]: the batch run over time-merged inputs ([`SurveyInputs`]), with the
+//!   initial state from the configuration, the first fix and a coarse alignment.
+//!
+//! Conventions (estim-ins): NED, body x forward y right z down, true = nominal +
+//! error, misalignment in NED. A sensor's time offset tau means a sample stamped t
+//! measures the motion at t - tau.
+
+mod aiding;
+mod batch;
+mod config;
+mod filter;
+
+pub use aiding::{DepthModel, PositionFixModel};
+pub use batch::{
+    coarse_alignment, navigate, navigate_with, Alignment, DepthSample, DvlInput, DvlRecord,
+    InitialAttitude, NavigationObserver, NavigationRun, PositionFix, SolutionKind, SurveyInputs,
+};
+pub use config::{
+    filter_config, filter_imu_spec, imu_preset, DepthConfig, DvlConfig, FixConfig, GateConfig,
+    ImuConfig, InitialConfig, NavigatorConfig, NavigatorSettings, SensorConfig,
+    FILTER_BIAS_TIME_CONSTANT, IMU_PRESETS,
+};
+pub use filter::{
+    beams_from_nan, DvlCross, InsFilter, NavSolution, Navigator, UpdateCounts, IMU_PERIOD_SNAP,
+};
+
+/// Errors of the navigator.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum NavigatorError {
+    /// An invalid configuration value (the message names the key).
+    #[error("configuration: {0}")]
+    Config(String),
+    /// An input out of time order or not finite.
+    #[error("{what} at t = {time} s is before the navigator's time {clock} s or not finite")]
+    TimeOrder {
+        /// What was fed.
+        what: &'static str,
+        /// Its time \[s\].
+        time: f64,
+        /// The navigator's clock \[s\].
+        clock: f64,
+    },
+    /// A measurement before the first IMU sample.
+    #[error("a measurement at t = {time} s came before the first IMU sample")]
+    NoImu {
+        /// Its time \[s\].
+        time: f64,
+    },
+    /// Inputs that cannot be navigated as a whole (the message says why).
+    #[error("{0}")]
+    Inputs(String),
+    /// A numerical failure of the filter (e.g. an innovation covariance that is not
+    /// positive definite), with the time of the step that failed.
+    #[error("t = {time} s: {source}")]
+    Filter {
+        /// Time of the step \[s\] (the start of a propagation, or the measurement's).
+        time: f64,
+        /// What the filter core reported.
+        #[source]
+        source: estim_core::Error,
+    },
+    /// The filter core, outside a step (construction).
+    #[error(transparent)]
+    Core(#[from] estim_core::Error),
+    /// The INS crate.
+    #[error(transparent)]
+    Ins(#[from] estim_ins::Error),
+    /// The DVL crate.
+    #[error(transparent)]
+    Dvl(#[from] estim_dvl::Error),
+    /// A [`NavigationObserver`] failed (e.g. a writer).
+    #[error("observer: {0}")]
+    Observer(Box<dyn std::error::Error + Send + Sync>),
+}
+
+/// `Result` of the navigator.
+pub type Result<T> = std::result::Result<T, NavigatorError>;
