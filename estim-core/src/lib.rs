@@ -93,8 +93,12 @@
 //! joint covariance with Q_acc has no square root; [`square_root::square_root_predict`] and
 //! [`square_root::square_root_update`] are its steps as free functions (for error-state
 //! runners). [`sigma_point::unscented_predict`] and [`sigma_point::unscented_update`] are the sigma-point
-//! (unscented) steps, the update drawing sigma points over the joint [x; v] with
-//! covariance [[P, M], [M', R]].
+//! (unscented) steps. The update is one of two named forms
+//! ([`sigma_point::SigmaPointUpdate`]): the textbook additive update (default;
+//! sigma points over x, R added, M through the linearised cross terms) or the
+//! augmented one (sigma points over the joint [x; v] with covariance
+//! [[P, M], [M', R]]); the weight families (Merwe alpha/beta/kappa, Julier kappa) are
+//! in [`sigma_point`].
 //!
 //! ## Runners, gate, observers
 //!
@@ -114,6 +118,19 @@
 //! touching anything or commits, then notifies; an observer's error is returned with
 //! the result committed. Sizes are const generics: a 15-state filter does not
 //! allocate per step (the optional joint eigenvalue check does, see [`JointCheck`]).
+//!
+//! ## Hand-tuned paths and `ESTIM_FORCE_PORTABLE`
+//!
+//! Three hot loops have a hand-tuned build beside the portable one, chosen at run
+//! time from the CPU's features (read once per process): the linear runner's
+//! predict and update compiled for AVX2 (the same bits as the portable build), the
+//! dense products of 8 or more states by an AVX-512F loop with fused multiply-adds
+//! (the same values to round-off), and the joint factor of 8 or more states compiled
+//! for AVX-512F (the same bits). Setting the environment variable
+//! `ESTIM_FORCE_PORTABLE=1` before the first filter runs forces the portable path
+//! everywhere in estim-core (`ESTIM_FORCE_PORTABLE=1 cargo test` runs the suite on
+//! it); unit tests compare each hand-tuned build with the portable one in the same
+//! process.
 //!
 //! ## Consistency
 //!

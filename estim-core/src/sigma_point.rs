@@ -12,15 +12,30 @@
 //! Wm_0 = lambda / (L + lambda), Wc_0 = Wm_0 + 1 - alpha^2 + beta, Wm_i = Wc_i = 1 / (2 (L + lambda))
 //! ```
 //!
-//! **Correlated noise.** The update draws its sigma points over the joint
-//! [x_k; v_k] with covariance [[P, M], [M', R]] (L = N + M) and pushes each through
-//! y = h(x) + v. This is exact in the one-step model x_k = f(x_{k-1}) + G w_{k-1},
+//! **Weight families.** [`UnscentedTransform::new`] takes Van der Merwe's scaled
+//! parameters (alpha, beta, kappa), as filterpy's `MerweScaledSigmaPoints`;
+//! [`UnscentedTransform::julier`] is Julier's original family with one parameter
+//! kappa (alpha = 1, beta = 0, so lambda = kappa and Wc_0 = Wm_0 = kappa / (L + kappa)).
+//! kappa and beta must be >= 0: a negative centre weight can make the covariance
+//! indefinite.
+//!
+//! **Two updates** ([`SigmaPointUpdate`], chosen with
+//! [`UnscentedTransform::with_update`]):
+//!
+//! - [`SigmaPointUpdate::Additive`] (default): the textbook UKF update, sigma points
+//!   over x alone (L = N), R added to P_yy, M through the statistically linearised
+//!   cross terms (see the variant). With M = 0 it is filterpy's Merwe-point UKF.
+//! - [`SigmaPointUpdate::Augmented`]: sigma points over the joint [x_k; v_k] with
+//!   covariance [[P, M], [M', R]] (L = N + M), each pushed through y = h(x) + v.
+//!
+//! **Correlated noise, augmented.** The augmented update draws its sigma points over
+//! the joint [x_k; v_k] and pushes each through y = h(x) + v. This is exact in the one-step model x_k = f(x_{k-1}) + G w_{k-1},
 //! whatever f: x_{k-1} is independent of v_k, so Cov(x_k, v_k) = Cov(G w_{k-1}, v_k)
 //! = M. It is the augmented UKF over [x_{k-1}; w; v] (Julier & Uhlmann 2004,
 //! sec. V) with the prediction and the update split at x_k, so that any number of
 //! predictions can separate two updates (then M is the carried Cov(e_k, v_k)).
-//! On linear models the transform is exact and the update equals
-//! [`crate::correlated_update`]:
+//! On linear models the transform is exact and both updates equal
+//! [`crate::correlated_update`] (tested to 1e-10, with and without M):
 //!
 //! ```text
 //! y_hat = sum Wm_i Y_i,  P_yy = sum Wc_i (Y_i - y_hat)(Y_i - y_hat)',
@@ -42,7 +57,36 @@ use crate::square_root::covariance_factor;
 use crate::update::check_innovation_conditioning;
 use crate::{Error, Result, Scalar, StateAndCovariance};
 
-/// Parameters of the scaled unscented transform (see the module docs), validated.
+/// Which sigma-point update [`unscented_update`] runs. Both reduce to
+/// [`crate::correlated_update`] on a linear measurement, with and without M.
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub enum SigmaPointUpdate {
+    /// The textbook (additive-noise) UKF update (default): 2N + 1 sigma points over
+    /// the state x alone (L = N), pushed through h; R is added to P_yy, and M enters
+    /// through the statistically linearised measurement H~ = P_xy' P^-1:
+    ///
+    /// ```text
+    /// P_yy = sum Wc_i (Y_i - y_hat)(Y_i - y_hat)' + R + H~ M + M' H~'
+    /// P_xy = sum Wc_i (X_i - x)(Y_i - y_hat)' + M
+    /// ```
+    ///
+    /// With M = 0 this is the Merwe scaled-sigma-point UKF of filterpy
+    /// (`UnscentedKalmanFilter` with `MerweScaledSigmaPoints`); as M goes to 0 it is
+    /// continuous. H~ M is computed as G' L21' with L21 = M' S^-T the joint factor's
+    /// block and G the sigma points' whitened cross terms (no inverse of P).
+    #[default]
+    Additive,
+    /// The augmented update: 2(N + M) + 1 sigma points over the joint [x; v] with
+    /// covariance [[P, M], [M', R]], each pushed through y = h(x) + v (pykalman's
+    /// augmented UKF, split at x_k). With M = 0 it is another filter than the
+    /// textbook one on a nonlinear h (its points spread over N + M dimensions).
+    Augmented,
+}
+
+/// Parameters of the scaled unscented transform (see the module docs), validated,
+/// and the sigma-point update it runs.
 ///
 /// With the `serde` feature: `{ "alpha": .., "beta": .., "kappa": .. }`, checked by
 /// [`UnscentedTransform::new`] on deserialization.
@@ -56,6 +100,8 @@ pub struct UnscentedTransform {
     alpha: f64,
     beta: f64,
     kappa: f64,
+    #[cfg_attr(feature = "serde", serde(default))]
+    update: SigmaPointUpdate,
 }
 
 /// The serialized form of [`UnscentedTransform`], checked by `TryFrom`.
@@ -66,6 +112,8 @@ struct UncheckedUnscentedTransform {
     alpha: f64,
     beta: f64,
     kappa: f64,
+    #[serde(default)]
+    update: SigmaPointUpdate,
 }
 
 #[cfg(feature = "serde")]
@@ -73,19 +121,21 @@ impl TryFrom<UncheckedUnscentedTransform> for UnscentedTransform {
     type Error = Error;
 
     fn try_from(u: UncheckedUnscentedTransform) -> Result<Self> {
-        Self::new(u.alpha, u.beta, u.kappa)
+        Ok(Self::new(u.alpha, u.beta, u.kappa)?.with_update(u.update))
     }
 }
 
 impl Default for UnscentedTransform {
     /// alpha = 1, beta = 2, kappa = 0: all weights but the centre's covariance weight
     /// positive (Wm_0 = 0, Wc_0 = 2), so P_yy is a positive combination; beta = 2 is
-    /// optimal for Gaussian priors (Van der Merwe 2004, sec. 3.2.2).
+    /// optimal for Gaussian priors (Van der Merwe 2004, sec. 3.2.2). The
+    /// [`SigmaPointUpdate::Additive`] update.
     fn default() -> Self {
         Self {
             alpha: 1.0,
             beta: 2.0,
             kappa: 0.0,
+            update: SigmaPointUpdate::Additive,
         }
     }
 }
@@ -116,7 +166,33 @@ impl UnscentedTransform {
                 reason: format!("must be finite and >= 0, got {kappa}"),
             });
         }
-        Ok(Self { alpha, beta, kappa })
+        Ok(Self {
+            alpha,
+            beta,
+            kappa,
+            update: SigmaPointUpdate::default(),
+        })
+    }
+
+    /// Julier's family (Julier & Uhlmann 2004): alpha = 1, beta = 0 and `kappa`
+    /// (>= 0), so lambda = kappa; kappa = 3 - L matches the fourth moments of a
+    /// Gaussian where L <= 3.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for a negative or non-finite kappa.
+    pub fn julier(kappa: f64) -> Result<Self> {
+        Self::new(1.0, 0.0, kappa)
+    }
+
+    /// The same weights with the sigma-point update `update`.
+    #[must_use]
+    pub fn with_update(self, update: SigmaPointUpdate) -> Self {
+        Self { update, ..self }
+    }
+
+    /// The sigma-point update [`unscented_update`] runs.
+    pub fn update(&self) -> SigmaPointUpdate {
+        self.update
     }
 
     /// (gamma, Wm_0, Wc_0, W_i) for dimension `l`.
@@ -194,9 +270,12 @@ pub struct UnscentedOutcome<T: Scalar, const N: usize, const M: usize> {
     pub nis: T,
 }
 
-/// Sigma-point update with correlated noise: sigma points over the joint
-/// [x; v] ~ N([x; 0], [[P, M], [M', R]]), each pushed through y = h(x) + v (see the
-/// module docs). `cross_covariance` is M = Cov(x_k, v_k).
+/// Sigma-point update with correlated noise, in the form of
+/// [`UnscentedTransform::update`]: [`SigmaPointUpdate::Additive`] (sigma points over
+/// x, R and the linearised cross terms of M added) or
+/// [`SigmaPointUpdate::Augmented`] (sigma points over the joint
+/// [x; v] ~ N([x; 0], [[P, M], [M', R]]), each pushed through y = h(x) + v); see the
+/// module docs. `cross_covariance` is M = Cov(x_k, v_k).
 ///
 /// # Errors
 /// [`Error::NonFinite`]; [`Error::InvalidJointCovariance`] if
@@ -228,21 +307,31 @@ where
             )?),
         });
     };
-    let (gamma, wm0, wc0, wi) = transform.weights::<T>(N + M);
     let x = prior.state();
     let centre = predict_measurement(x)?;
     check_finite(centre.as_slice(), "predicted measurement")?;
     let mut d_bar = SVector::<T, M>::zeros();
     let mut second = SMatrix::<T, M, M>::zeros();
     let mut cross = SMatrix::<T, N, M>::zeros();
-    // Column j of the joint factor: state part (L11 or L21 rows) and noise part.
-    for j in 0..(N + M) {
-        let (dx, dv): (SVector<T, N>, SVector<T, M>) = if j < N {
-            (l.a.column(j).into_owned(), l.c.column(j).into_owned())
-        } else {
-            (SVector::zeros(), l.d.column(j - N).into_owned())
+    let columns = match transform.update {
+        SigmaPointUpdate::Additive => N,
+        SigmaPointUpdate::Augmented => N + M,
+    };
+    let (gamma, wm0, wc0, wi) = transform.weights::<T>(columns);
+    // Additive only: H~ M = G' L21' (module docs of `SigmaPointUpdate::Additive`).
+    let mut linearised_cross = SMatrix::<T, M, M>::zeros();
+    // Column j of the joint factor: state part (L11 or L21 rows) and noise part (the
+    // additive update spreads over the state part alone).
+    for j in 0..columns {
+        let (dx, dv): (SVector<T, N>, SVector<T, M>) = match transform.update {
+            SigmaPointUpdate::Additive => (l.a.column(j).into_owned(), SVector::zeros()),
+            SigmaPointUpdate::Augmented if j < N => {
+                (l.a.column(j).into_owned(), l.c.column(j).into_owned())
+            }
+            SigmaPointUpdate::Augmented => (SVector::zeros(), l.d.column(j - N).into_owned()),
         };
-        for sign in [T::one(), -T::one()] {
+        let mut pair = [SVector::<T, M>::zeros(); 2];
+        for (k, sign) in [T::one(), -T::one()].into_iter().enumerate() {
             let g = gamma * sign;
             let y = predict_measurement(&(x + dx * g))? + dv * g;
             let d = y - centre;
@@ -256,11 +345,23 @@ where
                     cross[(r, c)] += dx[r] * g * d[c] * wi;
                 }
             }
+            pair[k] = d;
+        }
+        if transform.update == SigmaPointUpdate::Additive {
+            // P_xy = sum_j S_j g_j' with g_j = W_i gamma (d_j+ - d_j-), so
+            // H~ = P_xy' P^-1 = G' S^-1 and H~ M = G' S^-1 M = G' L21'.
+            let g = (pair[0] - pair[1]) * (wi * gamma);
+            let l21 = l.c.column(j).into_owned();
+            add_outer(&mut linearised_cross, &g, &l21, T::one());
         }
     }
     let predicted = centre + d_bar;
     let mut pyy = second;
     add_outer(&mut pyy, &d_bar, &d_bar, wc0 - wm0 - T::one());
+    if transform.update == SigmaPointUpdate::Additive {
+        pyy += linearised_cross + linearised_cross.transpose() + measurement_noise;
+        cross += cross_covariance;
+    }
     let pyy = symmetric_sum(&pyy, &SMatrix::zeros());
     check_finite(pyy.as_slice(), "innovation covariance")?;
     let inverse = spd_inverse(&pyy).ok_or(Error::InnovationNotPositiveDefinite)?;

@@ -10,7 +10,9 @@ mod common;
 use common::*;
 use estim_core::consistency::chi_square_band;
 use estim_core::nalgebra::{DMatrix, Matrix2, Matrix2x4, Matrix4, Matrix4x2, Vector2, Vector4};
-use estim_core::sigma_point::{unscented_predict, unscented_update, UnscentedTransform};
+use estim_core::sigma_point::{
+    unscented_predict, unscented_update, SigmaPointUpdate, UnscentedTransform,
+};
 use estim_core::{correlated_update, CovarianceUpdate, Error, StateAndCovariance};
 use proptest::prelude::*;
 use proptest::test_runner::{FileFailurePersistence, RngSeed, TestCaseError};
@@ -63,6 +65,11 @@ macro_rules! for_every_size {
                     equals_correlated_kalman::<$n, $m>(&values, &UnscentedTransform::default())?;
                     let transform = UnscentedTransform::new(alpha, beta, kappa).unwrap();
                     equals_correlated_kalman::<$n, $m>(&values, &transform)?;
+                    // Both named updates (the default is the additive one).
+                    let augmented = transform.with_update(SigmaPointUpdate::Augmented);
+                    equals_correlated_kalman::<$n, $m>(&values, &augmented)?;
+                    let julier = UnscentedTransform::julier(kappa).unwrap();
+                    equals_correlated_kalman::<$n, $m>(&values, &julier)?;
                 }
             )*
         }
@@ -163,7 +170,7 @@ fn range_bearing_nees(first: u64, runs: u64, steps: usize) -> MonteCarlo {
     let x0 = Vector4::new(20.0, 5.0, 1.0, 1.0);
     let p0 = Matrix4::from_diagonal(&Vector4::new(25.0, 25.0, 1.0, 1.0));
     let p0_factor = p0.cholesky().unwrap().l();
-    let transform = UnscentedTransform::default();
+    let transform = UnscentedTransform::default().with_update(SigmaPointUpdate::Augmented);
     let mut ukf_sum = vec![0.0; steps];
     let mut ekf_sum = vec![0.0; steps];
     let nees = |e: &Vector4<f64>, p: &Matrix4<f64>| -> f64 {
@@ -238,5 +245,155 @@ fn range_bearing_monte_carlo() {
             "block {block}: UKF {ukf}"
         );
         assert!(ekf > band.upper, "block {block}: EKF {ekf}");
+    }
+}
+
+/// A seeded SPD 4 x 4 prior around the range-bearing geometry of
+/// `range_bearing_nees` (target 20 m away).
+fn nonlinear_prior(seed: u64) -> (StateAndCovariance<f64, 4>, Matrix2<f64>) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut normal = || -> f64 { StandardNormal.sample(&mut rng) };
+    let a = Matrix4::from_fn(|_, _| normal());
+    let p = a * a.transpose() + Matrix4::from_diagonal(&Vector4::new(4.0, 4.0, 0.5, 0.5));
+    let x = Vector4::new(20.0 + normal(), 5.0 + normal(), 1.0, 1.0);
+    let r = Matrix2::new(0.25, 0.001, 0.001, 0.0009);
+    (
+        StateAndCovariance::new(x, (p + p.transpose()) * 0.5).unwrap(),
+        r,
+    )
+}
+
+/// The textbook additive UKF update (Van der Merwe 2004, alg. 3.3.1, points redrawn
+/// from the prior), coded independently with dynamic matrices: sigma points
+/// x +/- sqrt(n + lambda) (column j of chol(P)), weights of the scaled family, R
+/// added to P_yy, K = P_xy P_yy^-1, P+ = P - K P_yy K'.
+fn textbook_ukf(
+    prior: &StateAndCovariance<f64, 4>,
+    y: &Vector2<f64>,
+    r: &Matrix2<f64>,
+    (alpha, beta, kappa): (f64, f64, f64),
+) -> (DMatrix<f64>, DMatrix<f64>) {
+    let n = 4.0;
+    let lambda = alpha * alpha * (n + kappa) - n;
+    let p = DMatrix::from_column_slice(4, 4, prior.covariance().as_slice());
+    let l = p.clone().cholesky().unwrap().l() * (n + lambda).sqrt();
+    let x = DMatrix::from_column_slice(4, 1, prior.state().as_slice());
+    let mut points = vec![x.clone()];
+    for j in 0..4 {
+        points.push(DMatrix::from_column_slice(
+            4,
+            1,
+            (&x + l.column(j)).as_slice(),
+        ));
+    }
+    for j in 0..4 {
+        points.push(DMatrix::from_column_slice(
+            4,
+            1,
+            (&x - l.column(j)).as_slice(),
+        ));
+    }
+    let wm: Vec<f64> = (0..9)
+        .map(|i| {
+            if i == 0 {
+                lambda / (n + lambda)
+            } else {
+                0.5 / (n + lambda)
+            }
+        })
+        .collect();
+    let mut wc = wm.clone();
+    wc[0] += 1.0 - alpha * alpha + beta;
+    let ys: Vec<DMatrix<f64>> = points
+        .iter()
+        .map(|p| {
+            let v = Vector4::from_column_slice(p.as_slice());
+            DMatrix::from_column_slice(2, 1, range_bearing(&v).as_slice())
+        })
+        .collect();
+    let y_hat = ys
+        .iter()
+        .zip(&wm)
+        .fold(DMatrix::zeros(2, 1), |acc, (v, w)| acc + v * *w);
+    let mut pyy = DMatrix::from_column_slice(2, 2, r.as_slice());
+    let mut pxy = DMatrix::<f64>::zeros(4, 2);
+    for i in 0..9 {
+        let dy = &ys[i] - &y_hat;
+        pyy += &dy * dy.transpose() * wc[i];
+        pxy += (&points[i] - &x) * dy.transpose() * wc[i];
+    }
+    let k = &pxy * pyy.clone().lu().try_inverse().unwrap();
+    let yv = DMatrix::from_column_slice(2, 1, y.as_slice());
+    let posterior = &x + &k * (yv - y_hat);
+    let covariance = &p - &k * &pyy * k.transpose();
+    (posterior, covariance)
+}
+
+/// With M = 0 the additive update is the textbook UKF on a strongly nonlinear
+/// measurement (range and bearing of a target 20 m away), for the default and other
+/// Merwe weights, to 1e-12 relative; seeded.
+#[test]
+fn additive_update_is_the_textbook_ukf_without_m() {
+    for seed in 0..20 {
+        let (prior, r) = nonlinear_prior(seed);
+        let y = range_bearing(prior.state()) + Vector2::new(0.7, -0.02);
+        for (alpha, beta, kappa) in [(1.0, 2.0, 0.0), (0.5, 2.0, 1.0), (1.0, 0.0, 2.0)] {
+            let transform = UnscentedTransform::new(alpha, beta, kappa).unwrap();
+            assert_eq!(transform.update(), SigmaPointUpdate::Additive);
+            let out = unscented_update(
+                &transform,
+                &prior,
+                &y,
+                |x| Ok(range_bearing(x)),
+                &r,
+                &Matrix4x2::zeros(),
+            )
+            .unwrap();
+            let (x, p) = textbook_ukf(&prior, &y, &r, (alpha, beta, kappa));
+            let ex = rel_err(
+                &DMatrix::from_column_slice(4, 1, out.posterior.state().as_slice()),
+                &x,
+            );
+            let ep = rel_err(&dm(out.posterior.covariance()), &p);
+            assert!(ex <= 1e-12 && ep <= 1e-12, "seed {seed}: {ex:e} {ep:e}");
+        }
+    }
+}
+
+/// As M goes to 0 the additive update's posterior goes to the M = 0 one linearly
+/// (the cross terms are linear in M), on the nonlinear measurement; seeded.
+#[test]
+fn additive_update_is_continuous_as_m_vanishes() {
+    let transform = UnscentedTransform::default();
+    for seed in 0..10 {
+        let (prior, r) = nonlinear_prior(100 + seed);
+        let y = range_bearing(prior.state()) + Vector2::new(-0.4, 0.01);
+        // A valid direction: M0 = 0.1 (first two columns of chol(P)) chol(R)'.
+        let lp = prior.covariance().cholesky().unwrap().l();
+        let lr = r.cholesky().unwrap().l();
+        let m0 = lp.fixed_view::<4, 2>(0, 0) * lr.transpose() * 0.1;
+        let run = |t: f64| {
+            unscented_update(
+                &transform,
+                &prior,
+                &y,
+                |x| Ok(range_bearing(x)),
+                &r,
+                &(m0 * t),
+            )
+            .unwrap()
+            .posterior
+        };
+        let base = run(0.0);
+        let scale = base.covariance().amax();
+        let gaps: Vec<f64> = [1e-2, 1e-4, 1e-6]
+            .iter()
+            .map(|&t| (run(t).covariance() - base.covariance()).amax() / scale)
+            .collect();
+        assert!(gaps[0] > 0.0, "seed {seed}: M must change the posterior");
+        // Linear in t: each factor 100 in t is a factor ~100 in the gap.
+        for w in gaps.windows(2) {
+            assert!(w[1] <= w[0] * 0.02, "seed {seed}: {gaps:?}");
+        }
     }
 }

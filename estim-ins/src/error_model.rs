@@ -943,7 +943,7 @@ impl ProcessModel<f64, ERROR_STATES> for InsErrorModel {
             return later * earlier;
         }
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
+        if !crate::kernel::portable_forced() && std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2 (checked on the line above).
             return unsafe { compose_structured_avx2(&later.data.0, &earlier.data.0) };
         }

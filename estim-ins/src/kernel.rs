@@ -17,11 +17,19 @@ pub(crate) enum Kernel {
     Portable,
 }
 
+/// Whether `ESTIM_FORCE_PORTABLE=1` asks for the portable build everywhere (read once;
+/// estim-core honours the same variable), so tests can run the portable path on a CPU
+/// that has the hand-tuned ones.
+pub(crate) fn portable_forced() -> bool {
+    static FORCED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *FORCED.get_or_init(|| std::env::var("ESTIM_FORCE_PORTABLE").is_ok_and(|v| v == "1"))
+}
+
 impl Kernel {
     #[inline(always)]
     pub(crate) fn detect() -> Self {
         #[cfg(target_arch = "x86_64")]
-        {
+        if !portable_forced() {
             if std::arch::is_x86_feature_detected!("fma") {
                 if std::arch::is_x86_feature_detected!("avx512f") {
                     return Self::Avx512Fma;

@@ -1,6 +1,8 @@
 //! The error-state Kalman filter: a nominal state propagated by the model, an error
 //! covariance, updates that inject the estimated error and reset the covariance.
 
+#[cfg(doc)]
+use crate::{Error, ExtendedKalmanFilter, KalmanFilter};
 use nalgebra::{SMatrix, SVector};
 
 use super::shared::{check_dt, CrossSource, Shared};

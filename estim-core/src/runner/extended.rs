@@ -1,5 +1,7 @@
 //! The extended Kalman filter over a [`ProcessModel`] whose state is `SVector<T, N>`.
 
+#[cfg(doc)]
+use crate::{Error, KalmanFilter};
 use nalgebra::{SMatrix, SVector};
 
 use super::shared::{check_dt, CrossSource, Shared};

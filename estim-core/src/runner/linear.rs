@@ -1,6 +1,8 @@
 //! The linear Kalman filter: fixed F, Q, H, R; its predict and update run a copy
 //! compiled for AVX2 where the dispatch allows.
 
+#[cfg(doc)]
+use crate::{Error, JointCheck};
 use nalgebra::{SMatrix, SVector};
 
 use super::shared::{propagate_symmetric, propagate_symmetric_into, CrossSource, Shared};

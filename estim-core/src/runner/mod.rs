@@ -13,6 +13,8 @@
 //! accumulators, recorded history) and *then* notifies the observer. If the observer
 //! returns an error, that error is returned and the committed result stays.
 
+#[cfg(doc)]
+use crate::{CrossCovariance, GateRecovery, JointCheck};
 use nalgebra::{SMatrix, SVector};
 
 use crate::observer::UpdateStatus;
