@@ -357,10 +357,7 @@ fn every_size_rate_duration_count_and_seed_is_bounded() {
             ],
             "--realizations 1000000 is outside [1, 10000]",
         ),
-        (
-            &["dvl", "solve", "--beam-angle", "1e9", "-"],
-            "--beam-angle",
-        ),
+        (&["dvl", "solve", "--beam-angle", "1e9", "-"], "beam_angle"),
         (
             &[
                 "dvl",

@@ -133,10 +133,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 const MAX_TIME_OFFSET_S: f64 = 60.0;
 
 fn solve(args: &SolveArgs) -> anyhow::Result<String> {
-    let (angle, azimuth) = (args.beam_angle, args.azimuth_offset);
-    if !(angle.is_finite() && angle > 0.0 && angle < 90.0) {
-        anyhow::bail!("--beam-angle {angle} is outside (0, 90) deg");
-    }
+    // The beam angle is checked by the geometry builder (naming `beam_angle`).
+    let azimuth = args.azimuth_offset;
     if !(azimuth.is_finite() && azimuth.abs() <= 360.0) {
         anyhow::bail!("--azimuth-offset {azimuth} is outside [-360, 360] deg");
     }

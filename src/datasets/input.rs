@@ -83,6 +83,12 @@ pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>> {
 pub(crate) fn check_text(bytes: &[u8], path: &Path, complete: bool) -> Result<()> {
     let not_text = |what: String| DatasetError::NotText {
         path: path.to_path_buf(),
+        line: None,
+        what,
+    };
+    let not_text_at = |line: u64, what: String| DatasetError::NotText {
+        path: path.to_path_buf(),
+        line: Some(line),
         what,
     };
     let boms: [(&[u8], &str); 4] = [
@@ -124,27 +130,29 @@ pub(crate) fn check_text(bytes: &[u8], path: &Path, complete: bool) -> Result<()
             "UTF-16 big-endian text without a byte-order mark (a NUL before every character)"
                 .to_string()
         } else {
-            format!(
-                "binary data, not a CSV text file (a NUL byte at offset {first}, line {})",
-                1 + count_newlines(&bytes[..first])
-            )
+            let line = 1 + count_newlines(&bytes[..first]);
+            return Err(not_text_at(
+                line,
+                format!(
+                    "binary data, not a CSV text file (a NUL byte at offset {first}, line {line})"
+                ),
+            ));
         };
-        return Err(not_text(if what.starts_with("UTF") {
-            format!("{what}; save it as UTF-8")
-        } else {
-            what
-        }));
+        return Err(not_text(format!("{what}; save it as UTF-8")));
     }
     // Other control bytes (an executable, an image, compressed data).
     if let Some(i) = bytes
         .iter()
         .position(|&b| b < 0x20 && !matches!(b, b'\n' | b'\r' | b'\t' | 0x0c))
     {
-        return Err(not_text(format!(
-            "binary data, not a CSV text file (control byte 0x{:02x} at offset {i}, line {})",
-            bytes[i],
-            1 + count_newlines(&bytes[..i])
-        )));
+        let line = 1 + count_newlines(&bytes[..i]);
+        return Err(not_text_at(
+            line,
+            format!(
+                "binary data, not a CSV text file (control byte 0x{:02x} at offset {i}, line {line})",
+                bytes[i]
+            ),
+        ));
     }
     if complete && !bytes.contains(&b'\n') && bytes.contains(&b'\r') {
         let lines = bytes.iter().filter(|&&b| b == b'\r').count();
@@ -156,12 +164,15 @@ pub(crate) fn check_text(bytes: &[u8], path: &Path, complete: bool) -> Result<()
         let i = e.valid_up_to();
         // A block boundary may cut a multi-byte character: only judged on the whole file.
         if complete || e.error_len().is_some() {
-            return Err(not_text(format!(
-                "not UTF-8 text (invalid byte 0x{:02x} at offset {i}, line {}; Latin-1 or \
-                 Windows-1252? save it as UTF-8)",
-                bytes[i],
-                1 + count_newlines(&bytes[..i])
-            )));
+            let line = 1 + count_newlines(&bytes[..i]);
+            return Err(not_text_at(
+                line,
+                format!(
+                    "not UTF-8 text (invalid byte 0x{:02x} at offset {i}, line {line}; \
+                     Latin-1 or Windows-1252? save it as UTF-8)",
+                    bytes[i]
+                ),
+            ));
         }
     }
     Ok(())

@@ -64,10 +64,12 @@ pub enum DatasetError {
     },
     /// The bytes are not UTF-8 text with LF or CRLF line ends: UTF-16 or UTF-32, CR-only
     /// line ends, binary data.
-    #[error("{}: {what}", path.display())]
+    #[error("{}{}: {what}", path.display(), line.map_or(String::new(), |l| format!(":{l}")))]
     NotText {
         /// The file.
         path: PathBuf,
+        /// 1-based line of the first offending byte, where one is named.
+        line: Option<u64>,
         /// What the file is (encoding or kind, with the offset and line where known).
         what: String,
     },
