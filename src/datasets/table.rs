@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::akit::{csv_error, line_at, truncated_line, MAX_ABS_TIME_S};
+use super::akit::{csv_error, truncated_line, MAX_ABS_TIME_S};
 use super::columns::{resolve, same, Kind, Quantity, Resolved};
 use super::{DatasetError, Result};
 
@@ -229,6 +229,9 @@ pub(crate) fn for_each_row<C>(
     };
     let resolved = columns(&header)?;
     let width = header.cells.len();
+    // Lines counted incrementally (from the previous record), so that a long file
+    // costs one pass.
+    let mut counted = (0usize, 1u64);
     loop {
         let got = reader
             .read_record(&mut record)
@@ -236,7 +239,23 @@ pub(crate) fn for_each_row<C>(
         if !got {
             break;
         }
-        let line = record.position().map_or(0, |p| line_at(bytes, p.byte()));
+        let line = match record.position() {
+            Some(p) => {
+                let mut start = usize::try_from(p.byte())
+                    .unwrap_or(usize::MAX)
+                    .min(bytes.len());
+                // A record's offset may point at the blank lines before it.
+                while start < bytes.len() && matches!(bytes[start], b'\n' | b'\r') {
+                    start += 1;
+                }
+                let (from, line) = counted;
+                let start = start.max(from);
+                let line = line + bytes[from..start].iter().filter(|&&c| c == b'\n').count() as u64;
+                counted = (start, line);
+                line
+            }
+            None => 0,
+        };
         if record.len() <= 1 && record.iter().all(|c| c.trim().is_empty()) {
             continue; // blank line
         }
@@ -258,6 +277,27 @@ pub(crate) fn for_each_row<C>(
         )?;
     }
     Ok(())
+}
+
+/// The time column of any CSV file with a header (`time`, `t`, `timestamp`; s or
+/// ms), every row relative to `epoch_s` and read on its digits (see the IMU and DVL
+/// readers), e.g. to put a ground-truth file on the navigator's clock.
+///
+/// # Errors
+/// [`DatasetError::Io`]; a missing time column; a bad cell (file and line).
+pub fn load_times(path: &Path, epoch_s: f64) -> Result<Vec<f64>> {
+    let bytes = super::akit::read_file(path)?;
+    let mut out = Vec::new();
+    for_each_row(
+        &bytes,
+        path,
+        |h| Ok(h.require(&[TIME])?.remove(0)),
+        |time, row| {
+            out.push(row.time(time, epoch_s)?);
+            Ok(())
+        },
+    )?;
+    Ok(out)
 }
 
 #[cfg(test)]
