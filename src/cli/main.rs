@@ -10,11 +10,13 @@ mod dvl;
 mod learned;
 mod learned_scenarios;
 mod montecarlo;
+mod navigate;
 mod output;
 mod plots;
 mod report;
 mod reproduce;
 mod schema;
+mod simulate;
 mod smooth;
 
 /// The paper study (reproduce, montecarlo, report): private to the binary, not
@@ -46,6 +48,11 @@ enum Command {
     Report(report::Args),
     /// Smooth the INS/DVL survey (RTS): smoothed vs filtered errors against truth.
     Smooth(smooth::Args),
+    /// Navigate a survey: IMU + DVL (velocity or beams) [+ depth, fixes] in, a
+    /// navigation solution with its 1-sigma out; no ground truth needed.
+    Navigate(navigate::Args),
+    /// Synthesize sensor files from a recorded trajectory (IMU, beams): a simulation.
+    Simulate(simulate::Args),
 }
 
 fn main() -> ExitCode {
@@ -60,6 +67,8 @@ fn main() -> ExitCode {
         Command::Dataset(args) => dataset::run(args),
         Command::Report(args) => report::run(args),
         Command::Smooth(args) => smooth::run(args),
+        Command::Navigate(args) => navigate::run(args),
+        Command::Simulate(args) => simulate::run(args),
     };
     // Exit statuses: see `schema` (0 ok, 2 bad input, 3 some filter failed, 141
     // stdout closed).

@@ -35,6 +35,7 @@ pub use locate::{
 };
 pub use overlaps::{akit_overlaps, akit_row_keys, touches_held_out, WINDOW_MARGIN_ROWS};
 pub use span::{check_spans, span_tolerance, SpanCheck, SPAN_TIME_OFFSET_ALLOWANCE_S};
+pub use table::load_times;
 
 use std::path::PathBuf;
 

@@ -263,6 +263,27 @@ pub(crate) fn for_each_row<C>(
     Ok(())
 }
 
+/// The time column of any CSV file with a header (`time`, `t`, `timestamp`; s or
+/// ms), every row relative to `epoch_s` and read on its digits (see the IMU and DVL
+/// readers), e.g. to put a ground-truth file on the navigator's clock.
+///
+/// # Errors
+/// [`DatasetError::Io`]; a missing time column; a bad cell (file and line).
+pub fn load_times(path: &Path, epoch_s: f64) -> Result<Vec<f64>> {
+    let bytes = super::input::read_file(path)?;
+    let mut out = Vec::new();
+    for_each_row(
+        &bytes,
+        path,
+        |h| Ok(h.require(&[TIME])?.remove(0)),
+        |time, row| {
+            out.push(row.time(time, epoch_s)?);
+            Ok(())
+        },
+    )?;
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

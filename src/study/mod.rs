@@ -37,10 +37,11 @@ pub use report::{
     BEAMSNET_SENSITIVITY, LS,
 };
 pub use run::{
-    error_state, filter_imu_spec, initial_covariance, run_filter, run_filter_per_epoch_noise,
-    run_filter_with_observer, CrossMatrix, CrossSource, FilterRun, MeasurementSet,
+    error_state, filter_imu_spec, initial_covariance, initial_nominal, run_filter,
+    run_filter_per_epoch_noise, run_filter_with_observer, CrossMatrix, CrossSource, FilterRun,
+    MeasurementSet,
 };
-pub use scenario::{BeamLoss, Scenario};
+pub use scenario::{synthesize_imu, BeamLoss, Scenario};
 pub use smooth::{least_squares_measurements, smooth_scenario, SmoothReport};
 
 use std::path::PathBuf;

@@ -177,12 +177,6 @@ impl Scenario {
         let dvl_log = load_dvl_with(dvl_path, &config.columns)?;
         let allowance = SPAN_TIME_OFFSET_ALLOWANCE_S.max(config.dvl.akit_time_offset_s.abs());
         let span = check_spans(gt_path, &gt, dvl_path, &dvl_log, allowance, allow_partial)?;
-        let unusable = |message: String| {
-            PipelineError::Dataset(DatasetError::Unusable {
-                path: gt_path.to_path_buf(),
-                message,
-            })
-        };
         // On a mismatch (only with allow_partial) the run covers the overlap.
         let gt: Vec<_> = match span.overlap_s() {
             Some([start, end]) if !span.agrees() => gt
@@ -191,49 +185,7 @@ impl Scenario {
                 .collect(),
             _ => gt,
         };
-        let (first, last) = match (gt.first(), gt.last()) {
-            (Some(a), Some(b)) if gt.len() >= 2 => (*a, *b),
-            _ => {
-                return Err(unusable(format!(
-                    "fewer than 2 GT rows inside the overlap with {}",
-                    dvl_path.display()
-                )))
-            }
-        };
-        let samples = (last.time - first.time) * config.mission.imu_rate_hz;
-        if samples > MAX_SYNTHESIZED_IMU_SAMPLES {
-            return Err(unusable(format!(
-                "lines {}-{} span {} s, {samples:.0} IMU samples at {} Hz; at most {MAX_SYNTHESIZED_IMU_SAMPLES:.0} are synthesized",
-                first.line, last.line, last.time - first.time, config.mission.imu_rate_hz
-            )));
-        }
-        let samples = gt.iter().map(|g| g.trajectory_sample()).collect();
-        // The loader checked every value the trajectory checks; an error here still
-        // names the file.
-        let trajectory = Trajectory::new(samples).map_err(|e| unusable(e.to_string()))?;
-        let (mut truth, clean) = trajectory
-            .simulate(config.mission.imu_rate_hz)
-            .map_err(|e| {
-                unusable(format!(
-                    "lines {}-{} (span {} s): {e}",
-                    first.line,
-                    last.line,
-                    last.time - first.time
-                ))
-            })?;
-        let dt = 1.0 / config.mission.imu_rate_hz;
-        let spec = imu_spec(config)?;
-        let mut errors = ImuErrorGenerator::new(spec, seed);
-        let mut imu = Vec::with_capacity(clean.len());
-        for (k, sample) in clean.iter().enumerate() {
-            truth[k].acc_bias = errors.acc_bias();
-            truth[k].gyro_bias = errors.gyro_bias();
-            imu.push(errors.corrupt(sample, dt));
-        }
-        if let Some(last) = truth.last_mut() {
-            last.acc_bias = errors.acc_bias();
-            last.gyro_bias = errors.gyro_bias();
-        }
+        let (truth, imu, clean, dt, spec) = synthesize_imu(&gt, gt_path, dvl_path, config, seed)?;
         let protocol = protocol(config);
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xD71);
         let t0 = truth.first().map_or(0.0, |s| s.time);
@@ -278,8 +230,8 @@ impl Scenario {
                      time offset dvl.akit_time_offset_s = {} s); at least {MIN_DVL_EPOCHS} \
                      are needed",
                     dvl.len(),
-                    first.time,
-                    last.time,
+                    t0,
+                    truth.last().map_or(t0, |s| s.time),
                     gt_path.display(),
                     config.dvl.akit_time_offset_s
                 ),
@@ -297,6 +249,75 @@ impl Scenario {
             span: Some(span),
         })
     }
+}
+
+/// The IMU synthesized from recorded ground truth (the study's simulation): truth at
+/// the configured IMU rate from the GT spline, the error-free IMU, and the IMU
+/// corrupted by the configured error model with `seed` (truth carries its true
+/// biases). Returns (truth, imu, clean imu, dt, spec).
+///
+/// # Errors
+/// [`DatasetError::Unusable`] naming `gt_path` for fewer than 2 rows, a span too long
+/// to synthesize or a trajectory the simulator refuses.
+#[allow(clippy::type_complexity)]
+pub fn synthesize_imu(
+    gt: &[estim::datasets::GtSample],
+    gt_path: &Path,
+    other: &Path,
+    config: &Config,
+    seed: u64,
+) -> Result<(Vec<InsState>, Vec<ImuSample>, Vec<ImuSample>, f64, ImuSpec)> {
+    let unusable = |message: String| {
+        PipelineError::Dataset(DatasetError::Unusable {
+            path: gt_path.to_path_buf(),
+            message,
+        })
+    };
+    let dvl_path = other;
+    let (first, last) = match (gt.first(), gt.last()) {
+        (Some(a), Some(b)) if gt.len() >= 2 => (*a, *b),
+        _ => {
+            return Err(unusable(format!(
+                "fewer than 2 GT rows inside the overlap with {}",
+                dvl_path.display()
+            )))
+        }
+    };
+    let samples = (last.time - first.time) * config.mission.imu_rate_hz;
+    if samples > MAX_SYNTHESIZED_IMU_SAMPLES {
+        return Err(unusable(format!(
+            "lines {}-{} span {} s, {samples:.0} IMU samples at {} Hz; at most {MAX_SYNTHESIZED_IMU_SAMPLES:.0} are synthesized",
+            first.line, last.line, last.time - first.time, config.mission.imu_rate_hz
+        )));
+    }
+    let samples = gt.iter().map(|g| g.trajectory_sample()).collect();
+    // The loader checked every value the trajectory checks; an error here still
+    // names the file.
+    let trajectory = Trajectory::new(samples).map_err(|e| unusable(e.to_string()))?;
+    let (mut truth, clean) = trajectory
+        .simulate(config.mission.imu_rate_hz)
+        .map_err(|e| {
+            unusable(format!(
+                "lines {}-{} (span {} s): {e}",
+                first.line,
+                last.line,
+                last.time - first.time
+            ))
+        })?;
+    let dt = 1.0 / config.mission.imu_rate_hz;
+    let spec = imu_spec(config)?;
+    let mut errors = ImuErrorGenerator::new(spec, seed);
+    let mut imu = Vec::with_capacity(clean.len());
+    for (k, sample) in clean.iter().enumerate() {
+        truth[k].acc_bias = errors.acc_bias();
+        truth[k].gyro_bias = errors.gyro_bias();
+        imu.push(errors.corrupt(sample, dt));
+    }
+    if let Some(last) = truth.last_mut() {
+        last.acc_bias = errors.acc_bias();
+        last.gyro_bias = errors.gyro_bias();
+    }
+    Ok((truth, imu, clean, dt, spec))
 }
 
 /// A scripted beam loss: from `start_s` (after the scenario's start) for `duration_s`,

@@ -1,0 +1,420 @@
+//! `estim navigate`: the INS/DVL navigator on a survey's own files (no ground truth
+//! needed). Writes, through a staged `--out DIR`, `solution.csv` (the input's own
+//! time epoch; position, velocity, attitude, IMU biases, a 1-sigma for each),
+//! `track.geojson` and `summary.json`; prints the summary (text, or JSON with
+//! `--json`). `--truth GT.csv` adds errors against truth and NEES at the DVL epochs.
+
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use estim::datasets::{load_depth, load_fixes, load_gt, load_times, DvlLog, ImuLog};
+use estim::ins::{ErrorMatrix, InsState, Trajectory, ERROR_STATES, POS};
+use estim::navigator::{
+    navigate, NavSolution, NavigationObserver, NavigationRun, NavigatorConfig, NavigatorError,
+    SolutionKind, SurveyInputs,
+};
+use serde_json::{json, Value};
+
+use crate::output::StagedDir;
+use crate::schema;
+
+/// Arguments of `estim navigate`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// IMU CSV (specific force and angular rate, or increments; any rate).
+    #[arg(long, value_name = "FILE")]
+    imu: PathBuf,
+    /// DVL velocity CSV (body frame; lost-lock rows are skipped and counted).
+    #[arg(
+        long,
+        value_name = "FILE",
+        conflicts_with = "beams",
+        required_unless_present = "beams"
+    )]
+    dvl: Option<PathBuf>,
+    /// DVL beams CSV (beam1..beam4; least squares on the beams present).
+    #[arg(long, value_name = "FILE")]
+    beams: Option<PathBuf>,
+    /// Depth CSV (time, depth in m).
+    #[arg(long, value_name = "FILE")]
+    depth: Option<PathBuf>,
+    /// Position fixes CSV (time, lat, lon, sigma).
+    #[arg(long, value_name = "FILE")]
+    fixes: Option<PathBuf>,
+    /// Vehicle configuration TOML (lever arms, noise, time offsets, initial state).
+    #[arg(long, value_name = "FILE")]
+    vehicle: Option<PathBuf>,
+    /// Ground truth CSV: adds errors and NEES at the DVL epochs (evaluation).
+    #[arg(long, value_name = "FILE")]
+    truth: Option<PathBuf>,
+    /// Also write a solution at this rate \[Hz\] (besides every DVL epoch).
+    #[arg(long, value_name = "HZ")]
+    rate: Option<f64>,
+    /// Output folder (solution.csv, track.geojson, summary.json).
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+    /// Print the summary as JSON on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Read and check a vehicle TOML; errors name the file and line.
+pub fn vehicle_config(path: &Path) -> anyhow::Result<NavigatorConfig> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("{}: cannot read", path.display()))?;
+    toml::from_str::<NavigatorConfig>(&text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
+        match line {
+            Some(l) => anyhow::anyhow!("{}:{l}: {}", path.display(), e.message()),
+            None => anyhow::anyhow!("{}: {}", path.display(), e.message()),
+        }
+    })
+}
+
+/// True accelerometer and gyroscope biases of one simulated IMU sample.
+type TrueBiases = (
+    estim::core::nalgebra::Vector3<f64>,
+    estim::core::nalgebra::Vector3<f64>,
+);
+
+/// Truth for the evaluation: the GT spline and, when the IMU file carries them, the
+/// simulation's true biases.
+struct Truth {
+    trajectory: Trajectory,
+    biases: Option<(Vec<f64>, Vec<TrueBiases>)>,
+    position_error: Vec<f64>,
+    nees: Vec<f64>,
+    not_positive_definite: usize,
+}
+
+impl Truth {
+    fn at(&self, time: f64) -> anyhow::Result<InsState> {
+        let mut state = self.trajectory.evaluate(time)?.state;
+        if let Some((times, biases)) = &self.biases {
+            let i = times.partition_point(|&t| t < time).min(biases.len() - 1);
+            state.acc_bias = biases[i].0;
+            state.gyro_bias = biases[i].1;
+        }
+        Ok(state)
+    }
+}
+
+/// Writes the solution CSV as the run goes, keeps the track and evaluates truth.
+struct Writer {
+    epoch_s: f64,
+    csv: Option<std::io::BufWriter<std::fs::File>>,
+    line: String,
+    track: Vec<[f64; 2]>,
+    truth: Option<Truth>,
+}
+
+const CSV_HEADER: &str = "time_s,kind,latitude_deg,longitude_deg,depth_m,v_north_mps,v_east_mps,v_down_mps,roll_deg,pitch_deg,heading_deg,acc_bias_x_mps2,acc_bias_y_mps2,acc_bias_z_mps2,gyro_bias_x_radps,gyro_bias_y_radps,gyro_bias_z_radps,sigma_north_m,sigma_east_m,sigma_down_m,sigma_v_north_mps,sigma_v_east_mps,sigma_v_down_mps,sigma_roll_deg,sigma_pitch_deg,sigma_heading_deg,sigma_acc_bias_x_mps2,sigma_acc_bias_y_mps2,sigma_acc_bias_z_mps2,sigma_gyro_bias_x_radps,sigma_gyro_bias_y_radps,sigma_gyro_bias_z_radps\n";
+
+impl NavigationObserver for Writer {
+    fn on_solution(
+        &mut self,
+        kind: SolutionKind,
+        s: &NavSolution,
+        state: &InsState,
+        covariance: &ErrorMatrix,
+    ) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
+        if kind == SolutionKind::Dvl {
+            self.track.push([s.longitude_deg, s.latitude_deg]);
+            if let Some(truth) = &mut self.truth {
+                let t = truth.at(s.time).map_err(|e| e.to_string())?;
+                let e = crate::study::error_state(&t, state);
+                truth.position_error.push(e.fixed_rows::<3>(POS).norm());
+                match estim::core::consistency::nees(&e, covariance) {
+                    Ok(v) => truth.nees.push(v),
+                    Err(_) => {
+                        truth.nees.push(f64::NAN);
+                        truth.not_positive_definite += 1;
+                    }
+                }
+            }
+        }
+        if let Some(csv) = &mut self.csv {
+            let l = &mut self.line;
+            l.clear();
+            let kind = match kind {
+                SolutionKind::Dvl => "dvl",
+                SolutionKind::Rate => "rate",
+            };
+            let _ = write!(
+                l,
+                "{},{kind},{:.9},{:.9},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5},{:.5}",
+                self.epoch_s + s.time,
+                s.latitude_deg,
+                s.longitude_deg,
+                s.depth_m,
+                s.velocity_ned_mps[0],
+                s.velocity_ned_mps[1],
+                s.velocity_ned_mps[2],
+                s.roll_deg,
+                s.pitch_deg,
+                s.heading_deg
+            );
+            for v in s.acc_bias_mps2.iter().chain(&s.gyro_bias_radps) {
+                let _ = write!(l, ",{v:.4e}");
+            }
+            for v in s.position_sigma_m.iter().chain(&s.velocity_sigma_mps) {
+                let _ = write!(l, ",{v:.5}");
+            }
+            for v in &s.attitude_sigma_deg {
+                let _ = write!(l, ",{v:.6}");
+            }
+            for v in s.acc_bias_sigma_mps2.iter().chain(&s.gyro_bias_sigma_radps) {
+                let _ = write!(l, ",{v:.4e}");
+            }
+            l.push('\n');
+            csv.write_all(l.as_bytes())?;
+        }
+        Ok(())
+    }
+}
+
+fn stats(values: &[f64]) -> Value {
+    let finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+    if finite.is_empty() {
+        return json!({ "count": values.len(), "mean": null, "max": null });
+    }
+    let mean = finite.iter().sum::<f64>() / finite.len() as f64;
+    let max = finite.iter().copied().fold(f64::MIN, f64::max);
+    json!({ "count": values.len(), "mean": mean, "max": max })
+}
+
+fn summary_json(
+    args: &Args,
+    config: &NavigatorConfig,
+    run: &NavigationRun,
+    epoch: f64,
+    truth: Option<&Truth>,
+) -> Value {
+    let counts = |c: &estim::navigator::UpdateCounts| json!({ "accepted": c.accepted, "gated": c.gated, "recovered": c.recovered });
+    let evaluation = truth.map(|t| {
+        let n = t.position_error.len().max(1) as f64;
+        let rmse = (t.position_error.iter().map(|e| e * e).sum::<f64>() / n).sqrt();
+        let finite: Vec<f64> = t.nees.iter().copied().filter(|v| v.is_finite()).collect();
+        let nees = if finite.is_empty() {
+            Value::Null
+        } else {
+            json!(finite.iter().sum::<f64>() / finite.len() as f64)
+        };
+        json!({
+            "epochs": t.position_error.len(),
+            "position_rmse_m": rmse,
+            "final_position_error_m": t.position_error.last(),
+            "nees_average": nees,
+            "nees_states": if t.biases.is_some() { ERROR_STATES } else { 9 },
+            "covariance_not_positive_definite_epochs": t.not_positive_definite,
+        })
+    });
+    let f = &run.final_solution;
+    schema::document(
+        "navigate",
+        json!({
+            "imu": schema::path_json(Some(&args.imu)),
+            "dvl": schema::path_json(args.dvl.as_deref()),
+            "beams": schema::path_json(args.beams.as_deref()),
+            "depth": schema::path_json(args.depth.as_deref()),
+            "fixes": schema::path_json(args.fixes.as_deref()),
+            "vehicle": schema::path_json(args.vehicle.as_deref()),
+            "truth": schema::path_json(args.truth.as_deref()),
+            "rate_hz": args.rate,
+            "configuration": config,
+        }),
+        0,
+        json!({
+            "epoch_s": epoch,
+            "time_span_s": [epoch + run.span_s[0], epoch + run.span_s[1]],
+            "imu_samples": run.imu_samples,
+            "imu_period_s": run.imu_period_s,
+            "initial": run.alignment,
+            "updates": {
+                "dvl": counts(&run.dvl),
+                "depth": counts(&run.depth),
+                "fixes": counts(&run.fixes),
+            },
+            "dvl_no_lock_rows": run.dvl_no_lock,
+            "dvl_insufficient_beam_rows": run.dvl_insufficient_beams,
+            "outside_imu_span": run.outside_imu_span,
+            "dvl_gaps_coasted": run.dvl_gaps_coasted,
+            "longest_dvl_gap_s": run.longest_dvl_gap_s,
+            "nis": {
+                "dvl": stats(&run.dvl_nis),
+                "depth": stats(&run.depth_nis),
+                "fixes": stats(&run.fix_nis),
+            },
+            "solutions": run.solutions,
+            "final": {
+                "time_s": epoch + f.time,
+                "latitude_deg": f.latitude_deg,
+                "longitude_deg": f.longitude_deg,
+                "depth_m": f.depth_m,
+                "position_sigma_m": f.position_sigma_m,
+                "heading_deg": f.heading_deg,
+                "heading_sigma_deg": f.attitude_sigma_deg[2],
+            },
+            "evaluation": evaluation,
+        }),
+    )
+}
+
+/// Run it.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if let Some(rate) = args.rate {
+        anyhow::ensure!(
+            rate.is_finite() && rate > 0.0,
+            "--rate {rate}: not a positive rate"
+        );
+    }
+    let config = match &args.vehicle {
+        Some(p) => vehicle_config(p)?,
+        None => NavigatorConfig::default(),
+    };
+    let settings = config.check().map_err(|e| match &args.vehicle {
+        Some(p) => anyhow::anyhow!("{}: {e}", p.display()),
+        None => anyhow::anyhow!("{e}"),
+    })?;
+    let staged = args.out.as_deref().map(StagedDir::new).transpose()?;
+    let imu = ImuLog::load(&args.imu, None)?;
+    let epoch = imu.epoch_s;
+    let dvl = match (&args.dvl, &args.beams) {
+        (Some(p), _) => DvlLog::load_velocity(p, Some(epoch))?,
+        (None, Some(p)) => DvlLog::load_beams(p, Some(epoch))?,
+        (None, None) => anyhow::bail!("give --dvl or --beams"),
+    };
+    let depth = match &args.depth {
+        Some(p) => load_depth(p, Some(epoch))?.0,
+        None => Vec::new(),
+    };
+    let fixes = match &args.fixes {
+        Some(p) => load_fixes(p, Some(epoch))?.0,
+        None => Vec::new(),
+    };
+    let truth = match &args.truth {
+        Some(p) => {
+            let gt = load_gt(p)?;
+            // The GT times on the navigator's clock, read on their digits.
+            let times = load_times(p, epoch)?;
+            anyhow::ensure!(
+                times.len() == gt.len(),
+                "{}: {} time cells for {} rows",
+                p.display(),
+                times.len(),
+                gt.len()
+            );
+            let samples = gt
+                .iter()
+                .zip(&times)
+                .map(|(g, &t)| {
+                    let mut s = g.trajectory_sample();
+                    s.time = t;
+                    s
+                })
+                .collect();
+            let trajectory =
+                Trajectory::new(samples).with_context(|| format!("{}", p.display()))?;
+            let biases = imu
+                .true_biases
+                .clone()
+                .map(|b| (imu.samples.iter().map(|s| s.time).collect(), b));
+            Some(Truth {
+                trajectory,
+                biases,
+                position_error: Vec::new(),
+                nees: Vec::new(),
+                not_positive_definite: 0,
+            })
+        }
+        None => None,
+    };
+    let inputs = SurveyInputs {
+        imu: imu.samples,
+        dvl: dvl.records,
+        depth,
+        fixes,
+    };
+    let csv = match &staged {
+        Some(dir) => {
+            let path = dir.path("solution.csv");
+            let file = std::fs::File::create(&path)
+                .with_context(|| format!("{}: cannot create", path.display()))?;
+            let mut w = std::io::BufWriter::new(file);
+            w.write_all(CSV_HEADER.as_bytes())?;
+            Some(w)
+        }
+        None => None,
+    };
+    let mut writer = Writer {
+        epoch_s: epoch,
+        csv,
+        line: String::new(),
+        track: Vec::new(),
+        truth,
+    };
+    let run = match navigate(&inputs, &settings, args.rate, &mut writer) {
+        Ok(run) => run,
+        Err(NavigatorError::Filter { time, source }) => {
+            eprintln!(
+                "error: the filter stopped at t = {} s: {source}",
+                epoch + time
+            );
+            return schema::status_result(1);
+        }
+        Err(e) => return Err(e.into()),
+    };
+    let summary = summary_json(&args, &config, &run, epoch, writer.truth.as_ref());
+    if let Some(dir) = staged {
+        if let Some(mut csv) = writer.csv.take() {
+            csv.flush()?;
+        }
+        let track = json!({
+            "type": "FeatureCollection",
+            "features": [{
+                "type": "Feature",
+                "properties": { "name": "estim navigate track (DVL epochs)" },
+                "geometry": { "type": "LineString", "coordinates": writer.track },
+            }],
+        });
+        std::fs::write(dir.path("track.geojson"), serde_json::to_string(&track)?)?;
+        std::fs::write(
+            dir.path("summary.json"),
+            serde_json::to_string_pretty(&summary)?,
+        )?;
+        dir.commit()?;
+    }
+    if args.json {
+        return crate::output::emit(&format!("{}\n", serde_json::to_string_pretty(&summary)?));
+    }
+    let f = &run.final_solution;
+    let mut text = String::new();
+    let _ = writeln!(
+        text,
+        "navigated {} IMU samples ({:.1} s); DVL updates {} accepted, {} gated, {} recovered; {} rows without lock skipped; {} gaps coasted",
+        run.imu_samples,
+        run.span_s[1] - run.span_s[0],
+        run.dvl.accepted,
+        run.dvl.gated,
+        run.dvl.recovered,
+        run.dvl_no_lock,
+        run.dvl_gaps_coasted
+    );
+    let _ = writeln!(
+        text,
+        "final: lat {:.7} deg, lon {:.7} deg, depth {:.2} m, heading {:.2} deg; 1-sigma N/E {:.2}/{:.2} m",
+        f.latitude_deg, f.longitude_deg, f.depth_m, f.heading_deg, f.position_sigma_m[0], f.position_sigma_m[1]
+    );
+    if let Some(e) = summary.get("evaluation").filter(|v| !v.is_null()) {
+        let _ = writeln!(
+            text,
+            "against truth: position RMSE {} m, average NEES {} ({} states)",
+            e["position_rmse_m"], e["nees_average"], e["nees_states"]
+        );
+    }
+    crate::output::emit(&text)
+}

@@ -1,0 +1,317 @@
+//! `estim navigate` end to end: the A-KIT evaluation path (`simulate imu` +
+//! `simulate beams` + `navigate --truth`) equals `reproduce`'s LS filter; the same
+//! inputs in the Unix epoch give the same figures and a solution in that epoch;
+//! lost-lock DVL rows are skipped and counted; bad input exits 2 naming file:line.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+fn estim(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_estim"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("run estim")
+}
+
+fn ok(out: Output, what: &str) -> Vec<u8> {
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{what}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out.stdout
+}
+
+fn json(bytes: &[u8]) -> Value {
+    serde_json::from_slice(bytes).expect("JSON on stdout")
+}
+
+/// The A-KIT trajectory 4 files, or `None` (skipped with a printed reason).
+fn trajectory4() -> Option<(PathBuf, PathBuf)> {
+    let root = common::data_root()?;
+    let files = estim::datasets::trajectory_files(&root, 4).ok()?;
+    Some((files.gt, files.dvl))
+}
+
+/// IMU, beams and vehicle files of the study's LS run on `gt`/`dvl`, written in `dir`.
+fn evaluation_inputs(dir: &Path, gt: &Path, dvl: &Path) {
+    let gt_s = gt.to_str().unwrap();
+    let imu = ok(
+        estim(
+            &[
+                "simulate",
+                "imu",
+                "--gt",
+                gt_s,
+                "--vehicle-out",
+                "vehicle.toml",
+            ],
+            dir,
+        ),
+        "simulate imu",
+    );
+    std::fs::write(dir.join("imu.csv"), imu).unwrap();
+    let beams = ok(
+        estim(
+            &[
+                "simulate",
+                "beams",
+                "--gt",
+                gt_s,
+                "--dvl",
+                dvl.to_str().unwrap(),
+            ],
+            dir,
+        ),
+        "simulate beams",
+    );
+    std::fs::write(dir.join("beams.csv"), beams).unwrap();
+}
+
+/// Every time cell of the first column shifted by `shift` whole seconds, on the text
+/// (the digits after the point are kept).
+fn shift_times(text: &str, shift: u64) -> String {
+    let mut out = String::with_capacity(text.len() + text.len() / 10);
+    for (i, line) in text.lines().enumerate() {
+        if i == 0 || line.trim().is_empty() {
+            out.push_str(line);
+        } else {
+            let (time, rest) = line.split_once(',').unwrap();
+            let (whole, fraction) = time.split_once('.').unwrap_or((time, ""));
+            let whole: u64 = whole.parse().expect("a non-negative time");
+            out.push_str(&format!("{}", whole + shift));
+            if !fraction.is_empty() {
+                out.push('.');
+                out.push_str(fraction);
+            }
+            out.push(',');
+            out.push_str(rest);
+        }
+        out.push('\n');
+    }
+    out
+}
+
+fn relative(a: f64, b: f64) -> f64 {
+    (a - b).abs() / b.abs().max(1e-300)
+}
+
+#[test]
+fn akit_evaluation_equals_reproduce_ls_also_in_the_unix_epoch() {
+    let Some((gt, dvl)) = trajectory4() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    evaluation_inputs(d, &gt, &dvl);
+    let gt_s = gt.to_str().unwrap();
+    let navigated = json(&ok(
+        estim(
+            &[
+                "navigate",
+                "--imu",
+                "imu.csv",
+                "--beams",
+                "beams.csv",
+                "--vehicle",
+                "vehicle.toml",
+                "--truth",
+                gt_s,
+                "--json",
+            ],
+            d,
+        ),
+        "navigate",
+    ));
+    let reproduced = json(&ok(
+        estim(
+            &[
+                "reproduce",
+                "--gt",
+                gt_s,
+                "--dvl",
+                dvl.to_str().unwrap(),
+                "--json",
+            ],
+            d,
+        ),
+        "reproduce",
+    ));
+    let ls = reproduced["trajectories"][0]["filters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|f| f["id"] == "ls")
+        .expect("the LS filter")
+        .clone();
+    let e = &navigated["evaluation"];
+    let pairs = [
+        (
+            e["position_rmse_m"].as_f64().unwrap(),
+            ls["position_error_m"]["rmse"].as_f64().unwrap(),
+        ),
+        (
+            e["final_position_error_m"].as_f64().unwrap(),
+            ls["position_error_m"]["final_value"].as_f64().unwrap(),
+        ),
+        (
+            e["nees_average"].as_f64().unwrap(),
+            ls["nees_average"].as_f64().unwrap(),
+        ),
+    ];
+    for (a, b) in pairs {
+        assert!(relative(a, b) <= 1e-9, "navigate {a} vs reproduce {b}");
+    }
+    assert_eq!(e["nees_states"], 15);
+    assert_eq!(
+        navigated["updates"]["dvl"]["accepted"],
+        ls["updates_accepted"]
+    );
+    assert_eq!(navigated["updates"]["dvl"]["gated"], ls["updates_rejected"]);
+
+    // The same files in the Unix epoch.
+    const SHIFT: u64 = 1_700_000_000;
+    for name in ["imu.csv", "beams.csv"] {
+        let text = std::fs::read_to_string(d.join(name)).unwrap();
+        std::fs::write(d.join(format!("unix_{name}")), shift_times(&text, SHIFT)).unwrap();
+    }
+    let gt_text = std::fs::read_to_string(&gt).unwrap();
+    std::fs::write(d.join("unix_gt.csv"), shift_times(&gt_text, SHIFT)).unwrap();
+    let unix = json(&ok(
+        estim(
+            &[
+                "navigate",
+                "--imu",
+                "unix_imu.csv",
+                "--beams",
+                "unix_beams.csv",
+                "--vehicle",
+                "vehicle.toml",
+                "--truth",
+                "unix_gt.csv",
+                "--out",
+                "unix",
+                "--json",
+            ],
+            d,
+        ),
+        "navigate (Unix epoch)",
+    ));
+    let u = &unix["evaluation"];
+    for key in ["position_rmse_m", "final_position_error_m", "nees_average"] {
+        let (a, b) = (u[key].as_f64().unwrap(), e[key].as_f64().unwrap());
+        assert!(relative(a, b) <= 1e-9, "{key}: Unix epoch {a} vs {b}");
+    }
+    assert_eq!(unix["epoch_s"], 1.7e9);
+    let solution = std::fs::read_to_string(d.join("unix/solution.csv")).unwrap();
+    let first: f64 = solution
+        .lines()
+        .nth(1)
+        .unwrap()
+        .split(',')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!((first - 1.7e9).abs() < 500.0, "solution time {first}");
+    assert!(d.join("unix/track.geojson").is_file() && d.join("unix/summary.json").is_file());
+}
+
+#[test]
+fn lost_lock_rows_are_skipped_and_counted() {
+    let Some((gt, dvl)) = trajectory4() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    evaluation_inputs(d, &gt, &dvl);
+    // The recorded DVL velocity with three lost-lock rows: NaN, an empty cell, RDI's
+    // marker.
+    let text = std::fs::read_to_string(&dvl).unwrap();
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    for (row, cell) in [(50, "nan"), (120, ""), (200, "-32.768")] {
+        let mut cells: Vec<String> = lines[row].split(',').map(str::to_string).collect();
+        cells[1] = cell.to_string();
+        lines[row] = cells.join(",");
+    }
+    std::fs::write(d.join("dvl.csv"), lines.join("\n") + "\n").unwrap();
+    let run = |file: &str| {
+        json(&ok(
+            estim(
+                &[
+                    "navigate",
+                    "--imu",
+                    "imu.csv",
+                    "--dvl",
+                    file,
+                    "--vehicle",
+                    "vehicle.toml",
+                    "--json",
+                ],
+                d,
+            ),
+            "navigate --dvl",
+        ))
+    };
+    std::fs::copy(&dvl, d.join("clean.csv")).unwrap();
+    let clean = run("clean.csv");
+    let lost = run("dvl.csv");
+    assert_eq!(clean["dvl_no_lock_rows"], 0);
+    assert_eq!(lost["dvl_no_lock_rows"], 3);
+    let used = |v: &Value| {
+        v["updates"]["dvl"]["accepted"].as_u64().unwrap()
+            + v["updates"]["dvl"]["gated"].as_u64().unwrap()
+    };
+    assert_eq!(used(&lost) + 3, used(&clean));
+    assert_eq!(lost["status"], "ok");
+}
+
+#[test]
+fn bad_input_exits_2_naming_file_and_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("imu.csv"),
+        "time,ax,ay,az,gx,gy,gz\n0,0,0,-9.8,0,0,0\n0.01,0,0,oops,0,0,0\n",
+    )
+    .unwrap();
+    std::fs::write(d.join("dvl.csv"), "time,vx,vy,vz\n0,1,0,0\n").unwrap();
+    let out = estim(
+        &[
+            "navigate", "--imu", "imu.csv", "--dvl", "dvl.csv", "--out", "o",
+        ],
+        d,
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("imu.csv:3:"), "{stderr}");
+    assert!(out.stdout.is_empty());
+    assert!(!d.join("o").exists(), "nothing written");
+    // A vehicle file with an unknown key names its line.
+    std::fs::write(
+        d.join("v.toml"),
+        "[dvl]\nlever_arm_m = [0, 0, 0]\nbogus = 1\n",
+    )
+    .unwrap();
+    let out = estim(
+        &[
+            "navigate",
+            "--imu",
+            "imu.csv",
+            "--dvl",
+            "dvl.csv",
+            "--vehicle",
+            "v.toml",
+        ],
+        d,
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("v.toml:3:"), "{stderr}");
+}
