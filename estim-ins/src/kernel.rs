@@ -29,14 +29,12 @@ impl Kernel {
     #[inline(always)]
     pub(crate) fn detect() -> Self {
         #[cfg(target_arch = "x86_64")]
-        if !portable_forced() {
-            if std::arch::is_x86_feature_detected!("fma") {
-                if std::arch::is_x86_feature_detected!("avx512f") {
-                    return Self::Avx512Fma;
-                }
-                if std::arch::is_x86_feature_detected!("avx2") {
-                    return Self::Avx2Fma;
-                }
+        if !portable_forced() && std::arch::is_x86_feature_detected!("fma") {
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                return Self::Avx512Fma;
+            }
+            if std::arch::is_x86_feature_detected!("avx2") {
+                return Self::Avx2Fma;
             }
         }
         Self::Portable

@@ -315,17 +315,16 @@ impl<O: Observer<f64, InsState, ERROR_STATES>> Navigator<O> {
     /// sample is held from the initial state's time.
     ///
     /// # Errors
-    /// [`NavigatorError::TimeOrder`] for a sample before the clock or a non-finite
-    /// value; [`NavigatorError::Filter`] for a numerical failure (with the time).
+    /// [`NavigatorError::TimeOrder`] for a sample before the clock,
+    /// [`NavigatorError::NonFinite`] for a non-finite value; [`NavigatorError::Filter`] for a numerical failure (with the time).
     pub fn imu(&mut self, sample: &ImuSample) -> Result<()> {
         let finite = sample.time.is_finite()
             && sample.specific_force.iter().all(|v| v.is_finite())
             && sample.angular_rate.iter().all(|v| v.is_finite());
         if !finite {
-            return Err(NavigatorError::TimeOrder {
+            return Err(NavigatorError::NonFinite {
                 what: "IMU sample",
                 time: sample.time,
-                clock: self.clock,
             });
         }
         if self.held.is_some() {
@@ -621,7 +620,7 @@ mod tests {
                 ..sample
             })
             .unwrap_err();
-        assert!(matches!(e, NavigatorError::TimeOrder { .. }), "{e}");
+        assert!(matches!(e, NavigatorError::NonFinite { .. }), "{e}");
         assert!(nav.position_fix(5.02, 30.0, 30.0, 0.0).is_err());
         assert!(Navigator::new(&settings, x0, ErrorMatrix::identity(), 0.0).is_err());
     }

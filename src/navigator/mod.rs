@@ -40,7 +40,15 @@ pub enum NavigatorError {
     /// An invalid configuration value (the message names the key).
     #[error("configuration: {0}")]
     Config(String),
-    /// An input out of time order or not finite.
+    /// A non-finite value (time, specific force or angular rate) in an input.
+    #[error("non-finite value in {what} at t = {time} s")]
+    NonFinite {
+        /// What was fed.
+        what: &'static str,
+        /// Its time \[s\].
+        time: f64,
+    },
+    /// An input out of time order.
     #[error("{what} at t = {time} s is before the navigator's time {clock} s or not finite")]
     TimeOrder {
         /// What was fed.
