@@ -220,8 +220,8 @@ impl Scenario {
                 beams: protocol.beams(&reference, &mut rng),
             });
         }
-        // Fewer updates than that gives no figure worth reporting (a two-row trajectory
-        // used to run with status "ok" and NaN statistics).
+        // Fewer updates than that give no finite figure to report (a two-row
+        // trajectory would end with NaN statistics).
         if dvl.len() < MIN_DVL_EPOCHS {
             return Err(PipelineError::Dataset(DatasetError::Unusable {
                 path: dvl_path.to_path_buf(),

@@ -2,6 +2,8 @@
 //! is private to it).
 
 mod claims;
+// The data lookup shared with the integration tests (one copy).
+#[path = "../../../tests/common/mod.rs"]
 mod common;
 mod data_span;
 mod faults;
