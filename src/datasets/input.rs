@@ -26,7 +26,7 @@ const BLOCK: usize = 64 * 1024;
 /// # Errors
 /// [`DatasetError::Io`], [`DatasetError::TooLarge`] beyond `limit`,
 /// [`DatasetError::NotText`] for bytes that are not UTF-8 text with LF line ends.
-pub(crate) fn read_limited(reader: impl Read, path: &Path, limit: u64) -> Result<Vec<u8>> {
+pub fn read_limited(reader: impl Read, path: &Path, limit: u64) -> Result<Vec<u8>> {
     let io = |error| DatasetError::Io {
         path: path.to_path_buf(),
         error,
