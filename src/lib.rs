@@ -14,7 +14,8 @@
 //! and holds the [`navigator`] (the INS/DVL error-state filter fed with real logs),
 //! the readers of A-KIT and users' log files ([`datasets`]) and the committed learned
 //! models, embedded ([`models`]).
-#![warn(missing_docs)]
+#![deny(missing_docs)]
+#![deny(rustdoc::broken_intra_doc_links, rustdoc::private_intra_doc_links)]
 
 pub mod datasets;
 pub mod models;

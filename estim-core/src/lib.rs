@@ -189,7 +189,8 @@
 //! `estim-core/README.md` has a longer version; `examples/correlated_tracker.rs` (in
 //! the `estim` package) runs a Monte Carlo of a robot tracked from odometry and a
 //! camera fix carried forward with the same odometry, M-aware against M-neglected.
-#![warn(missing_docs)]
+#![deny(missing_docs)]
+#![deny(rustdoc::broken_intra_doc_links, rustdoc::private_intra_doc_links)]
 
 mod config;
 pub mod consistency;

@@ -29,7 +29,8 @@
 //! assert!(covariance[(0, 0)] > 1e-4); // unaided: position uncertainty grows
 //! # Ok::<(), estim_ins::Error>(())
 //! ```
-#![warn(missing_docs)]
+#![deny(missing_docs)]
+#![deny(rustdoc::broken_intra_doc_links, rustdoc::private_intra_doc_links)]
 
 pub mod earth;
 mod error;

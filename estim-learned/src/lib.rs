@@ -41,7 +41,8 @@
 //! assert!((velocity - forward).norm() < 0.1, "{velocity}");
 //! # Ok::<(), estim_learned::Error>(())
 //! ```
-#![warn(missing_docs)]
+#![deny(missing_docs)]
+#![deny(rustdoc::broken_intra_doc_links, rustdoc::private_intra_doc_links)]
 
 mod beamsnet;
 mod dataset;
