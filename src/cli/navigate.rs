@@ -12,8 +12,8 @@ use anyhow::Context;
 use estim::datasets::{load_depth, load_fixes, load_gt, load_times, DvlLog, ImuLog};
 use estim::ins::{ErrorMatrix, InsState, Trajectory, ERROR_STATES, POS};
 use estim::navigator::{
-    navigate, NavSolution, NavigationObserver, NavigationRun, NavigatorConfig, NavigatorError,
-    SolutionKind, SurveyInputs,
+    format_heading, navigate, NavSolution, NavigationObserver, NavigationRun, NavigatorConfig,
+    NavigatorError, SolutionKind, SurveyInputs,
 };
 use serde_json::{json, Value};
 
@@ -146,7 +146,7 @@ impl NavigationObserver for Writer {
             };
             let _ = write!(
                 l,
-                "{},{kind},{:.9},{:.9},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5},{:.5}",
+                "{},{kind},{:.9},{:.9},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5},{}",
                 self.epoch_s + s.time,
                 s.latitude_deg,
                 s.longitude_deg,
@@ -156,7 +156,7 @@ impl NavigationObserver for Writer {
                 s.velocity_ned_mps[2],
                 s.roll_deg,
                 s.pitch_deg,
-                s.heading_deg
+                format_heading(s.heading_deg, 5)
             );
             for v in s.acc_bias_mps2.iter().chain(&s.gyro_bias_radps) {
                 let _ = write!(l, ",{v:.4e}");
@@ -406,8 +406,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     let _ = writeln!(
         text,
-        "final: lat {:.7} deg, lon {:.7} deg, depth {:.2} m, heading {:.2} deg; 1-sigma N/E {:.2}/{:.2} m",
-        f.latitude_deg, f.longitude_deg, f.depth_m, f.heading_deg, f.position_sigma_m[0], f.position_sigma_m[1]
+        "final: lat {:.7} deg, lon {:.7} deg, depth {:.2} m, heading {} deg; 1-sigma N/E {:.2}/{:.2} m",
+        f.latitude_deg, f.longitude_deg, f.depth_m, format_heading(f.heading_deg, 2), f.position_sigma_m[0], f.position_sigma_m[1]
     );
     if let Some(e) = summary.get("evaluation").filter(|v| !v.is_null()) {
         let _ = writeln!(

@@ -280,7 +280,7 @@ fn initial_state(
         attitude_deg: [
             r.to_degrees(),
             p.to_degrees(),
-            y.to_degrees().rem_euclid(360.0),
+            super::wrap_heading_deg(y.to_degrees()),
         ],
     };
     Ok((state, covariance, alignment))

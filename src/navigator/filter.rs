@@ -94,7 +94,7 @@ impl NavSolution {
         let sigma = |i: usize| covariance[(i, i)].max(0.0).sqrt();
         let group = |start: usize| [sigma(start), sigma(start + 1), sigma(start + 2)];
         let (roll, pitch, yaw) = state.roll_pitch_yaw();
-        let heading = yaw.to_degrees().rem_euclid(360.0);
+        let heading = wrap_heading_deg(yaw.to_degrees());
         let attitude = group(ATT).map(f64::to_degrees);
         Self {
             time,
@@ -472,6 +472,33 @@ impl<O: Observer<f64, InsState, ERROR_STATES>> Navigator<O> {
     }
 }
 
+/// A heading \[deg\] wrapped into [0, 360).
+///
+/// `f64::rem_euclid` alone is not enough: it returns -0.0 for -0.0 (printed `-0`), and
+/// for a negative value smaller in magnitude than half an ulp of 360 (e.g. -1e-15) the
+/// sum `x + 360` rounds to 360.0 exactly. Both are mapped to +0.0.
+pub fn wrap_heading_deg(deg: f64) -> f64 {
+    let wrapped = deg.rem_euclid(360.0);
+    if wrapped >= 360.0 {
+        0.0
+    } else {
+        // -0.0 + 0.0 is +0.0 (IEEE 754, round to nearest).
+        wrapped + 0.0
+    }
+}
+
+/// A heading as text with `decimals` decimals, in [0, 360) as printed: a heading
+/// that rounds up to 360 at that precision (359.9999996 with 5 decimals) is printed
+/// as 0.
+pub fn format_heading(deg: f64, decimals: usize) -> String {
+    let text = format!("{:.decimals$}", wrap_heading_deg(deg));
+    if text.starts_with("360") {
+        format!("{:.decimals$}", 0.0)
+    } else {
+        text
+    }
+}
+
 /// Beams as the least-squares solver takes them (`NaN` = missing).
 pub fn beams_from_nan(beams: &Vector4<f64>) -> [Option<f64>; 4] {
     std::array::from_fn(|i| Some(beams[i]).filter(|b| b.is_finite()))
@@ -584,6 +611,54 @@ mod tests {
         assert_eq!(nav.dvl_counts.accepted + nav.dvl_counts.gated, 30);
         assert_eq!(nav.fix_counts.accepted + nav.fix_counts.gated, 1);
         assert!((nav.clock() - mission.truth.last().unwrap().time).abs() < 1e-9);
+    }
+
+    /// Headings in [0, 360) for the values that `rem_euclid` alone gets wrong, in the
+    /// solution and as printed.
+    #[test]
+    fn headings_are_in_0_360() {
+        for (deg, expected) in [
+            (-0.0, 0.0),
+            (-1e-15, 0.0),
+            (-1e-13, 360.0 - 1e-13),
+            (360.0, 0.0),
+            (720.0, 0.0),
+            (-90.0, 270.0),
+            (359.5, 359.5),
+        ] {
+            let h = wrap_heading_deg(deg);
+            assert!((0.0..360.0).contains(&h), "{deg} -> {h}");
+            assert_eq!(h.to_bits(), f64::to_bits(expected), "{deg} -> {h}");
+        }
+        assert_eq!(format_heading(-0.0, 5), "0.00000");
+        assert_eq!(format_heading(-1e-9, 5), "0.00000");
+        assert_eq!(format_heading(359.999_999_6, 5), "0.00000");
+        assert_eq!(format_heading(359.999_99, 5), "359.99999");
+        assert_eq!(format_heading(359.996, 2), "0.00");
+        assert_eq!(format_heading(12.345, 2), "12.35");
+        // A state whose yaw is -0.0 rad (north, from a quaternion with a negative-zero
+        // z component) gives heading +0.0.
+        let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            1.0, 0.0, 0.0, -0.0,
+        ));
+        let state = InsState::new(0.0, 0.5, 0.6, -10.0, Vector3::zeros(), q);
+        let (_, _, yaw) = state.roll_pitch_yaw();
+        let s = NavSolution::from_state(0.0, &state, &ErrorMatrix::identity());
+        assert_eq!(s.heading_deg.to_bits(), 0.0f64.to_bits(), "yaw {yaw:e}");
+        let tiny = InsState::new(
+            0.0,
+            0.5,
+            0.6,
+            -10.0,
+            Vector3::zeros(),
+            nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, -1e-17),
+        );
+        let s = NavSolution::from_state(0.0, &tiny, &ErrorMatrix::identity());
+        assert!(
+            s.heading_deg < 360.0 && s.heading_deg >= 0.0,
+            "{}",
+            s.heading_deg
+        );
     }
 
     #[test]

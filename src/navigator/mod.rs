@@ -30,7 +30,8 @@ pub use config::{
     FILTER_BIAS_TIME_CONSTANT, IMU_PRESETS,
 };
 pub use filter::{
-    beams_from_nan, DvlCross, InsFilter, NavSolution, Navigator, UpdateCounts, IMU_PERIOD_SNAP,
+    beams_from_nan, format_heading, wrap_heading_deg, DvlCross, InsFilter, NavSolution, Navigator,
+    UpdateCounts, IMU_PERIOD_SNAP,
 };
 
 /// Errors of the navigator.
