@@ -15,6 +15,10 @@ pub enum DvlInput {
     Velocity(Vector3<f64>),
     /// Beam velocities \[m/s\] (`None` = missing beam).
     Beams([Option<f64>; 4]),
+    /// The vehicle's velocity N, E, D \[m/s\] (a DVL in earth coordinates): rotated
+    /// into the body frame with the filter's attitude at the update time and used as
+    /// a DVL-frame velocity (the attitude error it carries is not modelled).
+    EarthVelocity(Vector3<f64>),
     /// No bottom lock (NaN, empty, the -32.768 marker or a validity flag): skipped
     /// and counted, never used.
     NoLock,
@@ -501,6 +505,11 @@ pub fn navigate_with<F: Observer<f64, InsState, ERROR_STATES>>(
             Event::Dvl(input) => {
                 let report = match input {
                     DvlInput::Velocity(v) => Some(nav.dvl_velocity(t, &v, &Zero)?),
+                    DvlInput::EarthVelocity(v_ned) => {
+                        nav.propagate_to(t)?;
+                        let body = nav.nominal().attitude.inverse() * v_ned;
+                        Some(nav.dvl_velocity(t, &body, &Zero)?)
+                    }
                     DvlInput::Beams(b) => {
                         let r = nav.dvl_beams(t, &b, &settings.geometry, &Zero)?;
                         if r.is_none() {

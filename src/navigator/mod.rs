@@ -18,6 +18,7 @@ mod aiding;
 mod batch;
 mod config;
 mod filter;
+mod pd0;
 
 pub use aiding::{DepthModel, PositionFixModel};
 pub use batch::{
@@ -33,6 +34,7 @@ pub use filter::{
     beams_from_nan, format_heading, wrap_heading_deg, DvlCross, InsFilter, NavSolution, Navigator,
     UpdateCounts, IMU_PERIOD_SNAP,
 };
+pub use pd0::{pd0_records, rdi_beam_geometry, Pd0Conversion};
 
 /// Errors of the navigator.
 #[derive(Debug, thiserror::Error)]
@@ -64,6 +66,14 @@ pub enum NavigatorError {
     NoImu {
         /// Its time \[s\].
         time: f64,
+    },
+    /// A PD0 ensemble that cannot be used (its byte offset in the file).
+    #[error("PD0 ensemble at byte {offset}: {reason}")]
+    Pd0 {
+        /// Byte offset of the ensemble's header.
+        offset: usize,
+        /// Why.
+        reason: String,
     },
     /// Inputs that cannot be navigated as a whole (the message says why).
     #[error("{0}")]
