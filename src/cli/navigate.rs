@@ -13,9 +13,9 @@ use estim::datasets::{load_depth, load_fixes, load_gt, load_times, DvlLog, ImuLo
 use estim::dvl::read_pd0_file;
 use estim::ins::{ErrorMatrix, InsState, Trajectory, ERROR_STATES, POS};
 use estim::navigator::{
-    format_heading, navigate, pd0_records, rdi_beam_geometry, DvlRecord, NavSolution,
-    NavigationObserver, NavigationRun, NavigatorConfig, NavigatorError, NavigatorSettings,
-    SolutionKind, SurveyInputs,
+    format_heading, navigate, navigate_learned, pd0_records, rdi_beam_geometry, DvlRecord,
+    NavSolution, NavigationObserver, NavigationRun, NavigatorConfig, NavigatorError,
+    NavigatorSettings, SolutionKind, SurveyInputs,
 };
 use serde_json::{json, Value};
 
@@ -53,13 +53,22 @@ pub struct Args {
     #[arg(
         long,
         value_name = "FILE",
-        conflicts_with_all = ["beams", "pd0"],
+        conflicts_with_all = ["beams", "pd0", "learned"],
         required_unless_present_any = ["beams", "pd0"]
     )]
     dvl: Option<PathBuf>,
     /// DVL beams CSV (beam1..beam4; least squares on the beams present).
     #[arg(long, value_name = "FILE", conflicts_with = "pd0")]
     beams: Option<PathBuf>,
+    /// With --beams: the embedded BeamsNet on the beams and the IMU windows, with M
+    /// from the network's sensitivity, instead of least squares (rows with 3 beams and
+    /// the first second stay least squares).
+    #[arg(long)]
+    learned: bool,
+    /// Also draw the track with 3-sigma ellipses, the 1-sigma per state group and the
+    /// DVL NIS (PNG and SVG into --out).
+    #[arg(long, requires = "out")]
+    plots: bool,
     /// Teledyne RDI PD0 binary file: bottom track in the coordinates its fixed leader
     /// declares (beam: least squares; instrument, ship, earth: transformed to the
     /// body frame). Corrupt or truncated ensembles are skipped and reported.
@@ -126,6 +135,7 @@ type TrueBiases = (
 
 /// Truth for the evaluation: the GT spline and, when the IMU file carries them, the
 /// simulation's true biases.
+#[derive(Clone)]
 pub struct Truth {
     trajectory: Trajectory,
     biases: Option<(Vec<f64>, Vec<TrueBiases>)>,
@@ -153,6 +163,7 @@ pub struct Writer {
     line: String,
     track: Vec<[f64; 2]>,
     truth: Option<Truth>,
+    plot_rows: Option<Vec<crate::navigate_plots::PlotRow>>,
 }
 
 const CSV_HEADER: &str = "time_s,kind,latitude_deg,longitude_deg,depth_m,v_north_mps,v_east_mps,v_down_mps,roll_deg,pitch_deg,heading_deg,acc_bias_x_mps2,acc_bias_y_mps2,acc_bias_z_mps2,gyro_bias_x_radps,gyro_bias_y_radps,gyro_bias_z_radps,sigma_north_m,sigma_east_m,sigma_down_m,sigma_v_north_mps,sigma_v_east_mps,sigma_v_down_mps,sigma_roll_deg,sigma_pitch_deg,sigma_heading_deg,sigma_acc_bias_x_mps2,sigma_acc_bias_y_mps2,sigma_acc_bias_z_mps2,sigma_gyro_bias_x_radps,sigma_gyro_bias_y_radps,sigma_gyro_bias_z_radps\n";
@@ -165,8 +176,13 @@ impl NavigationObserver for Writer {
         state: &InsState,
         covariance: &ErrorMatrix,
     ) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
-        if kind == SolutionKind::Dvl {
+        if let Some(rows) = &mut self.plot_rows {
+            rows.push(crate::navigate_plots::PlotRow::new(kind, s, covariance));
+        }
+        if matches!(kind, SolutionKind::Dvl | SolutionKind::End) {
             self.track.push([s.longitude_deg, s.latitude_deg]);
+        }
+        if kind == SolutionKind::Dvl {
             if let Some(truth) = &mut self.truth {
                 let t = truth.at(s.time).map_err(|e| e.to_string())?;
                 let e = crate::study::error_state(&t, state);
@@ -183,10 +199,7 @@ impl NavigationObserver for Writer {
         if let Some(csv) = &mut self.csv {
             let l = &mut self.line;
             l.clear();
-            let kind = match kind {
-                SolutionKind::Dvl => "dvl",
-                SolutionKind::Rate => "rate",
-            };
+            let kind = kind.as_str();
             let _ = write!(
                 l,
                 "{},{kind},{:.9},{:.9},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5},{}",
@@ -423,7 +436,20 @@ impl Writer {
             line: String::new(),
             track: Vec::new(),
             truth,
+            plot_rows: None,
         })
+    }
+
+    /// Keep every solution for the plots.
+    #[must_use]
+    pub fn with_plot_rows(mut self, keep: bool) -> Self {
+        self.plot_rows = keep.then(Vec::new);
+        self
+    }
+
+    /// The solutions kept for the plots.
+    pub fn plot_rows(&self) -> &[crate::navigate_plots::PlotRow] {
+        self.plot_rows.as_deref().unwrap_or(&[])
     }
 
     /// The evaluation against truth, if any.
@@ -603,6 +629,25 @@ pub fn summary_text(
     text
 }
 
+/// `dvl_sensor` and, for BeamsNet, what it did (times on the navigator's clock,
+/// relative to `epoch_s`).
+fn learned_json(run: &NavigationRun) -> Value {
+    match &run.learned {
+        None => json!({ "dvl_sensor": "least_squares" }),
+        Some(l) => json!({
+            "dvl_sensor": "beamsnet",
+            "learned": {
+                "model": estim::models::BEAMSNET_NAME,
+                "cross_covariance": "network sensitivity (NetworkSensitivity over the filter's recorded IMU window)",
+                "beamsnet_updates": l.beamsnet_updates,
+                "least_squares_three_beams": l.least_squares_three_beams,
+                "least_squares_window_not_full": l.least_squares_window_not_full,
+                "first_update": l.first_update.map(|(t, v)| json!({ "time_since_epoch_s": t, "velocity_mps": v })),
+            },
+        }),
+    }
+}
+
 /// Run it.
 pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(rate) = args.rate {
@@ -613,8 +658,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let staged = args.out.as_deref().map(StagedDir::new).transpose()?;
     let mut survey = load_survey(args.files())?;
-    let mut writer = Writer::new(staged.as_ref(), survey.epoch, survey.truth.take())?;
-    let run = match navigate(&survey.inputs, &survey.settings, args.rate, &mut writer) {
+    let mut writer =
+        Writer::new(staged.as_ref(), survey.epoch, survey.truth.take())?.with_plot_rows(args.plots);
+    let network = if args.learned {
+        anyhow::ensure!(
+            survey.files.beams.is_some(),
+            "--learned takes a DVL beams CSV (--beams) in the network's beam geometry"
+        );
+        Some(estim::models::beamsnet()?)
+    } else {
+        None
+    };
+    let result = match &network {
+        Some(net) => navigate_learned(
+            &survey.inputs,
+            &survey.settings,
+            args.rate,
+            &mut writer,
+            net,
+        ),
+        None => navigate(&survey.inputs, &survey.settings, args.rate, &mut writer),
+    };
+    let run = match result {
         Ok(run) => run,
         Err(NavigatorError::Filter { time, source }) => {
             eprintln!(
@@ -632,9 +697,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &run.final_solution,
         args.rate,
         evaluation_json(writer.truth()),
-        json!({ "dvl_sensor": "least_squares" }),
+        learned_json(&run),
     );
     if let Some(dir) = staged {
+        if args.plots {
+            crate::navigate_plots::write_plots(
+                &dir.path(""),
+                &crate::navigate_plots::PlotData {
+                    command: "navigate",
+                    solution_label: "filter",
+                    rows: writer.plot_rows(),
+                    nis_times: &run.dvl_nis_times,
+                    nis: &run.dvl_nis,
+                },
+            )?;
+        }
         writer.finish(&dir, "estim navigate track (DVL epochs)", &summary)?;
         dir.commit()?;
     }

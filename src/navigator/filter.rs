@@ -162,6 +162,7 @@ pub struct Navigator<O = NoObserver> {
     clock: f64,
     held: Option<ImuSample>,
     last_step: Option<(ImuSample, f64)>,
+    last_learned_velocity: Option<Vector3<f64>>,
     /// DVL velocity updates.
     pub dvl_counts: UpdateCounts,
     /// Depth updates.
@@ -205,6 +206,7 @@ impl Navigator<NoObserver> {
             clock: initial.time,
             held: None,
             last_step: None,
+            last_learned_velocity: None,
             dvl_counts: UpdateCounts::default(),
             depth_counts: UpdateCounts::default(),
             fix_counts: UpdateCounts::default(),
@@ -226,6 +228,7 @@ impl<O> Navigator<O> {
             clock: self.clock,
             held: self.held,
             last_step: self.last_step,
+            last_learned_velocity: self.last_learned_velocity,
             dvl_counts: self.dvl_counts,
             depth_counts: self.depth_counts,
             fix_counts: self.fix_counts,
@@ -275,6 +278,12 @@ impl<O> Navigator<O> {
     /// The last propagation step: the sample integrated and its dt.
     pub fn last_step(&self) -> Option<(&ImuSample, f64)> {
         self.last_step.as_ref().map(|(s, dt)| (s, *dt))
+    }
+
+    /// The velocity of the last [`Navigator::dvl_beamsnet`] update (the network's
+    /// output) \[m/s\].
+    pub fn last_learned_velocity(&self) -> Option<Vector3<f64>> {
+        self.last_learned_velocity
     }
 
     /// The DVL velocity model in use.
@@ -420,6 +429,42 @@ impl<O: Observer<f64, InsState, ERROR_STATES>> Navigator<O> {
                 Ok(None)
             }
         }
+    }
+
+    /// BeamsNet update at `time`: the embedded network's velocity on the last
+    /// [`estim_learned::BEAMSNET_WINDOW`] IMU steps the filter integrated and the four
+    /// `beams`, fused with `model` (the network's R) and M from the network's own
+    /// sensitivity ([`estim_learned::NetworkSensitivity`] over the filter's recorded
+    /// window; the filter must record at least that many steps,
+    /// `FilterConfigBuilder::window_capacity`). `Ok(None)` when fewer steps than the
+    /// window were integrated (nothing done but the propagation).
+    ///
+    /// # Errors
+    /// As [`Navigator::dvl_velocity`]; the network's errors as [`NavigatorError::Filter`].
+    pub fn dvl_beamsnet(
+        &mut self,
+        time: f64,
+        beams: &Vector4<f64>,
+        network: &estim_learned::BeamsNet,
+        error_model: &InsErrorModel,
+        model: &DvlVelocityModel,
+    ) -> Result<Option<UpdateReport<f64, ERROR_STATES, 3>>> {
+        self.propagate_to(time)?;
+        let fail = |source| NavigatorError::Filter { time, source };
+        let sensitivity =
+            estim_learned::NetworkSensitivity::new(network, error_model, *beams).map_err(fail)?;
+        let velocity = match self.filter.step_window(estim_learned::BEAMSNET_WINDOW) {
+            Ok(window) => sensitivity.measure(&window).map_err(fail)?,
+            Err(estim_core::Error::WindowUnavailable { .. }) => return Ok(None),
+            Err(e) => return Err(fail(e)),
+        };
+        let report = self
+            .filter
+            .update_windowed(model, &velocity, &sensitivity)
+            .map_err(fail)?;
+        self.dvl_counts.count(&report);
+        self.last_learned_velocity = Some(velocity);
+        Ok(Some(report))
     }
 
     /// Depth update at `time` (`depth_m` positive down).

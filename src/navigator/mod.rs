@@ -19,11 +19,13 @@ mod batch;
 mod config;
 mod filter;
 mod pd0;
+mod smooth;
 
 pub use aiding::{DepthModel, PositionFixModel};
 pub use batch::{
-    coarse_alignment, navigate, navigate_with, Alignment, DepthSample, DvlInput, DvlRecord,
-    InitialAttitude, NavigationObserver, NavigationRun, PositionFix, SolutionKind, SurveyInputs,
+    coarse_alignment, navigate, navigate_learned, navigate_with, Alignment, DepthSample, DvlInput,
+    DvlRecord, InitialAttitude, LearnedCounts, NavigationObserver, NavigationRun, PositionFix,
+    SolutionKind, SurveyInputs,
 };
 pub use config::{
     filter_config, filter_imu_spec, imu_preset, DepthConfig, DvlConfig, FixConfig, GateConfig,
@@ -35,6 +37,7 @@ pub use filter::{
     UpdateCounts, IMU_PERIOD_SNAP,
 };
 pub use pd0::{pd0_records, rdi_beam_geometry, Pd0Conversion};
+pub use smooth::{smooth_survey, SmoothedSolution, SmoothingRun};
 
 /// Errors of the navigator.
 #[derive(Debug, thiserror::Error)]
@@ -88,6 +91,10 @@ pub enum NavigatorError {
         #[source]
         source: estim_core::Error,
     },
+    /// The smoother (a recording it cannot smooth exactly, a covariance that is not
+    /// positive definite).
+    #[error("smoother: {0}")]
+    Smoother(#[source] estim_core::Error),
     /// The filter core, outside a step (construction).
     #[error(transparent)]
     Core(#[from] estim_core::Error),
