@@ -11,6 +11,7 @@ mod learned;
 mod learned_scenarios;
 mod montecarlo;
 mod navigate;
+mod navigate_plots;
 mod output;
 mod plots;
 mod report;

@@ -10,15 +10,38 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use estim::datasets::{load_depth, load_fixes, load_gt, load_times, DvlLog, ImuLog};
+use estim::dvl::read_pd0_file;
 use estim::ins::{ErrorMatrix, InsState, Trajectory, ERROR_STATES, POS};
 use estim::navigator::{
-    navigate, NavSolution, NavigationObserver, NavigationRun, NavigatorConfig, NavigatorError,
-    SolutionKind, SurveyInputs,
+    format_heading, navigate, navigate_learned, pd0_records, rdi_beam_geometry, DvlRecord,
+    NavSolution, NavigationObserver, NavigationRun, NavigatorConfig, NavigatorError,
+    NavigatorSettings, SolutionKind, SurveyInputs,
 };
 use serde_json::{json, Value};
 
 use crate::output::StagedDir;
 use crate::schema;
+
+/// The survey's input files, shared by `estim navigate` and `estim smooth`.
+#[derive(Debug, Clone, Default)]
+pub struct SurveyFiles {
+    /// IMU CSV.
+    pub imu: PathBuf,
+    /// DVL velocity CSV.
+    pub dvl: Option<PathBuf>,
+    /// DVL beams CSV.
+    pub beams: Option<PathBuf>,
+    /// Teledyne RDI PD0 file.
+    pub pd0: Option<PathBuf>,
+    /// Depth CSV.
+    pub depth: Option<PathBuf>,
+    /// Position fixes CSV.
+    pub fixes: Option<PathBuf>,
+    /// Vehicle TOML.
+    pub vehicle: Option<PathBuf>,
+    /// Ground truth CSV.
+    pub truth: Option<PathBuf>,
+}
 
 /// Arguments of `estim navigate`.
 #[derive(Debug, clap::Args)]
@@ -30,13 +53,27 @@ pub struct Args {
     #[arg(
         long,
         value_name = "FILE",
-        conflicts_with = "beams",
-        required_unless_present = "beams"
+        conflicts_with_all = ["beams", "pd0", "learned"],
+        required_unless_present_any = ["beams", "pd0"]
     )]
     dvl: Option<PathBuf>,
     /// DVL beams CSV (beam1..beam4; least squares on the beams present).
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, value_name = "FILE", conflicts_with = "pd0")]
     beams: Option<PathBuf>,
+    /// With --beams: the embedded BeamsNet on the beams and the IMU windows, with M
+    /// from the network's sensitivity, instead of least squares (rows with 3 beams and
+    /// the first second stay least squares).
+    #[arg(long)]
+    learned: bool,
+    /// Also draw the track with 3-sigma ellipses, the 1-sigma per state group and the
+    /// DVL NIS (PNG and SVG into --out).
+    #[arg(long, requires = "out")]
+    plots: bool,
+    /// Teledyne RDI PD0 binary file: bottom track in the coordinates its fixed leader
+    /// declares (beam: least squares; instrument, ship, earth: transformed to the
+    /// body frame). Corrupt or truncated ensembles are skipped and reported.
+    #[arg(long, value_name = "FILE")]
+    pd0: Option<PathBuf>,
     /// Depth CSV (time, depth in m).
     #[arg(long, value_name = "FILE")]
     depth: Option<PathBuf>,
@@ -58,6 +95,21 @@ pub struct Args {
     /// Print the summary as JSON on stdout.
     #[arg(long)]
     json: bool,
+}
+
+impl Args {
+    fn files(&self) -> SurveyFiles {
+        SurveyFiles {
+            imu: self.imu.clone(),
+            dvl: self.dvl.clone(),
+            beams: self.beams.clone(),
+            pd0: self.pd0.clone(),
+            depth: self.depth.clone(),
+            fixes: self.fixes.clone(),
+            vehicle: self.vehicle.clone(),
+            truth: self.truth.clone(),
+        }
+    }
 }
 
 /// Read and check a vehicle TOML; errors name the file and line.
@@ -83,7 +135,8 @@ type TrueBiases = (
 
 /// Truth for the evaluation: the GT spline and, when the IMU file carries them, the
 /// simulation's true biases.
-struct Truth {
+#[derive(Clone)]
+pub struct Truth {
     trajectory: Trajectory,
     biases: Option<(Vec<f64>, Vec<TrueBiases>)>,
     position_error: Vec<f64>,
@@ -104,12 +157,13 @@ impl Truth {
 }
 
 /// Writes the solution CSV as the run goes, keeps the track and evaluates truth.
-struct Writer {
+pub struct Writer {
     epoch_s: f64,
     csv: Option<std::io::BufWriter<std::fs::File>>,
     line: String,
     track: Vec<[f64; 2]>,
     truth: Option<Truth>,
+    plot_rows: Option<Vec<crate::navigate_plots::PlotRow>>,
 }
 
 const CSV_HEADER: &str = "time_s,kind,latitude_deg,longitude_deg,depth_m,v_north_mps,v_east_mps,v_down_mps,roll_deg,pitch_deg,heading_deg,acc_bias_x_mps2,acc_bias_y_mps2,acc_bias_z_mps2,gyro_bias_x_radps,gyro_bias_y_radps,gyro_bias_z_radps,sigma_north_m,sigma_east_m,sigma_down_m,sigma_v_north_mps,sigma_v_east_mps,sigma_v_down_mps,sigma_roll_deg,sigma_pitch_deg,sigma_heading_deg,sigma_acc_bias_x_mps2,sigma_acc_bias_y_mps2,sigma_acc_bias_z_mps2,sigma_gyro_bias_x_radps,sigma_gyro_bias_y_radps,sigma_gyro_bias_z_radps\n";
@@ -122,8 +176,13 @@ impl NavigationObserver for Writer {
         state: &InsState,
         covariance: &ErrorMatrix,
     ) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
-        if kind == SolutionKind::Dvl {
+        if let Some(rows) = &mut self.plot_rows {
+            rows.push(crate::navigate_plots::PlotRow::new(kind, s, covariance));
+        }
+        if matches!(kind, SolutionKind::Dvl | SolutionKind::End) {
             self.track.push([s.longitude_deg, s.latitude_deg]);
+        }
+        if kind == SolutionKind::Dvl {
             if let Some(truth) = &mut self.truth {
                 let t = truth.at(s.time).map_err(|e| e.to_string())?;
                 let e = crate::study::error_state(&t, state);
@@ -140,13 +199,10 @@ impl NavigationObserver for Writer {
         if let Some(csv) = &mut self.csv {
             let l = &mut self.line;
             l.clear();
-            let kind = match kind {
-                SolutionKind::Dvl => "dvl",
-                SolutionKind::Rate => "rate",
-            };
+            let kind = kind.as_str();
             let _ = write!(
                 l,
-                "{},{kind},{:.9},{:.9},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5},{:.5}",
+                "{},{kind},{:.9},{:.9},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5},{}",
                 self.epoch_s + s.time,
                 s.latitude_deg,
                 s.longitude_deg,
@@ -156,7 +212,7 @@ impl NavigationObserver for Writer {
                 s.velocity_ned_mps[2],
                 s.roll_deg,
                 s.pitch_deg,
-                s.heading_deg
+                format_heading(s.heading_deg, 5)
             );
             for v in s.acc_bias_mps2.iter().chain(&s.gyro_bias_radps) {
                 let _ = write!(l, ",{v:.4e}");
@@ -187,116 +243,123 @@ fn stats(values: &[f64]) -> Value {
     json!({ "count": values.len(), "mean": mean, "max": max })
 }
 
-fn summary_json(
-    args: &Args,
-    config: &NavigatorConfig,
-    run: &NavigationRun,
-    epoch: f64,
-    truth: Option<&Truth>,
-) -> Value {
-    let counts = |c: &estim::navigator::UpdateCounts| json!({ "accepted": c.accepted, "gated": c.gated, "recovered": c.recovered });
-    let evaluation = truth.map(|t| {
-        let n = t.position_error.len().max(1) as f64;
-        let rmse = (t.position_error.iter().map(|e| e * e).sum::<f64>() / n).sqrt();
-        let finite: Vec<f64> = t.nees.iter().copied().filter(|v| v.is_finite()).collect();
-        let nees = if finite.is_empty() {
-            Value::Null
-        } else {
-            json!(finite.iter().sum::<f64>() / finite.len() as f64)
-        };
-        json!({
-            "epochs": t.position_error.len(),
-            "position_rmse_m": rmse,
-            "final_position_error_m": t.position_error.last(),
-            "nees_average": nees,
-            "nees_states": if t.biases.is_some() { ERROR_STATES } else { 9 },
-            "covariance_not_positive_definite_epochs": t.not_positive_definite,
-        })
-    });
-    let f = &run.final_solution;
-    schema::document(
-        "navigate",
-        json!({
-            "imu": schema::path_json(Some(&args.imu)),
-            "dvl": schema::path_json(args.dvl.as_deref()),
-            "beams": schema::path_json(args.beams.as_deref()),
-            "depth": schema::path_json(args.depth.as_deref()),
-            "fixes": schema::path_json(args.fixes.as_deref()),
-            "vehicle": schema::path_json(args.vehicle.as_deref()),
-            "truth": schema::path_json(args.truth.as_deref()),
-            "rate_hz": args.rate,
-            "configuration": config,
-        }),
-        0,
-        json!({
-            "epoch_s": epoch,
-            "time_span_s": [epoch + run.span_s[0], epoch + run.span_s[1]],
-            "imu_samples": run.imu_samples,
-            "imu_period_s": run.imu_period_s,
-            "initial": run.alignment,
-            "updates": {
-                "dvl": counts(&run.dvl),
-                "depth": counts(&run.depth),
-                "fixes": counts(&run.fixes),
-            },
-            "dvl_no_lock_rows": run.dvl_no_lock,
-            "dvl_insufficient_beam_rows": run.dvl_insufficient_beams,
-            "outside_imu_span": run.outside_imu_span,
-            "dvl_gaps_coasted": run.dvl_gaps_coasted,
-            "longest_dvl_gap_s": run.longest_dvl_gap_s,
-            "nis": {
-                "dvl": stats(&run.dvl_nis),
-                "depth": stats(&run.depth_nis),
-                "fixes": stats(&run.fix_nis),
-            },
-            "solutions": run.solutions,
-            "final": {
-                "time_s": epoch + f.time,
-                "latitude_deg": f.latitude_deg,
-                "longitude_deg": f.longitude_deg,
-                "depth_m": f.depth_m,
-                "position_sigma_m": f.position_sigma_m,
-                "heading_deg": f.heading_deg,
-                "heading_sigma_deg": f.attitude_sigma_deg[2],
-            },
-            "evaluation": evaluation,
-        }),
-    )
+/// A survey read and checked: what `navigate` and `smooth` run on.
+pub struct Survey {
+    /// The files it came from.
+    pub files: SurveyFiles,
+    /// The vehicle configuration in effect.
+    pub config: NavigatorConfig,
+    /// Its checked form (with a PD0 file's beam layout).
+    pub settings: NavigatorSettings,
+    /// The time-ordered inputs.
+    pub inputs: SurveyInputs,
+    /// The epoch \[s\] every time is relative to (the IMU file's).
+    pub epoch: f64,
+    /// Truth for the evaluation, with `--truth`.
+    pub truth: Option<Truth>,
+    /// What the PD0 reader and conversion did, with `--pd0`.
+    pub pd0: Option<Value>,
 }
 
-/// Run it.
-pub fn run(args: Args) -> anyhow::Result<()> {
-    if let Some(rate) = args.rate {
-        anyhow::ensure!(
-            rate.is_finite() && rate > 0.0,
-            "--rate {rate}: not a positive rate"
-        );
+/// Read a PD0 file into DVL rows; skipped spans are warned about on stderr with
+/// their byte offsets and listed in the returned summary block.
+fn load_pd0(
+    path: &Path,
+    epoch: f64,
+    settings: NavigatorSettings,
+) -> anyhow::Result<(Vec<DvlRecord>, NavigatorSettings, Value)> {
+    let read = read_pd0_file(path).with_context(|| format!("{}", path.display()))?;
+    anyhow::ensure!(
+        !read.ensembles.is_empty(),
+        "{}: no good PD0 ensemble in {} bytes ({} spans skipped)",
+        path.display(),
+        read.report.input_bytes,
+        read.report.skipped.len()
+    );
+    for skip in &read.report.skipped {
+        eprintln!("warning: {}: {skip}", path.display());
     }
-    let config = match &args.vehicle {
+    let (records, conversion) = pd0_records(&read.ensembles, epoch)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let angle = conversion
+        .beam_angle_deg
+        .unwrap_or(settings.config().dvl.beam_angle_deg);
+    let geometry = rdi_beam_geometry(angle, conversion.convex)?;
+    let skipped: Vec<Value> = read
+        .report
+        .skipped
+        .iter()
+        .map(|s| json!({ "offset": s.offset, "length": s.length, "reason": s.issue.to_string() }))
+        .collect();
+    let summary = json!({
+        "input_bytes": read.report.input_bytes,
+        "ensembles": read.report.decoded,
+        "with_bottom_track": read.report.with_bottom_track,
+        "warnings": read.report.skipped.len(),
+        "skipped": skipped,
+        "coordinate_systems": {
+            "beam": conversion.beam,
+            "instrument": conversion.instrument,
+            "ship": conversion.ship,
+            "earth": conversion.earth,
+        },
+        "without_bottom_track": conversion.without_bottom_track,
+        "bad_velocity_values": conversion.bad_velocity_values,
+        "beam_angle_deg": angle,
+        "beam_angle_from": if conversion.beam_angle_deg.is_some() { "fixed_leader" } else { "vehicle" },
+        "head": if conversion.convex { "convex" } else { "concave" },
+        "earth_frame": "rotated into the body frame with the filter's attitude at each update",
+    });
+    Ok((records, settings.with_beam_geometry(geometry), summary))
+}
+
+/// Read and check every input of a survey (errors name the file and line).
+pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
+    let config = match &files.vehicle {
         Some(p) => vehicle_config(p)?,
         None => NavigatorConfig::default(),
     };
-    let settings = config.check().map_err(|e| match &args.vehicle {
+    let mut settings = config.check().map_err(|e| match &files.vehicle {
         Some(p) => anyhow::anyhow!("{}: {e}", p.display()),
         None => anyhow::anyhow!("{e}"),
     })?;
-    let staged = args.out.as_deref().map(StagedDir::new).transpose()?;
-    let imu = ImuLog::load(&args.imu, None)?;
+    let imu = ImuLog::load(&files.imu, None)?;
     let epoch = imu.epoch_s;
-    let dvl = match (&args.dvl, &args.beams) {
-        (Some(p), _) => DvlLog::load_velocity(p, Some(epoch))?,
-        (None, Some(p)) => DvlLog::load_beams(p, Some(epoch))?,
-        (None, None) => anyhow::bail!("give --dvl or --beams"),
+    let mut pd0 = None;
+    let dvl = match (&files.dvl, &files.beams, &files.pd0) {
+        (Some(p), _, _) => DvlLog::load_velocity(p, Some(epoch))?.records,
+        (None, Some(p), _) => DvlLog::load_beams(p, Some(epoch))?.records,
+        (None, None, Some(p)) => {
+            let (records, with_geometry, summary) = load_pd0(p, epoch, settings)?;
+            settings = with_geometry;
+            let (first, last) = (
+                imu.samples.first().map_or(0.0, |s| s.time),
+                imu.samples.last().map_or(0.0, |s| s.time),
+            );
+            anyhow::ensure!(
+                records.iter().any(|r| r.time >= first && r.time <= last),
+                "{}: no ensemble time ({:.2}..{:.2} s, Unix) falls in the IMU's span \
+                 ({:.2}..{:.2} s); PD0 times are the instrument's clock read as UTC",
+                p.display(),
+                epoch + records.first().map_or(0.0, |r| r.time),
+                epoch + records.last().map_or(0.0, |r| r.time),
+                epoch + first,
+                epoch + last
+            );
+            pd0 = Some(summary);
+            records
+        }
+        (None, None, None) => anyhow::bail!("give --dvl, --beams or --pd0"),
     };
-    let depth = match &args.depth {
+    let depth = match &files.depth {
         Some(p) => load_depth(p, Some(epoch))?.0,
         None => Vec::new(),
     };
-    let fixes = match &args.fixes {
+    let fixes = match &files.fixes {
         Some(p) => load_fixes(p, Some(epoch))?.0,
         None => Vec::new(),
     };
-    let truth = match &args.truth {
+    let truth = match &files.truth {
         Some(p) => {
             let gt = load_gt(p)?;
             // The GT times on the navigator's clock, read on their digits.
@@ -333,69 +396,211 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         None => None,
     };
-    let inputs = SurveyInputs {
-        imu: imu.samples,
-        dvl: dvl.records,
-        depth,
-        fixes,
-    };
-    let csv = match &staged {
-        Some(dir) => {
-            let path = dir.path("solution.csv");
-            let file = std::fs::File::create(&path)
-                .with_context(|| format!("{}: cannot create", path.display()))?;
-            let mut w = std::io::BufWriter::new(file);
-            w.write_all(CSV_HEADER.as_bytes())?;
-            Some(w)
-        }
-        None => None,
-    };
-    let mut writer = Writer {
-        epoch_s: epoch,
-        csv,
-        line: String::new(),
-        track: Vec::new(),
+    Ok(Survey {
+        files,
+        config,
+        settings,
+        inputs: SurveyInputs {
+            imu: imu.samples,
+            dvl,
+            depth,
+            fixes,
+        },
+        epoch,
         truth,
-    };
-    let run = match navigate(&inputs, &settings, args.rate, &mut writer) {
-        Ok(run) => run,
-        Err(NavigatorError::Filter { time, source }) => {
-            eprintln!(
-                "error: the filter stopped at t = {} s: {source}",
-                epoch + time
-            );
-            return schema::status_result(1);
-        }
-        Err(e) => return Err(e.into()),
-    };
-    let summary = summary_json(&args, &config, &run, epoch, writer.truth.as_ref());
-    if let Some(dir) = staged {
-        if let Some(mut csv) = writer.csv.take() {
+        pd0,
+    })
+}
+
+impl Writer {
+    /// A writer of `solution.csv` in `dir` (none without a folder), evaluating `truth`.
+    pub fn new(
+        dir: Option<&StagedDir>,
+        epoch_s: f64,
+        truth: Option<Truth>,
+    ) -> anyhow::Result<Self> {
+        let csv = match dir {
+            Some(dir) => {
+                let path = dir.path("solution.csv");
+                let file = std::fs::File::create(&path)
+                    .with_context(|| format!("{}: cannot create", path.display()))?;
+                let mut w = std::io::BufWriter::new(file);
+                w.write_all(CSV_HEADER.as_bytes())?;
+                Some(w)
+            }
+            None => None,
+        };
+        Ok(Self {
+            epoch_s,
+            csv,
+            line: String::new(),
+            track: Vec::new(),
+            truth,
+            plot_rows: None,
+        })
+    }
+
+    /// Keep every solution for the plots.
+    #[must_use]
+    pub fn with_plot_rows(mut self, keep: bool) -> Self {
+        self.plot_rows = keep.then(Vec::new);
+        self
+    }
+
+    /// The solutions kept for the plots.
+    pub fn plot_rows(&self) -> &[crate::navigate_plots::PlotRow] {
+        self.plot_rows.as_deref().unwrap_or(&[])
+    }
+
+    /// The evaluation against truth, if any.
+    pub fn truth(&self) -> Option<&Truth> {
+        self.truth.as_ref()
+    }
+
+    /// Flush the CSV and write `track.geojson` and `summary.json` into `dir` (the
+    /// caller commits the staged folder).
+    pub fn finish(
+        &mut self,
+        dir: &StagedDir,
+        track_name: &str,
+        summary: &Value,
+    ) -> anyhow::Result<()> {
+        if let Some(mut csv) = self.csv.take() {
             csv.flush()?;
         }
         let track = json!({
             "type": "FeatureCollection",
             "features": [{
                 "type": "Feature",
-                "properties": { "name": "estim navigate track (DVL epochs)" },
-                "geometry": { "type": "LineString", "coordinates": writer.track },
+                "properties": { "name": track_name },
+                "geometry": { "type": "LineString", "coordinates": self.track },
             }],
         });
         std::fs::write(dir.path("track.geojson"), serde_json::to_string(&track)?)?;
         std::fs::write(
             dir.path("summary.json"),
-            serde_json::to_string_pretty(&summary)?,
+            serde_json::to_string_pretty(summary)?,
         )?;
-        dir.commit()?;
+        Ok(())
     }
-    if args.json {
-        return crate::output::emit(&format!("{}\n", serde_json::to_string_pretty(&summary)?));
+}
+
+/// The evaluation block of the summary (position RMSE, final error, NEES at the DVL
+/// epochs).
+pub fn evaluation_json(truth: Option<&Truth>) -> Value {
+    let Some(t) = truth else { return Value::Null };
+    let n = t.position_error.len().max(1) as f64;
+    let rmse = (t.position_error.iter().map(|e| e * e).sum::<f64>() / n).sqrt();
+    let finite: Vec<f64> = t.nees.iter().copied().filter(|v| v.is_finite()).collect();
+    let nees = if finite.is_empty() {
+        Value::Null
+    } else {
+        json!(finite.iter().sum::<f64>() / finite.len() as f64)
+    };
+    json!({
+        "epochs": t.position_error.len(),
+        "position_rmse_m": rmse,
+        "final_position_error_m": t.position_error.last(),
+        "nees_average": nees,
+        "nees_states": if t.biases.is_some() { ERROR_STATES } else { 9 },
+        "covariance_not_positive_definite_epochs": t.not_positive_definite,
+    })
+}
+
+/// Which DVL sensor a run used, for the summary.
+pub fn dvl_source(files: &SurveyFiles) -> &'static str {
+    match (&files.dvl, &files.beams, &files.pd0) {
+        (Some(_), _, _) => "velocity_csv",
+        (None, Some(_), _) => "beams_csv",
+        _ => "pd0",
     }
-    let f = &run.final_solution;
+}
+
+/// The summary document of a survey run (`command` = `navigate` or `smooth`):
+/// `inputs`, the run's counts and NIS, the final solution of `last` (the filter's, or
+/// the smoother's), the evaluation, and the `extra` fields merged at the top level.
+pub fn summary_json(
+    command: &str,
+    survey: &Survey,
+    run: &NavigationRun,
+    last: &NavSolution,
+    rate: Option<f64>,
+    evaluation: Value,
+    extra: Value,
+) -> Value {
+    let files = &survey.files;
+    let epoch = survey.epoch;
+    let counts = |c: &estim::navigator::UpdateCounts| json!({ "accepted": c.accepted, "gated": c.gated, "recovered": c.recovered });
+    let f = last;
+    let mut body = json!({
+        "epoch_s": epoch,
+        "time_span_s": [epoch + run.span_s[0], epoch + run.span_s[1]],
+        "imu_samples": run.imu_samples,
+        "imu_period_s": run.imu_period_s,
+        "initial": run.alignment,
+        "dvl_source": dvl_source(files),
+        "updates": {
+            "dvl": counts(&run.dvl),
+            "depth": counts(&run.depth),
+            "fixes": counts(&run.fixes),
+        },
+        "dvl_no_lock_rows": run.dvl_no_lock,
+        "dvl_insufficient_beam_rows": run.dvl_insufficient_beams,
+        "outside_imu_span": run.outside_imu_span,
+        "dvl_gaps_coasted": run.dvl_gaps_coasted,
+        "longest_dvl_gap_s": run.longest_dvl_gap_s,
+        "nis": {
+            "dvl": stats(&run.dvl_nis),
+            "depth": stats(&run.depth_nis),
+            "fixes": stats(&run.fix_nis),
+        },
+        "pd0": survey.pd0,
+        "solutions": run.solutions,
+        "final": {
+            "time_s": epoch + f.time,
+            "latitude_deg": f.latitude_deg,
+            "longitude_deg": f.longitude_deg,
+            "depth_m": f.depth_m,
+            "position_sigma_m": f.position_sigma_m,
+            "heading_deg": f.heading_deg,
+            "heading_sigma_deg": f.attitude_sigma_deg[2],
+        },
+        "evaluation": evaluation,
+    });
+    if let (Some(b), Value::Object(e)) = (body.as_object_mut(), extra) {
+        b.extend(e);
+    }
+    schema::document(
+        command,
+        json!({
+            "imu": schema::path_json(Some(&files.imu)),
+            "dvl": schema::path_json(files.dvl.as_deref()),
+            "beams": schema::path_json(files.beams.as_deref()),
+            "pd0": schema::path_json(files.pd0.as_deref()),
+            "depth": schema::path_json(files.depth.as_deref()),
+            "fixes": schema::path_json(files.fixes.as_deref()),
+            "vehicle": schema::path_json(files.vehicle.as_deref()),
+            "truth": schema::path_json(files.truth.as_deref()),
+            "rate_hz": rate,
+            "configuration": survey.config,
+        }),
+        0,
+        body,
+    )
+}
+
+/// The text summary of a survey run.
+pub fn summary_text(
+    verb: &str,
+    run: &NavigationRun,
+    last: &NavSolution,
+    summary: &Value,
+) -> String {
+    let f = last;
     let mut text = String::new();
     let _ = writeln!(
         text,
-        "navigated {} IMU samples ({:.1} s); DVL updates {} accepted, {} gated, {} recovered; {} rows without lock skipped; {} gaps coasted",
+        "{verb} {} IMU samples ({:.1} s); DVL updates {} accepted, {} gated, {} recovered; {} rows without lock skipped; {} gaps coasted",
         run.imu_samples,
         run.span_s[1] - run.span_s[0],
         run.dvl.accepted,
@@ -406,8 +611,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     let _ = writeln!(
         text,
-        "final: lat {:.7} deg, lon {:.7} deg, depth {:.2} m, heading {:.2} deg; 1-sigma N/E {:.2}/{:.2} m",
-        f.latitude_deg, f.longitude_deg, f.depth_m, f.heading_deg, f.position_sigma_m[0], f.position_sigma_m[1]
+        "final: lat {:.7} deg, lon {:.7} deg, depth {:.2} m, heading {} deg; 1-sigma N/E {:.2}/{:.2} m",
+        f.latitude_deg,
+        f.longitude_deg,
+        f.depth_m,
+        format_heading(f.heading_deg, 2),
+        f.position_sigma_m[0],
+        f.position_sigma_m[1]
     );
     if let Some(e) = summary.get("evaluation").filter(|v| !v.is_null()) {
         let _ = writeln!(
@@ -416,5 +626,102 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             e["position_rmse_m"], e["nees_average"], e["nees_states"]
         );
     }
-    crate::output::emit(&text)
+    text
+}
+
+/// `dvl_sensor` and, for BeamsNet, what it did (times on the navigator's clock,
+/// relative to `epoch_s`).
+fn learned_json(run: &NavigationRun) -> Value {
+    match &run.learned {
+        None => json!({ "dvl_sensor": "least_squares" }),
+        Some(l) => json!({
+            "dvl_sensor": "beamsnet",
+            "learned": {
+                "model": estim::models::BEAMSNET_NAME,
+                "cross_covariance": "network sensitivity (NetworkSensitivity over the filter's recorded IMU window)",
+                "beamsnet_updates": l.beamsnet_updates,
+                "least_squares_three_beams": l.least_squares_three_beams,
+                "least_squares_window_not_full": l.least_squares_window_not_full,
+                "first_update": l.first_update.map(|(t, v)| json!({ "time_since_epoch_s": t, "velocity_mps": v })),
+            },
+        }),
+    }
+}
+
+/// Run it.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if let Some(rate) = args.rate {
+        anyhow::ensure!(
+            rate.is_finite() && rate > 0.0,
+            "--rate {rate}: not a positive rate"
+        );
+    }
+    let staged = args.out.as_deref().map(StagedDir::new).transpose()?;
+    let mut survey = load_survey(args.files())?;
+    let mut writer =
+        Writer::new(staged.as_ref(), survey.epoch, survey.truth.take())?.with_plot_rows(args.plots);
+    let network = if args.learned {
+        anyhow::ensure!(
+            survey.files.beams.is_some(),
+            "--learned takes a DVL beams CSV (--beams) in the network's beam geometry"
+        );
+        Some(estim::models::beamsnet()?)
+    } else {
+        None
+    };
+    let result = match &network {
+        Some(net) => navigate_learned(
+            &survey.inputs,
+            &survey.settings,
+            args.rate,
+            &mut writer,
+            net,
+        ),
+        None => navigate(&survey.inputs, &survey.settings, args.rate, &mut writer),
+    };
+    let run = match result {
+        Ok(run) => run,
+        Err(NavigatorError::Filter { time, source }) => {
+            eprintln!(
+                "error: the filter stopped at t = {} s: {source}",
+                survey.epoch + time
+            );
+            return schema::status_result(1);
+        }
+        Err(e) => return Err(e.into()),
+    };
+    let summary = summary_json(
+        "navigate",
+        &survey,
+        &run,
+        &run.final_solution,
+        args.rate,
+        evaluation_json(writer.truth()),
+        learned_json(&run),
+    );
+    if let Some(dir) = staged {
+        if args.plots {
+            crate::navigate_plots::write_plots(
+                &dir.path(""),
+                &crate::navigate_plots::PlotData {
+                    command: "navigate",
+                    solution_label: "filter",
+                    rows: writer.plot_rows(),
+                    nis_times: &run.dvl_nis_times,
+                    nis: &run.dvl_nis,
+                },
+            )?;
+        }
+        writer.finish(&dir, "estim navigate track (DVL epochs)", &summary)?;
+        dir.commit()?;
+    }
+    if args.json {
+        return crate::output::emit(&format!("{}\n", serde_json::to_string_pretty(&summary)?));
+    }
+    crate::output::emit(&summary_text(
+        "navigated",
+        &run,
+        &run.final_solution,
+        &summary,
+    ))
 }

@@ -1,6 +1,13 @@
-//! `estim smooth` (and `estim reproduce --smooth`): the 15-state INS/DVL error-state
-//! filter, recorded and smoothed (RTS, exact with correlated noise), smoothed against
-//! filtered errors versus ground truth, plus NEES.
+//! `estim smooth`, two call shapes told apart by `--imu`:
+//!
+//! - on a survey's own files (`--imu` with `--dvl`, `--beams` or `--pd0`, and the other
+//!   inputs of `estim navigate`): the navigator's forward pass smoothed (RTS over its
+//!   update epochs), written as `navigate` writes its solution (`solution.csv`,
+//!   `track.geojson`, `summary.json`);
+//! - on the study's scenarios (no `--imu`; also `estim reproduce --smooth`): the
+//!   15-state INS/DVL filter on the simulated mission and A-KIT trajectories, recorded
+//!   and smoothed (exact with correlated noise), smoothed against filtered errors
+//!   versus ground truth, plus NEES.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -13,6 +20,36 @@ use rayon::prelude::*;
 /// Arguments of `estim smooth`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
+    /// Survey mode: the IMU CSV of a survey (as `estim navigate --imu`); with it, one
+    /// of --dvl, --beams, --pd0 and optionally --depth, --fixes, --vehicle, --truth.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["data", "trajectories", "config", "rho"])]
+    imu: Option<PathBuf>,
+    /// Survey mode: DVL velocity CSV.
+    #[arg(long, value_name = "FILE", requires = "imu", conflicts_with_all = ["beams", "pd0"])]
+    dvl: Option<PathBuf>,
+    /// Survey mode: DVL beams CSV.
+    #[arg(long, value_name = "FILE", requires = "imu", conflicts_with = "pd0")]
+    beams: Option<PathBuf>,
+    /// Survey mode: Teledyne RDI PD0 file.
+    #[arg(long, value_name = "FILE", requires = "imu")]
+    pd0: Option<PathBuf>,
+    /// Survey mode: depth CSV.
+    #[arg(long, value_name = "FILE", requires = "imu")]
+    depth: Option<PathBuf>,
+    /// Survey mode: position fixes CSV.
+    #[arg(long, value_name = "FILE", requires = "imu")]
+    fixes: Option<PathBuf>,
+    /// Survey mode: vehicle configuration TOML.
+    #[arg(long, value_name = "FILE", requires = "imu")]
+    vehicle: Option<PathBuf>,
+    /// Survey mode: ground truth CSV (errors and NEES of the filtered and smoothed
+    /// solutions at the DVL epochs).
+    #[arg(long, value_name = "FILE", requires = "imu")]
+    truth: Option<PathBuf>,
+    /// Survey mode: also draw the smoothed track with 3-sigma ellipses, the 1-sigma
+    /// per state group and the forward filter's DVL NIS (PNG and SVG into --out).
+    #[arg(long, requires = "imu", requires = "out")]
+    plots: bool,
     /// Folder holding A-KIT `TrajectoryN/` (or a data root holding `a-kit/`); its
     /// trajectories are smoothed besides the embedded simulated mission.
     #[arg(long, value_name = "DIR")]
@@ -36,8 +73,25 @@ pub struct Args {
     out: Option<PathBuf>,
 }
 
-/// Run it.
+/// Run it: survey mode with `--imu`, else the study's scenarios.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if let Some(imu) = &args.imu {
+        let files = crate::navigate::SurveyFiles {
+            imu: imu.clone(),
+            dvl: args.dvl.clone(),
+            beams: args.beams.clone(),
+            pd0: args.pd0.clone(),
+            depth: args.depth.clone(),
+            fixes: args.fixes.clone(),
+            vehicle: args.vehicle.clone(),
+            truth: args.truth.clone(),
+        };
+        anyhow::ensure!(
+            files.dvl.is_some() || files.beams.is_some() || files.pd0.is_some(),
+            "estim smooth --imu: give --dvl, --beams or --pd0"
+        );
+        return smooth_survey_files(files, args.out.as_deref(), args.json, args.plots);
+    }
     let config = match &args.config {
         Some(path) => Config::from_file(path)?,
         None => Config::default(),
@@ -98,6 +152,92 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         print_reports(&mut text, &reports)?;
     }
     crate::output::emit(&text)
+}
+
+/// Survey mode: forward pass, smoothing, and the smoothed solution written as
+/// `estim navigate` writes its own (the summary adds the forward pass's figures).
+fn smooth_survey_files(
+    files: crate::navigate::SurveyFiles,
+    out: Option<&Path>,
+    json: bool,
+    plots: bool,
+) -> anyhow::Result<()> {
+    use crate::navigate::{evaluation_json, load_survey, summary_json, summary_text, Writer};
+    use estim::navigator::{smooth_survey, NavigationObserver, NavigatorError};
+
+    let staged = out.map(crate::output::StagedDir::new).transpose()?;
+    let mut survey = load_survey(files)?;
+    let truth = survey.truth.take();
+    let mut forward = Writer::new(None, survey.epoch, truth.clone())?;
+    let run = match smooth_survey(&survey.inputs, &survey.settings, None, &mut forward) {
+        Ok(run) => run,
+        Err(NavigatorError::Filter { time, source }) => {
+            eprintln!(
+                "error: the filter stopped at t = {} s: {source}",
+                survey.epoch + time
+            );
+            return crate::schema::status_result(1);
+        }
+        Err(NavigatorError::Smoother(e)) => {
+            anyhow::bail!("{e} (for a survey: set gate.recovery_after = 0 in the vehicle file)")
+        }
+        Err(e) => return Err(e.into()),
+    };
+    let last = run
+        .smoothed
+        .last()
+        .map_or(run.forward.final_solution, |s| s.solution);
+    let mut writer = Writer::new(staged.as_ref(), survey.epoch, truth)?.with_plot_rows(plots);
+    for s in &run.smoothed {
+        writer
+            .on_solution(s.kind, &s.solution, &s.state, &s.covariance)
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+    }
+    let f = &run.forward.final_solution;
+    let extra = serde_json::json!({
+        "dvl_sensor": "least_squares",
+        "smoother": {
+            "method": "Rauch-Tung-Striebel over the update epochs (estim-core ForwardRecorder, RecordAt::Updates)",
+            "epochs": run.smoothed.len(),
+            "forward_final": {
+                "time_s": survey.epoch + f.time,
+                "latitude_deg": f.latitude_deg,
+                "longitude_deg": f.longitude_deg,
+                "depth_m": f.depth_m,
+                "position_sigma_m": f.position_sigma_m,
+            },
+            "forward_evaluation": evaluation_json(forward.truth()),
+        },
+    });
+    let summary = summary_json(
+        "smooth",
+        &survey,
+        &run.forward,
+        &last,
+        None,
+        evaluation_json(writer.truth()),
+        extra,
+    );
+    if let Some(dir) = staged {
+        if plots {
+            crate::navigate_plots::write_plots(
+                &dir.path(""),
+                &crate::navigate_plots::PlotData {
+                    command: "smooth",
+                    solution_label: "smoothed",
+                    rows: writer.plot_rows(),
+                    nis_times: &run.forward.dvl_nis_times,
+                    nis: &run.forward.dvl_nis,
+                },
+            )?;
+        }
+        writer.finish(&dir, "estim smooth track (smoothed, DVL epochs)", &summary)?;
+        dir.commit()?;
+    }
+    if json {
+        return crate::output::emit(&format!("{}\n", serde_json::to_string_pretty(&summary)?));
+    }
+    crate::output::emit(&summary_text("smoothed", &run.forward, &last, &summary))
 }
 
 /// Smooth every scenario (in parallel), M = 0 or the given cross-covariance.

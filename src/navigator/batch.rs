@@ -15,6 +15,10 @@ pub enum DvlInput {
     Velocity(Vector3<f64>),
     /// Beam velocities \[m/s\] (`None` = missing beam).
     Beams([Option<f64>; 4]),
+    /// The vehicle's velocity N, E, D \[m/s\] (a DVL in earth coordinates): rotated
+    /// into the body frame with the filter's attitude at the update time and used as
+    /// a DVL-frame velocity (the attitude error it carries is not modelled).
+    EarthVelocity(Vector3<f64>),
     /// No bottom lock (NaN, empty, the -32.768 marker or a validity flag): skipped
     /// and counted, never used.
     NoLock,
@@ -68,10 +72,26 @@ pub struct SurveyInputs {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum SolutionKind {
-    /// After a DVL epoch (used or not).
+    /// After a DVL epoch (used or not); for the smoother, an accepted DVL update.
     Dvl,
     /// At the output rate.
     Rate,
+    /// A smoothed epoch whose updates are depth or fixes only.
+    Aiding,
+    /// The smoother's last epoch: the propagation after the last update.
+    End,
+}
+
+impl SolutionKind {
+    /// The name written in `solution.csv` (`dvl`, `rate`, `aiding`, `end`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Dvl => "dvl",
+            Self::Rate => "rate",
+            Self::Aiding => "aiding",
+            Self::End => "end",
+        }
+    }
 }
 
 /// Receives every solution of [`navigate`] (writers and evaluators are observers).
@@ -168,6 +188,12 @@ pub struct NavigationRun {
     pub longest_dvl_gap_s: f64,
     /// NIS of every DVL update attempt.
     pub dvl_nis: Vec<f64>,
+    /// Time of each entry of `dvl_nis` \[s\].
+    pub dvl_nis_times: Vec<f64>,
+    /// Times of the accepted DVL updates \[s\], increasing.
+    pub dvl_update_times: Vec<f64>,
+    /// What the BeamsNet sensor did ([`navigate_learned`] only).
+    pub learned: Option<LearnedCounts>,
     /// NIS of every depth update attempt.
     pub depth_nis: Vec<f64>,
     /// NIS of every fix update attempt.
@@ -176,6 +202,34 @@ pub struct NavigationRun {
     pub solutions: usize,
     /// The last solution.
     pub final_solution: NavSolution,
+}
+
+/// What [`navigate_learned`] did with the beam rows.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct LearnedCounts {
+    /// Updates with BeamsNet's velocity (and M from its sensitivity).
+    pub beamsnet_updates: usize,
+    /// Rows with 3 beams: least squares on them (M = 0, the vehicle's DVL noise);
+    /// BeamsNet takes 4 beams and no beam is filled in.
+    pub least_squares_three_beams: usize,
+    /// Rows before a full IMU window (the first second): least squares.
+    pub least_squares_window_not_full: usize,
+    /// Time \[s\] and network velocity \[m/s\] of the first BeamsNet update.
+    pub first_update: Option<(f64, [f64; 3])>,
+}
+
+/// The DVL sensor of a batch run.
+// Built once per run and passed by reference: the size of a variant costs nothing.
+#[allow(clippy::large_enum_variant)]
+enum Sensor<'a> {
+    /// Least squares on beams, or the velocity as given.
+    LeastSquares,
+    /// BeamsNet on 4-beam rows, least squares on the others.
+    BeamsNet {
+        network: &'a estim_learned::BeamsNet,
+        error_model: estim_ins::InsErrorModel,
+        model: estim_dvl::DvlVelocityModel,
+    },
 }
 
 /// The nominal IMU period: 1 / `imu.rate_hz`, else the median sample interval.
@@ -280,7 +334,7 @@ fn initial_state(
         attitude_deg: [
             r.to_degrees(),
             p.to_degrees(),
-            y.to_degrees().rem_euclid(360.0),
+            super::wrap_heading_deg(y.to_degrees()),
         ],
     };
     Ok((state, covariance, alignment))
@@ -433,6 +487,110 @@ pub fn navigate_with<F: Observer<f64, InsState, ERROR_STATES>>(
     observer: &mut dyn NavigationObserver,
     filter_observer: F,
 ) -> Result<(NavigationRun, F)> {
+    run_batch(
+        inputs,
+        settings,
+        output_rate_hz,
+        observer,
+        filter_observer,
+        &Sensor::LeastSquares,
+    )
+}
+
+/// [`navigate`] with the embedded BeamsNet (`estim::models::beamsnet`) as the DVL
+/// sensor: each row with 4 beams is an update with the network's velocity on the
+/// [`estim_learned::BEAMSNET_WINDOW`] IMU samples the filter integrated before it and
+/// those beams, with the network's R and M from its own sensitivity
+/// ([`Navigator::dvl_beamsnet`]). Rows with 3 beams, and rows before a full window, are
+/// least-squares updates (M = 0), counted in [`LearnedCounts`]; no beam is ever
+/// synthesized or filled in.
+///
+/// # Errors
+/// [`NavigatorError::Inputs`] for DVL rows that are not beams, or beams whose geometry
+/// (`dvl.beam_angle_deg`, `dvl.beam1_azimuth_deg`) is not the one the network was
+/// trained on; [`NavigatorError::Config`] for an IMU period other than the network's
+/// 0.01 s; as [`navigate`].
+pub fn navigate_learned(
+    inputs: &SurveyInputs,
+    settings: &NavigatorSettings,
+    output_rate_hz: Option<f64>,
+    observer: &mut dyn NavigationObserver,
+    network: &estim_learned::BeamsNet,
+) -> Result<NavigationRun> {
+    if inputs
+        .dvl
+        .iter()
+        .any(|d| !matches!(d.input, DvlInput::Beams(_) | DvlInput::NoLock))
+    {
+        return Err(NavigatorError::Inputs(
+            "BeamsNet takes DVL beams (a beams CSV or a beam-coordinate PD0 file), not \
+             velocities"
+                .into(),
+        ));
+    }
+    let metadata = network.measurement().metadata();
+    if let Some(g) = &metadata.beam_geometry {
+        let theta = g.theta_deg.to_radians();
+        let trained: Vec<Vector3<f64>> = g
+            .psi_deg
+            .iter()
+            .map(|psi| {
+                let psi = psi.to_radians();
+                Vector3::new(
+                    psi.cos() * theta.sin(),
+                    psi.sin() * theta.sin(),
+                    theta.cos(),
+                )
+            })
+            .collect();
+        let ours = settings.geometry.matrix();
+        let same = trained.len() == 4
+            && (0..4).all(|i| (0..3).all(|j| (ours[(i, j)] - trained[i][j]).abs() <= 1e-9));
+        if !same {
+            return Err(NavigatorError::Inputs(format!(
+                "BeamsNet was trained on beams {} deg from the z axis at azimuths {:?} deg; \
+                 this survey's beam geometry differs (set dvl.beam_angle_deg and \
+                 dvl.beam1_azimuth_deg, or use least squares)",
+                g.theta_deg, g.psi_deg
+            )));
+        }
+    }
+    let period = imu_period(&inputs.imu, settings)?;
+    let window_period = 1.0 / 100.0;
+    if (period - window_period).abs() > super::IMU_PERIOD_SNAP * window_period {
+        return Err(NavigatorError::Config(format!(
+            "BeamsNet takes {} IMU samples at 100 Hz; this IMU's period is {period} s",
+            estim_learned::BEAMSNET_WINDOW
+        )));
+    }
+    let mut recording = settings.clone();
+    recording.filter_config = estim_core::FilterConfigBuilder::from(settings.filter_config.clone())
+        .window_capacity(estim_learned::BEAMSNET_WINDOW)
+        .build()?;
+    let sensor = Sensor::BeamsNet {
+        network,
+        error_model: estim_ins::InsErrorModel::new(settings.filter_spec),
+        model: settings.dvl_model_with_noise(network.noise_covariance())?,
+    };
+    run_batch(
+        inputs,
+        &recording,
+        output_rate_hz,
+        observer,
+        NoObserver,
+        &sensor,
+    )
+    .map(|(run, _)| run)
+}
+
+fn run_batch<F: Observer<f64, InsState, ERROR_STATES>>(
+    inputs: &SurveyInputs,
+    settings: &NavigatorSettings,
+    output_rate_hz: Option<f64>,
+    observer: &mut dyn NavigationObserver,
+    filter_observer: F,
+    sensor: &Sensor<'_>,
+) -> Result<(NavigationRun, F)> {
     if let Some(rate) = output_rate_hz {
         if !(rate.is_finite() && rate > 0.0) {
             return Err(NavigatorError::Config(format!(
@@ -491,6 +649,11 @@ pub fn navigate_with<F: Observer<f64, InsState, ERROR_STATES>>(
         solutions: 0,
     };
     let mut dvl_nis = Vec::new();
+    let mut dvl_nis_times = Vec::new();
+    let mut learned = match sensor {
+        Sensor::BeamsNet { .. } => Some(LearnedCounts::default()),
+        Sensor::LeastSquares => None,
+    };
     let mut depth_nis = Vec::new();
     let mut fix_nis = Vec::new();
     let mut insufficient = 0;
@@ -501,17 +664,58 @@ pub fn navigate_with<F: Observer<f64, InsState, ERROR_STATES>>(
             Event::Dvl(input) => {
                 let report = match input {
                     DvlInput::Velocity(v) => Some(nav.dvl_velocity(t, &v, &Zero)?),
+                    DvlInput::EarthVelocity(v_ned) => {
+                        nav.propagate_to(t)?;
+                        let body = nav.nominal().attitude.inverse() * v_ned;
+                        Some(nav.dvl_velocity(t, &body, &Zero)?)
+                    }
                     DvlInput::Beams(b) => {
-                        let r = nav.dvl_beams(t, &b, &settings.geometry, &Zero)?;
-                        if r.is_none() {
-                            insufficient += 1;
+                        let mut report = None;
+                        if let (
+                            Sensor::BeamsNet {
+                                network,
+                                error_model,
+                                model,
+                            },
+                            Some(counts),
+                        ) = (sensor, learned.as_mut())
+                        {
+                            let present = b.iter().flatten().filter(|v| v.is_finite()).count();
+                            if present == 4 {
+                                let beams =
+                                    nalgebra::Vector4::from_fn(|i, _| b[i].unwrap_or(f64::NAN));
+                                report =
+                                    nav.dvl_beamsnet(t, &beams, network, error_model, model)?;
+                                match report {
+                                    Some(_) => {
+                                        counts.beamsnet_updates += 1;
+                                        if counts.first_update.is_none() {
+                                            counts.first_update =
+                                                nav.last_learned_velocity().map(|v| (t, v.into()));
+                                        }
+                                    }
+                                    None => counts.least_squares_window_not_full += 1,
+                                }
+                            } else if present == 3 {
+                                counts.least_squares_three_beams += 1;
+                            }
                         }
-                        r
+                        match report {
+                            Some(r) => Some(r),
+                            None => {
+                                let r = nav.dvl_beams(t, &b, &settings.geometry, &Zero)?;
+                                if r.is_none() {
+                                    insufficient += 1;
+                                }
+                                r
+                            }
+                        }
                     }
                     DvlInput::NoLock => None,
                 };
                 if let Some(r) = report {
                     dvl_nis.push(r.nis);
+                    dvl_nis_times.push(t);
                     if r.is_accepted() {
                         dvl_times.push(t);
                     }
@@ -545,6 +749,9 @@ pub fn navigate_with<F: Observer<f64, InsState, ERROR_STATES>>(
         dvl_gaps_coasted: coasted,
         longest_dvl_gap_s: longest,
         dvl_nis,
+        dvl_nis_times,
+        dvl_update_times: dvl_times.clone(),
+        learned,
         depth_nis,
         fix_nis,
         solutions: feeder.solutions,

@@ -349,6 +349,14 @@ impl NavigatorSettings {
         dvl_model(&self.config.dvl, r)
     }
 
+    /// The same settings with another beam geometry (e.g. a PD0 file's RDI layout,
+    /// [`super::rdi_beam_geometry`]).
+    #[must_use]
+    pub fn with_beam_geometry(mut self, geometry: BeamGeometry) -> Self {
+        self.geometry = geometry;
+        self
+    }
+
     /// The same settings with another DVL measurement-noise covariance R (e.g. a
     /// learned sensor's).
     ///

@@ -94,7 +94,7 @@ impl NavSolution {
         let sigma = |i: usize| covariance[(i, i)].max(0.0).sqrt();
         let group = |start: usize| [sigma(start), sigma(start + 1), sigma(start + 2)];
         let (roll, pitch, yaw) = state.roll_pitch_yaw();
-        let heading = yaw.to_degrees().rem_euclid(360.0);
+        let heading = wrap_heading_deg(yaw.to_degrees());
         let attitude = group(ATT).map(f64::to_degrees);
         Self {
             time,
@@ -162,6 +162,7 @@ pub struct Navigator<O = NoObserver> {
     clock: f64,
     held: Option<ImuSample>,
     last_step: Option<(ImuSample, f64)>,
+    last_learned_velocity: Option<Vector3<f64>>,
     /// DVL velocity updates.
     pub dvl_counts: UpdateCounts,
     /// Depth updates.
@@ -205,6 +206,7 @@ impl Navigator<NoObserver> {
             clock: initial.time,
             held: None,
             last_step: None,
+            last_learned_velocity: None,
             dvl_counts: UpdateCounts::default(),
             depth_counts: UpdateCounts::default(),
             fix_counts: UpdateCounts::default(),
@@ -226,6 +228,7 @@ impl<O> Navigator<O> {
             clock: self.clock,
             held: self.held,
             last_step: self.last_step,
+            last_learned_velocity: self.last_learned_velocity,
             dvl_counts: self.dvl_counts,
             depth_counts: self.depth_counts,
             fix_counts: self.fix_counts,
@@ -275,6 +278,12 @@ impl<O> Navigator<O> {
     /// The last propagation step: the sample integrated and its dt.
     pub fn last_step(&self) -> Option<(&ImuSample, f64)> {
         self.last_step.as_ref().map(|(s, dt)| (s, *dt))
+    }
+
+    /// The velocity of the last [`Navigator::dvl_beamsnet`] update (the network's
+    /// output) \[m/s\].
+    pub fn last_learned_velocity(&self) -> Option<Vector3<f64>> {
+        self.last_learned_velocity
     }
 
     /// The DVL velocity model in use.
@@ -422,6 +431,42 @@ impl<O: Observer<f64, InsState, ERROR_STATES>> Navigator<O> {
         }
     }
 
+    /// BeamsNet update at `time`: the embedded network's velocity on the last
+    /// [`estim_learned::BEAMSNET_WINDOW`] IMU steps the filter integrated and the four
+    /// `beams`, fused with `model` (the network's R) and M from the network's own
+    /// sensitivity ([`estim_learned::NetworkSensitivity`] over the filter's recorded
+    /// window; the filter must record at least that many steps,
+    /// `FilterConfigBuilder::window_capacity`). `Ok(None)` when fewer steps than the
+    /// window were integrated (nothing done but the propagation).
+    ///
+    /// # Errors
+    /// As [`Navigator::dvl_velocity`]; the network's errors as [`NavigatorError::Filter`].
+    pub fn dvl_beamsnet(
+        &mut self,
+        time: f64,
+        beams: &Vector4<f64>,
+        network: &estim_learned::BeamsNet,
+        error_model: &InsErrorModel,
+        model: &DvlVelocityModel,
+    ) -> Result<Option<UpdateReport<f64, ERROR_STATES, 3>>> {
+        self.propagate_to(time)?;
+        let fail = |source| NavigatorError::Filter { time, source };
+        let sensitivity =
+            estim_learned::NetworkSensitivity::new(network, error_model, *beams).map_err(fail)?;
+        let velocity = match self.filter.step_window(estim_learned::BEAMSNET_WINDOW) {
+            Ok(window) => sensitivity.measure(&window).map_err(fail)?,
+            Err(estim_core::Error::WindowUnavailable { .. }) => return Ok(None),
+            Err(e) => return Err(fail(e)),
+        };
+        let report = self
+            .filter
+            .update_windowed(model, &velocity, &sensitivity)
+            .map_err(fail)?;
+        self.dvl_counts.count(&report);
+        self.last_learned_velocity = Some(velocity);
+        Ok(Some(report))
+    }
+
     /// Depth update at `time` (`depth_m` positive down).
     ///
     /// # Errors
@@ -469,6 +514,33 @@ impl<O: Observer<f64, InsState, ERROR_STATES>> Navigator<O> {
             .map_err(|source| NavigatorError::Filter { time, source })?;
         self.fix_counts.count(&report);
         Ok(report)
+    }
+}
+
+/// A heading \[deg\] wrapped into [0, 360).
+///
+/// `f64::rem_euclid` alone is not enough: it returns -0.0 for -0.0 (printed `-0`), and
+/// for a negative value smaller in magnitude than half an ulp of 360 (e.g. -1e-15) the
+/// sum `x + 360` rounds to 360.0 exactly. Both are mapped to +0.0.
+pub fn wrap_heading_deg(deg: f64) -> f64 {
+    let wrapped = deg.rem_euclid(360.0);
+    if wrapped >= 360.0 {
+        0.0
+    } else {
+        // -0.0 + 0.0 is +0.0 (IEEE 754, round to nearest).
+        wrapped + 0.0
+    }
+}
+
+/// A heading as text with `decimals` decimals, in [0, 360) as printed: a heading
+/// that rounds up to 360 at that precision (359.9999996 with 5 decimals) is printed
+/// as 0.
+pub fn format_heading(deg: f64, decimals: usize) -> String {
+    let text = format!("{:.decimals$}", wrap_heading_deg(deg));
+    if text.starts_with("360") {
+        format!("{:.decimals$}", 0.0)
+    } else {
+        text
     }
 }
 
@@ -584,6 +656,54 @@ mod tests {
         assert_eq!(nav.dvl_counts.accepted + nav.dvl_counts.gated, 30);
         assert_eq!(nav.fix_counts.accepted + nav.fix_counts.gated, 1);
         assert!((nav.clock() - mission.truth.last().unwrap().time).abs() < 1e-9);
+    }
+
+    /// Headings in [0, 360) for the values that `rem_euclid` alone gets wrong, in the
+    /// solution and as printed.
+    #[test]
+    fn headings_are_in_0_360() {
+        for (deg, expected) in [
+            (-0.0, 0.0),
+            (-1e-15, 0.0),
+            (-1e-13, 360.0 - 1e-13),
+            (360.0, 0.0),
+            (720.0, 0.0),
+            (-90.0, 270.0),
+            (359.5, 359.5),
+        ] {
+            let h = wrap_heading_deg(deg);
+            assert!((0.0..360.0).contains(&h), "{deg} -> {h}");
+            assert_eq!(h.to_bits(), f64::to_bits(expected), "{deg} -> {h}");
+        }
+        assert_eq!(format_heading(-0.0, 5), "0.00000");
+        assert_eq!(format_heading(-1e-9, 5), "0.00000");
+        assert_eq!(format_heading(359.999_999_6, 5), "0.00000");
+        assert_eq!(format_heading(359.999_99, 5), "359.99999");
+        assert_eq!(format_heading(359.996, 2), "0.00");
+        assert_eq!(format_heading(12.345, 2), "12.35");
+        // A state whose yaw is -0.0 rad (north, from a quaternion with a negative-zero
+        // z component) gives heading +0.0.
+        let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            1.0, 0.0, 0.0, -0.0,
+        ));
+        let state = InsState::new(0.0, 0.5, 0.6, -10.0, Vector3::zeros(), q);
+        let (_, _, yaw) = state.roll_pitch_yaw();
+        let s = NavSolution::from_state(0.0, &state, &ErrorMatrix::identity());
+        assert_eq!(s.heading_deg.to_bits(), 0.0f64.to_bits(), "yaw {yaw:e}");
+        let tiny = InsState::new(
+            0.0,
+            0.5,
+            0.6,
+            -10.0,
+            Vector3::zeros(),
+            nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, -1e-17),
+        );
+        let s = NavSolution::from_state(0.0, &tiny, &ErrorMatrix::identity());
+        assert!(
+            s.heading_deg < 360.0 && s.heading_deg >= 0.0,
+            "{}",
+            s.heading_deg
+        );
     }
 
     #[test]

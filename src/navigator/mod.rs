@@ -18,11 +18,14 @@ mod aiding;
 mod batch;
 mod config;
 mod filter;
+mod pd0;
+mod smooth;
 
 pub use aiding::{DepthModel, PositionFixModel};
 pub use batch::{
-    coarse_alignment, navigate, navigate_with, Alignment, DepthSample, DvlInput, DvlRecord,
-    InitialAttitude, NavigationObserver, NavigationRun, PositionFix, SolutionKind, SurveyInputs,
+    coarse_alignment, navigate, navigate_learned, navigate_with, Alignment, DepthSample, DvlInput,
+    DvlRecord, InitialAttitude, LearnedCounts, NavigationObserver, NavigationRun, PositionFix,
+    SolutionKind, SurveyInputs,
 };
 pub use config::{
     filter_config, filter_imu_spec, imu_preset, DepthConfig, DvlConfig, FixConfig, GateConfig,
@@ -30,8 +33,11 @@ pub use config::{
     FILTER_BIAS_TIME_CONSTANT, IMU_PRESETS,
 };
 pub use filter::{
-    beams_from_nan, DvlCross, InsFilter, NavSolution, Navigator, UpdateCounts, IMU_PERIOD_SNAP,
+    beams_from_nan, format_heading, wrap_heading_deg, DvlCross, InsFilter, NavSolution, Navigator,
+    UpdateCounts, IMU_PERIOD_SNAP,
 };
+pub use pd0::{pd0_records, rdi_beam_geometry, Pd0Conversion};
+pub use smooth::{smooth_survey, SmoothedSolution, SmoothingRun};
 
 /// Errors of the navigator.
 #[derive(Debug, thiserror::Error)]
@@ -64,6 +70,14 @@ pub enum NavigatorError {
         /// Its time \[s\].
         time: f64,
     },
+    /// A PD0 ensemble that cannot be used (its byte offset in the file).
+    #[error("PD0 ensemble at byte {offset}: {reason}")]
+    Pd0 {
+        /// Byte offset of the ensemble's header.
+        offset: usize,
+        /// Why.
+        reason: String,
+    },
     /// Inputs that cannot be navigated as a whole (the message says why).
     #[error("{0}")]
     Inputs(String),
@@ -77,6 +91,10 @@ pub enum NavigatorError {
         #[source]
         source: estim_core::Error,
     },
+    /// The smoother (a recording it cannot smooth exactly, a covariance that is not
+    /// positive definite).
+    #[error("smoother: {0}")]
+    Smoother(#[source] estim_core::Error),
     /// The filter core, outside a step (construction).
     #[error(transparent)]
     Core(#[from] estim_core::Error),
