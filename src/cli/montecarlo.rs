@@ -206,7 +206,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "pos RMSE",
         "P not PD"
     )?;
-    writeln!(out, "(\"in band\": share of epochs whose run-averaged value lies in the band; \"P not PD\": run-epochs whose covariance lost positive definiteness, excluded from the averages; statistics over the runs that completed)")?;
+    writeln!(out, "(\"in band\": share of epochs whose run-averaged value lies in the band; \"pos RMSE\": mean over the runs of each run's position RMSE over its epochs; \"P not PD\": run-epochs whose covariance lost positive definiteness, excluded from the averages; statistics over the runs that completed)")?;
     for v in report.variants.values() {
         writeln!(
             out,
@@ -222,7 +222,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             v.nis_band[1],
             v.nis_epochs_in_band_percent,
             v.updates_rejected,
-            v.position_rmse_m,
+            v.position_rmse.mean,
             v.covariance_not_positive_definite
         )?;
     }
