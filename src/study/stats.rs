@@ -65,6 +65,24 @@ pub fn std_summary(diagonals: &[[f64; 15]], first_index: usize) -> StdSummary {
     }
 }
 
+/// Whether a group's standard deviations over a run come from covariances that were
+/// positive definite at every epoch: the run's Cholesky check of the full P never
+/// failed (`not_pd_epochs`, [`super::FilterRun::covariance_not_positive_definite`]) and
+/// the group's three variances are finite and > 0 at every time (the std of
+/// [`std_summary`] clamps a negative variance to 0, which would hide it).
+pub fn group_std_positive_definite(
+    not_pd_epochs: usize,
+    diagonals: &[[f64; 15]],
+    first_index: usize,
+) -> bool {
+    not_pd_epochs == 0
+        && diagonals.iter().all(|d| {
+            d[first_index..first_index + 3]
+                .iter()
+                .all(|v| v.is_finite() && *v > 0.0)
+        })
+}
+
 /// % improvement of `aware` over `neglected` (positive = smaller std), as the paper's Fig. 5.
 pub fn improvement_percent(neglected: f64, aware: f64) -> f64 {
     100.0 * (neglected - aware) / neglected
@@ -115,6 +133,21 @@ mod tests {
         let s = std_summary(&[a, b], 3);
         assert_eq!(s.time_average, 9.0);
         assert_eq!(s.final_value, 12.0);
+    }
+
+    #[test]
+    fn positive_definite_check_sees_the_run_and_the_group() {
+        let mut d = [1.0; 15];
+        assert!(group_std_positive_definite(0, &[d, d], 9));
+        // The run's Cholesky check failed once: not PD whatever the diagonal says.
+        assert!(!group_std_positive_definite(1, &[d, d], 9));
+        // A negative, zero or NaN variance in the group (std_summary would clamp it).
+        for bad in [-1e-30, 0.0, f64::NAN] {
+            d[10] = bad;
+            assert!(!group_std_positive_definite(0, &[[1.0; 15], d], 9), "{bad}");
+            // Outside the group it does not matter here.
+            assert!(group_std_positive_definite(0, &[[1.0; 15], d], 12), "{bad}");
+        }
     }
 
     #[test]
