@@ -101,7 +101,7 @@ pub fn path_json(path: Option<&std::path::Path>) -> Value {
 }
 
 /// Most missions of `montecarlo --runs` (about 1.5 h on two cores at the default
-/// 400 s mission; larger studies run in several seed blocks).
+/// 400 s mission; larger studies run in shards joined by `estim montecarlo merge`).
 pub const MAX_RUNS: usize = 10_000;
 
 /// Most draws of `montecarlo --empirical-realizations` and realizations of
