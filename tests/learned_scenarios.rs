@@ -28,7 +28,7 @@ fn check_monte_carlo(kind: &str, prefix: &str, ins_only: &str) {
         "20",
         "--json",
     ]);
-    assert_eq!(doc["schema_version"], 1);
+    assert_eq!(doc["schema_version"], 2);
     assert_eq!(doc["command"], "montecarlo");
     assert_eq!(doc["status"], "ok");
     assert_eq!(doc["scenario"], kind);

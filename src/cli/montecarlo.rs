@@ -2,11 +2,13 @@
 
 use std::path::PathBuf;
 
+mod merge;
+
 use std::fmt::Write as _;
 use std::io::IsTerminal;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use crate::study::{monte_carlo, Config};
+use crate::study::{monte_carlo, Config, MonteCarloReport};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::output::emit;
@@ -14,13 +16,23 @@ use crate::schema::{document, path_json, status_result};
 
 /// Arguments of `estim montecarlo`.
 #[derive(Debug, clap::Args)]
+#[command(args_conflicts_with_subcommands = true)]
 pub struct Args {
+    /// `merge`: combine shards (the `--json` outputs of runs over disjoint seeds).
+    #[command(subcommand)]
+    command: Option<Subcommand>,
     /// Number of simulated missions.
     #[arg(long, default_value_t = 50)]
     runs: usize,
-    /// Seed of the first mission (missions use seed, seed+1, ...).
-    #[arg(long, default_value_t = 1000)]
-    seed: u64,
+    /// Seed of the first mission (missions use seeds S, S+1, ..., S+runs-1); `--seed`
+    /// is the same flag.
+    #[arg(
+        long = "first-seed",
+        visible_alias = "seed",
+        value_name = "S",
+        default_value_t = 1000
+    )]
+    first_seed: u64,
     /// TOML configuration (see `estim reproduce --print-config`).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
@@ -41,6 +53,14 @@ pub struct Args {
     /// update (0 leaves that variant out).
     #[arg(long, default_value_t = 100)]
     empirical_realizations: usize,
+}
+
+/// Subcommands of `estim montecarlo`.
+#[derive(Debug, clap::Subcommand)]
+enum Subcommand {
+    /// Merge Monte Carlo shards (`estim montecarlo --json` outputs over disjoint seed
+    /// ranges, same configuration) into the statistics of one run over all their seeds.
+    Merge(merge::Args),
 }
 
 /// Without a terminal, a progress line at least every this many missions.
@@ -107,6 +127,9 @@ impl Progress {
 
 /// Run it. Exit status: see `schema` (3 when a filter variant failed in some run).
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if let Some(Subcommand::Merge(merge)) = args.command {
+        return merge::run(merge);
+    }
     crate::schema::check_count("--runs", args.runs, 1, crate::schema::MAX_RUNS)?;
     crate::schema::check_count(
         "--empirical-realizations",
@@ -114,7 +137,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         0,
         crate::schema::MAX_REALIZATIONS,
     )?;
-    crate::schema::check_seeds("--seed", args.seed, args.runs as u64 - 1)?;
+    crate::schema::check_seeds("--first-seed", args.first_seed, args.runs as u64 - 1)?;
     let mut config = match &args.config {
         Some(path) => Config::from_file(path)?,
         None => Config::default(),
@@ -131,7 +154,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 &config,
                 outage,
                 args.runs,
-                args.seed,
+                args.first_seed,
                 args.empirical_realizations,
                 &|| progress.tick(),
             );
@@ -141,8 +164,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 let inputs = serde_json::json!({
                     "config_file": path_json(args.config.as_deref()),
                     "runs": args.runs,
-                    "first_seed": args.seed,
-                    "seeds": [args.seed, args.seed + args.runs as u64 - 1],
+                    "first_seed": args.first_seed,
+                    "seeds": [args.first_seed, args.first_seed + args.runs as u64 - 1],
                     "learned": report.scenario,
                     "empirical_realizations": args.empirical_realizations,
                     "config": config,
@@ -159,9 +182,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let learned = crate::learned::sensor(&config, None)?;
     let progress = Progress::new(args.runs);
-    let report = monte_carlo(&config, args.runs, args.seed, learned.as_deref(), &|| {
-        progress.tick()
-    });
+    let report = monte_carlo(
+        &config,
+        args.runs,
+        args.first_seed,
+        learned.as_deref(),
+        &|| progress.tick(),
+    );
     progress.finish();
     let report = report?;
     let failures = report.failures().count();
@@ -169,8 +196,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let inputs = serde_json::json!({
             "config_file": path_json(args.config.as_deref()),
             "runs": args.runs,
-            "first_seed": args.seed,
-            "seeds": [args.seed, args.seed + args.runs as u64 - 1],
+            "first_seed": args.first_seed,
+            "seeds": [args.first_seed, args.first_seed + args.runs as u64 - 1],
             "faults_flag": args.faults,
             "config": config,
         });
@@ -183,13 +210,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         emit(&format!("{}\n", serde_json::to_string_pretty(&doc)?))?;
         return status_result(failures);
     }
+    emit(&text_report(&report)?)?;
+    status_result(failures)
+}
+
+/// The text table of a report (its seeds, then one line per variant, then failures).
+pub fn text_report(report: &MonteCarloReport) -> anyhow::Result<String> {
     let mut out = String::new();
     writeln!(
         out,
-        "Monte Carlo: {} simulated missions (seeds {}..{}), 95% chi-square bands of the run average",
+        "Monte Carlo: {} simulated missions (seeds {}), 95% chi-square bands of the run average",
         report.runs,
-        report.first_seed,
-        report.first_seed + report.runs as u64 - 1
+        seed_list(&report.seed_ranges)
     )?;
     writeln!(
         out,
@@ -206,7 +238,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "pos RMSE",
         "P not PD"
     )?;
-    writeln!(out, "(\"in band\": share of epochs whose run-averaged value lies in the band; \"P not PD\": run-epochs whose covariance lost positive definiteness, excluded from the averages; statistics over the runs that completed)")?;
+    writeln!(out, "(\"in band\": share of epochs whose run-averaged value lies in the band; \"pos RMSE\": mean over the runs of each run's position RMSE over its epochs; \"P not PD\": run-epochs whose covariance lost positive definiteness, excluded from the averages; statistics over the runs that completed)")?;
     for v in report.variants.values() {
         writeln!(
             out,
@@ -222,13 +254,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             v.nis_band[1],
             v.nis_epochs_in_band_percent,
             v.updates_rejected,
-            v.position_rmse_m,
+            v.position_rmse.mean,
             v.covariance_not_positive_definite
         )?;
     }
     for f in report.failures() {
         writeln!(out, "FAILED: {f}")?;
     }
-    emit(&out)?;
-    status_result(failures)
+    Ok(out)
+}
+
+/// Seed ranges `[a, b)` as text: `1000..1019, 1040..1059` (inclusive ends).
+fn seed_list(ranges: &[[u64; 2]]) -> String {
+    ranges
+        .iter()
+        .map(|[a, b]| format!("{a}..{}", b.saturating_sub(1)))
+        .collect::<Vec<_>>()
+        .join(", ")
 }

@@ -5,7 +5,12 @@
 //! - draw order by layer: thick solid lines first, thin dashed ones on top, so two
 //!   variants that coincide (e.g. "M neglected" and "M from network") both stay
 //!   visible;
-//! - units on every axis label;
+//! - units on every axis label, in a unit that keeps the tick labels readable
+//!   ([`plot_unit`]: gyroscope biases in deg/h, accelerometer biases in mg or µg,
+//!   misalignment in deg) and tick labels with as many decimals as their spacing needs
+//!   ([`tick_label`]);
+//! - a bar computed from a covariance that was not positive definite is hatched and
+//!   labelled "not PD", never drawn as an ordinary bar;
 //! - a non-finite value (e.g. NEES where P was not positive definite) breaks the line
 //!   ([`segments`]) instead of being bridged;
 //! - the north-east track has equal metres per pixel on both axes.
@@ -137,6 +142,51 @@ pub struct Geometry {
 
 type DrawResult<T = ()> = Result<T, Box<dyn std::error::Error>>;
 
+/// Standard gravity \[m/s^2\] (1 mg = 1e-3 of it), the unit accelerometer biases are
+/// quoted in.
+pub const STANDARD_GRAVITY: f64 = 9.80665;
+
+/// The unit a state group's standard deviation is plotted in and the factor from the
+/// study's SI value to it: position m, velocity m/s, misalignment deg, gyroscope bias
+/// deg/h, accelerometer bias mg, or µg when every value is below 1 mg (`values`: the
+/// SI values to be plotted). An unknown group stays in its SI value with unit "?".
+pub fn plot_unit(group: &str, values: impl IntoIterator<Item = f64>) -> (&'static str, f64) {
+    match group {
+        "position" => ("m", 1.0),
+        "velocity" => ("m/s", 1.0),
+        "misalignment" => ("deg", 180.0 / std::f64::consts::PI),
+        "gyro_bias" => ("deg/h", 180.0 / std::f64::consts::PI * 3600.0),
+        "acc_bias" => {
+            let mg = 1.0 / (1e-3 * STANDARD_GRAVITY);
+            let largest = values
+                .into_iter()
+                .filter(|v| v.is_finite())
+                .fold(0.0_f64, |m, v| m.max(v.abs()));
+            if largest * mg >= 1.0 {
+                ("mg", mg)
+            } else {
+                ("µg", 1e3 * mg)
+            }
+        }
+        _ => ("?", 1.0),
+    }
+}
+
+/// A tick label of `value` on an axis spanning `span`: enough decimals that ticks a
+/// tenth of the span apart differ (plotters' default prints every tick of a 1e-5-wide
+/// axis as the same number).
+pub fn tick_label(value: f64, span: f64) -> String {
+    let step = (span.abs() / 10.0).max(f64::MIN_POSITIVE);
+    let decimals = (1.0 - step.log10().floor()).clamp(0.0, 15.0) as usize;
+    let text = format!("{value:.decimals$}");
+    // "-0.00" reads as a different tick from "0.00".
+    if text.starts_with('-') && text[1..].chars().all(|c| c == '0' || c == '.') {
+        text[1..].to_string()
+    } else {
+        text
+    }
+}
+
 const SIZE: (u32, u32) = (960, 640);
 const MARGIN: u32 = 12;
 const TITLE_HEIGHT: u32 = 40;
@@ -163,10 +213,67 @@ pub fn segments(x: &[f64], y: &[f64], log_y: bool) -> Vec<Vec<(f64, f64)>> {
 
 /// Write `stem.png` and `stem.svg` for a line chart; returns the geometry drawn.
 pub fn line_chart(stem: &Path, chart: &LineChart<'_>) -> DrawResult<Geometry> {
+    line_chart_captioned(stem, chart, "")
+}
+
+/// [`line_chart`] with a caption under the title (one line per `\n`) saying how to
+/// read the figure, e.g. what a reference band refers to.
+pub fn line_chart_captioned(
+    stem: &Path,
+    chart: &LineChart<'_>,
+    caption: &str,
+) -> DrawResult<Geometry> {
     let png = stem.with_extension("png");
     let svg = stem.with_extension("svg");
-    draw_line(BitMapBackend::new(&png, SIZE).into_drawing_area(), chart)?;
-    draw_line(SVGBackend::new(&svg, SIZE).into_drawing_area(), chart)
+    draw_line(
+        BitMapBackend::new(&png, SIZE).into_drawing_area(),
+        chart,
+        caption,
+    )?;
+    draw_line(
+        SVGBackend::new(&svg, SIZE).into_drawing_area(),
+        chart,
+        caption,
+    )
+}
+
+/// Caption of a NEES-over-time figure: the band drawn is per epoch (`per_epoch`, that
+/// of one chi-square(15) draw), while the band printed next to the average NEES is that
+/// of its time average over `epochs` epochs (`time_average`), much narrower.
+pub fn nees_band_caption(per_epoch: [f64; 2], epochs: usize, time_average: [f64; 2]) -> String {
+    format!(
+        "Dashed: 95% band of chi-square(15) at one epoch ({:.2}-{:.2}), for the NEES drawn per epoch.\n\
+         The band printed with the average NEES (text, JSON) is that of its time average over \
+         {epochs} epochs ({:.2}-{:.2}).",
+        per_epoch[0], per_epoch[1], time_average[0], time_average[1]
+    )
+}
+
+/// Height of one caption line \[px\].
+const CAPTION_LINE: u32 = 18;
+
+/// Title, then the caption lines under it, in `area`; returns the area left below.
+fn title_and_caption<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    title: &str,
+    caption: &str,
+) -> DrawResult<DrawingArea<DB, Shift>>
+where
+    DB::ErrorType: 'static,
+{
+    let lines: Vec<&str> = caption.lines().filter(|l| !l.is_empty()).collect();
+    let (title_area, body) =
+        root.split_vertically(TITLE_HEIGHT + CAPTION_LINE * lines.len() as u32);
+    let (top, captions) = title_area.split_vertically(TITLE_HEIGHT);
+    top.titled(title, ("sans-serif", 22))?;
+    for (i, line) in lines.iter().enumerate() {
+        captions.draw(&Text::new(
+            line.to_string(),
+            (MARGIN as i32, (i as u32 * CAPTION_LINE) as i32),
+            ("sans-serif", 15),
+        ))?;
+    }
+    Ok(body)
 }
 
 fn finite_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
@@ -208,13 +315,13 @@ fn shape(style: &Style) -> ShapeStyle {
 fn draw_line<DB: DrawingBackend>(
     root: DrawingArea<DB, Shift>,
     c: &LineChart<'_>,
+    caption: &str,
 ) -> DrawResult<Geometry>
 where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE)?;
-    let (title_area, body) = root.split_vertically(TITLE_HEIGHT);
-    title_area.titled(c.title, ("sans-serif", 22))?;
+    let body = title_and_caption(&root, c.title, caption)?;
     let (bw, bh) = body.dim_in_pixel();
     // The plotting area left by the margins and the label areas (checked against the
     // chart actually built, see the tests).
@@ -244,13 +351,16 @@ where
     // Lower layers first; a stable sort keeps the caller's order within a layer.
     let mut order: Vec<&Series<'_>> = c.series.iter().collect();
     order.sort_by_key(|s| style(s.id).layer);
+    let (x_span, y_span) = (x1 - x0, y1 - y0);
     macro_rules! body {
-        ($chart:expr) => {{
+        ($chart:expr, $y_ticks:expr) => {{
             let mut chart = $chart;
             chart
                 .configure_mesh()
                 .x_desc(c.x_label)
                 .y_desc(c.y_label)
+                .x_label_formatter(&|x| tick_label(*x, x_span))
+                .y_label_formatter($y_ticks)
                 .draw()?;
             for (name, value) in &c.hlines {
                 let v = *value;
@@ -319,9 +429,15 @@ where
         }};
     }
     let geometry = if c.log_y {
-        body!(builder.build_cartesian_2d(x0..x1, (y0.max(1e-300) * 0.9..y1 * 1.1).log_scale())?)
+        // A log axis: each tick its own magnitude.
+        body!(
+            builder.build_cartesian_2d(x0..x1, (y0.max(1e-300) * 0.9..y1 * 1.1).log_scale())?,
+            &|y: &f64| tick_label(*y, *y)
+        )
     } else {
-        body!(builder.build_cartesian_2d(x0..x1, y0..y1)?)
+        body!(builder.build_cartesian_2d(x0..x1, y0..y1)?, &|y: &f64| {
+            tick_label(*y, y_span)
+        })
     };
     root.present()?;
     Ok(geometry)
@@ -398,10 +514,13 @@ where
             .x_label_area_size(X_LABEL_AREA)
             .y_label_area_size(Y_LABEL_AREA)
             .build_cartesian_2d(x0..x1, (lo - pad)..(hi + pad))?;
+        let span = (hi - lo) * 1.1;
         chart
             .configure_mesh()
             .x_desc("time [s]")
             .y_desc(p.y_label)
+            .x_label_formatter(&|x| tick_label(*x, x1 - x0))
+            .y_label_formatter(&|y| tick_label(*y, span))
             .draw()?;
         let bound_style = ShapeStyle {
             color: st.color.mix(0.8),
@@ -450,6 +569,25 @@ pub struct BarChart<'a> {
     pub variants: &'a [(&'a str, &'a str)],
     /// `values[variant][group]`.
     pub values: &'a [Vec<f64>],
+    /// `positive_definite[variant][group]`: whether the value was computed from
+    /// covariances that were positive definite throughout (see
+    /// `study::stats::group_std_positive_definite`); a missing entry counts as `true`.
+    /// A `false` bar is drawn hatched and labelled "not PD".
+    pub positive_definite: &'a [Vec<bool>],
+}
+
+/// Legend text of the hatched bars.
+pub const NOT_PD_LEGEND: &str = "hatched (not PD): from a covariance not positive definite";
+
+impl BarChart<'_> {
+    /// Whether bar (`variant`, `group`) comes from positive definite covariances.
+    pub fn is_positive_definite(&self, variant: usize, group: usize) -> bool {
+        self.positive_definite
+            .get(variant)
+            .and_then(|v| v.get(group))
+            .copied()
+            .unwrap_or(true)
+    }
 }
 
 /// Write `stem.png` and `stem.svg` for a grouped bar chart.
@@ -490,11 +628,14 @@ where
         })
         .x_desc("state group")
         .y_desc(c.y_label)
+        .y_label_formatter(&|y| tick_label(*y, hi - lo + 2.0 * pad))
         .draw()?;
     let width = 0.8 / c.variants.len().max(1) as f64;
+    let span = hi - lo + 2.0 * pad;
+    let mut any_not_pd = false;
     for (v, (id, label)) in c.variants.iter().enumerate() {
         let color = style(id).color;
-        let bars = c
+        let bars: Vec<(f64, f64, bool)> = c
             .values
             .get(v)
             .into_iter()
@@ -502,13 +643,51 @@ where
             .enumerate()
             .filter(|(_, y)| y.is_finite())
             .map(|(g, y)| {
-                let x = g as f64 + 0.1 + v as f64 * width;
-                Rectangle::new([(x, 0.0), (x + width, *y)], color.filled())
-            });
+                (
+                    g as f64 + 0.1 + v as f64 * width,
+                    *y,
+                    c.is_positive_definite(v, g),
+                )
+            })
+            .collect();
         chart
-            .draw_series(bars)?
+            .draw_series(
+                bars.iter()
+                    .filter(|b| b.2)
+                    .map(|&(x, y, _)| Rectangle::new([(x, 0.0), (x + width, y)], color.filled())),
+            )?
             .label(*label)
             .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 15, y + 5)], color.filled()));
+        // Not PD: outline, slanted hatching and a label, never a filled bar.
+        for &(x, y, _) in bars.iter().filter(|b| !b.2) {
+            any_not_pd = true;
+            chart.draw_series(std::iter::once(Rectangle::new(
+                [(x, 0.0), (x + width, y)],
+                color.stroke_width(2),
+            )))?;
+            const HATCHES: usize = 6;
+            let step = width / HATCHES as f64;
+            chart.draw_series((0..HATCHES).map(|i| {
+                let left = x + i as f64 * step;
+                PathElement::new(vec![(left, 0.0), (left + step, y)], color.stroke_width(1))
+            }))?;
+            let above = if y >= 0.0 {
+                y + 0.02 * span
+            } else {
+                y - 0.06 * span
+            };
+            chart.draw_series(std::iter::once(Text::new(
+                "not PD",
+                (x, above),
+                ("sans-serif", 13),
+            )))?;
+        }
+    }
+    if any_not_pd {
+        chart
+            .draw_series(std::iter::empty::<Rectangle<(f64, f64)>>())?
+            .label(NOT_PD_LEGEND)
+            .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 15, y + 5)], BLACK.stroke_width(1)));
     }
     chart
         .configure_series_labels()
@@ -574,6 +753,123 @@ mod tests {
         let s = segments(&x[..3], &[1.0, 0.0, 2.0], true);
         assert_eq!(s, vec![vec![(0.0, 1.0)], vec![(2.0, 2.0)]]);
         assert!(segments(&x[..2], &[f64::NAN, f64::NAN], false).is_empty());
+    }
+
+    #[test]
+    fn bias_units_read_and_ticks_differ() {
+        // 1 deg/h is pi / 180 / 3600 rad/s (independent of the factor in plot_unit).
+        let (unit, scale) = plot_unit("gyro_bias", [1e-5]);
+        assert_eq!(unit, "deg/h");
+        let one_deg_per_hour = 1.0_f64.to_radians() / 3600.0;
+        assert!((one_deg_per_hour * scale - 1.0).abs() < 1e-15);
+        // A typical std sum of 1e-5 rad/s is 2.06 deg/h.
+        assert!((1e-5 * scale - 2.062_648_062_470_963_5).abs() < 1e-12);
+        // Accelerometer: mg when some value reaches 1 mg, else µg.
+        let (unit, scale) = plot_unit("acc_bias", [2e-2, f64::NAN, 5e-4]);
+        assert_eq!(unit, "mg");
+        assert!((9.80665e-3 * scale - 1.0).abs() < 1e-15);
+        let (unit, scale) = plot_unit("acc_bias", [5e-3, 1e-4]);
+        assert_eq!(unit, "µg");
+        assert!((9.80665e-6 * scale - 1.0).abs() < 1e-15);
+        assert_eq!(
+            plot_unit("misalignment", []),
+            ("deg", 180.0 / std::f64::consts::PI)
+        );
+        // Ticks a tenth of the span apart print differently, at every magnitude.
+        for (lo, span) in [(1.0e-5, 1e-6), (0.0, 3e-9), (2.0, 0.5), (100.0, 2000.0)] {
+            let labels: Vec<String> = (0..=10)
+                .map(|k| tick_label(lo + span * f64::from(k) / 10.0, span))
+                .collect();
+            for w in labels.windows(2) {
+                assert_ne!(w[0], w[1], "span {span}: {labels:?}");
+            }
+        }
+        assert_eq!(tick_label(1.25e-5, 1e-5), "0.0000125");
+        assert_eq!(tick_label(-1e-20, 1.0), "0.00");
+        assert_eq!(tick_label(1500.0, 2000.0), "1500");
+    }
+
+    /// Count of `needle` in `hay`.
+    fn count(hay: &str, needle: &str) -> usize {
+        hay.matches(needle).count()
+    }
+
+    #[test]
+    fn bars_from_a_covariance_not_pd_are_hatched_not_filled() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let groups = ["velocity", "misalignment"];
+        let variants = [
+            ("beamsnet_m_rho", "M = rho"),
+            ("beamsnet_m_network", "network"),
+        ];
+        let values = vec![vec![10.0, -5.0], vec![2.0, 3.0]];
+        let draw = |name: &str, positive_definite: &[Vec<bool>]| {
+            let stem = dir.path().join(name);
+            bar_chart(
+                &stem,
+                &BarChart {
+                    title: "improvement",
+                    y_label: "improvement [%]",
+                    groups: &groups,
+                    variants: &variants,
+                    values: &values,
+                    positive_definite,
+                },
+            )
+            .expect("drawn");
+            std::fs::read_to_string(stem.with_extension("svg")).expect("svg")
+        };
+        let all = draw("all", &[]);
+        let one = draw("one", &[vec![true, false], vec![true, true]]);
+        // The filled rectangles of M = rho's colour (214, 39, 40): two bars plus the
+        // legend swatch; with one bar not PD, that bar is no longer filled.
+        let fill = "fill=\"#D62728\"";
+        assert_eq!(count(&all, fill), 3, "{all}");
+        assert_eq!(count(&one, fill), 2);
+        // ... it is an outline with 6 hatching lines, labelled, and the legend says so.
+        assert_eq!(count(&all, "not PD"), 0);
+        assert_eq!(
+            count(&one, ">not PD<") + count(&one, ">\nnot PD\n<"),
+            1,
+            "{one}"
+        );
+        assert!(one.contains(NOT_PD_LEGEND));
+        assert!(!all.contains(NOT_PD_LEGEND));
+        assert_eq!(
+            count(&one, "stroke=\"#D62728\"") - count(&all, "stroke=\"#D62728\""),
+            7
+        );
+    }
+
+    #[test]
+    fn nees_plot_says_its_band_is_per_epoch() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let caption = nees_band_caption([7.26, 27.49], 400, [14.73, 15.28]);
+        assert!(caption.contains("at one epoch (7.26-27.49)"), "{caption}");
+        assert!(caption.contains("time average over 400 epochs (14.73-15.28)"));
+        let (t, nees) = ([0.0, 1.0, 2.0], [10.0, 20.0, 15.0]);
+        let chart = LineChart {
+            title: "NEES",
+            x_label: "time [s]",
+            y_label: "NEES [-]",
+            series: vec![Series {
+                id: "ls",
+                label: "LS",
+                x: &t,
+                y: &nees,
+            }],
+            hlines: vec![("95% per-epoch band, lower", 7.26)],
+            log_y: true,
+            equal_axes: false,
+        };
+        let stem = dir.path().join("nees");
+        line_chart_captioned(&stem, &chart, &caption).expect("drawn");
+        let svg = std::fs::read_to_string(stem.with_extension("svg")).expect("svg");
+        for line in caption.lines() {
+            assert!(svg.contains(line), "caption line missing: {line}");
+        }
+        assert!(svg.contains("95% per-epoch band, lower"));
+        assert!(stem.with_extension("png").is_file());
     }
 
     #[test]

@@ -319,8 +319,10 @@ fn write_outputs(
     json: &str,
 ) -> anyhow::Result<()> {
     use crate::plots::{
-        bar_chart, error_chart, line_chart, BarChart, ErrorPanel, LineChart, Series,
+        bar_chart, error_chart, line_chart, line_chart_captioned, plot_unit, BarChart, ErrorPanel,
+        LineChart, Series,
     };
+    use crate::study::stats::group_std_positive_definite;
     use crate::study::stats::GROUPS;
     use std::io::Write;
 
@@ -381,7 +383,8 @@ fn write_outputs(
         w.flush()?;
         drop(w);
         let plot_err = |e: Box<dyn std::error::Error>| anyhow::anyhow!("plot: {e}");
-        // Standard deviation over time per group (paper Figs. 3/4).
+        // Standard deviation over time per group (paper Figs. 3/4), in a unit whose
+        // ticks read (biases in deg/h and mg or µg).
         for (g, i) in GROUPS {
             let ys: Vec<Vec<f64>> = r
                 .runs
@@ -393,10 +396,15 @@ fn write_outputs(
                         .collect()
                 })
                 .collect();
+            let (unit, scale) = plot_unit(g, ys.iter().flatten().copied());
+            let ys: Vec<Vec<f64>> = ys
+                .into_iter()
+                .map(|y| y.into_iter().map(|v| v * scale).collect())
+                .collect();
             let chart = LineChart {
                 title: &format!("{}: {g} std (sum over axes)", r.name),
                 x_label: "time [s]",
-                y_label: &format!("{g} std, sum over axes [{}]", group_unit(g)),
+                y_label: &format!("{g} std, sum over axes [{unit}]"),
                 series: r
                     .runs
                     .iter()
@@ -436,6 +444,30 @@ fn write_outputs(
                         .collect()
                 })
                 .collect();
+            // A bar is PD when both the aware run and the M-neglected run kept P
+            // positive definite throughout in that group.
+            let pd = |id: &str, g: &str| {
+                let first = GROUPS.iter().find(|(name, _)| *name == g).map(|(_, i)| *i);
+                r.runs.iter().find(|run| run.id == id).is_some_and(|run| {
+                    first.is_some_and(|i| {
+                        group_std_positive_definite(
+                            run.covariance_not_positive_definite,
+                            &run.covariance_diagonal,
+                            i,
+                        )
+                    })
+                })
+            };
+            let positive_definite: Vec<Vec<bool>> = r
+                .improvements
+                .iter()
+                .map(|imp| {
+                    groups
+                        .iter()
+                        .map(|g| pd(&imp.id, g) && pd(crate::study::BEAMSNET_NEGLECTED, g))
+                        .collect()
+                })
+                .collect();
             bar_chart(
                 &staged.path(&format!("{stem}_improvement")),
                 &BarChart {
@@ -444,6 +476,7 @@ fn write_outputs(
                     groups: &groups,
                     variants: &variants,
                     values: &values,
+                    positive_definite: &positive_definite,
                 },
             )
             .map_err(plot_err)?;
@@ -485,8 +518,16 @@ fn write_outputs(
         };
         line_chart(&staged.path(&format!("{stem}_track")), &chart).map_err(plot_err)?;
         // NEES over time with the per-epoch 95 % band of chi-square(15); the line
-        // breaks where P was not positive definite (NEES undefined).
+        // breaks where P was not positive definite (NEES undefined). The band printed
+        // with the average NEES is that of a time average: the caption says so.
         let band = estim::core::consistency::chi_square_band(15, 1, 0.95)?;
+        let epochs = r.runs.iter().map(|run| run.nees.len()).max().unwrap_or(0);
+        let averaged = estim::core::consistency::chi_square_band(15, epochs.max(1), 0.95)?;
+        let caption = crate::plots::nees_band_caption(
+            [band.lower, band.upper],
+            epochs,
+            [averaged.lower, averaged.upper],
+        );
         let chart = LineChart {
             title: &format!("{}: NEES (15 states) against truth", r.name),
             x_label: "time [s]",
@@ -501,11 +542,15 @@ fn write_outputs(
                     y: &run.nees,
                 })
                 .collect(),
-            hlines: vec![("95% lower", band.lower), ("95% upper", band.upper)],
+            hlines: vec![
+                ("95% per-epoch band, lower", band.lower),
+                ("95% per-epoch band, upper", band.upper),
+            ],
             log_y: true,
             equal_axes: false,
         };
-        line_chart(&staged.path(&format!("{stem}_nees")), &chart).map_err(plot_err)?;
+        line_chart_captioned(&staged.path(&format!("{stem}_nees")), &chart, &caption)
+            .map_err(plot_err)?;
         // Per-axis error against truth with the filter's +-3 sigma, per filter.
         const AXES: [&str; 3] = ["north", "east", "down"];
         for run in &r.runs {

@@ -11,7 +11,27 @@
 //!   `oracle_m_neglected`, `oracle_m_true`, `oracle_m_rho`) and a human `label` that
 //!   states the rho actually used. Numeric fields carry their unit in the name
 //!   (`position_rmse_m`, `rmse_mps`, `time_s`, `vaf_percent`); a value that is not
-//!   defined is `null`.
+//!   defined is `null`. Each quantity has one field.
+//!
+//! `montecarlo` (without `--learned two-beams|outage`), per entry of `variants`:
+//! - `runs_completed`, `failures`; the statistics below are over the completed runs;
+//! - `nees_average` \[-\]: the 15-state NEES averaged over the runs at each DVL epoch,
+//!   then over the epochs where that run-average is defined (none where some run's P
+//!   was not positive definite);
+//! - `nees_band` \[-\]: the 95 % band of a run-average of chi-square(15) at one epoch
+//!   (it narrows with the number of runs);
+//! - `nees_epochs_in_band_percent` \[%\]: share of the DVL epochs whose run-averaged
+//!   NEES lies in `nees_band` (95 expected); an epoch with no run-average counts as out;
+//! - `nis_average`, `nis_band`, `nis_epochs_in_band_percent`: the same for the 3-dof
+//!   NIS over the updates;
+//! - `covariance_not_positive_definite_epochs`, `updates_rejected`: counts summed over
+//!   the runs;
+//! - `position_rmse_m` \[m\], `velocity_rmse_mps` \[m/s\]: per run the RMSE over its
+//!   DVL epochs of the error norm; `mean` over the runs, `lo` / `hi` the 2.5 / 97.5
+//!   percentiles over the runs (a spread of the runs, not a confidence interval);
+//! - `output_imu_correlation` \[-\]: BeamsNet variants with the network's sensitivity:
+//!   the mean over runs and epochs of the largest output / IMU-error correlation
+//!   coefficient; `null` otherwise.
 //!
 //! Exit statuses: 0 everything completed; 2 bad input or usage (nothing computed,
 //! nothing written); 3 some filter variant failed while the others completed (results
@@ -21,7 +41,7 @@
 use serde_json::{json, Map, Value};
 
 /// Version of the JSON schema; bumped on any incompatible change.
-pub const SCHEMA_VERSION: u32 = 1;
+pub const SCHEMA_VERSION: u32 = 2;
 
 /// Exit status: everything completed.
 pub const EXIT_OK: u8 = 0;
@@ -81,7 +101,7 @@ pub fn path_json(path: Option<&std::path::Path>) -> Value {
 }
 
 /// Most missions of `montecarlo --runs` (about 1.5 h on two cores at the default
-/// 400 s mission; larger studies run in several seed blocks).
+/// 400 s mission; larger studies run in shards joined by `estim montecarlo merge`).
 pub const MAX_RUNS: usize = 10_000;
 
 /// Most draws of `montecarlo --empirical-realizations` and realizations of

@@ -29,7 +29,10 @@ pub use learned_scenarios::{
     LearnedStudy, MeanInterval, STUDY_EMPIRICAL_REALIZATIONS,
 };
 pub use mismatch::{fit_reference_mismatch, AKIT_TEST_TRAJECTORIES, CHI_SQUARE_1_MEDIAN};
-pub use montecarlo::{monte_carlo, LearnedSource, ORACLE_NEGLECTED, ORACLE_SCALED, ORACLE_TRUE_M};
+pub use montecarlo::{
+    monte_carlo, LearnedSource, MergeError, MonteCarloReport, MonteCarloSums, ORACLE_NEGLECTED,
+    ORACLE_SCALED, ORACLE_TRUE_M,
+};
 pub use oracle::{oracle_measurements, OracleSensor};
 pub use report::{
     analyse, filter_label, least_squares_velocities, run_variant, summarise, FilterSummary,

@@ -12,6 +12,7 @@ mod fuzz_parsers;
 mod gate_recovery;
 mod long_mission;
 mod montecarlo_fields;
+mod montecarlo_shards;
 mod oracle_monte_carlo;
 mod reference_mismatch;
 mod results_tables;
