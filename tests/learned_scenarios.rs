@@ -46,11 +46,11 @@ fn check_monte_carlo(kind: &str, prefix: &str, ins_only: &str) {
         ]
     );
     for v in variants {
-        let mean = v["nees_mean"].as_f64().unwrap();
+        let mean = v["nees_average"].as_f64().unwrap();
         assert!(mean > 0.0, "{v}");
-        let f = v["nees_in_band_fraction"].as_f64().unwrap();
-        assert!((0.0..=1.0).contains(&f));
-        for key in ["position_rmse", "velocity_rmse"] {
+        let f = v["nees_epochs_in_band_percent"].as_f64().unwrap();
+        assert!((0.0..=100.0).contains(&f));
+        for key in ["position_rmse_m", "velocity_rmse_mps"] {
             let (m, lo, hi) = (
                 v[key]["mean"].as_f64().unwrap(),
                 v[key]["lo"].as_f64().unwrap(),

@@ -45,8 +45,9 @@ pub struct Args {
     #[arg(long)]
     faults: bool,
     /// Learned scenario: `two-beams` (beams 1-2 only for 120 s) or `outage` (no DVL
-    /// for 60 s): per-variant nees_mean, nees_in_band_fraction, position_rmse,
-    /// velocity_rmse, output_imu_correlation; `beamsnet` is the standard table.
+    /// for 60 s): per-variant nees_average, nees_epochs_in_band_percent, nis_average,
+    /// position_rmse_m, velocity_rmse_mps, output_imu_correlation; `beamsnet` is the
+    /// standard table.
     #[arg(long, value_enum)]
     learned: Option<crate::learned_scenarios::LearnedKind>,
     /// With --learned two-beams|outage: Monte Carlo draws of the empirical M per

@@ -586,18 +586,18 @@ pub struct LearnedVariant {
     pub id: String,
     /// Human label (the scaled variant's states the median rho over the runs).
     pub label: String,
-    /// Mean over runs and loss epochs of the NEES (15 states).
-    pub nees_mean: f64,
+    /// Mean over the loss epochs of the run-averaged NEES (15 states).
+    pub nees_average: f64,
     /// 95 % band of the run-averaged NEES at one epoch.
     pub nees_band: [f64; 2],
-    /// Fraction of loss epochs whose run-averaged NEES lies in `nees_band`.
-    pub nees_in_band_fraction: f64,
+    /// Percentage of loss epochs whose run-averaged NEES lies in `nees_band` [%].
+    pub nees_epochs_in_band_percent: f64,
     /// Mean over runs and loss updates of the NIS (3 dof; NaN without updates).
-    pub nis_mean: f64,
+    pub nis_average: f64,
     /// Per-run position RMSE over the loss epochs \[m\].
-    pub position_rmse: MeanInterval,
+    pub position_rmse_m: MeanInterval,
     /// Per-run velocity RMSE over the loss epochs [m/s].
-    pub velocity_rmse: MeanInterval,
+    pub velocity_rmse_mps: MeanInterval,
     /// Mean over runs of the network's output / IMU-driven error correlation.
     pub output_imu_correlation: f64,
 }
@@ -679,14 +679,14 @@ pub fn learned_monte_carlo(
         variants.push(LearnedVariant {
             id: run0.id.clone(),
             label: learned_filter_label(&run0.id, median_rho),
-            nees_mean: finite_mean(&per_epoch),
+            nees_average: finite_mean(&per_epoch),
             nees_band: [band.lower, band.upper],
-            nees_in_band_fraction: in_band,
-            nis_mean: finite_mean(&loss.iter().map(|l| l.nis_mean).collect::<Vec<_>>()),
-            position_rmse: MeanInterval::of(
+            nees_epochs_in_band_percent: 100.0 * in_band,
+            nis_average: finite_mean(&loss.iter().map(|l| l.nis_mean).collect::<Vec<_>>()),
+            position_rmse_m: MeanInterval::of(
                 &loss.iter().map(|l| l.position_rmse_m).collect::<Vec<_>>(),
             ),
-            velocity_rmse: MeanInterval::of(
+            velocity_rmse_mps: MeanInterval::of(
                 &loss.iter().map(|l| l.velocity_rmse_mps).collect::<Vec<_>>(),
             ),
             output_imu_correlation: if uses_network {
