@@ -237,7 +237,9 @@ pub use cross::{Fixed, JointCovariance, ScaledCorrelation, Zero};
 pub use error::{Error, Result};
 pub use gaussian::StateAndCovariance;
 pub use observer::{NisRecorder, NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
-pub use runner::{ErrorStateKalmanFilter, ExtendedKalmanFilter, KalmanFilter, UpdateReport};
+pub use runner::{
+    ErrorStateKalmanFilter, ExtendedKalmanFilter, KalmanFilter, UnscentedKalmanFilter, UpdateReport,
+};
 pub use scalar::Scalar;
 pub use smoother::FixedLagSmoother;
 pub use square_root::SquareRootKalmanFilter;

@@ -28,10 +28,12 @@ mod linear;
 mod shared;
 #[cfg(test)]
 mod tests;
+mod unscented;
 
 pub use error_state::ErrorStateKalmanFilter;
 pub use extended::ExtendedKalmanFilter;
 pub use linear::KalmanFilter;
+pub use unscented::UnscentedKalmanFilter;
 
 /// Everything one update attempt produced, accepted or rejected.
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
