@@ -1,7 +1,7 @@
 //! # estim-core
 //!
 //! Traits, the one correlated-noise Kalman update, the filters built on it (linear
-//! KF, EKF, error-state EKF) and consistency tools. The core knows nothing about
+//! KF, EKF, error-state EKF, square-root KF, unscented KF) and consistency tools. The core knows nothing about
 //! navigation: any domain implements [`ProcessModel`] (or [`ErrorStateModel`]),
 //! [`MeasurementModel`], [`CrossCovariance`] and, for model-derived measurements,
 //! [`LearnedMeasurement`].
@@ -92,20 +92,24 @@
 //! [`SquareRootKalmanFilter`] keeps a Cholesky factor of P and refuses an M whose
 //! joint covariance with Q_acc has no square root; [`square_root::square_root_predict`] and
 //! [`square_root::square_root_update`] are its steps as free functions (for error-state
-//! runners). [`sigma_point::unscented_predict`] and [`sigma_point::unscented_update`] are the sigma-point
-//! (unscented) steps. The update is one of two named forms
+//! runners). [`UnscentedKalmanFilter`] predicts and updates by sigma points
+//! ([`sigma_point::unscented_predict`], [`sigma_point::unscented_update`], also free
+//! functions). The update is one of two named forms
 //! ([`sigma_point::SigmaPointUpdate`]): the textbook additive update (default;
 //! sigma points over x, R added, M through the linearised cross terms) or the
 //! augmented one (sigma points over the joint [x; v] with covariance
-//! [[P, M], [M', R]]); the weight families (Merwe alpha/beta/kappa, Julier kappa) are
-//! in [`sigma_point`].
+//! [[P, M], [M', R]]); the weight families (Merwe alpha/beta/kappa, Julier kappa, a
+//! negative kappa with the centre-point-modified covariance) are in [`sigma_point`].
 //!
 //! ## Runners, gate, observers
 //!
 //! [`KalmanFilter`] (F, H, Q, R matrices), [`ExtendedKalmanFilter`] (any
-//! [`ProcessModel`] on `SVector<T, N>`) and [`ErrorStateKalmanFilter`] (nominal state
-//! propagated by the model, error covariance, inject then reset) share the same
-//! `predict` / `update` / `step(.., Option<&measurement>, ..)` shape. Every update
+//! [`ProcessModel`] on `SVector<T, N>`), [`ErrorStateKalmanFilter`] (nominal state
+//! propagated by the model, error covariance, inject then reset),
+//! [`SquareRootKalmanFilter`] (F, H, Q, R, a factor of P) and [`UnscentedKalmanFilter`]
+//! (any [`ProcessModel`] on `SVector<T, N>`, sigma points) share one runner core and
+//! the same `predict` / `update` / `update_windowed` / `step(.., Option<&measurement>, ..)`
+//! shape, configuration, gate and observer events. Every update
 //! attempt returns an [`UpdateReport`] (NIS, S, M, the joint eigenvalue, the gain);
 //! an innovation [`Gate`] (chi-square quantile of the measurement size) can reject a
 //! measurement, which leaves the state untouched and is reported as
@@ -238,10 +242,12 @@ pub use cross::{Fixed, JointCovariance, ScaledCorrelation, Zero};
 pub use error::{Error, Result};
 pub use gaussian::StateAndCovariance;
 pub use observer::{NisRecorder, NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
-pub use runner::{ErrorStateKalmanFilter, ExtendedKalmanFilter, KalmanFilter, UpdateReport};
+pub use runner::{
+    ErrorStateKalmanFilter, ExtendedKalmanFilter, KalmanFilter, SquareRootKalmanFilter,
+    UnscentedKalmanFilter, UpdateReport,
+};
 pub use scalar::Scalar;
 pub use smoother::FixedLagSmoother;
-pub use square_root::SquareRootKalmanFilter;
 pub use traits::{
     CrossCovariance, CrossCovarianceContext, ErrorStateModel, InputSpec, LearnedMeasurement,
     MeasurementModel, ProcessModel,

@@ -15,9 +15,30 @@
 //! **Weight families.** [`UnscentedTransform::new`] takes Van der Merwe's scaled
 //! parameters (alpha, beta, kappa), as filterpy's `MerweScaledSigmaPoints`;
 //! [`UnscentedTransform::julier`] is Julier's original family with one parameter
-//! kappa (alpha = 1, beta = 0, so lambda = kappa and Wc_0 = Wm_0 = kappa / (L + kappa)).
-//! kappa and beta must be >= 0: a negative centre weight can make the covariance
-//! indefinite.
+//! kappa (alpha = 1, beta = 0, so lambda = kappa and Wc_0 = Wm_0 = kappa / (L + kappa)),
+//! as filterpy's `JulierSigmaPoints`. beta must be >= 0; kappa may be negative as long
+//! as L + kappa > 0 for the dimension L the transform is used at (else
+//! [`Error::InvalidParameter`] at that use).
+//!
+//! **Negative kappa: the centre-point-modified form.** With kappa < 0 the centre weight
+//! can be negative, and the plain covariance sum_i Wc_i (Y_i - y_hat)(Y_i - y_hat)' can
+//! then be indefinite on a nonlinear map (kappa = 3 - L, which matches the fourth
+//! moments of a Gaussian, is negative for L > 3). When kappa < 0 **and** Wc_0 < 0,
+//! every covariance of the transform (predicted P, P_yy) is computed in Julier's
+//! modified form, with deviations taken from the propagated centre point:
+//!
+//! ```text
+//! P = sum_{i>0} Wc_i (Y_i - Y_0)(Y_i - Y_0)'  (+ Q or R)         (mean unchanged)
+//! ```
+//!
+//! positive semidefinite because every weight in it is positive (Julier & Uhlmann, "A
+//! new extension of the Kalman filter to nonlinear systems", SPIE AeroSense 1997,
+//! sec. 4; Julier & Uhlmann 2004, sec. IV). It equals the plain form plus
+//! (1 + Wm_0 - Wc_0) (y_hat - Y_0)(y_hat - Y_0)', which vanishes on linear maps
+//! (y_hat = Y_0), so the filter still equals the Kalman filter there. P_xy needs no
+//! change (its centre term is zero). With kappa >= 0 the plain form is kept, also for
+//! a small alpha whose Wc_0 is negative (alpha = 0.1 gives Wc_0 = -96 at L = 3): that
+//! is the scaled transform as published and as filterpy computes it.
 //!
 //! **Two updates** ([`SigmaPointUpdate`], chosen with
 //! [`UnscentedTransform::with_update`]):
@@ -142,8 +163,9 @@ impl Default for UnscentedTransform {
 
 impl UnscentedTransform {
     /// Transform with spread `alpha` (> 0), prior-knowledge weight `beta` (>= 0) and
-    /// secondary scaling `kappa` (>= 0, so the centre's mean weight is never
-    /// negative: a negative one can make the covariance indefinite).
+    /// secondary scaling `kappa` (finite; a negative kappa needs L + kappa > 0 at the
+    /// dimension L of each use, and selects the centre-point-modified covariance where
+    /// Wc_0 < 0: see the module docs).
     ///
     /// # Errors
     /// [`Error::InvalidParameter`] naming the offending parameter.
@@ -160,10 +182,10 @@ impl UnscentedTransform {
                 reason: format!("must be finite and >= 0, got {beta}"),
             });
         }
-        if !(kappa.is_finite() && kappa >= 0.0) {
+        if !kappa.is_finite() {
             return Err(Error::InvalidParameter {
                 name: "kappa",
-                reason: format!("must be finite and >= 0, got {kappa}"),
+                reason: format!("must be finite, got {kappa}"),
             });
         }
         Ok(Self {
@@ -174,12 +196,13 @@ impl UnscentedTransform {
         })
     }
 
-    /// Julier's family (Julier & Uhlmann 2004): alpha = 1, beta = 0 and `kappa`
-    /// (>= 0), so lambda = kappa; kappa = 3 - L matches the fourth moments of a
-    /// Gaussian where L <= 3.
+    /// Julier's family (Julier & Uhlmann 2004): alpha = 1, beta = 0 and `kappa`, so
+    /// lambda = kappa; kappa = 3 - L matches the fourth moments of a Gaussian (for
+    /// L > 3 it is negative, and the centre-point-modified covariance keeps the
+    /// results positive semidefinite: see the module docs).
     ///
     /// # Errors
-    /// [`Error::InvalidParameter`] for a negative or non-finite kappa.
+    /// [`Error::InvalidParameter`] for a non-finite kappa.
     pub fn julier(kappa: f64) -> Result<Self> {
         Self::new(1.0, 0.0, kappa)
     }
@@ -195,23 +218,71 @@ impl UnscentedTransform {
         self.update
     }
 
-    /// (gamma, Wm_0, Wc_0, W_i) for dimension `l`.
-    fn weights<T: Scalar>(&self, l: usize) -> (T, T, T, T) {
+    /// The weights at dimension `l` (module docs).
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] if l + kappa <= 0 (no spread).
+    pub(crate) fn weights<T: Scalar>(&self, l: usize) -> Result<Weights<T>> {
         let l = l as f64;
-        let lambda = self.alpha * self.alpha * (l + self.kappa) - l;
-        let spread = l + lambda; // = alpha^2 (l + kappa) > 0
+        let spread = self.alpha * self.alpha * (l + self.kappa); // = L + lambda
+        if !(spread > 0.0 && spread.is_finite()) {
+            return Err(Error::InvalidParameter {
+                name: "kappa",
+                reason: format!(
+                    "L + kappa must be > 0, got L = {l} and kappa = {}",
+                    self.kappa
+                ),
+            });
+        }
+        let lambda = spread - l;
         let wm0 = lambda / spread;
         let wc0 = wm0 + 1.0 - self.alpha * self.alpha + self.beta;
-        (lit(spread.sqrt()), lit(wm0), lit(wc0), lit(0.5 / spread))
+        Ok(Weights {
+            gamma: lit(spread.sqrt()),
+            mean_centre: lit(wm0),
+            covariance_centre: lit(wc0),
+            other: lit(0.5 / spread),
+            centre_modified: self.kappa < 0.0 && wc0 < 0.0,
+        })
+    }
+}
+
+/// The weights of one use of the transform.
+pub(crate) struct Weights<T> {
+    /// sqrt(L + lambda).
+    gamma: T,
+    /// Wm_0.
+    mean_centre: T,
+    /// Wc_0.
+    covariance_centre: T,
+    /// Wm_i = Wc_i, i > 0.
+    other: T,
+    /// Covariances in the centre-point-modified form (module docs).
+    centre_modified: bool,
+}
+
+impl<T: Scalar> Weights<T> {
+    /// The weight of d_bar d_bar' that turns sum_{i>0} W_i d_i d_i' (d_i = Y_i - Y_0,
+    /// d_bar = sum_{i>0} W_i d_i = y_hat - Y_0) into the covariance: Wc_0 - Wm_0 - 1 in
+    /// the plain form (sum_i Wc_i (d_i - d_bar)(d_i - d_bar)', with sum_{i>0} W_i =
+    /// 1 - Wm_0), zero in the centre-point-modified form.
+    fn mean_correction(&self) -> T {
+        if self.centre_modified {
+            T::zero()
+        } else {
+            self.covariance_centre - self.mean_centre - T::one()
+        }
     }
 }
 
 /// Sigma-point prediction x_k = f(x_{k-1}) + G w, Cov(G w) = `process_noise`:
-/// mean sum Wm_i f(chi_i), covariance sum Wc_i (f(chi_i) - mean)(...)' + Q_d.
+/// mean sum Wm_i f(chi_i), covariance sum Wc_i (f(chi_i) - mean)(...)' + Q_d (or the
+/// centre-point-modified form, module docs).
 ///
 /// # Errors
 /// [`Error::NonFinite`]; [`Error::InvalidCovariance`] if the prior covariance has
-/// no square root; the errors of `propagate`.
+/// no square root; [`Error::InvalidParameter`] if N + kappa <= 0; the errors of
+/// `propagate`.
 pub fn unscented_predict<T, F, const N: usize>(
     transform: &UnscentedTransform,
     prior: &StateAndCovariance<T, N>,
@@ -224,12 +295,13 @@ where
 {
     check_finite(process_noise.as_slice(), "process noise")?;
     let s = covariance_factor(prior.covariance(), "prior covariance")?;
-    let (gamma, wm0, wc0, wi) = transform.weights::<T>(N);
+    let weights = transform.weights::<T>(N)?;
+    let (gamma, wi) = (weights.gamma, weights.other);
     let x = prior.state();
     let centre = propagate(x)?;
     check_finite(centre.as_slice(), "propagated sigma point")?;
-    // Deviations d_i = f(chi_i) - f(chi_0): mean = f(chi_0) + d_bar,
-    // covariance = sum Wm_i d_i d_i' - d_bar d_bar' + (Wc_0 - Wm_0) d_bar d_bar'.
+    // Deviations d_i = f(chi_i) - f(chi_0): mean = f(chi_0) + d_bar, covariance
+    // sum_{i>0} W_i d_i d_i' + (Weights::mean_correction) d_bar d_bar'.
     let mut d_bar = SVector::<T, N>::zeros();
     let mut second = SMatrix::<T, N, N>::zeros();
     for i in 0..N {
@@ -243,7 +315,7 @@ where
     }
     let mean = centre + d_bar;
     let mut p = second;
-    add_outer(&mut p, &d_bar, &d_bar, wc0 - wm0 - T::one());
+    add_outer(&mut p, &d_bar, &d_bar, weights.mean_correction());
     let p = symmetric_sum(&p, process_noise);
     check_finite(mean.as_slice(), "predicted state")?;
     check_finite(p.as_slice(), "predicted covariance")?;
@@ -281,7 +353,8 @@ pub struct UnscentedOutcome<T: Scalar, const N: usize, const M: usize> {
 /// [`Error::NonFinite`]; [`Error::InvalidJointCovariance`] if
 /// [[P, M], [M', R]] has no square root; [`Error::InnovationNotPositiveDefinite`] /
 /// [`Error::InnovationIllConditioned`] for P_yy as for
-/// [`crate::correlated_update`]; the errors of `predict_measurement`.
+/// [`crate::correlated_update`]; [`Error::InvalidParameter`] if L + kappa <= 0 (L = N,
+/// or N + M for the augmented update); the errors of `predict_measurement`.
 pub fn unscented_update<T, H, const N: usize, const M: usize>(
     transform: &UnscentedTransform,
     prior: &StateAndCovariance<T, N>,
@@ -295,8 +368,103 @@ where
     H: Fn(&SVector<T, N>) -> Result<SVector<T, M>>,
 {
     check_finite(measurement.as_slice(), "measurement")?;
+    let stats = sigma_statistics(
+        transform,
+        prior,
+        &predict_measurement,
+        measurement_noise,
+        cross_covariance,
+    )?;
+    let innovation = measurement - stats.predicted;
+    let (inverse, nis) = stats.factor(&innovation)?;
+    let mut gain = SMatrix::zeros();
+    let mut post = SMatrix::zeros();
+    let state = stats.posterior(prior, &innovation, &inverse, &mut gain, &mut post)?;
+    Ok(UnscentedOutcome {
+        posterior: StateAndCovariance::new(state, post)?,
+        predicted_measurement: stats.predicted,
+        innovation,
+        innovation_covariance: stats.innovation_covariance,
+        state_measurement_covariance: stats.cross,
+        gain,
+        nis,
+    })
+}
+
+/// What the sigma points of an update give before the measurement is used: y_hat,
+/// P_yy (with R and the cross terms of M) and P_xy.
+pub(crate) struct SigmaStatistics<T: Scalar, const N: usize, const M: usize> {
+    /// y_hat = sum Wm_i Y_i.
+    pub(crate) predicted: SVector<T, M>,
+    /// P_yy.
+    pub(crate) innovation_covariance: SMatrix<T, M, M>,
+    /// P_xy.
+    pub(crate) cross: SMatrix<T, N, M>,
+}
+
+impl<T: Scalar, const N: usize, const M: usize> SigmaStatistics<T, N, M> {
+    /// P_yy^-1 (checked as [`crate::correlated_update`] checks S) and the NIS of
+    /// `innovation`.
+    pub(crate) fn factor(&self, innovation: &SVector<T, M>) -> Result<(SMatrix<T, M, M>, T)> {
+        check_finite(innovation.as_slice(), "innovation")?;
+        let pyy = &self.innovation_covariance;
+        let inverse = spd_inverse(pyy).ok_or(Error::InnovationNotPositiveDefinite)?;
+        check_innovation_conditioning(pyy, &inverse)?;
+        let nis = innovation.dot(&mul_static(&inverse, innovation));
+        if !nis.is_finite() {
+            return Err(Error::NonFinite {
+                what: "normalised innovation squared",
+            });
+        }
+        Ok((inverse, nis))
+    }
+
+    /// K = P_xy P_yy^-1 into `gain`, P+ = P - K P_yy K' = P - K P_xy' into
+    /// `covariance` (upper triangle, mirrored); returns x + K innovation.
+    pub(crate) fn posterior(
+        &self,
+        prior: &StateAndCovariance<T, N>,
+        innovation: &SVector<T, M>,
+        inverse: &SMatrix<T, M, M>,
+        gain: &mut SMatrix<T, N, M>,
+        covariance: &mut SMatrix<T, N, N>,
+    ) -> Result<SVector<T, N>> {
+        *gain = mul_static(&self.cross, inverse);
+        let state = prior.state() + mul_static(gain, innovation);
+        let kpxy = mul_static(gain, &self.cross.transpose());
+        let p = prior.covariance();
+        let half = lit::<T>(0.5);
+        for j in 0..N {
+            for i in 0..=j {
+                let v = (p[(i, j)] + p[(j, i)]) * half - (kpxy[(i, j)] + kpxy[(j, i)]) * half;
+                covariance[(i, j)] = v;
+                covariance[(j, i)] = v;
+            }
+        }
+        check_finite(state.as_slice(), "posterior state")?;
+        check_finite(covariance.as_slice(), "posterior covariance")?;
+        Ok(state)
+    }
+}
+
+/// The sigma-point statistics of an update of `prior` with noise covariance
+/// `measurement_noise` and cross-covariance M = `cross_covariance`, in the form of
+/// [`UnscentedTransform::update`] (see [`unscented_update`]).
+pub(crate) fn sigma_statistics<T, H, const N: usize, const M: usize>(
+    transform: &UnscentedTransform,
+    prior: &StateAndCovariance<T, N>,
+    predict_measurement: &H,
+    measurement_noise: &SMatrix<T, M, M>,
+    cross_covariance: &SMatrix<T, N, M>,
+) -> Result<SigmaStatistics<T, N, M>>
+where
+    T: Scalar,
+    H: Fn(&SVector<T, N>) -> Result<SVector<T, M>> + ?Sized,
+{
     check_finite(measurement_noise.as_slice(), "measurement noise covariance")?;
     check_finite(cross_covariance.as_slice(), "cross-covariance")?;
+    check_finite(prior.state().as_slice(), "prior state")?;
+    check_finite(prior.covariance().as_slice(), "prior covariance")?;
     let p = prior.covariance();
     let Some(l) = joint_factor(p, cross_covariance, measurement_noise) else {
         return Err(Error::InvalidJointCovariance {
@@ -317,7 +485,8 @@ where
         SigmaPointUpdate::Additive => N,
         SigmaPointUpdate::Augmented => N + M,
     };
-    let (gamma, wm0, wc0, wi) = transform.weights::<T>(columns);
+    let weights = transform.weights::<T>(columns)?;
+    let (gamma, wi) = (weights.gamma, weights.other);
     // Additive only: H~ M = G' L21' (module docs of `SigmaPointUpdate::Additive`).
     let mut linearised_cross = SMatrix::<T, M, M>::zeros();
     // Column j of the joint factor: state part (L11 or L21 rows) and noise part (the
@@ -357,45 +526,18 @@ where
     }
     let predicted = centre + d_bar;
     let mut pyy = second;
-    add_outer(&mut pyy, &d_bar, &d_bar, wc0 - wm0 - T::one());
+    add_outer(&mut pyy, &d_bar, &d_bar, weights.mean_correction());
     if transform.update == SigmaPointUpdate::Additive {
         pyy += linearised_cross + linearised_cross.transpose() + measurement_noise;
         cross += cross_covariance;
     }
     let pyy = symmetric_sum(&pyy, &SMatrix::zeros());
     check_finite(pyy.as_slice(), "innovation covariance")?;
-    let inverse = spd_inverse(&pyy).ok_or(Error::InnovationNotPositiveDefinite)?;
-    check_innovation_conditioning(&pyy, &inverse)?;
-    let innovation = measurement - predicted;
-    let nis = innovation.dot(&mul_static(&inverse, &innovation));
-    let gain = mul_static(&cross, &inverse);
-    let state = x + mul_static(&gain, &innovation);
-    // P+ = P - K P_yy K' = P - P_xy P_yy^-1 P_xy' (upper triangle, mirrored).
-    let kpxy = mul_static(&gain, &cross.transpose());
-    let mut post = SMatrix::<T, N, N>::zeros();
-    for j in 0..N {
-        for i in 0..=j {
-            let pij = (p[(i, j)] + p[(j, i)]) * lit::<T>(0.5);
-            let v = pij - (kpxy[(i, j)] + kpxy[(j, i)]) * lit::<T>(0.5);
-            post[(i, j)] = v;
-            post[(j, i)] = v;
-        }
-    }
-    check_finite(state.as_slice(), "posterior state")?;
-    check_finite(post.as_slice(), "posterior covariance")?;
-    if !nis.is_finite() {
-        return Err(Error::NonFinite {
-            what: "normalised innovation squared",
-        });
-    }
-    Ok(UnscentedOutcome {
-        posterior: StateAndCovariance::new(state, post)?,
-        predicted_measurement: predicted,
-        innovation,
+    check_finite(predicted.as_slice(), "predicted measurement")?;
+    Ok(SigmaStatistics {
+        predicted,
         innovation_covariance: pyy,
-        state_measurement_covariance: cross,
-        gain,
-        nis,
+        cross,
     })
 }
 

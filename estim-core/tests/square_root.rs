@@ -173,9 +173,10 @@ fn paper_rho_is_refused_never_factored_around() {
             *filter.accumulated_process_noise(),
         );
         match filter.update(&y, &ScaledCorrelation { rho }) {
-            Ok(out) => {
+            Ok(report) => {
                 assert!(valid, "rho = {rho} accepted");
-                assert!(out.factor.iter().all(|v| v.is_finite()));
+                assert!(report.is_accepted());
+                assert!(filter.factor().iter().all(|v| v.is_finite()));
             }
             Err(Error::InvalidJointCovariance { min_eigenvalue }) => {
                 assert!(!valid, "rho = {rho} refused");
@@ -287,5 +288,149 @@ fn positive_definite_over_a_long_mission() {
         assert!(err <= 1e-8, "update {update}: covariance rel err {err:e}");
         let ex = (p.state() - reference.state()).amax();
         assert!(ex <= 1e-8, "update {update}: state diff {ex:e}");
+    }
+}
+
+/// The shared runner shape: with a gate, its recovery and an observer, the
+/// square-root filter makes the KalmanFilter's decisions (rejections, the inflation
+/// factor after two rejections in a row), its observer sees the same events, and
+/// every report field agrees (S, gain, NIS, M, correction) to 1e-10 relative.
+#[test]
+fn gate_recovery_observer_and_reports_match_the_kalman_filter() {
+    use estim_core::{FilterConfig, Gate, GateRecovery, NisRecorder, UpdateStatus, Zero};
+    let f = SMatrix::<f64, 2, 2>::new(1.0, 1.0, 0.0, 1.0);
+    let qd = SMatrix::<f64, 2, 2>::new(0.25, 0.5, 0.5, 1.0) * 0.01;
+    let h = SMatrix::<f64, 1, 2>::new(1.0, 0.0);
+    let r = SMatrix::<f64, 1, 1>::new(0.1);
+    let initial =
+        StateAndCovariance::new(SVector::<f64, 2>::new(0.0, 1.0), SMatrix::identity() * 0.1)
+            .unwrap();
+    let config = FilterConfig::builder()
+        .gate(Gate::NisThreshold(9.0))
+        .gate_recovery(GateRecovery::Inflate { after: 2 })
+        .build()
+        .unwrap();
+    let mut kf = KalmanFilter::new(f, qd, h, r, initial.clone())
+        .unwrap()
+        .with_config(config.clone())
+        .with_observer(NisRecorder::default());
+    let mut sr = SquareRootKalmanFilter::new(f, qd, h, r, initial)
+        .unwrap()
+        .with_config(config)
+        .with_observer(NisRecorder::default());
+    let mut inflations = 0;
+    for (k, y) in [1.0, 2.1, 30.0, 31.2, 32.1, 33.0].iter().enumerate() {
+        let y = SVector::<f64, 1>::new(*y);
+        let a = kf.step(Some(&y), &Zero).unwrap().unwrap();
+        let b = sr.step(Some(&y), &Zero).unwrap().unwrap();
+        assert_eq!(a.status, b.status, "step {k}");
+        assert_eq!(a.gate_threshold, b.gate_threshold);
+        assert!((a.nis - b.nis).abs() <= 1e-10 * a.nis, "step {k}");
+        assert!(rel_err(&dm(&a.innovation_covariance), &dm(&b.innovation_covariance)) <= TOL);
+        match (a.covariance_inflation, b.covariance_inflation) {
+            (None, None) => {}
+            (Some(la), Some(lb)) => {
+                inflations += 1;
+                assert!((la - lb).abs() <= 1e-9 * la, "{la} vs {lb}");
+            }
+            other => panic!("step {k}: {other:?}"),
+        }
+        if a.status == UpdateStatus::Accepted {
+            assert!(rel_err(&dm(a.gain.as_ref().unwrap()), &dm(b.gain.as_ref().unwrap())) <= TOL);
+            let (ca, cb) = (a.correction.unwrap(), b.correction.unwrap());
+            assert!(rel_err(&dm(&ca), &dm(&cb)) <= TOL);
+        } else {
+            assert!(b.gain.is_none() && b.correction.is_none());
+        }
+        let (ea, eb) = (kf.estimate(), sr.estimate());
+        assert!(
+            rel_err(&dm(ea.covariance()), &dm(eb.covariance())) <= TOL,
+            "step {k}"
+        );
+        assert!(rel_err(&dm(ea.state()), &dm(eb.state())) <= TOL, "step {k}");
+    }
+    assert_eq!(inflations, 1);
+    let (a, b) = (kf.observer(), sr.observer());
+    assert_eq!((a.accepted(), a.rejected()), (b.accepted(), b.rejected()));
+    assert_eq!(b.rejected(), 3);
+}
+
+/// D_j = c Q_d H' over the last 3 predicts (v = c H sum_j G w_j + e).
+struct SharesWindow<const N: usize, const M: usize> {
+    d: SMatrix<f64, N, M>,
+}
+
+impl<const N: usize, const M: usize>
+    estim_core::WindowedCrossCovariance<f64, SVector<f64, N>, (), N, M> for SharesWindow<N, M>
+{
+    fn window_steps(&self) -> usize {
+        3
+    }
+    fn step_cross_covariances(
+        &self,
+        window: &estim_core::window::StepWindow<'_, f64, SVector<f64, N>, (), N>,
+        sink: &mut dyn FnMut(&SMatrix<f64, N, M>) -> estim_core::Result<()>,
+    ) -> estim_core::Result<()> {
+        for _ in window.iter() {
+            sink(&self.d)?;
+        }
+        Ok(())
+    }
+}
+
+/// Windowed exact M in square-root form equals the KalmanFilter's windowed update
+/// (itself tested against stacked joint-Gaussian conditioning in tests/windowed.rs),
+/// with an interleaved uncorrelated update of the same sensor inside the window, so
+/// that Var(v) < R and E[v] != 0.
+#[test]
+fn windowed_update_matches_the_kalman_filter() {
+    use estim_core::{FilterConfig, Zero};
+    const N: usize = 4;
+    const M: usize = 2;
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let values: Vec<f64> = (0..entries_len(N, M))
+        .map(|_| rand::RngExt::random_range(&mut rng, -1.0..1.0))
+        .collect();
+    let sys = System::<N, M>::from_entries(&values);
+    let c = 0.3;
+    let r = sys.r + sys.h * sys.qd() * sys.h.transpose() * (c * c * 3.0);
+    let window = SharesWindow::<N, M> {
+        d: sys.qd() * sys.h.transpose() * c,
+    };
+    let config = FilterConfig::builder().window_capacity(8).build().unwrap();
+    let initial = StateAndCovariance::new(sys.x0, sys.p0).unwrap();
+    let mut kf = KalmanFilter::new(sys.f, sys.qd(), sys.h, r, initial.clone())
+        .unwrap()
+        .with_config(config.clone());
+    let mut sr = SquareRootKalmanFilter::new(sys.f, sys.qd(), sys.h, r, initial)
+        .unwrap()
+        .with_config(config);
+    for epoch in 0..3 {
+        for k in 0..4 {
+            kf.predict().unwrap();
+            sr.predict().unwrap();
+            if k == 1 {
+                let y = sys.ys[3] * 0.5;
+                kf.update(&y, &Zero).unwrap();
+                sr.update(&y, &Zero).unwrap();
+            }
+        }
+        let a = kf.update_windowed(&sys.ys[epoch], &window).unwrap();
+        let b = sr.update_windowed(&sys.ys[epoch], &window).unwrap();
+        assert!(a.noise_mean.amax() > 0.0);
+        for (what, x, y) in [
+            ("M", dm(&a.cross_covariance), dm(&b.cross_covariance)),
+            ("Var(v)", dm(&a.noise_covariance), dm(&b.noise_covariance)),
+            ("E[v]", dm(&a.noise_mean), dm(&b.noise_mean)),
+            (
+                "P",
+                dm(kf.estimate().covariance()),
+                dm(sr.estimate().covariance()),
+            ),
+            ("x", dm(kf.estimate().state()), dm(sr.estimate().state())),
+        ] {
+            let e = rel_err(&x, &y);
+            assert!(e <= TOL, "epoch {epoch} {what}: {e:e}");
+        }
     }
 }

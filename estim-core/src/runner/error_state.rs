@@ -61,21 +61,7 @@ where
 }
 
 impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ErrorStateKalmanFilter<T, P, N, O> {
-    shared_accessors!();
-
-    /// The last `steps` recorded process steps (states before propagation, inputs,
-    /// dt, transitions), e.g. to build a learned measurement's input window from the
-    /// samples the filter itself consumed (the runner is the ring buffer of its
-    /// input stream).
-    ///
-    /// # Errors
-    /// [`Error::WindowUnavailable`] if fewer steps are recorded (or `steps` is 0).
-    pub fn step_window(
-        &self,
-        steps: usize,
-    ) -> Result<crate::window::StepWindow<'_, T, P::State, P::Input, N>> {
-        self.shared.history.window(steps)
-    }
+    shared_accessors!(step_window: P::State, P::Input);
 
     /// Replace the observer.
     #[must_use]

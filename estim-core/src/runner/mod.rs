@@ -1,7 +1,9 @@
-//! The three runners (linear KF, EKF, error-state EKF), all built on the one
-//! [`crate::correlated_update`]. What they share lives in one place, `Shared`
-//! (module `shared`): process-noise accumulation (one-step cross-covariances), the
-//! window of recorded steps and updates (exact windowed cross-covariances, see
+//! The five runners (linear KF, EKF, error-state EKF, square-root KF, unscented KF).
+//! The first three call the one [`crate::correlated_update`]; the square-root filter
+//! runs its array form ([`crate::square_root`]) and the unscented filter its
+//! sigma-point form ([`crate::sigma_point`]). What they share lives in one place,
+//! `Shared` (module `shared`): process-noise accumulation (one-step cross-covariances),
+//! the window of recorded steps and updates (exact windowed cross-covariances, see
 //! [`crate::window`]), the configuration, the innovation gate and its recovery, the
 //! joint-covariance policy and the observer. Their `update` / `update_windowed` /
 //! `step` wrappers and accessors are generated once (module `wrappers`); each
@@ -26,12 +28,16 @@ mod error_state;
 mod extended;
 mod linear;
 mod shared;
+mod square_root;
 #[cfg(test)]
 mod tests;
+mod unscented;
 
 pub use error_state::ErrorStateKalmanFilter;
 pub use extended::ExtendedKalmanFilter;
 pub use linear::KalmanFilter;
+pub use square_root::SquareRootKalmanFilter;
+pub use unscented::UnscentedKalmanFilter;
 
 /// Everything one update attempt produced, accepted or rejected.
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]

@@ -191,6 +191,28 @@ pub(super) struct Attempt<T: Scalar, const N: usize, const M: usize> {
     pub(super) noise_certificate: Option<Option<T>>,
 }
 
+/// What the innovation gate decided ([`Shared::gate`]).
+pub(super) enum GateVerdict<T> {
+    /// Within the gate (or no gate).
+    Pass,
+    /// Rejected: the state stays untouched.
+    Reject,
+    /// Accepted after inflating the prior covariance by this factor.
+    Inflate(T),
+}
+
+impl<T: Copy> GateVerdict<T> {
+    /// Into a report's `status` and `covariance_inflation`.
+    #[inline(always)]
+    pub(super) fn record(&self, status: &mut UpdateStatus, inflation: &mut Option<T>) {
+        match self {
+            GateVerdict::Pass => {}
+            GateVerdict::Reject => *status = UpdateStatus::RejectedByGate,
+            GateVerdict::Inflate(lambda) => *inflation = Some(*lambda),
+        }
+    }
+}
+
 /// The bookkeeping every runner shares: accumulation, recorded window, configuration,
 /// observer. `S` is the state models see, `U` the process input.
 #[derive(Debug, Clone)]
@@ -419,27 +441,24 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
             &report.noise_covariance,
             &report.cross_covariance,
         )?;
-        report.gate_threshold = self.config.gate_threshold(M)?.map(lit::<T>);
         report.innovation_covariance = factored.covariance;
         report.nis = factored.nis;
         let mut inflated_prior = None;
-        if let Some(threshold) = report.gate_threshold {
-            if factored.nis > threshold {
-                let inflation = match self.config.gate_recovery() {
-                    GateRecovery::Inflate { after } if self.rejections_in_a_row >= after => {
-                        recovery_inflation(&factored, &report.innovation, threshold)
-                    }
-                    _ => None,
-                };
-                let Some(lambda) = inflation else {
-                    report.status = UpdateStatus::RejectedByGate;
-                    return Ok(Attempt {
-                        posterior: None,
-                        innovation_inverse: None,
-                        noise_certificate: certificate,
-                    });
-                };
-                report.covariance_inflation = Some(lambda);
+        let (threshold, verdict) = self.gate::<M>(factored.nis, |threshold| {
+            recovery_inflation(&factored, &report.innovation, threshold)
+        })?;
+        report.gate_threshold = threshold;
+        verdict.record(&mut report.status, &mut report.covariance_inflation);
+        match verdict {
+            GateVerdict::Pass => {}
+            GateVerdict::Reject => {
+                return Ok(Attempt {
+                    posterior: None,
+                    innovation_inverse: None,
+                    noise_certificate: certificate,
+                })
+            }
+            GateVerdict::Inflate(lambda) => {
                 inflated_prior = Some(StateAndCovariance::new_unchecked(
                     *prior.state(),
                     prior.covariance() * lambda,
@@ -477,6 +496,35 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
             posterior: Some(finished.state),
             noise_certificate: certificate,
         })
+    }
+
+    /// The innovation gate and its recovery on `nis` for a measurement of size `M`:
+    /// the gate's threshold and its verdict (`inflation(threshold)`: the factor that
+    /// brings the NIS onto the threshold under [`GateRecovery::Inflate`], or `None`).
+    /// The caller writes both into its report ([`GateVerdict::record`]).
+    #[inline(always)]
+    pub(super) fn gate<const M: usize>(
+        &self,
+        nis: T,
+        inflation: impl FnOnce(T) -> Option<T>,
+    ) -> Result<(Option<T>, GateVerdict<T>)> {
+        let threshold = self.config.gate_threshold(M)?.map(lit::<T>);
+        let Some(limit) = threshold else {
+            return Ok((None, GateVerdict::Pass));
+        };
+        if nis <= limit {
+            return Ok((threshold, GateVerdict::Pass));
+        }
+        let lambda = match self.config.gate_recovery() {
+            GateRecovery::Inflate { after } if self.rejections_in_a_row >= after => {
+                inflation(limit)
+            }
+            _ => None,
+        };
+        Ok((
+            threshold,
+            lambda.map_or(GateVerdict::Reject, GateVerdict::Inflate),
+        ))
     }
 
     /// After the runner committed an attempt: record it for later windows (with the
@@ -591,11 +639,21 @@ pub(super) fn recovery_inflation<T: Scalar, const N: usize, const M: usize>(
     threshold: T,
 ) -> Option<T> {
     let hph = symmetrize(&mul_static(factored.jacobian, &factored.pht));
-    let nis = |lambda: T| -> Option<T> {
+    bisect_inflation(threshold, |lambda| {
         let s = factored.covariance + hph * (lambda - T::one());
         let inverse = spd_inverse(&s)?;
         Some(innovation.dot(&mul_static(&inverse, innovation)))
-    };
+    })
+}
+
+/// The smallest lambda in [1, [`GateRecovery::MAX_INFLATION`]] with
+/// `nis(lambda)` <= `threshold`, by bisection on log lambda, for a NIS non-increasing
+/// in lambda; `None` when even the largest factor leaves it above. The upper end of
+/// the final bracket is returned, so the inflated update passes the gate whatever
+/// `nis` is (for a NIS that is not monotone, a factor that passes, not necessarily the
+/// smallest).
+#[inline]
+pub(super) fn bisect_inflation<T: Scalar>(threshold: T, nis: impl Fn(T) -> Option<T>) -> Option<T> {
     let mut low = T::one();
     let mut high = lit::<T>(GateRecovery::MAX_INFLATION);
     if nis(high)? > threshold {

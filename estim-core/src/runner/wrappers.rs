@@ -23,8 +23,27 @@ macro_rules! simd_dispatch {
     }};
 }
 
-/// The accessors every runner has, over its `shared` field (one definition).
+/// The accessors every runner has, over its `shared` field (one definition); with
+/// `step_window: State, Input`, also `step_window` (the runners over a
+/// [`crate::ProcessModel`]).
 macro_rules! shared_accessors {
+    (step_window: $S:ty, $U:ty) => {
+        shared_accessors!();
+
+        /// The last `steps` recorded process steps (states before propagation, inputs,
+        /// dt, transitions), e.g. to build a learned measurement's input window from the
+        /// samples the filter itself consumed (the runner is the ring buffer of its
+        /// input stream).
+        ///
+        /// # Errors
+        /// [`crate::Error::WindowUnavailable`] if fewer steps are recorded (or `steps` is 0).
+        pub fn step_window(
+            &self,
+            steps: usize,
+        ) -> Result<crate::window::StepWindow<'_, T, $S, $U, N>> {
+            self.shared.history.window(steps)
+        }
+    };
     () => {
         /// The configuration.
         pub fn config(&self) -> &FilterConfig {

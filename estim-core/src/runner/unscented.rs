@@ -1,0 +1,344 @@
+//! The unscented Kalman filter: sigma-point prediction through the nonlinear
+//! [`ProcessModel::propagate`] and the sigma-point correlated update
+//! ([`crate::sigma_point`]), on the shared runner core.
+
+#[cfg(doc)]
+use crate::sigma_point::{unscented_predict, unscented_update, SigmaPointUpdate};
+#[cfg(doc)]
+use crate::{CovarianceUpdate, Error, ExtendedKalmanFilter, GateRecovery, KalmanFilter};
+use nalgebra::{SMatrix, SVector};
+
+use super::shared::{bisect_inflation, check_dt, Attempt, CrossSource, GateVerdict, Shared};
+use super::UpdateReport;
+use crate::gaussian::check_finite;
+use crate::observer::{NoObserver, Observer};
+use crate::sigma_point::{sigma_statistics, UnscentedTransform};
+use crate::{
+    CrossCovariance, FilterConfig, MeasurementModel, ProcessModel, Result, Scalar,
+    StateAndCovariance, WindowedCrossCovariance,
+};
+
+/// Unscented Kalman filter over a [`ProcessModel`] whose state is `SVector<T, N>`,
+/// updated with any [`MeasurementModel`] and [`CrossCovariance`] (one-step) or
+/// [`WindowedCrossCovariance`] (exact over a window), with the weights and the update
+/// form ([`SigmaPointUpdate::Additive`] by default, or
+/// [`SigmaPointUpdate::Augmented`]) of its [`UnscentedTransform`].
+///
+/// - **Predict**: [`unscented_predict`], sigma points of (x, P) through
+///   [`ProcessModel::propagate`], plus Q_d.
+/// - **Update**: [`unscented_update`] with R, M from the [`CrossCovariance`] (or, for
+///   [`UnscentedKalmanFilter::update_windowed`], Var(v | ...), the exact windowed M and
+///   the innovation y - y_hat - E[v | ...]). The [`UpdateReport`] holds
+///   `innovation_covariance` = P_yy, `gain` = P_xy P_yy^-1, `nis` from P_yy, and
+///   `correction` = K (y - y_hat - E\[v\]). The posterior covariance is always
+///   P - K P_yy K' (the sigma-point form): [`FilterConfig::covariance_update`] does not
+///   apply (its forms are written in terms of H).
+/// - **Linearisation, only in the bookkeeping**: the model's Phi
+///   ([`ProcessModel::transition`]) and H ([`MeasurementModel::jacobian`], at the prior
+///   mean) are evaluated as by the [`ExtendedKalmanFilter`], but used only where the
+///   shared core needs a matrix: Q_acc / Phi_acc, the [`crate::CrossCovarianceContext`],
+///   the window's carried cross-covariance (C <- Phi C + D, C <- (I - K H) C) and the
+///   observer's events. The state's mean and covariance never use them. On linear
+///   models everything is exact: the filter equals [`KalmanFilter`] to round-off, with
+///   and without M (tested to 1e-10).
+/// - **Gate recovery** ([`GateRecovery::Inflate`]): P -> lambda P moves the sigma
+///   points, so each trial factor recomputes the sigma-point statistics (the NIS is
+///   that of y - y_hat(lambda P), not necessarily monotone in lambda: the factor
+///   returned passes the gate, the smallest one when the NIS is monotone). The report's
+///   `innovation`, `innovation_covariance` and `nis` are those the gate saw, before the
+///   inflation.
+/// - The joint covariance [[P, M], [M', R]] (or with Var(v)) must have a square root:
+///   otherwise the update fails with [`Error::InvalidJointCovariance`] whatever the
+///   [`crate::JointCheck`] (the sigma points are drawn from its factor).
+///
+/// Kept state, the reset rule of Q_acc / Phi_acc and the commit rule: as for
+/// [`KalmanFilter`].
+///
+/// ```
+/// use estim_core::nalgebra::{Matrix1, Matrix1x2, Matrix2, Vector1, Vector2};
+/// use estim_core::sigma_point::UnscentedTransform;
+/// use estim_core::{
+///     MeasurementModel, ProcessModel, Result, StateAndCovariance, UnscentedKalmanFilter, Zero,
+/// };
+///
+/// /// A pendulum's angle and rate, explicit Euler.
+/// struct Pendulum;
+/// impl ProcessModel<f64, 2> for Pendulum {
+///     type State = Vector2<f64>;
+///     type Input = ();
+///     fn propagate(&self, x: &Vector2<f64>, _: &(), dt: f64) -> Result<Vector2<f64>> {
+///         Ok(Vector2::new(x[0] + dt * x[1], x[1] - dt * 9.81 * x[0].sin()))
+///     }
+///     fn transition(&self, x: &Vector2<f64>, _: &(), dt: f64) -> Result<Matrix2<f64>> {
+///         Ok(Matrix2::new(1.0, dt, -dt * 9.81 * x[0].cos(), 1.0))
+///     }
+///     fn process_noise(&self, _: &Vector2<f64>, _: &(), dt: f64) -> Result<Matrix2<f64>> {
+///         Ok(Matrix2::new(0.0, 0.0, 0.0, 1e-3 * dt))
+///     }
+/// }
+///
+/// /// The horizontal position of the bob, sin(angle).
+/// struct Horizontal;
+/// impl MeasurementModel<f64, 2, 1> for Horizontal {
+///     type State = Vector2<f64>;
+///     fn predict(&self, x: &Vector2<f64>) -> Result<Vector1<f64>> {
+///         Ok(Vector1::new(x[0].sin()))
+///     }
+///     fn jacobian(&self, x: &Vector2<f64>) -> Result<Matrix1x2<f64>> {
+///         Ok(Matrix1x2::new(x[0].cos(), 0.0))
+///     }
+///     fn noise_covariance(&self, _: &Vector2<f64>) -> Result<Matrix1<f64>> {
+///         Ok(Matrix1::new(1e-2))
+///     }
+/// }
+///
+/// let initial = StateAndCovariance::new(Vector2::new(0.3, 0.0), Matrix2::identity() * 0.1)?;
+/// let mut ukf = UnscentedKalmanFilter::new(Pendulum, UnscentedTransform::default(), initial);
+/// let report = ukf.step(&(), 0.01, &Horizontal, Some(&Vector1::new(0.29)), &Zero)?;
+/// assert!(report.is_some_and(|r| r.is_accepted()));
+/// # Ok::<(), estim_core::Error>(())
+/// ```
+#[derive(Debug, Clone)]
+pub struct UnscentedKalmanFilter<T: Scalar, P, const N: usize, O = NoObserver>
+where
+    P: ProcessModel<T, N>,
+{
+    process: P,
+    transform: UnscentedTransform,
+    estimate: StateAndCovariance<T, N>,
+    /// The update's posterior covariance buffer; after an accepted update it holds
+    /// the prior covariance (swapped, not copied).
+    spare: SMatrix<T, N, N>,
+    shared: Shared<T, SVector<T, N>, P::Input, N, O>,
+}
+
+impl<T, P, const N: usize> UnscentedKalmanFilter<T, P, N, NoObserver>
+where
+    T: Scalar,
+    P: ProcessModel<T, N, State = SVector<T, N>>,
+{
+    /// A filter for `process` with the sigma points of `transform`, starting from
+    /// `initial`; default configuration.
+    pub fn new(
+        process: P,
+        transform: UnscentedTransform,
+        initial: StateAndCovariance<T, N>,
+    ) -> Self {
+        Self {
+            process,
+            transform,
+            estimate: initial,
+            spare: SMatrix::zeros(),
+            shared: Shared::new(),
+        }
+    }
+}
+
+impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> UnscentedKalmanFilter<T, P, N, O> {
+    shared_accessors!(step_window: SVector<T, N>, P::Input);
+
+    /// Replace the observer.
+    #[must_use]
+    pub fn with_observer<O2>(self, observer: O2) -> UnscentedKalmanFilter<T, P, N, O2> {
+        UnscentedKalmanFilter {
+            process: self.process,
+            transform: self.transform,
+            estimate: self.estimate,
+            spare: self.spare,
+            shared: self.shared.with_observer(observer),
+        }
+    }
+
+    /// The process model.
+    pub fn process(&self) -> &P {
+        &self.process
+    }
+
+    /// The unscented transform (weights and update form).
+    pub fn transform(&self) -> &UnscentedTransform {
+        &self.transform
+    }
+
+    /// The current estimate.
+    pub fn estimate(&self) -> &StateAndCovariance<T, N> {
+        &self.estimate
+    }
+}
+
+impl<T, P, const N: usize, O> UnscentedKalmanFilter<T, P, N, O>
+where
+    T: Scalar,
+    P: ProcessModel<T, N, State = SVector<T, N>>,
+    P::Input: Clone,
+    O: Observer<T, SVector<T, N>, N>,
+{
+    /// Prior over `dt` by [`unscented_predict`]: sigma points of (x, P) through
+    /// [`ProcessModel::propagate`], plus Q_d. Phi (the model's Jacobian, at the state
+    /// before propagation) goes only to Q_acc / Phi_acc, the recorded window and the
+    /// observer.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for dt not positive and finite (or N + kappa <= 0),
+    /// the model's errors, [`Error::InvalidCovariance`] if P has no square root,
+    /// [`Error::NonFinite`] if the prediction is not finite; observer errors.
+    pub fn predict(&mut self, input: &P::Input, dt: T) -> Result<()> {
+        check_dt(dt)?;
+        let x = self.estimate.state();
+        let (phi, qd) = self.process.transition_and_noise(x, input, dt)?;
+        check_finite(phi.as_slice(), "transition matrix")?;
+        check_finite(qd.as_slice(), "process noise covariance")?;
+        let process = &self.process;
+        let predicted = crate::sigma_point::unscented_predict(
+            &self.transform,
+            &self.estimate,
+            |s| process.propagate(s, input, dt),
+            &qd,
+        )?;
+        let before = std::mem::replace(&mut self.estimate, predicted);
+        self.shared.record_predict(
+            false,
+            before.state(),
+            input,
+            Some(dt),
+            &phi,
+            &qd,
+            |q, phi, qd| process.propagate_covariance(q, phi, qd),
+            |later, earlier| process.compose_transitions(later, earlier),
+        );
+        self.shared.notify_predict(
+            Some(dt),
+            self.estimate.state(),
+            self.estimate.covariance(),
+            &phi,
+            &qd,
+        )
+    }
+
+    fn update_from<Mm, C, W, const M: usize>(
+        &mut self,
+        model: &Mm,
+        measurement: &SVector<T, M>,
+        source: CrossSource<'_, C, W>,
+    ) -> Result<UpdateReport<T, N, M>>
+    where
+        Mm: MeasurementModel<T, N, M, State = SVector<T, N>> + ?Sized,
+        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
+        W: WindowedCrossCovariance<T, SVector<T, N>, P::Input, N, M> + ?Sized,
+    {
+        check_finite(measurement.as_slice(), "measurement")?;
+        let prior = &self.estimate;
+        let x = prior.state();
+        let jacobian = model.jacobian(x)?;
+        let noise = model.noise_covariance(x)?;
+        let windowed = matches!(source, CrossSource::Windowed(_));
+        let mut report = UpdateReport::blank();
+        let certificate = self.shared.cross_terms(
+            source,
+            prior,
+            x,
+            measurement,
+            &jacobian,
+            &noise,
+            None,
+            &mut report,
+        )?;
+        let h = |s: &SVector<T, N>| model.predict(s);
+        let transform = &self.transform;
+        let (noise_covariance, cross, noise_mean) = (
+            report.noise_covariance,
+            report.cross_covariance,
+            report.noise_mean,
+        );
+        // The sigma-point statistics of a prior, its innovation y - y_hat - E[v], P_yy^-1
+        // and the NIS.
+        let statistics = |prior: &StateAndCovariance<T, N>| {
+            let stats = sigma_statistics(transform, prior, &h, &noise_covariance, &cross)?;
+            let innovation = measurement - stats.predicted - noise_mean;
+            let (inverse, nis) = stats.factor(&innovation)?;
+            Ok::<_, crate::Error>((stats, innovation, inverse, nis))
+        };
+        let (stats, innovation, inverse, nis) = statistics(prior)?;
+        report.innovation = innovation;
+        report.innovation_covariance = stats.innovation_covariance;
+        report.nis = nis;
+        let (threshold, verdict) = self.shared.gate::<M>(nis, |threshold| {
+            bisect_inflation(threshold, |lambda| {
+                let inflated = StateAndCovariance::new_unchecked(*x, prior.covariance() * lambda);
+                statistics(&inflated).ok().map(|(.., nis)| nis)
+            })
+        })?;
+        report.gate_threshold = threshold;
+        verdict.record(&mut report.status, &mut report.covariance_inflation);
+        let mut attempt = Attempt {
+            posterior: None,
+            innovation_inverse: None,
+            noise_certificate: certificate,
+        };
+        let accepted = match verdict {
+            GateVerdict::Reject => None,
+            GateVerdict::Pass => Some((None, stats, innovation, inverse)),
+            GateVerdict::Inflate(lambda) => {
+                let inflated = StateAndCovariance::new_unchecked(*x, prior.covariance() * lambda);
+                let (stats, innovation, inverse, _) = statistics(&inflated)?;
+                Some((Some(inflated), stats, innovation, inverse))
+            }
+        };
+        if let Some((inflated, stats, innovation, inverse)) = accepted {
+            let used = inflated.as_ref().unwrap_or(prior);
+            let gain = report.gain.insert(SMatrix::zeros());
+            let state = stats.posterior(used, &innovation, &inverse, gain, &mut self.spare)?;
+            report.correction = Some(state - x);
+            attempt.posterior = Some(state);
+            attempt.innovation_inverse = self.shared.history.is_enabled().then_some(inverse);
+        }
+        self.shared
+            .record_update(&attempt, &report, &jacobian, None);
+        let prior_covariance = match attempt.posterior {
+            Some(state) => {
+                self.estimate.commit(state, &mut self.spare);
+                &self.spare
+            }
+            None => self.estimate.covariance(),
+        };
+        self.shared.notify_update(
+            &report,
+            self.estimate.state(),
+            self.estimate.covariance(),
+            prior_covariance,
+            &jacobian,
+            windowed,
+            None,
+        )?;
+        Ok(report)
+    }
+
+    update_methods! {
+        state: SVector<T, N>,
+        input: P::Input,
+        model: [model: Mm],
+        size: [M],
+        predict: [input: &P::Input, dt: T],
+        /// Update with `model`, measurement y and the one-step cross-covariance `cross`:
+        /// the sigma-point update of the transform's form (struct docs).
+        ///
+        /// # Errors
+        /// As [`ExtendedKalmanFilter::update`] (but the joint covariance
+        /// [[P, M], [M', R]] must always have a square root:
+        /// [`Error::InvalidJointCovariance`]), plus [`Error::InvalidParameter`] if
+        /// L + kappa <= 0.
+        update;
+        /// Update with a measurement whose noise shares a window of recorded process
+        /// steps: the sigma-point update with the exact windowed M, Var(v | ...) in place
+        /// of R and the innovation y - y_hat - E[v | ...] (see [`crate::window`]).
+        ///
+        /// # Errors
+        /// As [`UnscentedKalmanFilter::update`], plus [`Error::NotTracked`] (no window
+        /// kept), [`Error::WindowUnavailable`], [`Error::ColouredMeasurementNoise`].
+        update_windowed;
+        /// One time step: predict over `dt`, then update if a measurement is present.
+        ///
+        /// # Errors
+        /// Those of [`UnscentedKalmanFilter::predict`] and [`UnscentedKalmanFilter::update`].
+        step;
+    }
+}
