@@ -323,9 +323,14 @@ fn every_size_rate_duration_count_and_seed_is_bounded() {
             &["montecarlo", "--runs", "0"],
             "--runs 0 is outside [1, 10000]",
         ),
+        // `--seed` is an alias of `--first-seed`; the error names the flag.
         (
             &["montecarlo", "--runs", "2", "--seed", &max],
-            "--seed 18446744073709551615",
+            "--first-seed 18446744073709551615",
+        ),
+        (
+            &["montecarlo", "--runs", "2", "--first-seed", &max],
+            "--first-seed 18446744073709551615",
         ),
         (
             &["montecarlo", "--runs", "2", "--seed", "9007199254740992"],
