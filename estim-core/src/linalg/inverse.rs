@@ -15,6 +15,10 @@
 //! numerically singular is the caller's separate test (the update's reciprocal
 //! condition number of the correlation matrix).
 //!
+//! **Log-determinant.** [`spd_inverse_log_det`] also returns ln det S from the same
+//! factorization (the closed form's determinant, or the Cholesky pivots), for the
+//! Gaussian log-likelihood of an innovation.
+//!
 //! **Failure.** `None` when a pivot is zero, negative or not finite (S is not
 //! positive definite in floating point).
 
@@ -49,6 +53,19 @@ pub(crate) fn positive_normal<T: Scalar>(x: T) -> bool {
 pub(crate) fn spd_inverse<T: Scalar, const M: usize>(
     s: &SMatrix<T, M, M>,
 ) -> Option<SMatrix<T, M, M>> {
+    // The unused logarithm is dead code once inlined (a pure intrinsic).
+    spd_inverse_log_det(s).map(|(inverse, _)| inverse)
+}
+
+/// [`spd_inverse`] and ln det S from the same factorization: ln of the closed form's
+/// determinant for one or two rows, else 2 sum ln L_jj = sum ln d_j over the
+/// Cholesky pivots d_j = L_jj^2 (Golub & Van Loan, 4th ed., sec. 4.2.1): no second
+/// factorization, and a sum of logarithms rather than the logarithm of a product,
+/// which could overflow or underflow at extreme scales.
+#[inline(always)]
+pub(crate) fn spd_inverse_log_det<T: Scalar, const M: usize>(
+    s: &SMatrix<T, M, M>,
+) -> Option<(SMatrix<T, M, M>, T)> {
     if M == 1 || M == 2 {
         let a = s[(0, 0)];
         let (b, d) = if M == 2 {
@@ -69,7 +86,7 @@ pub(crate) fn spd_inverse<T: Scalar, const M: usize>(
                 } else {
                     inv[(0, 0)] = r;
                 }
-                return Some(inv);
+                return Some((inv, det.ln()));
             }
         }
     }
@@ -77,6 +94,7 @@ pub(crate) fn spd_inverse<T: Scalar, const M: usize>(
     // roots and divisions queue on one unit, the bottleneck of a small update.
     let mut l = SMatrix::<T, M, M>::zeros();
     let mut w = SMatrix::<T, M, M>::zeros();
+    let mut log_det = T::zero();
     for j in 0..M {
         let mut d = s[(j, j)];
         for k in 0..j {
@@ -86,6 +104,7 @@ pub(crate) fn spd_inverse<T: Scalar, const M: usize>(
         if d <= T::zero() || !d.is_finite() {
             return None;
         }
+        log_det += d.ln();
         let ljj = d.sqrt();
         let inverse = T::one() / ljj;
         l[(j, j)] = ljj;
@@ -120,5 +139,5 @@ pub(crate) fn spd_inverse<T: Scalar, const M: usize>(
             inv[(j, i)] = v;
         }
     }
-    Some(inv)
+    Some((inv, log_det))
 }
