@@ -58,10 +58,11 @@ pub(crate) fn spd_inverse<T: Scalar, const M: usize>(
 }
 
 /// [`spd_inverse`] and ln det S from the same factorization: ln of the closed form's
-/// determinant for one or two rows, else 2 sum ln L_jj = sum ln d_j over the
-/// Cholesky pivots d_j = L_jj^2 (Golub & Van Loan, 4th ed., sec. 4.2.1): no second
-/// factorization, and a sum of logarithms rather than the logarithm of a product,
-/// which could overflow or underflow at extreme scales.
+/// determinant for one or two rows, else ln prod d_j over the Cholesky pivots
+/// d_j = L_jj^2 (det S = prod L_jj^2, Golub & Van Loan, 4th ed., sec. 4.2.1): no
+/// second factorization, and one logarithm where the product is a positive normal
+/// number, else (extreme scales, where it would overflow or underflow) the sum
+/// 2 sum ln L_jj.
 #[inline(always)]
 pub(crate) fn spd_inverse_log_det<T: Scalar, const M: usize>(
     s: &SMatrix<T, M, M>,
@@ -94,7 +95,7 @@ pub(crate) fn spd_inverse_log_det<T: Scalar, const M: usize>(
     // roots and divisions queue on one unit, the bottleneck of a small update.
     let mut l = SMatrix::<T, M, M>::zeros();
     let mut w = SMatrix::<T, M, M>::zeros();
-    let mut log_det = T::zero();
+    let mut det = T::one();
     for j in 0..M {
         let mut d = s[(j, j)];
         for k in 0..j {
@@ -104,7 +105,7 @@ pub(crate) fn spd_inverse_log_det<T: Scalar, const M: usize>(
         if d <= T::zero() || !d.is_finite() {
             return None;
         }
-        log_det += d.ln();
+        det *= d;
         let ljj = d.sqrt();
         let inverse = T::one() / ljj;
         l[(j, j)] = ljj;
@@ -139,5 +140,10 @@ pub(crate) fn spd_inverse_log_det<T: Scalar, const M: usize>(
             inv[(j, i)] = v;
         }
     }
+    let log_det = if positive_normal(det) {
+        det.ln()
+    } else {
+        (0..M).fold(T::zero(), |sum, j| sum + l[(j, j)].ln()) * lit::<T>(2.0)
+    };
     Some((inv, log_det))
 }
