@@ -39,7 +39,8 @@ pub use linear::KalmanFilter;
 pub use square_root::SquareRootKalmanFilter;
 pub use unscented::UnscentedKalmanFilter;
 
-/// Everything one update attempt produced, accepted or rejected.
+/// Everything one update attempt produced, accepted or rejected. The accepted
+/// reports' `log_likelihood` terms sum to the runner's `log_likelihood()`.
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, PartialEq)]
 pub struct UpdateReport<T: Scalar, const N: usize, const M: usize> {
