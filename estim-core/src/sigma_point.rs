@@ -72,7 +72,7 @@
 use nalgebra::{SMatrix, SVector};
 
 use crate::gaussian::check_finite;
-use crate::linalg::{joint_factor, mul_static, spd_inverse};
+use crate::linalg::{joint_factor, mul_static, spd_inverse_log_det};
 use crate::scalar::{lit, to_f64};
 use crate::square_root::covariance_factor;
 use crate::update::check_innovation_conditioning;
@@ -376,7 +376,7 @@ where
         cross_covariance,
     )?;
     let innovation = measurement - stats.predicted;
-    let (inverse, nis) = stats.factor(&innovation)?;
+    let (inverse, nis, _) = stats.factor(&innovation)?;
     let mut gain = SMatrix::zeros();
     let mut post = SMatrix::zeros();
     let state = stats.posterior(prior, &innovation, &inverse, &mut gain, &mut post)?;
@@ -403,12 +403,13 @@ pub(crate) struct SigmaStatistics<T: Scalar, const N: usize, const M: usize> {
 }
 
 impl<T: Scalar, const N: usize, const M: usize> SigmaStatistics<T, N, M> {
-    /// P_yy^-1 (checked as [`crate::correlated_update`] checks S) and the NIS of
-    /// `innovation`.
-    pub(crate) fn factor(&self, innovation: &SVector<T, M>) -> Result<(SMatrix<T, M, M>, T)> {
+    /// P_yy^-1 (checked as [`crate::correlated_update`] checks S), the NIS of
+    /// `innovation` and ln det P_yy (from the same factorization).
+    pub(crate) fn factor(&self, innovation: &SVector<T, M>) -> Result<(SMatrix<T, M, M>, T, T)> {
         check_finite(innovation.as_slice(), "innovation")?;
         let pyy = &self.innovation_covariance;
-        let inverse = spd_inverse(pyy).ok_or(Error::InnovationNotPositiveDefinite)?;
+        let (inverse, log_det) =
+            spd_inverse_log_det(pyy).ok_or(Error::InnovationNotPositiveDefinite)?;
         check_innovation_conditioning(pyy, &inverse)?;
         let nis = innovation.dot(&mul_static(&inverse, innovation));
         if !nis.is_finite() {
@@ -416,7 +417,7 @@ impl<T: Scalar, const N: usize, const M: usize> SigmaStatistics<T, N, M> {
                 what: "normalised innovation squared",
             });
         }
-        Ok((inverse, nis))
+        Ok((inverse, nis, log_det))
     }
 
     /// K = P_xy P_yy^-1 into `gain`, P+ = P - K P_yy K' = P - K P_xy' into

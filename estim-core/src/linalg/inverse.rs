@@ -15,6 +15,10 @@
 //! numerically singular is the caller's separate test (the update's reciprocal
 //! condition number of the correlation matrix).
 //!
+//! **Log-determinant.** [`spd_inverse_log_det`] also returns ln det S from the same
+//! factorization (the closed form's determinant, or the Cholesky pivots), for the
+//! Gaussian log-likelihood of an innovation.
+//!
 //! **Failure.** `None` when a pivot is zero, negative or not finite (S is not
 //! positive definite in floating point).
 
@@ -49,6 +53,20 @@ pub(crate) fn positive_normal<T: Scalar>(x: T) -> bool {
 pub(crate) fn spd_inverse<T: Scalar, const M: usize>(
     s: &SMatrix<T, M, M>,
 ) -> Option<SMatrix<T, M, M>> {
+    // The unused logarithm is dead code once inlined (a pure intrinsic).
+    spd_inverse_log_det(s).map(|(inverse, _)| inverse)
+}
+
+/// [`spd_inverse`] and ln det S from the same factorization: ln of the closed form's
+/// determinant for one or two rows, else ln prod d_j over the Cholesky pivots
+/// d_j = L_jj^2 (det S = prod L_jj^2, Golub & Van Loan, 4th ed., sec. 4.2.1): no
+/// second factorization, and one logarithm where the product is a positive normal
+/// number, else (extreme scales, where it would overflow or underflow) the sum
+/// 2 sum ln L_jj.
+#[inline(always)]
+pub(crate) fn spd_inverse_log_det<T: Scalar, const M: usize>(
+    s: &SMatrix<T, M, M>,
+) -> Option<(SMatrix<T, M, M>, T)> {
     if M == 1 || M == 2 {
         let a = s[(0, 0)];
         let (b, d) = if M == 2 {
@@ -69,7 +87,7 @@ pub(crate) fn spd_inverse<T: Scalar, const M: usize>(
                 } else {
                     inv[(0, 0)] = r;
                 }
-                return Some(inv);
+                return Some((inv, det.ln()));
             }
         }
     }
@@ -77,6 +95,7 @@ pub(crate) fn spd_inverse<T: Scalar, const M: usize>(
     // roots and divisions queue on one unit, the bottleneck of a small update.
     let mut l = SMatrix::<T, M, M>::zeros();
     let mut w = SMatrix::<T, M, M>::zeros();
+    let mut det = T::one();
     for j in 0..M {
         let mut d = s[(j, j)];
         for k in 0..j {
@@ -86,6 +105,7 @@ pub(crate) fn spd_inverse<T: Scalar, const M: usize>(
         if d <= T::zero() || !d.is_finite() {
             return None;
         }
+        det *= d;
         let ljj = d.sqrt();
         let inverse = T::one() / ljj;
         l[(j, j)] = ljj;
@@ -120,5 +140,10 @@ pub(crate) fn spd_inverse<T: Scalar, const M: usize>(
             inv[(j, i)] = v;
         }
     }
-    Some(inv)
+    let log_det = if positive_normal(det) {
+        det.ln()
+    } else {
+        (0..M).fold(T::zero(), |sum, j| sum + l[(j, j)].ln()) * lit::<T>(2.0)
+    };
+    Some((inv, log_det))
 }

@@ -35,7 +35,7 @@ pub(crate) use fused_product::{
     product_transposed_into,
 };
 pub(crate) use givens::lower_triangularize_pair;
-pub(crate) use inverse::{positive_normal, spd_inverse};
+pub(crate) use inverse::{positive_normal, spd_inverse, spd_inverse_log_det};
 #[cfg(test)]
 pub(crate) use ldl::certify_psd_with;
 pub(crate) use ldl::{certify_block, certify_psd};

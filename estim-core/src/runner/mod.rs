@@ -39,7 +39,8 @@ pub use linear::KalmanFilter;
 pub use square_root::SquareRootKalmanFilter;
 pub use unscented::UnscentedKalmanFilter;
 
-/// Everything one update attempt produced, accepted or rejected.
+/// Everything one update attempt produced, accepted or rejected. The accepted
+/// reports' `log_likelihood` terms sum to the runner's `log_likelihood()`.
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, PartialEq)]
 pub struct UpdateReport<T: Scalar, const N: usize, const M: usize> {
@@ -48,10 +49,25 @@ pub struct UpdateReport<T: Scalar, const N: usize, const M: usize> {
     /// Innovation y - h(x) - E\[v\] (E\[v\] = [`UpdateReport::noise_mean`], zero unless
     /// other updates inside a windowed measurement's window observed part of v).
     pub innovation: SVector<T, M>,
-    /// Innovation covariance S = H P H' + H M + M' H' + R.
+    /// Innovation covariance S = H P H' + H M + M' H' + R (for a windowed update with
+    /// Var(v | ...) in place of R; for the unscented filter P_yy).
     pub innovation_covariance: SMatrix<T, M, M>,
     /// Normalised innovation squared, innovation' S^-1 innovation.
     pub nis: T,
+    /// Gaussian log density of the innovation, ln N(innovation; 0, S) =
+    /// -(m ln(2 pi) + ln det S + nis) / 2 for a measurement of size m: this
+    /// measurement's term of the log-likelihood (prediction-error decomposition).
+    ///
+    /// It is for the innovation and S the gate saw, the same as `innovation`,
+    /// `innovation_covariance` and `nis` here: the correlated S of a one-step update,
+    /// Var(v | ...) and E\[v | ...\] for a windowed one, P_yy for the unscented filter,
+    /// always before any gate-recovery inflation ([`GateRecovery::Inflate`]). It is
+    /// present for a rejected update too (where it says how unlikely the measurement
+    /// was); the runners' cumulative `log_likelihood()` adds only accepted ones.
+    /// ln det S comes from the factorization the update already does (the Cholesky
+    /// pivots or closed form of S^-1; for the square-root filter its innovation
+    /// factor).
+    pub log_likelihood: T,
     /// The gate's NIS threshold for this measurement size, if a gate is configured.
     pub gate_threshold: Option<T>,
     /// The cross-covariance M_k used (from the [`CrossCovariance`], or the exact
@@ -91,6 +107,7 @@ impl<T: Scalar, const N: usize, const M: usize> UpdateReport<T, N, M> {
             innovation: SVector::zeros(),
             innovation_covariance: SMatrix::zeros(),
             nis: T::zero(),
+            log_likelihood: T::zero(),
             gate_threshold: None,
             cross_covariance: SMatrix::zeros(),
             noise_covariance: SMatrix::zeros(),

@@ -11,7 +11,9 @@ use crate::gaussian::{all_zero, check_finite, symmetrize};
 use crate::linalg::{mul_static, spd_inverse};
 use crate::observer::{NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
 use crate::scalar::lit;
-use crate::update::{factor_innovation, finish_update_into, FactoredInnovation};
+use crate::update::{
+    factor_innovation, finish_update_into, innovation_log_likelihood, FactoredInnovation,
+};
 use crate::window::{exact_terms, History};
 use crate::{
     CrossCovariance, CrossCovarianceContext, Error, FilterConfig, Result, Scalar,
@@ -227,6 +229,8 @@ pub(super) struct Shared<T: Scalar, S, U, const N: usize, O> {
     /// Q_acc: reused while Q_acc is the same (a time-invariant model with one predict
     /// per update checks its Q once).
     pub(super) noise_certificate: Option<(SMatrix<T, N, N>, Option<T>)>,
+    /// Sum of the accepted updates' `UpdateReport::log_likelihood` since construction.
+    pub(super) log_likelihood: T,
 }
 
 impl<T: Scalar, S, U, const N: usize> Shared<T, S, U, N, NoObserver> {
@@ -239,6 +243,7 @@ impl<T: Scalar, S, U, const N: usize> Shared<T, S, U, N, NoObserver> {
             observer: NoObserver,
             rejections_in_a_row: 0,
             noise_certificate: None,
+            log_likelihood: T::zero(),
         }
     }
 }
@@ -261,6 +266,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
             observer,
             rejections_in_a_row: self.rejections_in_a_row,
             noise_certificate: self.noise_certificate,
+            log_likelihood: self.log_likelihood,
         }
     }
 
@@ -443,6 +449,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         )?;
         report.innovation_covariance = factored.covariance;
         report.nis = factored.nis;
+        report.log_likelihood = innovation_log_likelihood::<T, M>(factored.log_det, factored.nis);
         let mut inflated_prior = None;
         let (threshold, verdict) = self.gate::<M>(factored.nis, |threshold| {
             recovery_inflation(&factored, &report.innovation, threshold)
@@ -528,7 +535,8 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
     }
 
     /// After the runner committed an attempt: record it for later windows (with the
-    /// reset Jacobian J of an error-state filter), close the accumulation interval.
+    /// reset Jacobian J of an error-state filter), add an accepted update's
+    /// log-likelihood to the sum, close the accumulation interval.
     #[inline]
     pub(super) fn record_update<const M: usize>(
         &mut self,
@@ -557,6 +565,7 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         }
         if report.is_accepted() {
             self.rejections_in_a_row = 0;
+            self.log_likelihood += report.log_likelihood;
         } else {
             self.rejections_in_a_row += 1;
         }

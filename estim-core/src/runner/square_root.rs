@@ -13,9 +13,11 @@ use super::UpdateReport;
 use crate::gaussian::{all_zero, check_finite, symmetrize};
 use crate::linalg::{mul_static, spd_inverse};
 use crate::observer::{NoObserver, Observer};
+use crate::scalar::lit;
 use crate::square_root::{
     check_joint_factor, covariance_factor, square_root_predict, square_root_update,
 };
+use crate::update::innovation_log_likelihood;
 use crate::{
     CrossCovariance, Error, FilterConfig, Result, Scalar, StateAndCovariance,
     WindowedCrossCovariance,
@@ -257,6 +259,12 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         };
         report.innovation_covariance = innovation_covariance;
         report.nis = outcome.nis;
+        // ln det S = 2 sum ln diag(S_nu) from the triangular factor S_nu S_nu' = S,
+        // whose diagonal `square_root_update` checked positive.
+        let log_det = (0..M).fold(T::zero(), |sum, j| {
+            sum + outcome.innovation_factor[(j, j)].ln()
+        }) * lit::<T>(2.0);
+        report.log_likelihood = innovation_log_likelihood::<T, M>(log_det, outcome.nis);
         report.gate_threshold = threshold;
         verdict.record(&mut report.status, &mut report.covariance_inflation);
         let mut attempt = Attempt {

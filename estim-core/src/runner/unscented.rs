@@ -13,6 +13,7 @@ use super::UpdateReport;
 use crate::gaussian::check_finite;
 use crate::observer::{NoObserver, Observer};
 use crate::sigma_point::{sigma_statistics, UnscentedTransform};
+use crate::update::innovation_log_likelihood;
 use crate::{
     CrossCovariance, FilterConfig, MeasurementModel, ProcessModel, Result, Scalar,
     StateAndCovariance, WindowedCrossCovariance,
@@ -254,17 +255,18 @@ where
         let statistics = |prior: &StateAndCovariance<T, N>| {
             let stats = sigma_statistics(transform, prior, &h, &noise_covariance, &cross)?;
             let innovation = measurement - stats.predicted - noise_mean;
-            let (inverse, nis) = stats.factor(&innovation)?;
-            Ok::<_, crate::Error>((stats, innovation, inverse, nis))
+            let (inverse, nis, log_det) = stats.factor(&innovation)?;
+            Ok::<_, crate::Error>((stats, innovation, inverse, nis, log_det))
         };
-        let (stats, innovation, inverse, nis) = statistics(prior)?;
+        let (stats, innovation, inverse, nis, log_det) = statistics(prior)?;
         report.innovation = innovation;
         report.innovation_covariance = stats.innovation_covariance;
         report.nis = nis;
+        report.log_likelihood = innovation_log_likelihood::<T, M>(log_det, nis);
         let (threshold, verdict) = self.shared.gate::<M>(nis, |threshold| {
             bisect_inflation(threshold, |lambda| {
                 let inflated = StateAndCovariance::new_unchecked(*x, prior.covariance() * lambda);
-                statistics(&inflated).ok().map(|(.., nis)| nis)
+                statistics(&inflated).ok().map(|(.., nis, _)| nis)
             })
         })?;
         report.gate_threshold = threshold;
@@ -279,7 +281,7 @@ where
             GateVerdict::Pass => Some((None, stats, innovation, inverse)),
             GateVerdict::Inflate(lambda) => {
                 let inflated = StateAndCovariance::new_unchecked(*x, prior.covariance() * lambda);
-                let (stats, innovation, inverse, _) = statistics(&inflated)?;
+                let (stats, innovation, inverse, ..) = statistics(&inflated)?;
                 Some((Some(inflated), stats, innovation, inverse))
             }
         };

@@ -61,6 +61,22 @@ macro_rules! shared_accessors {
             self.shared.accumulated.transition()
         }
 
+        /// The log-likelihood of the accepted measurements so far, ln p(y_1, ..., y_K)
+        /// under the model: the sum of the accepted updates'
+        /// [`UpdateReport::log_likelihood`](crate::UpdateReport::log_likelihood), each
+        /// ln p(y_k | y_1, ..., y_{k-1}) (the prediction-error decomposition, Harvey
+        /// 1989, sec. 3.4, eq. 3.4.7). Exact for a linear-Gaussian model (the
+        /// innovations are then independent Gaussians, with correlated or windowed M
+        /// as well); for a nonlinear model the sum of the linearised (or sigma-point)
+        /// Gaussian terms, an approximation. Rejected updates add nothing; an update
+        /// accepted after gate-recovery inflation adds its term before the inflation
+        /// (as reported). Zero at construction and reset by nothing else (not by
+        /// [`Self::with_config`] nor by replacing the observer): to score a segment,
+        /// take the difference of two readings.
+        pub fn log_likelihood(&self) -> T {
+            self.shared.log_likelihood
+        }
+
         /// Propagations since the last measurement.
         pub fn propagations_since_update(&self) -> usize {
             self.shared.accumulated.steps
