@@ -14,10 +14,8 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use estim_core::nalgebra::{SMatrix, SVector};
-use estim_core::smoother::{ForwardRecorder, RecordAt};
-use estim_core::{
-    ExtendedKalmanFilter, Fixed, FixedLagSmoother, NoObserver, Observer, StateAndCovariance,
-};
+use estim_core::smoother::{FixedLagSmoother, ForwardRecorder, RecordAt};
+use estim_core::{ExtendedKalmanFilter, Fixed, NoObserver, Observer, StateAndCovariance};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

@@ -202,6 +202,7 @@ mod cross;
 mod error;
 mod gaussian;
 mod linalg;
+pub mod noise;
 pub mod numeric;
 mod observer;
 mod runner;
@@ -247,7 +248,6 @@ pub use runner::{
     UnscentedKalmanFilter, UpdateReport,
 };
 pub use scalar::Scalar;
-pub use smoother::FixedLagSmoother;
 pub use traits::{
     CrossCovariance, CrossCovarianceContext, ErrorStateModel, InputSpec, LearnedMeasurement,
     MeasurementModel, ProcessModel,

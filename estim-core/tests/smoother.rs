@@ -22,11 +22,11 @@
 //! every noise covariance with eigenvalues >= 0.05), K <= 40 steps.
 
 use estim_core::nalgebra::{DMatrix, DVector, SMatrix, SVector};
-use estim_core::smoother::{ForwardRecorder, RecordAt, Smoothed};
+use estim_core::smoother::{FixedLagSmoother, ForwardRecorder, RecordAt, Smoothed};
 use estim_core::window::StepWindow;
 use estim_core::{
     Error, ErrorStateKalmanFilter, ErrorStateModel, ExtendedKalmanFilter, FilterConfig,
-    FixedLagSmoother, KalmanFilter, MeasurementModel, ProcessModel, Result, StateAndCovariance,
+    KalmanFilter, MeasurementModel, ProcessModel, Result, StateAndCovariance,
     WindowedCrossCovariance,
 };
 use proptest::prelude::*;
