@@ -1,5 +1,12 @@
 //! Noise models from data: process-noise discretization, the likelihood of the
 //! measurements as a function of noise parameters, maximum-likelihood and EM fits.
 //!
+//! - [`ml`] (feature `fit`, default on): maximum-likelihood Q(theta), R(theta) and
+//!   M(theta) for any runner, with exact gradients and observed information from dual
+//!   numbers, standard errors and the likelihood-ratio test (e.g. of M = 0).
+//!
 //! The submodules are independent of each other; each one's docs give its model,
 //! conventions and references.
+
+#[cfg(feature = "fit")]
+pub mod ml;
