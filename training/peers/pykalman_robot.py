@@ -16,7 +16,8 @@ Cases (all on the full 501 epochs):
 - `fit_all`: from the same start, em_vars = ['transition_covariance',
   'observation_covariance', 'initial_state_mean', 'initial_state_covariance'] (pykalman's
   default em_vars), 10 iterations.
-For the two fits, iteration k = 0 .. n is the model after k calls of `em(n_iter=1)` (k = 0:
+The script also prints how far pykalman's own `fit_all` Q moves when Q_0 is scaled by
+1 + 1e-15 (the round-off the EM map amplifies on this problem). For the two fits, iteration k = 0 .. n is the model after k calls of `em(n_iter=1)` (k = 0:
 the start), with its log-likelihood and its Q, R, mu_0, Sigma_0. The script checks that
 one call of `em(n_iter=n)` ends at the same matrices, bit for bit.
 
@@ -111,6 +112,26 @@ def fit(data, em_vars, n_iter):
     return rows
 
 
+def sensitivity(data, n_iter=10):
+    """pykalman against itself from Q_0 (1 + 1e-15): the round-off the EM map amplifies.
+
+    Printed only (the Rust test's docs cite it): max |Q - Q'| / max |Q| per iteration.
+    """
+    z = data.observations
+    runs = []
+    for scale in (1.0, 1.0 + 1e-15):
+        kf = filter_for(data, data.initial_transition_covariance * scale,
+                        data.initial_observation_covariance, ALL4)
+        qs = []
+        for _ in range(n_iter):
+            kf.em(X=z, n_iter=1)
+            qs.append(np.array(kf.transition_covariance, dtype=float))
+        runs.append(qs)
+    for k, (a, b) in enumerate(zip(*runs)):
+        print(f"fit_all iteration {k + 1}: pykalman's Q moves {np.abs(a - b).max() / np.abs(a).max():.1e} "
+              "relative under Q_0 (1 + 1e-15)")
+
+
 def main():
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     out_dir = os.path.join(root, "estim-core", "tests", "data")
@@ -146,6 +167,7 @@ def main():
             for row in fit(data, em_vars, n_iter):
                 f.write(f"{case}," + ",".join(str(v) for v in row) + "\n")
     print(f"wrote {inputs} and {expected}")
+    sensitivity(data)
 
 
 if __name__ == "__main__":
