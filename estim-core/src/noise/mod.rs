@@ -3,3 +3,6 @@
 //!
 //! The submodules are independent of each other; each one's docs give its model,
 //! conventions and references.
+//! - [`em`]: EM of Q, R, mu_0, Sigma_0 of a linear-Gaussian model, and its log-likelihood.
+
+pub mod em;
