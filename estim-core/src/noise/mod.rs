@@ -4,9 +4,12 @@
 //! - [`ml`] (feature `fit`, default on): maximum-likelihood Q(theta), R(theta) and
 //!   M(theta) for any runner, with exact gradients and observed information from dual
 //!   numbers, standard errors and the likelihood-ratio test (e.g. of M = 0).
+//! - [`em`]: EM of Q, R, mu_0, Sigma_0 of a linear-Gaussian model (pykalman's `em`),
+//!   and its log-likelihood.
 //!
 //! The submodules are independent of each other; each one's docs give its model,
 //! conventions and references.
 
+pub mod em;
 #[cfg(feature = "fit")]
 pub mod ml;

@@ -1,0 +1,709 @@
+//! Expectation-maximisation (EM) of the noise and initial-state parameters of a
+//! linear-Gaussian state-space model, and the log-likelihood of its measurements.
+//!
+//! ## Model and indexing
+//!
+//! ```text
+//! x_0     ~ N(mu_0, Sigma_0)
+//! x_{t+1} = F x_t + b_t + w_t      Cov(w_t) = Q      t = 0 .. T-2
+//! y_t     = H x_t + d   + v_t      Cov(v_t) = R      t = 0 .. T-1, y_t possibly missing
+//! ```
+//!
+//! This is pykalman's `KalmanFilter` with time-invariant F, H, Q, R and d, and
+//! transition offsets b_t constant or given per step ([`TransitionOffsets`]). Epoch 0
+//! is measured at the initial state itself (no transition before it), as in pykalman;
+//! a missing measurement is `None` (pykalman: a masked row). There is no
+//! cross-covariance between w and v here: EM's closed forms are those of the
+//! uncorrelated model.
+//!
+//! Sizes are dynamic (`DMatrix<f64>`, `DVector<f64>`): EM is an offline batch over a
+//! recorded sequence whose dimensions come from the data, and it allocates its
+//! per-epoch moments anyway; f64 only, since EM's sums over hundreds of epochs are
+//! where single precision would lose the digits the likelihood needs.
+//!
+//! ## Log-likelihood ([`log_likelihood`])
+//!
+//! The Kalman filter's prediction-error decomposition: the sum over the measured
+//! epochs of ln N(nu_t; 0, S_t), nu_t = y_t - H x_{t|t-1} - d, S_t = H P_{t|t-1} H' + R,
+//! each term -(m ln 2 pi + ln det S_t + nu_t' S_t^-1 nu_t) / 2 through the Cholesky
+//! factor of S_t. The same value as the runners' cumulative
+//! [`crate::KalmanFilter::log_likelihood`] on the same model (offsets folded into the
+//! measurement), and as pykalman's `loglikelihood`.
+//!
+//! ## E-step: RTS smoother with lag-one covariances
+//!
+//! Forward (Kalman filter; x_{0|-1} = mu_0, P_{0|-1} = Sigma_0):
+//!
+//! ```text
+//! x_{t|t-1} = F x_{t-1|t-1} + b_{t-1}         P_{t|t-1} = F P_{t-1|t-1} F' + Q
+//! K_t = P_{t|t-1} H' S_t^-1                   (measured epochs; else K_t = 0)
+//! x_{t|t} = x_{t|t-1} + K_t nu_t              P_{t|t} = P_{t|t-1} - K_t H P_{t|t-1}
+//! ```
+//!
+//! Backward (Rauch, Tung & Striebel 1965; x_{T-1|T-1} starts it):
+//!
+//! ```text
+//! J_t = P_{t|t} F' P_{t+1|t}^+
+//! x_{t|T} = x_{t|t} + J_t (x_{t+1|T} - x_{t+1|t})
+//! P_{t|T} = P_{t|t} + J_t (P_{t+1|T} - P_{t+1|t}) J_t'
+//! V_{t+1,t} = Cov(x_{t+1}, x_t | all) = P_{t+1|T} J_t'
+//! ```
+//!
+//! The lag-one form V_{t+1,t} = P_{t+1|T} J_t' is de Jong's (1989) closed form of
+//! Shumway & Stoffer's (1982) backward recursion for the lag-one covariance. The
+//! existing [`crate::smoother`] does not return lag-one covariances, so the recursion
+//! is written here. `P^+` is the Moore-Penrose pseudo-inverse with scipy's cutoff
+//! (singular values below max(n, n) eps times the largest are dropped), as pykalman's
+//! `linalg.pinv`: a P_{t+1|t} that is singular (a state no noise drives and the
+//! initial covariance does not spread) still smooths. S_t is inverted through its
+//! Cholesky factor; one that is not positive definite is
+//! [`Error::InnovationNotPositiveDefinite`].
+//!
+//! ## M-step (Shumway & Stoffer 1982; Ghahramani & Hinton 1996, eqs. 12-15)
+//!
+//! With the smoothed moments, for the variables chosen in [`EmVariables`] (the others
+//! kept), each from the same E-step:
+//!
+//! ```text
+//! R       = 1/n_y sum_{measured t} [ e_t e_t' + H P_{t|T} H' ],   e_t = y_t - H x_{t|T} - d
+//! Q       = 1/(T-1) sum_{t=0}^{T-2} [ f_t f_t' + F P_{t|T} F' + P_{t+1|T}
+//!                                     - V_{t+1,t} F' - F V_{t+1,t}' ],
+//!                                     f_t = x_{t+1|T} - F x_{t|T} - b_t
+//! mu_0    = x_{0|T}
+//! Sigma_0 = P_{0|T} + (x_{0|T} - mu_0)(x_{0|T} - mu_0)'   (mu_0 the new one if learned)
+//! ```
+//!
+//! These are pykalman's `_em_observation_covariance`, `_em_transition_covariance`,
+//! `_em_initial_state_mean` and `_em_initial_state_covariance` (R averages over the
+//! measured epochs only; Q over every transition, measured or not; Sigma_0 uses the
+//! updated mu_0, so it is P_{0|T} when both are learned). Sigma_0 is written in the
+//! difference form, algebraically pykalman's
+//! `E[x_0 x_0'] - mu_0 E[x_0]' - E[x_0] mu_0' + mu_0 mu_0'`. The fitted covariances are symmetrised ((A + A') / 2) and checked
+//! like the inputs: the filter's and smoother's products leave a round-off
+//! asymmetry that EM iterations amplify (pykalman, which never symmetrises, ends
+//! the robot problem's ten iterations with a Q asymmetric by 6e-10 relative).
+//!
+//! Each iteration does not decrease the log-likelihood (Dempster, Laird & Rubin
+//! 1977); [`EmFit::log_likelihoods`] records it before the first iteration and after
+//! each one.
+//!
+//! ## Example
+//!
+//! ```
+//! use estim_core::nalgebra::{dmatrix, dvector, DVector};
+//! use estim_core::noise::em::{em, log_likelihood, EmVariables, LinearGaussianModel};
+//!
+//! // A random walk observed with noise; start from wrong noise levels.
+//! let model = LinearGaussianModel::new(
+//!     dmatrix![1.0], dmatrix![1.0], // F, H
+//!     dmatrix![1.0], dmatrix![1.0], // Q, R
+//!     dvector![0.0], dmatrix![1.0], // mu_0, Sigma_0
+//! )?;
+//! let ys: Vec<Option<DVector<f64>>> =
+//!     [Some(0.1), Some(0.3), None, Some(0.2), Some(0.5), Some(0.4), Some(0.45)]
+//!         .iter()
+//!         .map(|y| y.map(|y| dvector![y]))
+//!         .collect();
+//! let start = log_likelihood(&model, &ys)?;
+//! let fit = em(&model, &ys, EmVariables::NOISE_COVARIANCES, 20)?;
+//! assert_eq!(fit.log_likelihoods.len(), 21);
+//! assert_eq!(fit.log_likelihoods[0], start);
+//! assert!(fit.log_likelihoods.windows(2).all(|w| w[1] >= w[0] - 1e-12));
+//! # Ok::<(), estim_core::Error>(())
+//! ```
+//!
+//! References: R. H. Shumway and D. S. Stoffer, "An approach to time series
+//! smoothing and forecasting using the EM algorithm", J. Time Series Analysis 3(4),
+//! 1982; Z. Ghahramani and G. E. Hinton, "Parameter estimation for linear dynamical
+//! systems", Tech. Rep. CRG-TR-96-2, University of Toronto, 1996; P. de Jong, "Smoothing
+//! and interpolation with the state-space model", JASA 84(408), 1989.
+
+use std::ops::BitOr;
+
+use nalgebra::{DMatrix, DVector};
+
+use crate::gaussian::check_finite;
+use crate::linalg::cholesky::Square;
+use crate::linalg::semidefinite_cholesky;
+use crate::{Error, Result};
+
+/// The transition offsets b_t of x_{t+1} = F x_t + b_t + w_t.
+#[derive(Debug, Clone, PartialEq)]
+pub enum TransitionOffsets {
+    /// One offset for every step (zero for a model without offsets).
+    Constant(DVector<f64>),
+    /// b_t for t = 0 .. T-2: exactly one per transition of the measurement sequence
+    /// (T - 1 for T epochs), checked when the model meets its measurements.
+    PerStep(Vec<DVector<f64>>),
+}
+
+impl TransitionOffsets {
+    /// b_t (`t` < T - 1, checked by the caller).
+    fn at(&self, t: usize) -> &DVector<f64> {
+        match self {
+            Self::Constant(b) => b,
+            Self::PerStep(bs) => &bs[t],
+        }
+    }
+}
+
+/// A linear-Gaussian state-space model (see the module docs for its equations):
+/// F (n x n), offsets b_t, H (m x n), d (m), Q (n x n), R (m x m), mu_0 (n),
+/// Sigma_0 (n x n).
+///
+/// Checked on construction: sizes agree, every entry finite, Q, R and Sigma_0
+/// symmetric (entrywise, [`crate::numeric::relative_tolerance`]) and positive
+/// semidefinite to round-off (the crate's semidefinite Cholesky, pivot tolerance
+/// 16 n eps). A value of this type is always valid.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinearGaussianModel {
+    transition_matrix: DMatrix<f64>,
+    transition_offsets: TransitionOffsets,
+    observation_matrix: DMatrix<f64>,
+    observation_offset: DVector<f64>,
+    transition_covariance: DMatrix<f64>,
+    observation_covariance: DMatrix<f64>,
+    initial_state_mean: DVector<f64>,
+    initial_state_covariance: DMatrix<f64>,
+}
+
+impl LinearGaussianModel {
+    /// A model without offsets (b = 0, d = 0): transition F, observation H,
+    /// transition covariance Q, observation covariance R, initial mean mu_0 and
+    /// covariance Sigma_0. n is F's row count, m is H's.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for n = 0 or m = 0; [`Error::Dimension`] naming the
+    /// first quantity whose size disagrees with n and m; [`Error::NonFinite`];
+    /// [`Error::InvalidCovariance`] if Q, R or Sigma_0 is not symmetric positive
+    /// semidefinite to round-off.
+    pub fn new(
+        transition_matrix: DMatrix<f64>,
+        observation_matrix: DMatrix<f64>,
+        transition_covariance: DMatrix<f64>,
+        observation_covariance: DMatrix<f64>,
+        initial_state_mean: DVector<f64>,
+        initial_state_covariance: DMatrix<f64>,
+    ) -> Result<Self> {
+        let (n, m) = (transition_matrix.nrows(), observation_matrix.nrows());
+        let model = Self {
+            transition_matrix,
+            transition_offsets: TransitionOffsets::Constant(DVector::zeros(n)),
+            observation_matrix,
+            observation_offset: DVector::zeros(m),
+            transition_covariance,
+            observation_covariance,
+            initial_state_mean,
+            initial_state_covariance,
+        };
+        model.validate()?;
+        Ok(model)
+    }
+
+    /// The same model with transition offsets b_t.
+    ///
+    /// # Errors
+    /// [`Error::Dimension`] if an offset is not of size n; [`Error::NonFinite`].
+    pub fn with_transition_offsets(mut self, offsets: TransitionOffsets) -> Result<Self> {
+        self.transition_offsets = offsets;
+        self.validate()?;
+        Ok(self)
+    }
+
+    /// The same model with observation offset d.
+    ///
+    /// # Errors
+    /// [`Error::Dimension`] if d is not of size m; [`Error::NonFinite`].
+    pub fn with_observation_offset(mut self, offset: DVector<f64>) -> Result<Self> {
+        self.observation_offset = offset;
+        self.validate()?;
+        Ok(self)
+    }
+
+    /// State size n.
+    pub fn state_dimension(&self) -> usize {
+        self.transition_matrix.nrows()
+    }
+
+    /// Measurement size m.
+    pub fn observation_dimension(&self) -> usize {
+        self.observation_matrix.nrows()
+    }
+
+    /// F (n x n).
+    pub fn transition_matrix(&self) -> &DMatrix<f64> {
+        &self.transition_matrix
+    }
+
+    /// The transition offsets b_t.
+    pub fn transition_offsets(&self) -> &TransitionOffsets {
+        &self.transition_offsets
+    }
+
+    /// H (m x n).
+    pub fn observation_matrix(&self) -> &DMatrix<f64> {
+        &self.observation_matrix
+    }
+
+    /// d (m).
+    pub fn observation_offset(&self) -> &DVector<f64> {
+        &self.observation_offset
+    }
+
+    /// Q = Cov(w_t) (n x n).
+    pub fn transition_covariance(&self) -> &DMatrix<f64> {
+        &self.transition_covariance
+    }
+
+    /// R = Cov(v_t) (m x m).
+    pub fn observation_covariance(&self) -> &DMatrix<f64> {
+        &self.observation_covariance
+    }
+
+    /// mu_0, the mean of x_0 (n).
+    pub fn initial_state_mean(&self) -> &DVector<f64> {
+        &self.initial_state_mean
+    }
+
+    /// Sigma_0 = Cov(x_0) (n x n).
+    pub fn initial_state_covariance(&self) -> &DMatrix<f64> {
+        &self.initial_state_covariance
+    }
+
+    fn validate(&self) -> Result<()> {
+        let (n, m) = (self.state_dimension(), self.observation_dimension());
+        if n == 0 || m == 0 {
+            return Err(Error::InvalidParameter {
+                name: "model dimensions",
+                reason: format!("state size {n} and measurement size {m} must both be at least 1"),
+            });
+        }
+        check_shape(&self.transition_matrix, (n, n), "transition matrix")?;
+        check_shape(&self.observation_matrix, (m, n), "observation matrix")?;
+        check_shape(&self.transition_covariance, (n, n), "transition covariance")?;
+        check_shape(
+            &self.observation_covariance,
+            (m, m),
+            "observation covariance",
+        )?;
+        check_size(self.initial_state_mean.len(), n, "initial state mean")?;
+        check_shape(
+            &self.initial_state_covariance,
+            (n, n),
+            "initial state covariance",
+        )?;
+        check_size(self.observation_offset.len(), m, "observation offset")?;
+        match &self.transition_offsets {
+            TransitionOffsets::Constant(b) => check_size(b.len(), n, "transition offset")?,
+            TransitionOffsets::PerStep(bs) => {
+                for b in bs {
+                    check_size(b.len(), n, "transition offset")?;
+                    check_finite(b.as_slice(), "transition offset")?;
+                }
+            }
+        }
+        if let TransitionOffsets::Constant(b) = &self.transition_offsets {
+            check_finite(b.as_slice(), "transition offset")?;
+        }
+        check_finite(self.transition_matrix.as_slice(), "transition matrix")?;
+        check_finite(self.observation_matrix.as_slice(), "observation matrix")?;
+        check_finite(self.observation_offset.as_slice(), "observation offset")?;
+        check_finite(self.initial_state_mean.as_slice(), "initial state mean")?;
+        check_covariance(&self.transition_covariance, "transition covariance")?;
+        check_covariance(&self.observation_covariance, "observation covariance")?;
+        check_covariance(&self.initial_state_covariance, "initial state covariance")
+    }
+}
+
+/// Which parameters [`em`] learns; the others stay as given. A small bit set:
+/// combine with `|`, e.g. `EmVariables::TRANSITION_COVARIANCE |
+/// EmVariables::OBSERVATION_COVARIANCE` (= [`EmVariables::NOISE_COVARIANCES`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub struct EmVariables(u8);
+
+impl EmVariables {
+    /// Nothing: [`em`] only evaluates the log-likelihood.
+    pub const NONE: Self = Self(0);
+    /// Q.
+    pub const TRANSITION_COVARIANCE: Self = Self(1);
+    /// R.
+    pub const OBSERVATION_COVARIANCE: Self = Self(2);
+    /// mu_0.
+    pub const INITIAL_STATE_MEAN: Self = Self(4);
+    /// Sigma_0.
+    pub const INITIAL_STATE_COVARIANCE: Self = Self(8);
+    /// Q and R (pykalman's `test_kalman_fit`).
+    pub const NOISE_COVARIANCES: Self = Self(1 | 2);
+    /// Q, R, mu_0 and Sigma_0 (pykalman's default `em_vars`).
+    pub const ALL: Self = Self(1 | 2 | 4 | 8);
+
+    /// Whether every variable of `other` is in `self`.
+    pub const fn contains(self, other: Self) -> bool {
+        self.0 & other.0 == other.0
+    }
+
+    /// Whether no variable is chosen.
+    pub const fn is_empty(self) -> bool {
+        self.0 == 0
+    }
+}
+
+impl BitOr for EmVariables {
+    type Output = Self;
+    fn bitor(self, other: Self) -> Self {
+        Self(self.0 | other.0)
+    }
+}
+
+/// What [`em`] returns.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub struct EmFit {
+    /// The model after the last iteration (the unchosen parameters as given).
+    pub model: LinearGaussianModel,
+    /// The log-likelihood (nats) of the measurements under the model after k
+    /// iterations, k = 0 ..= iterations: element 0 is the given model's, the last
+    /// is [`EmFit::model`]'s. Non-decreasing up to round-off.
+    pub log_likelihoods: Vec<f64>,
+}
+
+/// The log-likelihood (nats) of `measurements` (epochs 0 .. T-1, `None` = missing)
+/// under `model`: the sum over the measured epochs of ln N(nu_t; 0, S_t) (module docs).
+/// 0 when no epoch is measured.
+///
+/// # Errors
+/// [`Error::InvalidParameter`] for an empty sequence; [`Error::Dimension`] for a
+/// measurement not of size m or per-step offsets not numbering T - 1;
+/// [`Error::NonFinite`] for a non-finite measurement or an overflow;
+/// [`Error::InnovationNotPositiveDefinite`] if some S_t is not positive definite.
+pub fn log_likelihood(
+    model: &LinearGaussianModel,
+    measurements: &[Option<DVector<f64>>],
+) -> Result<f64> {
+    check_measurements(model, measurements)?;
+    Ok(filter(model, measurements)?.log_likelihood)
+}
+
+/// `iterations` EM iterations from `model` on `measurements`, learning `vars` (module
+/// docs for the E- and M-steps). Each iteration is one filter and smoother pass and
+/// the closed-form M-step; one more filter pass gives the fitted model's
+/// log-likelihood. `iterations = 0` returns the model and its log-likelihood.
+///
+/// # Errors
+/// Those of [`log_likelihood`]; [`Error::InvalidParameter`] when learning R with no
+/// measured epoch or Q with fewer than 2 epochs (nothing to average);
+/// [`Error::InvalidCovariance`] if a fitted covariance is not positive semidefinite
+/// to round-off; [`Error::NonFinite`] if a smoother gain or a fitted value overflows.
+pub fn em(
+    model: &LinearGaussianModel,
+    measurements: &[Option<DVector<f64>>],
+    vars: EmVariables,
+    iterations: usize,
+) -> Result<EmFit> {
+    check_measurements(model, measurements)?;
+    let measured = measurements.iter().filter(|y| y.is_some()).count();
+    if vars.contains(EmVariables::OBSERVATION_COVARIANCE) && measured == 0 {
+        return Err(Error::InvalidParameter {
+            name: "measurements",
+            reason: "learning the observation covariance needs at least one measured epoch".into(),
+        });
+    }
+    if vars.contains(EmVariables::TRANSITION_COVARIANCE) && measurements.len() < 2 {
+        return Err(Error::InvalidParameter {
+            name: "measurements",
+            reason: "learning the transition covariance needs at least 2 epochs".into(),
+        });
+    }
+    let mut model = model.clone();
+    let mut log_likelihoods = Vec::with_capacity(iterations + 1);
+    for _ in 0..iterations {
+        let forward = filter(&model, measurements)?;
+        log_likelihoods.push(forward.log_likelihood);
+        let smoothed = smooth(&model, &forward)?;
+        model = maximise(&model, measurements, &smoothed, vars)?;
+    }
+    log_likelihoods.push(filter(&model, measurements)?.log_likelihood);
+    Ok(EmFit {
+        model,
+        log_likelihoods,
+    })
+}
+
+/// The forward pass: predicted and filtered moments of every epoch.
+struct Forward {
+    predicted_means: Vec<DVector<f64>>,
+    predicted_covariances: Vec<DMatrix<f64>>,
+    filtered_means: Vec<DVector<f64>>,
+    filtered_covariances: Vec<DMatrix<f64>>,
+    log_likelihood: f64,
+}
+
+/// The smoothed moments: x_{t|T}, P_{t|T} (t = 0 .. T-1) and
+/// V_{t+1,t} = Cov(x_{t+1}, x_t | all) (t = 0 .. T-2).
+struct Smoothed {
+    means: Vec<DVector<f64>>,
+    covariances: Vec<DMatrix<f64>>,
+    lag_one: Vec<DMatrix<f64>>,
+}
+
+/// The Kalman filter in pykalman's order of operations (module docs).
+fn filter(model: &LinearGaussianModel, measurements: &[Option<DVector<f64>>]) -> Result<Forward> {
+    let steps = measurements.len();
+    let f = &model.transition_matrix;
+    let h = &model.observation_matrix;
+    let m = model.observation_dimension();
+    let log_2pi = (2.0 * std::f64::consts::PI).ln();
+    let mut forward = Forward {
+        predicted_means: Vec::with_capacity(steps),
+        predicted_covariances: Vec::with_capacity(steps),
+        filtered_means: Vec::with_capacity(steps),
+        filtered_covariances: Vec::with_capacity(steps),
+        log_likelihood: 0.0,
+    };
+    for (t, measurement) in measurements.iter().enumerate() {
+        let (mean, covariance) = match (
+            forward.filtered_means.last(),
+            forward.filtered_covariances.last(),
+        ) {
+            (Some(x), Some(p)) => (
+                f * x + model.transition_offsets.at(t - 1),
+                f * (p * f.transpose()) + &model.transition_covariance,
+            ),
+            _ => (
+                model.initial_state_mean.clone(),
+                model.initial_state_covariance.clone(),
+            ),
+        };
+        let (filtered_mean, filtered_covariance) = match measurement {
+            Some(y) => {
+                // pykalman's association: S = H (P H') + R, K = (P H') S^-1, and
+                // P+ = P - K (H P). With K built from P H' (not from H P), the update
+                // shrinks a round-off asymmetry of P instead of carrying it whole
+                // into the next predict (where F's growth would amplify it).
+                let p_ht = &covariance * h.transpose();
+                let s = h * &p_ht + &model.observation_covariance;
+                check_finite(s.as_slice(), "innovation covariance")?;
+                let chol = s.cholesky().ok_or(Error::InnovationNotPositiveDefinite)?;
+                let innovation = y - (h * &mean + &model.observation_offset);
+                // K' = S^-1 (P H')' (S symmetric: nalgebra's Cholesky reads its lower
+                // triangle).
+                let gain = chol.solve(&p_ht.transpose()).transpose();
+                let h_p = h * &covariance;
+                let whitened = chol
+                    .l()
+                    .solve_lower_triangular(&innovation)
+                    .ok_or(Error::InnovationNotPositiveDefinite)?;
+                let log_det = 2.0 * chol.l().diagonal().iter().map(|v| v.ln()).sum::<f64>();
+                forward.log_likelihood -=
+                    0.5 * (m as f64 * log_2pi + log_det + whitened.norm_squared());
+                (&mean + &gain * innovation, &covariance - gain * h_p)
+            }
+            None => (mean.clone(), covariance.clone()),
+        };
+        check_finite(filtered_mean.as_slice(), "filtered state mean (overflow)")?;
+        check_finite(
+            filtered_covariance.as_slice(),
+            "filtered state covariance (overflow)",
+        )?;
+        forward.predicted_means.push(mean);
+        forward.predicted_covariances.push(covariance);
+        forward.filtered_means.push(filtered_mean);
+        forward.filtered_covariances.push(filtered_covariance);
+    }
+    if !forward.log_likelihood.is_finite() {
+        return Err(Error::NonFinite {
+            what: "log-likelihood",
+        });
+    }
+    Ok(forward)
+}
+
+/// The RTS smoother with the lag-one covariances (module docs).
+fn smooth(model: &LinearGaussianModel, forward: &Forward) -> Result<Smoothed> {
+    let steps = forward.filtered_means.len();
+    let f_t = model.transition_matrix.transpose();
+    let mut means = forward.filtered_means.clone();
+    let mut covariances = forward.filtered_covariances.clone();
+    let mut lag_one = vec![DMatrix::zeros(0, 0); steps.saturating_sub(1)];
+    for t in (0..steps.saturating_sub(1)).rev() {
+        let predicted_inverse = pseudo_inverse(&forward.predicted_covariances[t + 1])?;
+        let gain = &forward.filtered_covariances[t] * (&f_t * predicted_inverse);
+        check_finite(gain.as_slice(), "smoother gain (overflow)")?;
+        means[t] =
+            &forward.filtered_means[t] + &gain * (&means[t + 1] - &forward.predicted_means[t + 1]);
+        covariances[t] = &forward.filtered_covariances[t]
+            + &gain
+                * ((&covariances[t + 1] - &forward.predicted_covariances[t + 1])
+                    * gain.transpose());
+        lag_one[t] = &covariances[t + 1] * gain.transpose();
+    }
+    Ok(Smoothed {
+        means,
+        covariances,
+        lag_one,
+    })
+}
+
+/// The M-step for `vars` (module docs); the other parameters are kept.
+fn maximise(
+    model: &LinearGaussianModel,
+    measurements: &[Option<DVector<f64>>],
+    smoothed: &Smoothed,
+    vars: EmVariables,
+) -> Result<LinearGaussianModel> {
+    let mut next = model.clone();
+    let (f, h) = (&model.transition_matrix, &model.observation_matrix);
+    if vars.contains(EmVariables::OBSERVATION_COVARIANCE) {
+        let m = model.observation_dimension();
+        let (mut sum, mut count) = (DMatrix::zeros(m, m), 0usize);
+        for (t, y) in measurements.iter().enumerate() {
+            if let Some(y) = y {
+                let error = y - h * &smoothed.means[t] - &model.observation_offset;
+                sum += &error * error.transpose() + h * (&smoothed.covariances[t] * h.transpose());
+                count += 1;
+            }
+        }
+        next.observation_covariance = symmetric_part(sum / count as f64);
+    }
+    if vars.contains(EmVariables::TRANSITION_COVARIANCE) {
+        let n = model.state_dimension();
+        let mut sum = DMatrix::zeros(n, n);
+        for t in 0..smoothed.lag_one.len() {
+            let error =
+                &smoothed.means[t + 1] - f * &smoothed.means[t] - model.transition_offsets.at(t);
+            let lag_f = &smoothed.lag_one[t] * f.transpose();
+            sum += &error * error.transpose()
+                + f * (&smoothed.covariances[t] * f.transpose())
+                + &smoothed.covariances[t + 1]
+                - &lag_f
+                - lag_f.transpose();
+        }
+        next.transition_covariance = symmetric_part(sum / smoothed.lag_one.len() as f64);
+    }
+    if vars.contains(EmVariables::INITIAL_STATE_MEAN) {
+        next.initial_state_mean = smoothed.means[0].clone();
+    }
+    if vars.contains(EmVariables::INITIAL_STATE_COVARIANCE) {
+        let offset = &smoothed.means[0] - &next.initial_state_mean;
+        next.initial_state_covariance =
+            symmetric_part(&smoothed.covariances[0] + &offset * offset.transpose());
+    }
+    fitted(next.validate()).map(|()| next)
+}
+
+/// Names a fitted covariance's failure as such.
+fn fitted(result: Result<()>) -> Result<()> {
+    result.map_err(|error| match error {
+        Error::InvalidCovariance { what, reason } => Error::InvalidCovariance {
+            what,
+            reason: format!("fitted by EM: {reason}"),
+        },
+        other => other,
+    })
+}
+
+/// (A + A') / 2.
+fn symmetric_part(a: DMatrix<f64>) -> DMatrix<f64> {
+    (&a + a.transpose()) * 0.5
+}
+
+/// The Moore-Penrose pseudo-inverse through the SVD, singular values at or below
+/// n eps sigma_max dropped (scipy.linalg.pinv's default cutoff, as pykalman).
+fn pseudo_inverse(a: &DMatrix<f64>) -> Result<DMatrix<f64>> {
+    let svd = a.clone().svd(true, true);
+    let largest = svd.singular_values.max();
+    let cutoff = a.nrows().max(a.ncols()) as f64 * f64::EPSILON * largest;
+    // nalgebra keeps singular values strictly above its eps; a zero matrix has none.
+    svd.pseudo_inverse(cutoff)
+        .map_err(|reason| Error::InvalidCovariance {
+            what: "predicted state covariance",
+            reason: format!("no pseudo-inverse: {reason}"),
+        })
+}
+
+fn check_size(got: usize, expected: usize, what: &'static str) -> Result<()> {
+    if got == expected {
+        Ok(())
+    } else {
+        Err(Error::Dimension {
+            what,
+            expected,
+            got,
+        })
+    }
+}
+
+/// Rows then columns: [`Error::Dimension`] names the first that disagrees.
+fn check_shape(m: &DMatrix<f64>, (rows, cols): (usize, usize), what: &'static str) -> Result<()> {
+    check_size(m.nrows(), rows, what)?;
+    check_size(m.ncols(), cols, what)
+}
+
+/// Finite, symmetric entrywise ([`crate::gaussian::check_symmetric`]'s rule) and
+/// positive semidefinite to round-off (the crate's semidefinite Cholesky).
+fn check_covariance(m: &DMatrix<f64>, what: &'static str) -> Result<()> {
+    check_finite(m.as_slice(), what)?;
+    let tol = crate::scalar::relative_tolerance::<f64>();
+    let n = m.nrows();
+    for i in 0..n {
+        for j in (i + 1)..n {
+            let (upper, lower) = (m[(i, j)], m[(j, i)]);
+            let scale = (m[(i, i)].abs().sqrt() * m[(j, j)].abs().sqrt())
+                .max(upper.abs())
+                .max(lower.abs());
+            if (upper - lower).abs() > tol * scale {
+                return Err(Error::InvalidCovariance {
+                    what,
+                    reason: format!("not symmetric at ({i}, {j})"),
+                });
+            }
+        }
+    }
+    let mut factor = Factor(DMatrix::zeros(n, n));
+    if semidefinite_cholesky(n, 0, |i, k| m[(i, k)], &mut factor) {
+        Ok(())
+    } else {
+        Err(Error::InvalidCovariance {
+            what,
+            reason: "not positive semidefinite (a Cholesky pivot is negative beyond round-off)"
+                .into(),
+        })
+    }
+}
+
+/// A dynamic matrix as the semidefinite Cholesky's output.
+struct Factor(DMatrix<f64>);
+
+impl Square<f64> for Factor {
+    fn value(&self, i: usize, k: usize) -> f64 {
+        self.0[(i, k)]
+    }
+    fn set(&mut self, i: usize, k: usize, v: f64) {
+        self.0[(i, k)] = v;
+    }
+}
+
+/// T >= 1, each measurement of size m and finite, per-step offsets numbering T - 1.
+fn check_measurements(
+    model: &LinearGaussianModel,
+    measurements: &[Option<DVector<f64>>],
+) -> Result<()> {
+    if measurements.is_empty() {
+        return Err(Error::InvalidParameter {
+            name: "measurements",
+            reason: "the sequence has no epoch".into(),
+        });
+    }
+    for y in measurements.iter().flatten() {
+        check_size(y.len(), model.observation_dimension(), "measurement")?;
+        check_finite(y.as_slice(), "measurement")?;
+    }
+    if let TransitionOffsets::PerStep(offsets) = &model.transition_offsets {
+        check_size(
+            offsets.len(),
+            measurements.len() - 1,
+            "transition offsets (one per step, T - 1)",
+        )?;
+    }
+    Ok(())
+}
