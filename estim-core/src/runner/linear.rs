@@ -37,6 +37,9 @@ use crate::{
 /// each step used. B u is deterministic: it moves the mean only, and the observer's
 /// [`crate::PredictEvent`] carries Phi = F_k and Q_d = Q_k of the step.
 ///
+/// A whole sequence of measurements of the fixed model is filtered or smoothed in one
+/// call by [`Self::filter_batch`] and [`Self::smooth_batch`].
+///
 /// State kept between calls (all readable): the estimate, Q_acc and Phi_acc since
 /// the last measurement, the recorded window (if configured), the configuration and
 /// the observer. Q_acc and Phi_acc are reset after every update attempt, accepted or
