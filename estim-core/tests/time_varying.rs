@@ -52,7 +52,8 @@ fn filter(plan: &Plan) -> KalmanFilter<f64, N, M> {
     .expect("filter")
 }
 
-/// Worst relative errors (state, covariance, Q_acc) of the filter run by `run_step`
+/// Worst relative errors (state, covariance, Q_acc) of `kf` run over the plan (with
+/// the setters, or with `predict_with` / `update_with`)
 /// against the textbook reference, step by step.
 fn compare<O: Observer<f64, estim_core::nalgebra::SVector<f64, N>, N>>(
     plan: &Plan,
