@@ -247,6 +247,7 @@ pub use runner::{
     ErrorStateKalmanFilter, ExtendedKalmanFilter, KalmanFilter, SquareRootKalmanFilter,
     UnscentedKalmanFilter, UpdateReport,
 };
+pub use runner::{FilteredBatch, SmoothedBatch};
 pub use scalar::Scalar;
 pub use traits::{
     CrossCovariance, CrossCovarianceContext, ErrorStateModel, InputSpec, LearnedMeasurement,

@@ -1,5 +1,6 @@
-//! The linear Kalman filter: fixed F, Q, H, R; its predict and update run a copy
-//! compiled for AVX2 where the dispatch allows.
+//! The linear Kalman filter: F, Q, H, R held by the filter (replaceable per step), an
+//! optional control input B u; its predict and update run a copy compiled for AVX2
+//! where the dispatch allows.
 
 #[cfg(doc)]
 use crate::{Error, JointCheck};
@@ -15,8 +16,29 @@ use crate::{
     CrossCovariance, FilterConfig, Result, Scalar, StateAndCovariance, WindowedCrossCovariance,
 };
 
-/// Linear Kalman filter x_k = F x_{k-1} + G w, y_k = H x_k + v, with the correlated
-/// update.
+/// Linear Kalman filter x_k = F_k x_{k-1} + B_k u_k + G w_{k-1}, y_k = H_k x_k + v_k,
+/// with the correlated update.
+///
+/// ## Time index and the time-varying model
+///
+/// Step k (k = 1, 2, ...) is one predict, then at most one update (as [`Self::step`]).
+/// The predict of step k maps x_{k-1} to x_k with the F and Q the filter holds at that
+/// moment: F_k and Q_k = Cov(G w_{k-1}), plus B_k u_k with
+/// [`Self::predict_with_input`]; the update of step k uses the H and R it holds: H_k
+/// and R_k, and the cross-covariance model's M_k = Cov(G w_{k-1}, v_k) (accumulated
+/// over the interval, below). A time-varying model replaces the matrices before each
+/// call with the setters ([`Self::set_transition`], [`Self::set_process_noise`],
+/// [`Self::set_observation`], [`Self::set_measurement_noise`]) or with
+/// [`Self::predict_with`] / [`Self::update_with`], which set and run in one call; the
+/// matrices stay in force until replaced. Between two updates each predict adds its own
+/// step: Q_acc <- F_k Q_acc F_k' + Q_k and Phi_acc <- F_k Phi_acc (the first predict
+/// after an update sets Q_acc = Q_k, Phi_acc = F_k), so Q_acc = Cov of the process
+/// noise accumulated over the interval and Phi_acc its transition, whatever F and Q
+/// each step used. B u is deterministic: it moves the mean only, and the observer's
+/// [`crate::PredictEvent`] carries Phi = F_k and Q_d = Q_k of the step.
+///
+/// A whole sequence of measurements of the fixed model is filtered or smoothed in one
+/// call by [`Self::filter_batch`] and [`Self::smooth_batch`].
 ///
 /// State kept between calls (all readable): the estimate, Q_acc and Phi_acc since
 /// the last measurement, the recorded window (if configured), the configuration and
@@ -37,8 +59,11 @@ pub struct KalmanFilter<T: Scalar, const N: usize, const M: usize, O = NoObserve
     spare: SMatrix<T, N, N>,
     /// F P during a predict.
     work: SMatrix<T, N, N>,
-    /// R's block certificate for the joint check (R never changes).
+    /// R's block certificate for the joint check (recomputed when R is replaced).
     measurement_certificate: Option<T>,
+    /// False after F or Q was replaced, until the next predict: the accumulator's kept
+    /// first step (see `Accumulator::push`) is then not this model's and is copied.
+    model_unchanged: bool,
     shared: Shared<T, SVector<T, N>, (), N, O>,
 }
 
@@ -74,6 +99,7 @@ impl<T: Scalar, const N: usize, const M: usize> KalmanFilter<T, N, M, NoObserver
             spare: SMatrix::zeros(),
             work: SMatrix::zeros(),
             measurement_certificate: crate::cross::block_certificate(&measurement_noise),
+            model_unchanged: true,
             shared: Shared::new(),
         })
     }
@@ -94,8 +120,104 @@ impl<T: Scalar, const N: usize, const M: usize, O> KalmanFilter<T, N, M, O> {
             spare: self.spare,
             work: self.work,
             measurement_certificate: self.measurement_certificate,
+            model_unchanged: self.model_unchanged,
             shared: self.shared.with_observer(observer),
         }
+    }
+
+    /// A copy of this filter (model, estimate, accumulators, recorded window,
+    /// configuration, log-likelihood) with `observer` in place of its own.
+    pub(super) fn fork<O2>(&self, observer: O2) -> KalmanFilter<T, N, M, O2> {
+        KalmanFilter {
+            transition: self.transition,
+            process_noise: self.process_noise,
+            observation: self.observation,
+            measurement_noise: self.measurement_noise,
+            estimate: self.estimate.clone(),
+            spare: self.spare,
+            work: self.work,
+            measurement_certificate: self.measurement_certificate,
+            model_unchanged: self.model_unchanged,
+            shared: Shared {
+                accumulated: self.shared.accumulated.clone(),
+                history: self.shared.history.clone(),
+                config: self.shared.config.clone(),
+                observer,
+                rejections_in_a_row: self.shared.rejections_in_a_row,
+                noise_certificate: self.shared.noise_certificate,
+                log_likelihood: self.shared.log_likelihood,
+            },
+        }
+    }
+
+    /// The transition F used by the next predict.
+    pub fn transition(&self) -> &SMatrix<T, N, N> {
+        &self.transition
+    }
+
+    /// The process-noise covariance Q = Cov(G w) used by the next predict.
+    pub fn process_noise(&self) -> &SMatrix<T, N, N> {
+        &self.process_noise
+    }
+
+    /// The observation matrix H used by the next update.
+    pub fn observation(&self) -> &SMatrix<T, M, N> {
+        &self.observation
+    }
+
+    /// The measurement-noise covariance R used by the next update.
+    pub fn measurement_noise(&self) -> &SMatrix<T, M, M> {
+        &self.measurement_noise
+    }
+
+    /// Replace F for the following predicts (time index: module docs of
+    /// [`KalmanFilter`]). Q_acc and Phi_acc keep what earlier steps accumulated.
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`]; the filter is then unchanged.
+    pub fn set_transition(&mut self, transition: SMatrix<T, N, N>) -> Result<()> {
+        check_finite(transition.as_slice(), "transition matrix")?;
+        self.transition = transition;
+        self.model_unchanged = false;
+        Ok(())
+    }
+
+    /// Replace Q = Cov(G w) for the following predicts.
+    ///
+    /// # Errors
+    /// As [`KalmanFilter::new`] for Q: [`Error::NonFinite`], or
+    /// [`Error::InvalidCovariance`] (not symmetric, or not positive semidefinite to
+    /// round-off); the filter is then unchanged.
+    pub fn set_process_noise(&mut self, process_noise: SMatrix<T, N, N>) -> Result<()> {
+        check_finite(process_noise.as_slice(), "process noise covariance")?;
+        covariance_factor(&process_noise, "process noise covariance")?;
+        self.process_noise = process_noise;
+        self.model_unchanged = false;
+        Ok(())
+    }
+
+    /// Replace H for the following updates.
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`]; the filter is then unchanged.
+    pub fn set_observation(&mut self, observation: SMatrix<T, M, N>) -> Result<()> {
+        check_finite(observation.as_slice(), "observation matrix")?;
+        self.observation = observation;
+        Ok(())
+    }
+
+    /// Replace R for the following updates (its block certificate for the joint check
+    /// is recomputed).
+    ///
+    /// # Errors
+    /// As [`KalmanFilter::new`] for R: [`Error::NonFinite`], or
+    /// [`Error::InvalidCovariance`]; the filter is then unchanged.
+    pub fn set_measurement_noise(&mut self, measurement_noise: SMatrix<T, M, M>) -> Result<()> {
+        check_finite(measurement_noise.as_slice(), "measurement noise covariance")?;
+        covariance_factor(&measurement_noise, "measurement noise covariance")?;
+        self.measurement_noise = measurement_noise;
+        self.measurement_certificate = crate::cross::block_certificate(&measurement_noise);
+        Ok(())
     }
 
     /// The current estimate.
@@ -130,8 +252,84 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
 
     #[inline(always)]
     fn predict_body(&mut self) -> Result<()> {
+        let state = mul_static(&self.transition, self.estimate.state());
+        self.commit_predict(state)
+    }
+
+    /// Prior with a control input: x <- F x + B u, P <- F P F' + Q (B u moves the
+    /// mean only; the observer sees Phi = F and Q_d = Q). Dispatched as
+    /// [`KalmanFilter::predict`].
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`] if B or u is not finite (the filter is then unchanged) or
+    /// the prediction overflows; observer errors.
+    pub fn predict_with_input<const U: usize>(
+        &mut self,
+        control: &SMatrix<T, N, U>,
+        input: &SVector<T, U>,
+    ) -> Result<()> {
+        check_finite(control.as_slice(), "control matrix")?;
+        check_finite(input.as_slice(), "control input")?;
+        simd_dispatch!(self.predict_input_body(control, input) via predict_input_avx2)
+    }
+
+    /// [`KalmanFilter::predict_with_input`]'s body compiled for AVX2.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn predict_input_avx2<const U: usize>(
+        &mut self,
+        control: &SMatrix<T, N, U>,
+        input: &SVector<T, U>,
+    ) -> Result<()> {
+        self.predict_input_body(control, input)
+    }
+
+    #[inline(always)]
+    fn predict_input_body<const U: usize>(
+        &mut self,
+        control: &SMatrix<T, N, U>,
+        input: &SVector<T, U>,
+    ) -> Result<()> {
+        let state =
+            mul_static(&self.transition, self.estimate.state()) + mul_static(control, input);
+        self.commit_predict(state)
+    }
+
+    /// One predict of a time-varying model: F and Q replaced (as by
+    /// [`KalmanFilter::set_transition`] and [`KalmanFilter::set_process_noise`], and
+    /// kept for the following predicts), then [`KalmanFilter::predict`], or
+    /// [`KalmanFilter::predict_with_input`] when `control` = (B, u) is given.
+    ///
+    /// # Errors
+    /// The setters' errors (checked before anything is replaced: the filter is then
+    /// unchanged), then those of the predict.
+    pub fn predict_with<const U: usize>(
+        &mut self,
+        transition: SMatrix<T, N, N>,
+        process_noise: SMatrix<T, N, N>,
+        control: Option<(&SMatrix<T, N, U>, &SVector<T, U>)>,
+    ) -> Result<()> {
+        check_finite(transition.as_slice(), "transition matrix")?;
+        if let Some((b, u)) = control {
+            check_finite(b.as_slice(), "control matrix")?;
+            check_finite(u.as_slice(), "control input")?;
+        }
+        self.set_process_noise(process_noise)?;
+        self.set_transition(transition)?;
+        match control {
+            Some((b, u)) => self.predict_with_input(b, u),
+            None => self.predict(),
+        }
+    }
+
+    /// P <- F P F' + Q into `spare`, checks, commits `state` and the covariance, records
+    /// and notifies: the predict after the mean.
+    #[inline(always)]
+    fn commit_predict(&mut self, state: SVector<T, N>) -> Result<()> {
         let f = &self.transition;
-        let state = mul_static(f, self.estimate.state());
         propagate_symmetric_into(
             f,
             self.estimate.covariance(),
@@ -145,9 +343,10 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         // estimate: the covariance is written once, into `spare`, and swapped in.
         let before = *self.estimate.state();
         self.estimate.commit(state, &mut self.spare);
+        let fixed = std::mem::replace(&mut self.model_unchanged, true);
         let f = &self.transition;
         self.shared.record_predict(
-            true,
+            fixed,
             &before,
             &(),
             None,
@@ -163,6 +362,29 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             &self.transition,
             &self.process_noise,
         )
+    }
+
+    /// One update of a time-varying model: H and R replaced (as by
+    /// [`KalmanFilter::set_observation`] and [`KalmanFilter::set_measurement_noise`],
+    /// and kept for the following updates), then [`KalmanFilter::update`].
+    ///
+    /// # Errors
+    /// The setters' errors (checked before anything is replaced: the filter is then
+    /// unchanged), then those of the update.
+    pub fn update_with<C>(
+        &mut self,
+        observation: SMatrix<T, M, N>,
+        measurement_noise: SMatrix<T, M, M>,
+        measurement: &SVector<T, M>,
+        cross: &C,
+    ) -> Result<UpdateReport<T, N, M>>
+    where
+        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
+    {
+        check_finite(observation.as_slice(), "observation matrix")?;
+        self.set_measurement_noise(measurement_noise)?;
+        self.set_observation(observation)?;
+        self.update(measurement, cross)
     }
 
     fn update_from<C, W>(

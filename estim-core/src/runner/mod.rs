@@ -24,6 +24,7 @@ use crate::Scalar;
 
 #[macro_use]
 mod wrappers;
+mod batch;
 mod error_state;
 mod extended;
 mod linear;
@@ -33,6 +34,7 @@ mod square_root;
 mod tests;
 mod unscented;
 
+pub use batch::{FilteredBatch, SmoothedBatch};
 pub use error_state::ErrorStateKalmanFilter;
 pub use extended::ExtendedKalmanFilter;
 pub use linear::KalmanFilter;
