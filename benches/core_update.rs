@@ -24,9 +24,10 @@ use adskalman::{
 };
 use criterion::{criterion_group, criterion_main, Criterion};
 use estim_core::nalgebra::{Matrix2, Matrix2x4, Matrix4, Matrix4x2, SMatrix, SVector, U2, U4};
+use estim_core::update::correlated_update;
 use estim_core::{
-    correlated_update, CovarianceUpdate, CrossCovariance, FilterConfig, Fixed, JointCheck,
-    JointCovariance, KalmanFilter, StateAndCovariance, Zero,
+    CovarianceUpdate, CrossCovariance, FilterConfig, Fixed, JointCheck, JointCovariance,
+    KalmanFilter, StateAndCovariance, Zero,
 };
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -4,7 +4,8 @@
 //! reference) or a typed error, never a non-finite value passed on.
 
 use estim_core::nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector2, Vector3};
-use estim_core::{correlated_update, CovarianceUpdate, Error, StateAndCovariance};
+use estim_core::update::correlated_update;
+use estim_core::{CovarianceUpdate, Error, StateAndCovariance};
 use proptest::prelude::*;
 
 /// Reference posterior by Gaussian conditioning of the joint of (x, y) written out

@@ -69,7 +69,7 @@
 //! ```
 //!
 //! With M = 0 this is the textbook Kalman update. It is implemented once, in
-//! [`correlated_update`], and every runner calls it. The joint covariance
+//! [`update::correlated_update`], and every runner calls it. The joint covariance
 //! [[Q_acc, M], [M', R]] must be positive semidefinite for M to be a covariance at
 //! all: [`JointCovariance::check`] tests it (scale invariant, on the correlation
 //! matrix), [`JointCovariance::largest_valid_scale`] gives the largest valid multiple of a given M,
@@ -243,17 +243,17 @@ pub use cross::{Fixed, JointCovariance, ScaledCorrelation, Zero};
 pub use error::{Error, Result};
 pub use gaussian::StateAndCovariance;
 pub use observer::{NisRecorder, NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
+pub use runner::FilteredBatch;
 pub use runner::{
     ErrorStateKalmanFilter, ExtendedKalmanFilter, KalmanFilter, SquareRootKalmanFilter,
     UnscentedKalmanFilter, UpdateReport,
 };
-pub use runner::{FilteredBatch, SmoothedBatch};
 pub use scalar::Scalar;
 pub use traits::{
     CrossCovariance, CrossCovarianceContext, ErrorStateModel, InputSpec, LearnedMeasurement,
     MeasurementModel, ProcessModel,
 };
-pub use update::{correlated_update, CovarianceUpdate};
+pub use update::CovarianceUpdate;
 pub use window::WindowedCrossCovariance;
 
 pub use nalgebra;

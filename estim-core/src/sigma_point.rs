@@ -58,7 +58,7 @@
 //! does: see the variant), so that any number of predictions can separate two
 //! updates (then M is the carried Cov(e_k, v_k)).
 //! On linear models the transform is exact and both updates equal
-//! [`crate::correlated_update`] (tested to 1e-10, with and without M):
+//! [`crate::update::correlated_update`] (tested to 1e-10, with and without M):
 //!
 //! ```text
 //! y_hat = sum Wm_i Y_i,  P_yy = sum Wc_i (Y_i - y_hat)(Y_i - y_hat)',
@@ -81,7 +81,7 @@ use crate::update::check_innovation_conditioning;
 use crate::{Error, Result, Scalar, StateAndCovariance};
 
 /// Which sigma-point update [`unscented_update`] runs. Both reduce to
-/// [`crate::correlated_update`] on a linear measurement, with and without M.
+/// [`crate::update::correlated_update`] on a linear measurement, with and without M.
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[non_exhaustive]
@@ -373,7 +373,7 @@ pub struct UnscentedOutcome<T: Scalar, const N: usize, const M: usize> {
 /// [`Error::NonFinite`]; [`Error::InvalidJointCovariance`] if
 /// [[P, M], [M', R]] has no square root; [`Error::InnovationNotPositiveDefinite`] /
 /// [`Error::InnovationIllConditioned`] for P_yy as for
-/// [`crate::correlated_update`]; [`Error::InvalidParameter`] if L + kappa <= 0 (L = N,
+/// [`crate::update::correlated_update`]; [`Error::InvalidParameter`] if L + kappa <= 0 (L = N,
 /// or N + M for the augmented update); the errors of `predict_measurement`.
 pub fn unscented_update<T, H, const N: usize, const M: usize>(
     transform: &UnscentedTransform,
@@ -423,7 +423,7 @@ pub(crate) struct SigmaStatistics<T: Scalar, const N: usize, const M: usize> {
 }
 
 impl<T: Scalar, const N: usize, const M: usize> SigmaStatistics<T, N, M> {
-    /// P_yy^-1 (checked as [`crate::correlated_update`] checks S), the NIS of
+    /// P_yy^-1 (checked as [`crate::update::correlated_update`] checks S), the NIS of
     /// `innovation` and ln det P_yy (from the same factorization).
     pub(crate) fn factor(&self, innovation: &SVector<T, M>) -> Result<(SMatrix<T, M, M>, T, T)> {
         check_finite(innovation.as_slice(), "innovation")?;

@@ -94,6 +94,9 @@ use crate::gaussian::symmetrize;
 use crate::observer::{Observer, PredictEvent, UpdateEvent};
 use crate::{Error, ErrorStateModel, Result, Scalar};
 
+/// The result of [`crate::KalmanFilter::smooth_batch`] (defined with the runners).
+pub use crate::runner::SmoothedBatch;
+
 /// When a [`ForwardRecorder`] opens an epoch.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[non_exhaustive]
@@ -528,7 +531,8 @@ impl<T: Scalar, S: Clone, const N: usize> Observer<T, S, N> for ForwardRecorder<
 ///
 /// ```
 /// use estim_core::nalgebra::{Matrix1, Matrix1x2, Matrix2, Vector1, Vector2};
-/// use estim_core::{FixedLagSmoother, KalmanFilter, StateAndCovariance, Zero};
+/// use estim_core::smoother::FixedLagSmoother;
+/// use estim_core::{KalmanFilter, StateAndCovariance, Zero};
 /// use estim_core::smoother::RecordAt;
 ///
 /// let initial = StateAndCovariance::new(Vector2::zeros(), Matrix2::identity())?;

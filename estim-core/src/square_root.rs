@@ -168,7 +168,7 @@ pub fn check_joint_factor<T: Scalar, const N: usize, const M: usize>(
 /// [`Error::NonFinite`]; [`Error::InvalidParameter`] if `factor` is not lower
 /// triangular; [`Error::InvalidJointCovariance`] if [[S S', M], [M', R]] has no
 /// square root (never factored around); [`Error::InnovationNotPositiveDefinite`] /
-/// [`Error::InnovationIllConditioned`] as for [`crate::correlated_update`].
+/// [`Error::InnovationIllConditioned`] as for [`crate::update::correlated_update`].
 pub fn square_root_update<T: Scalar, const N: usize, const M: usize>(
     state: &SVector<T, N>,
     factor: &SMatrix<T, N, N>,

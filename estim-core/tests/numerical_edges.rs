@@ -8,10 +8,8 @@ use common::*;
 use estim_core::nalgebra::{
     DMatrix, Matrix1, Matrix2, SMatrix, SVector, Vector1, Vector2, Vector4,
 };
-use estim_core::{
-    correlated_update, CovarianceUpdate, Error, JointCovariance, ScaledCorrelation,
-    StateAndCovariance,
-};
+use estim_core::update::correlated_update;
+use estim_core::{CovarianceUpdate, Error, JointCovariance, ScaledCorrelation, StateAndCovariance};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

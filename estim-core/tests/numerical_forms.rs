@@ -25,7 +25,8 @@
 //! hundreds of cases).
 
 use estim_core::nalgebra::{DMatrix, Matrix2, SMatrix, Vector2};
-use estim_core::{correlated_update, CovarianceUpdate, Error, StateAndCovariance};
+use estim_core::update::correlated_update;
+use estim_core::{CovarianceUpdate, Error, StateAndCovariance};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal, Uniform};

@@ -18,10 +18,11 @@ mod common;
 
 use common::*;
 use estim_core::nalgebra::{DMatrix, DVector, SMatrix, SVector};
+use estim_core::update::correlated_update;
 use estim_core::{
-    correlated_update, CovarianceUpdate, Error, ErrorStateKalmanFilter, ErrorStateModel,
-    ExtendedKalmanFilter, FilterConfig, Fixed, JointCheck, JointCovariance, KalmanFilter,
-    MeasurementModel, ProcessModel, Result, StateAndCovariance, Zero,
+    CovarianceUpdate, Error, ErrorStateKalmanFilter, ErrorStateModel, ExtendedKalmanFilter,
+    FilterConfig, Fixed, JointCheck, JointCovariance, KalmanFilter, MeasurementModel, ProcessModel,
+    Result, StateAndCovariance, Zero,
 };
 use proptest::prelude::*;
 use proptest::test_runner::{FileFailurePersistence, RngSeed, TestCaseError};

@@ -10,10 +10,11 @@
 use estim_core::consistency::chi_square_band;
 use estim_core::nalgebra::{Matrix2, Matrix2x1, SMatrix, SVector, Vector1, Vector2};
 use estim_core::sigma_point::UnscentedTransform;
+use estim_core::update::correlated_update;
 use estim_core::update::UpdateOutcome;
 use estim_core::{
-    correlated_update, CovarianceUpdate, FilterConfig, Fixed, Gate, InputSpec, JointCheck,
-    KalmanFilter, ScaledCorrelation, StateAndCovariance, UpdateReport, UpdateStatus, Zero,
+    CovarianceUpdate, FilterConfig, Fixed, Gate, InputSpec, JointCheck, KalmanFilter,
+    ScaledCorrelation, StateAndCovariance, UpdateReport, UpdateStatus, Zero,
 };
 use serde::de::DeserializeOwned;
 use serde::Serialize;

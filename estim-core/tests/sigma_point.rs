@@ -13,7 +13,8 @@ use estim_core::nalgebra::{DMatrix, Matrix2, Matrix2x4, Matrix4, Matrix4x2, Vect
 use estim_core::sigma_point::{
     unscented_predict, unscented_update, SigmaPointUpdate, UnscentedTransform,
 };
-use estim_core::{correlated_update, CovarianceUpdate, Error, StateAndCovariance};
+use estim_core::update::correlated_update;
+use estim_core::{CovarianceUpdate, Error, StateAndCovariance};
 use proptest::prelude::*;
 use proptest::test_runner::{FileFailurePersistence, RngSeed, TestCaseError};
 use rand::SeedableRng;

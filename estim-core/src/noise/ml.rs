@@ -7,7 +7,7 @@
 //!
 //! A [`LogLikelihood`] evaluates ln p(y_1..y_K | theta), the sum of the runner's
 //! per-update ln N(nu_k; 0, S_k) (with the correlated S and, for windowed M, the
-//! conditional Var(v) and E[v]). It is written once, generic over the scalar, so the
+//! conditional Var(v) and E\[v\]). It is written once, generic over the scalar, so the
 //! same code runs on `f64` and on dual numbers: the implementation builds Q(theta),
 //! R(theta), M(theta) from `theta`, runs a filter over its data and returns the
 //! filter's cumulative `log_likelihood()`. A filter's parameters enter only through

@@ -474,7 +474,7 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         /// Update with measurement y and the one-step cross-covariance model `cross`.
         ///
         /// # Errors
-        /// Those of [`crate::correlated_update`], [`Error::InvalidJointCovariance`] under
+        /// Those of [`crate::update::correlated_update`], [`Error::InvalidJointCovariance`] under
         /// [`JointCheck::Reject`], the cross-covariance model's and the observer's.
         update;
         /// Update with measurement y whose noise shares the process noise of a window of

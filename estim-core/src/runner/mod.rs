@@ -1,5 +1,5 @@
 //! The five runners (linear KF, EKF, error-state EKF, square-root KF, unscented KF).
-//! The first three call the one [`crate::correlated_update`]; the square-root filter
+//! The first three call the one [`crate::update::correlated_update`]; the square-root filter
 //! runs its array form ([`crate::square_root`]) and the unscented filter its
 //! sigma-point form ([`crate::sigma_point`]). What they share lives in one place,
 //! `Shared` (module `shared`): process-noise accumulation (one-step cross-covariances),
