@@ -3,3 +3,6 @@
 //!
 //! The submodules are independent of each other; each one's docs give its model,
 //! conventions and references.
+//! - [`process`]: Q_d of integrator chains (filterpy's forms) and Van Loan's discretization.
+
+pub mod process;
