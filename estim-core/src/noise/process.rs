@@ -35,7 +35,7 @@
 //! # Ok::<(), estim_core::Error>(())
 //! ```
 //!
-//! References: R. Labbe, filterpy 1.4 / 2.0, `filterpy.common.discretization`;
+//! References: R. Labbe, filterpy 2.0, `filterpy.common.discretization`;
 //! Y. Bar-Shalom, X. R. Li, T. Kirubarajan, *Estimation with Applications to Tracking
 //! and Navigation*, Wiley, 2001, sec. 6.2 (continuous-time kinematic models) and 6.3
 //! (discrete-time ones); C. F. Van Loan, "Computing integrals involving the matrix
@@ -244,7 +244,7 @@ pub fn independent_axes<T: Scalar, const N: usize, const S: usize>(
 /// entry by entry: for a small C nalgebra picks a low-degree Padé approximant whose
 /// high-order terms are off, so entries that are high powers of dt are too. The
 /// position variance of an integrator chain of order 4..6 at dt <= 0.01 is off by
-/// 2.5e-3..8.3e-3 of itself (an error below 1e-20 of the largest entry); use
+/// 2.5e-3..8.3e-3 of itself (below 1e-16 of the largest entry); use
 /// [`continuous_white_noise`] for chains.
 ///
 /// The block e^{-F dt} overflows when F dt has eigenvalues far in the left half
