@@ -1,6 +1,8 @@
 //! Noise models from data: process-noise discretization, the likelihood of the
 //! measurements as a function of noise parameters, maximum-likelihood and EM fits.
 //!
+//! - [`process`]: Q_d of integrator chains (filterpy's forms) and Van Loan's
+//!   discretization of (F, G Qc G').
 //! - [`ml`] (feature `fit`, default on): maximum-likelihood Q(theta), R(theta) and
 //!   M(theta) for any runner, with exact gradients and observed information from dual
 //!   numbers, standard errors and the likelihood-ratio test (e.g. of M = 0).
@@ -13,3 +15,4 @@
 pub mod em;
 #[cfg(feature = "fit")]
 pub mod ml;
+pub mod process;
