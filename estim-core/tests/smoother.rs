@@ -451,7 +451,7 @@ impl<const N: usize, const M: usize>
         _: &StepWindow<'_, f64, SVector<f64, N>, StepInput<N>, N>,
         sink: &mut dyn FnMut(&SMatrix<f64, N, M>) -> Result<()>,
     ) -> Result<()> {
-        self.0.iter().try_for_each(|d| sink(d))
+        self.0.iter().try_for_each(sink)
     }
 }
 
