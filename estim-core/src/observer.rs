@@ -72,6 +72,9 @@ pub struct UpdateEvent<'a, T: Scalar, S, const N: usize> {
     /// Whether the cross-covariance came from a windowed model (exact M over a window
     /// of steps, see [`crate::window`]) rather than a one-step one.
     pub windowed: bool,
+    /// The window's length in process steps for a windowed model
+    /// ([`crate::WindowedCrossCovariance::window_steps`]), `None` for a one-step one.
+    pub window_steps: Option<usize>,
     /// The error-state reset J applied after injection (P <- J P J'), `None` when it
     /// is the identity or the runner has no reset (KF, EKF).
     pub reset: Option<&'a SMatrix<T, N, N>>,

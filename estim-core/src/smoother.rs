@@ -58,17 +58,28 @@
 //! guarantee it, [`ForwardRecorder::smooth`] returns
 //! [`Error::SmootherUnsupported`] naming the epoch, never a number:
 //!
-//! - a windowed update ([`crate::WindowedCrossCovariance`]): its window may reach
-//!   back past the previous epoch;
+//! - a windowed update ([`crate::WindowedCrossCovariance`]) whose window reaches back
+//!   past the previous epoch: with [`RecordAt::Updates`], a window longer than the
+//!   predicts since the previous update; with [`RecordAt::EveryStep`], a window of more
+//!   than one step;
 //! - an update the gate's recovery rule accepted with an inflated prior covariance
 //!   ([`crate::GateRecovery::Inflate`]): the forward pass then is not a Kalman filter
 //!   of the recorded model;
 //! - a correlated update (M != 0) that is not the first accepted update of its epoch
 //!   (the earlier update made its noise correlated with e_k);
-//! - with [`RecordAt::EveryStep`], a correlated update after more than one predict:
-//!   M = Cov(sum of the interval's noise, v) does not say how v is shared between the
-//!   intermediate steps (record with [`RecordAt::Updates`], where M is exactly the
-//!   cross-covariance with the composed step).
+//! - with [`RecordAt::EveryStep`], a one-step correlated update after more than one
+//!   predict: M = Cov(sum of the interval's noise, v) does not say how v is shared
+//!   between the intermediate steps (record with [`RecordAt::Updates`], where M is
+//!   exactly the cross-covariance with the composed step, or state the sharing with a
+//!   windowed M).
+//!
+//! Windowed updates inside these limits are smoothed exactly: with
+//! [`RecordAt::Updates`] a window within the interval since the previous update makes
+//! the window's C = sum_j Phi(k, j) D_j the cross-covariance with the composed step (no
+//! other update lies inside it, so Var(v) = R and E\[v\] = 0); with
+//! [`RecordAt::EveryStep`] a one-step window is the textbook Cov(w_{k-1}, v_k), also
+//! after unmeasured steps (`tests/smoother.rs`, `windowed_*`, against joint-Gaussian
+//! conditioning).
 //!
 //! ## Error-state convention
 //!
@@ -315,10 +326,18 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
 
     fn record_update(&mut self, event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
         let correlated = event.cross_covariance.iter().any(|v| !v.is_zero());
-        if event.windowed {
-            self.mark_unsupported(
-                "windowed update (its window may reach back past the previous epoch)",
-            );
+        match (event.window_steps, self.mode) {
+            (Some(window), RecordAt::Updates) if window > self.predicts_since_update => {
+                self.mark_unsupported(
+                    "windowed update whose window reaches back past the previous update (recorded at updates, its noise is then correlated with the previous epoch's error)",
+                );
+            }
+            (Some(window), RecordAt::EveryStep) if window > 1 => {
+                self.mark_unsupported(
+                    "windowed update over more than one step recorded at every step (its noise is correlated with several epochs; record with RecordAt::Updates)",
+                );
+            }
+            _ => {}
         }
         if event.covariance_inflation.is_some() {
             self.mark_unsupported(
@@ -343,7 +362,13 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
                 "correlated update after another update at the same epoch (its noise is then correlated with the previous epoch's error)",
             );
         }
-        if correlated && self.mode == RecordAt::EveryStep && self.predicts_since_update > 1 {
+        // A one-step M after several predicts does not say which of them v shares; a
+        // windowed M over one step does (the last one).
+        if correlated
+            && event.window_steps.is_none()
+            && self.mode == RecordAt::EveryStep
+            && self.predicts_since_update > 1
+        {
             self.mark_unsupported(
                 "correlated update after several predicts recorded at every step (how v shares the interval's noise is unknown; record with RecordAt::Updates)",
             );

@@ -12,7 +12,12 @@
 //!   noise shares the process noise of *every* step of its interval with a random
 //!   split D_j = Cov(w_j, v); the filter is given M = sum_j Phi(k, j) D_j. The smoothed
 //!   values at the update epochs must not depend on the split.
-//! - Windowed updates and the ambiguous cases are refused with a typed error.
+//! - `windowed_*`: the filter is given D_j per step through a windowed model: a
+//!   one-step window after any number of unmeasured steps (the textbook
+//!   Cov(w_{k-1}, v_k)) recorded at every step, and a random tail of the interval
+//!   recorded at updates.
+//! - Windows reaching past the previous epoch and the ambiguous cases are refused
+//!   with a typed error.
 //!
 //! Checked also with 200 cases under proptest seeds 1, 2 and 3 (all pass).
 //!
@@ -62,6 +67,8 @@ struct Plan {
     x0: DVector<f64>,
     p0: DMatrix<f64>,
     steps: Vec<Step>,
+    /// Whether the filter is given each measurement's D_j (windowed) or M.
+    windowed: bool,
 }
 
 fn random_matrix(rng: &mut ChaCha8Rng, r: usize, c: usize) -> DMatrix<f64> {
@@ -75,7 +82,18 @@ fn random_spd(rng: &mut ChaCha8Rng, dim: usize) -> DMatrix<f64> {
 }
 
 /// A plan with K steps; `every_step` restricts correlation to one-step intervals.
-fn make_plan(n: usize, m: usize, k: usize, seed: u64, correlated: bool, every_step: bool) -> Plan {
+/// With `windowed`, a measurement's noise shares the last steps of its interval only
+/// (one step with `every_step`, after any number of unmeasured ones; a random tail
+/// otherwise) and the filter is given those D_j through a windowed model.
+fn make_plan(
+    n: usize,
+    m: usize,
+    k: usize,
+    seed: u64,
+    correlated: bool,
+    every_step: bool,
+    windowed: bool,
+) -> Plan {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let x0 = DVector::from_fn(n, |_, _| rng.random_range(-2.0..2.0));
     let p0 = random_spd(&mut rng, n);
@@ -98,8 +116,14 @@ fn make_plan(n: usize, m: usize, k: usize, seed: u64, correlated: bool, every_st
         }
         // Interval start..=idx ends at step idx (measured, or the last step).
         let len = idx + 1 - start;
-        let share = correlated && measured[idx] && (!every_step || len == 1);
-        let shared_steps = if share { len } else { 0 };
+        let share = correlated && measured[idx] && (windowed || !every_step || len == 1);
+        let shared_steps = match (share, windowed, every_step) {
+            (false, _, _) => 0,
+            (true, false, _) => len,
+            (true, true, true) => 1,
+            (true, true, false) => rng.random_range(1..=len),
+        };
+        let first_shared = idx + 1 - shared_steps;
         // Independent w_j; v = sum_j B_j w_j + e over the shared steps, so that
         // D_j = Cov(w_j, v) = Q_j B_j' and R = sum_j B_j Q_j B_j' + Cov(e).
         for step in &mut steps[start..=idx] {
@@ -108,7 +132,7 @@ fn make_plan(n: usize, m: usize, k: usize, seed: u64, correlated: bool, every_st
         if measured[idx] {
             let mut r = random_spd(&mut rng, m);
             let scale = 1.0 / (shared_steps.max(1) as f64).sqrt();
-            let shares: Vec<(usize, DMatrix<f64>)> = (start..start + shared_steps)
+            let shares: Vec<(usize, DMatrix<f64>)> = (first_shared..=idx)
                 .map(|j| {
                     let b = random_matrix(&mut rng, m, n) * scale;
                     r += &b * &steps[j].q * b.transpose();
@@ -140,6 +164,7 @@ fn make_plan(n: usize, m: usize, k: usize, seed: u64, correlated: bool, every_st
         x0,
         p0,
         steps,
+        windowed,
     };
     sample_measurements(&mut plan, &mut rng);
     plan
@@ -406,6 +431,39 @@ fn to_outputs<const N: usize>(
         .collect()
 }
 
+/// The plan's D_j of one measurement, oldest first, as a windowed model.
+struct PlanWindow<const N: usize, const M: usize>(Vec<SMatrix<f64, N, M>>);
+
+impl<const N: usize, const M: usize> PlanWindow<N, M> {
+    fn new(meas: &Meas) -> Self {
+        Self(meas.shares.iter().map(|(_, d)| st(d)).collect())
+    }
+}
+
+impl<const N: usize, const M: usize>
+    WindowedCrossCovariance<f64, SVector<f64, N>, StepInput<N>, N, M> for PlanWindow<N, M>
+{
+    fn window_steps(&self) -> usize {
+        self.0.len()
+    }
+    fn step_cross_covariances(
+        &self,
+        _: &StepWindow<'_, f64, SVector<f64, N>, StepInput<N>, N>,
+        sink: &mut dyn FnMut(&SMatrix<f64, N, M>) -> Result<()>,
+    ) -> Result<()> {
+        self.0.iter().try_for_each(sink)
+    }
+}
+
+/// Records every step of a windowed plan (its longest window is at most K = 40).
+fn window_config(plan: &Plan) -> FilterConfig {
+    let capacity = if plan.windowed { plan.steps.len() } else { 0 };
+    FilterConfig::builder()
+        .window_capacity(capacity)
+        .build()
+        .expect("window capacity within bounds")
+}
+
 fn run<const N: usize, const M: usize>(
     plan: &Plan,
     mode: RecordAt,
@@ -422,8 +480,9 @@ fn run<const N: usize, const M: usize>(
     let mut epoch_steps = vec![0];
     let (recorder, online) = match runner {
         Runner::Ekf => {
-            let mut filter =
-                ExtendedKalmanFilter::new(TimeVarying, initial).with_observer(observer);
+            let mut filter = ExtendedKalmanFilter::new(TimeVarying, initial)
+                .with_config(window_config(plan))
+                .with_observer(observer);
             for (j, step) in plan.steps.iter().enumerate() {
                 let input = StepInput::<N> {
                     f: st(&step.f),
@@ -436,7 +495,11 @@ fn run<const N: usize, const M: usize>(
                         r: st(&meas.r),
                     };
                     let y = SVector::<f64, M>::from_column_slice(meas.y.as_slice());
-                    filter.update(&model, &y, &estim_core::Fixed(st::<N, M>(&meas.cross)))?;
+                    if plan.windowed && !meas.shares.is_empty() {
+                        filter.update_windowed(&model, &y, &PlanWindow::<N, M>::new(meas))?;
+                    } else {
+                        filter.update(&model, &y, &estim_core::Fixed(st::<N, M>(&meas.cross)))?;
+                    }
                 }
                 if mode == RecordAt::EveryStep
                     || step.measurement.is_some()
@@ -448,8 +511,9 @@ fn run<const N: usize, const M: usize>(
             filter.into_observer()
         }
         Runner::Eskf => {
-            let mut filter =
-                ErrorStateKalmanFilter::new(TimeVarying, x0, p0)?.with_observer(observer);
+            let mut filter = ErrorStateKalmanFilter::new(TimeVarying, x0, p0)?
+                .with_config(window_config(plan))
+                .with_observer(observer);
             for (j, step) in plan.steps.iter().enumerate() {
                 let input = StepInput::<N> {
                     f: st(&step.f),
@@ -462,7 +526,11 @@ fn run<const N: usize, const M: usize>(
                         r: st(&meas.r),
                     };
                     let y = SVector::<f64, M>::from_column_slice(meas.y.as_slice());
-                    filter.update(&model, &y, &estim_core::Fixed(st::<N, M>(&meas.cross)))?;
+                    if plan.windowed && !meas.shares.is_empty() {
+                        filter.update_windowed(&model, &y, &PlanWindow::<N, M>::new(meas))?;
+                    } else {
+                        filter.update(&model, &y, &estim_core::Fixed(st::<N, M>(&meas.cross)))?;
+                    }
                 }
                 if mode == RecordAt::EveryStep
                     || step.measurement.is_some()
@@ -543,9 +611,37 @@ proptest! {
         n in 1usize..=6, m in 1usize..=3, k in 1usize..=40, seed in any::<u64>(),
         correlated in any::<bool>(), eskf in any::<bool>(), lag in 0usize..=5,
     ) {
-        let plan = make_plan(n, m, k, seed, correlated, true);
+        let plan = make_plan(n, m, k, seed, correlated, true, false);
         let runner = if eskf { Runner::Eskf } else { Runner::Ekf };
         let out = dispatch!(n, m, run(&plan, RecordAt::EveryStep, runner, lag))
+            .map_err(|e| TestCaseError::fail(format!("{e}")))?;
+        verify(&plan, &out, lag)?;
+    }
+
+    /// A one-step Cov(w_{k-1}, v_k), also after unmeasured steps, given as a
+    /// one-step window and recorded at every step.
+    #[test]
+    fn windowed_every_step_smoother_equals_conditioning(
+        n in 1usize..=6, m in 1usize..=3, k in 1usize..=40, seed in any::<u64>(),
+        eskf in any::<bool>(), lag in 0usize..=5,
+    ) {
+        let plan = make_plan(n, m, k, seed, true, true, true);
+        let runner = if eskf { Runner::Eskf } else { Runner::Ekf };
+        let out = dispatch!(n, m, run(&plan, RecordAt::EveryStep, runner, lag))
+            .map_err(|e| TestCaseError::fail(format!("{e}")))?;
+        verify(&plan, &out, lag)?;
+    }
+
+    /// Noise shared with a random tail of the interval, given as D_j per step and
+    /// recorded at updates.
+    #[test]
+    fn windowed_at_updates_smoother_equals_conditioning(
+        n in 1usize..=6, m in 1usize..=3, k in 1usize..=40, seed in any::<u64>(),
+        eskf in any::<bool>(), lag in 0usize..=5,
+    ) {
+        let plan = make_plan(n, m, k, seed, true, false, true);
+        let runner = if eskf { Runner::Eskf } else { Runner::Ekf };
+        let out = dispatch!(n, m, run(&plan, RecordAt::Updates, runner, lag))
             .map_err(|e| TestCaseError::fail(format!("{e}")))?;
         verify(&plan, &out, lag)?;
     }
@@ -555,7 +651,7 @@ proptest! {
         n in 1usize..=6, m in 1usize..=3, k in 1usize..=40, seed in any::<u64>(),
         correlated in any::<bool>(), eskf in any::<bool>(), lag in 0usize..=5,
     ) {
-        let plan = make_plan(n, m, k, seed, correlated, false);
+        let plan = make_plan(n, m, k, seed, correlated, false, false);
         let runner = if eskf { Runner::Eskf } else { Runner::Ekf };
         let out = dispatch!(n, m, run(&plan, RecordAt::Updates, runner, lag))
             .map_err(|e| TestCaseError::fail(format!("{e}")))?;
@@ -569,7 +665,7 @@ fn kalman_filter_runner_smooths_with_correlated_noise() {
     const N: usize = 3;
     const M: usize = 2;
     for seed in 0..8u64 {
-        let mut plan = make_plan(N, M, 25, 1000 + seed, true, true);
+        let mut plan = make_plan(N, M, 25, 1000 + seed, true, true, false);
         // Make the model time invariant with every step measured and correlated.
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let joint = random_spd(&mut rng, N + M);
@@ -634,7 +730,7 @@ fn kalman_filter_runner_smooths_with_correlated_noise() {
 fn neglecting_m_is_detected_by_the_reference() {
     const N: usize = 2;
     const M: usize = 1;
-    let plan = make_plan(N, M, 30, 7, true, false);
+    let plan = make_plan(N, M, 30, 7, true, false, false);
     let mut uncorrelated = plan.clone();
     for step in uncorrelated.steps.iter_mut() {
         if let Some(meas) = step.measurement.as_mut() {
@@ -682,19 +778,25 @@ fn unsupported_recordings_are_typed_errors() {
     let y = SVector::<f64, 1>::new(0.5);
     let m = estim_core::Fixed(SMatrix::<f64, 2, 1>::new(0.05, 0.0));
 
-    // Windowed update.
+    // A windowed update (2 steps) whose window reaches back past the previous update
+    // (recorded at updates), or over two epochs (recorded at every step).
     let config = FilterConfig::builder().window_capacity(4).build().unwrap();
-    let mut ekf = ExtendedKalmanFilter::new(TimeVarying, initial.clone())
-        .with_config(config)
-        .with_observer(ForwardRecorder::from_initial(RecordAt::Updates, &initial));
-    for _ in 0..3 {
+    for (mode, epoch) in [(RecordAt::Updates, 2), (RecordAt::EveryStep, 2)] {
+        let mut ekf = ExtendedKalmanFilter::new(TimeVarying, initial.clone())
+            .with_config(config.clone())
+            .with_observer(ForwardRecorder::from_initial(mode, &initial));
         ekf.predict(&input, 1.0).unwrap();
+        if mode == RecordAt::Updates {
+            ekf.update(&model, &y, &estim_core::Zero).unwrap();
+        }
+        ekf.predict(&input, 1.0).unwrap();
+        ekf.update_windowed(&model, &y, &SharesWindow).unwrap();
+        let smoothed = ekf.observer().smooth();
+        assert!(
+            matches!(smoothed, Err(Error::SmootherUnsupported { epoch: e, .. }) if e == epoch),
+            "{mode:?}: {smoothed:?}"
+        );
     }
-    ekf.update_windowed(&model, &y, &SharesWindow).unwrap();
-    assert!(matches!(
-        ekf.observer().smooth(),
-        Err(Error::SmootherUnsupported { .. })
-    ));
 
     // Correlated update after several predicts, recorded at every step.
     let mut ekf = ExtendedKalmanFilter::new(TimeVarying, initial.clone())
@@ -800,14 +902,14 @@ fn textbook_rts_misses_correlated_noise() {
     const N: usize = 3;
     const M: usize = 2;
     for seed in 0..5u64 {
-        let plain = make_plan(N, M, 30, 500 + seed, false, true);
+        let plain = make_plan(N, M, 30, 500 + seed, false, true, false);
         let out = run::<N, M>(&plain, RecordAt::EveryStep, Runner::Ekf, 0).unwrap();
         let plain_error = textbook_rts_error(&plain, &out);
         assert!(
             plain_error < TOL,
             "seed {seed}: textbook RTS without M off by {plain_error:e}"
         );
-        let correlated = make_plan(N, M, 30, 500 + seed, true, true);
+        let correlated = make_plan(N, M, 30, 500 + seed, true, true, false);
         let out = run::<N, M>(&correlated, RecordAt::EveryStep, Runner::Ekf, 0).unwrap();
         let correlated_error = textbook_rts_error(&correlated, &out);
         assert!(

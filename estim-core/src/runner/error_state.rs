@@ -149,7 +149,10 @@ where
         let jacobian = model.jacobian(&self.nominal)?;
         let noise = model.noise_covariance(&self.nominal)?;
         let prior = StateAndCovariance::new_unchecked(SVector::zeros(), self.covariance);
-        let windowed = matches!(source, CrossSource::Windowed(_));
+        let windowed = match source {
+            CrossSource::Windowed(w) => Some(w.window_steps()),
+            CrossSource::OneStep(_) => None,
+        };
         // Filled in place by the attempt (the copies of returned matrices were a
         // tenth of an update at N = 15).
         let mut report = UpdateReport::blank();

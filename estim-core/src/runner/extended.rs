@@ -137,7 +137,10 @@ where
         let predicted = model.predict(x)?;
         let jacobian = model.jacobian(x)?;
         let noise = model.noise_covariance(x)?;
-        let windowed = matches!(source, CrossSource::Windowed(_));
+        let windowed = match source {
+            CrossSource::Windowed(w) => Some(w.window_steps()),
+            CrossSource::OneStep(_) => None,
+        };
         // Filled in place by the attempt (the copies of returned matrices were a
         // tenth of an update at N = 15).
         let mut report = UpdateReport::blank();

@@ -428,7 +428,10 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         W: WindowedCrossCovariance<T, SVector<T, N>, (), N, M> + ?Sized,
     {
         let predicted = mul_static(&self.observation, self.estimate.state());
-        let windowed = matches!(source, CrossSource::Windowed(_));
+        let windowed = match source {
+            CrossSource::Windowed(w) => Some(w.window_steps()),
+            CrossSource::OneStep(_) => None,
+        };
         // Filled in place by the attempt (the copies of returned matrices were a
         // tenth of an update at N = 15).
         let mut report = UpdateReport::blank();

@@ -603,14 +603,15 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         covariance: &SMatrix<T, N, N>,
         prior_covariance: &SMatrix<T, N, N>,
         jacobian: &SMatrix<T, M, N>,
-        windowed: bool,
+        window_steps: Option<usize>,
         reset: Option<&SMatrix<T, N, N>>,
     ) -> Result<()>
     where
         O: Observer<T, S, N>,
     {
         let event = UpdateEvent {
-            windowed,
+            windowed: window_steps.is_some(),
+            window_steps,
             reset,
             prior_covariance,
             jacobian: jacobian.as_slice(),

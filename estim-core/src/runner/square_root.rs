@@ -199,7 +199,10 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         W: WindowedCrossCovariance<T, SVector<T, N>, (), N, M> + ?Sized,
     {
         check_finite(measurement.as_slice(), "measurement")?;
-        let windowed = matches!(source, CrossSource::Windowed(_));
+        let windowed = match source {
+            CrossSource::Windowed(w) => Some(w.window_steps()),
+            CrossSource::OneStep(_) => None,
+        };
         let x = *self.estimate.state();
         let h = &self.observation;
         let mut report = UpdateReport::blank();
@@ -213,7 +216,7 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             Some(self.measurement_certificate),
             &mut report,
         )?;
-        if !windowed && !all_zero(report.cross_covariance.as_slice()) {
+        if windowed.is_none() && !all_zero(report.cross_covariance.as_slice()) {
             if !self.shared.config.track_accumulated_noise() {
                 return Err(Error::NotTracked {
                     what: "accumulated process noise (the square-root filter's joint check)",

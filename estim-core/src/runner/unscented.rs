@@ -231,7 +231,10 @@ where
         let x = prior.state();
         let jacobian = model.jacobian(x)?;
         let noise = model.noise_covariance(x)?;
-        let windowed = matches!(source, CrossSource::Windowed(_));
+        let windowed = match source {
+            CrossSource::Windowed(w) => Some(w.window_steps()),
+            CrossSource::OneStep(_) => None,
+        };
         let mut report = UpdateReport::blank();
         let certificate = self.shared.cross_terms(
             source,
