@@ -10,14 +10,15 @@
 //!   measurements;
 //! - on a linear model, each runner's `smooth_batch` equals the `KalmanFilter`'s
 //!   `smooth_batch` to 1e-12 (entries relative to the largest entry of the reference),
-//!   for M = 0 with unmeasured steps and for a `Fixed` M != 0 at every step. The
+//!   for M = 0 with unmeasured steps and for a `Fixed` M != 0 at every step (the UKF
+//!   with both update forms, sigma points over x and over [x; v]). The
 //!   reference is itself checked against joint-Gaussian conditioning of the stacked
 //!   problem in `tests/batch.rs`;
 //! - `smooth_batch` leaves the runner untouched and refuses what the smoother cannot
 //!   smooth with a typed error.
 
 use estim_core::nalgebra::{SMatrix, SVector};
-use estim_core::sigma_point::UnscentedTransform;
+use estim_core::sigma_point::{SigmaPointUpdate, UnscentedTransform};
 use estim_core::smoother::SmoothedBatch;
 use estim_core::{
     Error, ErrorStateKalmanFilter, ErrorStateModel, ExtendedKalmanFilter, FilterConfig,
@@ -455,6 +456,13 @@ fn smooth_batch_of_every_runner_equals_the_kalman_filters_on_a_linear_model() {
         let ukf_err = relative_difference(&pairs(&out), &expected);
         let ukf_ll = (out.log_likelihood - reference.log_likelihood).abs() / ll_scale;
 
+        // The sigma points over the joint [x; v] (the other update form).
+        let augmented = UnscentedTransform::default().with_update(SigmaPointUpdate::Augmented);
+        let ukf = UnscentedKalmanFilter::new(p.process.clone(), augmented, p.initial.clone());
+        let out = ukf.smooth_batch(&p.steps, &p.sensor, &cross).expect("ukf");
+        let joint_err = relative_difference(&pairs(&out), &expected);
+        let joint_ll = (out.log_likelihood - reference.log_likelihood).abs() / ll_scale;
+
         let srkf = square_root(&p);
         let out = srkf.smooth_batch(&ys, &cross).expect("srkf");
         let srkf_err = relative_difference(&pairs(&out), &expected);
@@ -462,13 +470,13 @@ fn smooth_batch_of_every_runner_equals_the_kalman_filters_on_a_linear_model() {
 
         eprintln!(
             "{name}: estimates EKF {ekf_err:.1e} ESKF {eskf_err:.1e} UKF {ukf_err:.1e} \
-             SRKF {srkf_err:.1e}; log-likelihood EKF {ekf_ll:.1e} ESKF {eskf_ll:.1e} \
-             UKF {ukf_ll:.1e} SRKF {srkf_ll:.1e}"
+             UKF [x; v] {joint_err:.1e} SRKF {srkf_err:.1e}; log-likelihood EKF {ekf_ll:.1e} \
+             ESKF {eskf_ll:.1e} UKF {ukf_ll:.1e} UKF [x; v] {joint_ll:.1e} SRKF {srkf_ll:.1e}"
         );
-        for err in [ekf_err, eskf_err, ukf_err, srkf_err] {
+        for err in [ekf_err, eskf_err, ukf_err, joint_err, srkf_err] {
             assert!(err < 1e-12, "{name}: {err:e}");
         }
-        for err in [ekf_ll, eskf_ll, ukf_ll, srkf_ll] {
+        for err in [ekf_ll, eskf_ll, ukf_ll, joint_ll, srkf_ll] {
             assert!(err < 1e-12, "{name}: log-likelihood {err:e}");
         }
     }

@@ -175,6 +175,13 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
     /// observation at the initial time: to get that, [`KalmanFilter::update`] with the
     /// first observation, then pass the rest.
     ///
+    /// Every runner has this pair: [`crate::SquareRootKalmanFilter::filter_batch`] takes
+    /// the same slice; the runners over a [`crate::ProcessModel`]
+    /// ([`crate::ExtendedKalmanFilter::filter_batch`],
+    /// [`crate::ErrorStateKalmanFilter::filter_batch`],
+    /// [`crate::UnscentedKalmanFilter::filter_batch`]) take `(input, dt, measurement)`
+    /// per step, the arguments of their `step`, and one measurement model.
+    ///
     /// ```
     /// use estim_core::nalgebra::{Matrix1, Matrix1x2, Matrix2, Vector1, Vector2};
     /// use estim_core::{KalmanFilter, StateAndCovariance, Zero};

@@ -239,7 +239,8 @@ where
     /// convention; exact on a linear model with additive injection). Each smoothed
     /// estimate is (the smoothed error injected into the recorded nominal state with
     /// [`ErrorStateModel::inject`], the smoothed error covariance about that recorded
-    /// nominal). This filter and its observer are left untouched.
+    /// nominal). This filter and its observer are left untouched; the copy needs a
+    /// `Clone` process model.
     ///
     /// # Errors
     /// As [`KalmanFilter::smooth_batch`], with the errors of

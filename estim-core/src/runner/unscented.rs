@@ -43,6 +43,9 @@ use crate::{
 ///   observer's events. The state's mean and covariance never use them. On linear
 ///   models everything is exact: the filter equals [`KalmanFilter`] to round-off, with
 ///   and without M (tested to 1e-10).
+/// - **Smoothing** ([`UnscentedKalmanFilter::smooth_batch`]): the RTS pass of the
+///   linearised model (Phi, H) around this filter's forward pass, not the unscented RTS
+///   smoother; exact on linear models.
 /// - **Gate recovery** ([`GateRecovery::Inflate`]): P -> lambda P moves the sigma
 ///   points, so each trial factor recomputes the sigma-point statistics (the NIS is
 ///   that of y - y_hat(lambda P), not necessarily monotone in lambda: the factor
@@ -355,7 +358,8 @@ where
     /// RTS smoother of the linearised model around the unscented forward pass, not the
     /// unscented RTS smoother (Saerkkae 2008). On a linear model both are exact and
     /// equal the [`KalmanFilter`]'s.
-    /// This filter and its observer are left untouched.
+    /// This filter and its observer are left untouched; the copy needs a `Clone` process
+    /// model.
     ///
     /// # Errors
     /// As [`KalmanFilter::smooth_batch`], with the errors of
