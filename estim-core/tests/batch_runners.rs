@@ -7,7 +7,7 @@
 //!   events its observer saw), on a mildly nonlinear model (for the model runners) with
 //!   varying inputs and dt, some steps unmeasured, in three cases: M = 0, a `Fixed`
 //!   M != 0, and a `Fixed` M with an innovation gate that rejects some (outlier)
-//!   measurements;
+//!   measurements (M = 0 through `Zero`);
 //! - on a linear model, each runner's `smooth_batch` equals the `KalmanFilter`'s
 //!   `smooth_batch` to 1e-12 (entries relative to the largest entry of the reference),
 //!   for M = 0 with unmeasured steps and for a `Fixed` M != 0 at every step (the UKF
@@ -21,10 +21,10 @@ use estim_core::nalgebra::{SMatrix, SVector};
 use estim_core::sigma_point::{SigmaPointUpdate, UnscentedTransform};
 use estim_core::smoother::SmoothedBatch;
 use estim_core::{
-    Error, ErrorStateKalmanFilter, ErrorStateModel, ExtendedKalmanFilter, FilterConfig,
-    FilteredBatch, Fixed, Gate, KalmanFilter, MeasurementModel, NisRecorder, ProcessModel, Result,
-    SquareRootKalmanFilter, StateAndCovariance, UnscentedKalmanFilter, UpdateReport, UpdateStatus,
-    Zero,
+    CrossCovariance, Error, ErrorStateKalmanFilter, ErrorStateModel, ExtendedKalmanFilter,
+    FilterConfig, FilteredBatch, Fixed, Gate, KalmanFilter, MeasurementModel, NisRecorder,
+    ProcessModel, Result, SquareRootKalmanFilter, StateAndCovariance, UnscentedKalmanFilter,
+    UpdateReport, UpdateStatus, Zero,
 };
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -222,12 +222,16 @@ fn assert_case(name: &str, runner: &str, (rejected, unmeasured): (usize, usize))
     }
 }
 
-fn cross_model(correlated: bool, problem: &Problem) -> Fixed<f64, N, M> {
-    Fixed(if correlated {
-        problem.cross
+/// The case's cross-covariance model: `Fixed` with the problem's M, or `Zero`.
+fn cross_model(
+    correlated: bool,
+    problem: &Problem,
+) -> Box<dyn CrossCovariance<f64, SVector<f64, N>, N, M>> {
+    if correlated {
+        Box::new(Fixed(problem.cross))
     } else {
-        SMatrix::zeros()
-    })
+        Box::new(Zero)
+    }
 }
 
 #[test]
@@ -240,12 +244,12 @@ fn extended_filter_batch_equals_step_in_a_loop_bit_for_bit() {
             .with_observer(NisRecorder::default());
         let (mut batch, mut looped) = (ekf.clone(), ekf);
         let out = batch
-            .filter_batch(&p.steps, &p.sensor, &cross)
+            .filter_batch(&p.steps, &p.sensor, &*cross)
             .expect("batch");
         let counts = assert_equals_loop(&out, p.steps.len(), |k| {
             let (u, dt, y) = &p.steps[k];
             let report = looped
-                .step(u, *dt, &p.sensor, y.as_ref(), &cross)
+                .step(u, *dt, &p.sensor, y.as_ref(), &*cross)
                 .expect("step");
             (report, looped.estimate().clone())
         });
@@ -278,12 +282,12 @@ fn error_state_filter_batch_equals_step_in_a_loop_bit_for_bit() {
         .with_observer(NisRecorder::default());
         let (mut batch, mut looped) = (eskf.clone(), eskf);
         let out = batch
-            .filter_batch(&p.steps, &p.sensor, &cross)
+            .filter_batch(&p.steps, &p.sensor, &*cross)
             .expect("batch");
         let counts = assert_equals_loop(&out, p.steps.len(), |k| {
             let (u, dt, y) = &p.steps[k];
             let report = looped
-                .step(u, *dt, &p.sensor, y.as_ref(), &cross)
+                .step(u, *dt, &p.sensor, y.as_ref(), &*cross)
                 .expect("step");
             (report, (*looped.nominal(), *looped.covariance()))
         });
@@ -312,12 +316,12 @@ fn unscented_filter_batch_equals_step_in_a_loop_bit_for_bit() {
         .with_observer(NisRecorder::default());
         let (mut batch, mut looped) = (ukf.clone(), ukf);
         let out = batch
-            .filter_batch(&p.steps, &p.sensor, &cross)
+            .filter_batch(&p.steps, &p.sensor, &*cross)
             .expect("batch");
         let counts = assert_equals_loop(&out, p.steps.len(), |k| {
             let (u, dt, y) = &p.steps[k];
             let report = looped
-                .step(u, *dt, &p.sensor, y.as_ref(), &cross)
+                .step(u, *dt, &p.sensor, y.as_ref(), &*cross)
                 .expect("step");
             (report, looped.estimate().clone())
         });
@@ -357,9 +361,9 @@ fn square_root_filter_batch_equals_step_in_a_loop_bit_for_bit() {
             .with_config(config)
             .with_observer(NisRecorder::default());
         let (mut batch, mut looped) = (srkf.clone(), srkf);
-        let out = batch.filter_batch(&ys, &cross).expect("batch");
+        let out = batch.filter_batch(&ys, &*cross).expect("batch");
         let counts = assert_equals_loop(&out, ys.len(), |k| {
-            let report = looped.step(ys[k].as_ref(), &cross).expect("step");
+            let report = looped.step(ys[k].as_ref(), &*cross).expect("step");
             (report, looped.estimate().clone())
         });
         assert_case(name, "SRKF", counts);
