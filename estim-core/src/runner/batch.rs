@@ -1,19 +1,42 @@
-//! Batch calls: a whole sequence of measurements filtered or smoothed in one call
-//! (convention: [`KalmanFilter::filter_batch`]).
+//! Batch calls: a whole sequence of steps filtered or smoothed in one call, the same
+//! as `step()` in a loop, for every runner. One implementation (the loop, the
+//! log-likelihood sum, the forward recording and its smoothing) below; each runner
+//! has two thin wrappers around it.
+//!
+//! Convention (as [`KalmanFilter::filter_batch`]): entry k - 1 of the slice is step k,
+//! which *predicts first* (x_{k-1} to x_k) and then updates when the step has a
+//! measurement; the runner's estimate before the call is x_0. The shape of a step:
+//!
+//! - the linear runners ([`KalmanFilter`], [`crate::SquareRootKalmanFilter`]), whose
+//!   predict takes no argument: `&[Option<y>]`, one measurement (or none) per step;
+//! - the runners over a [`crate::ProcessModel`] ([`crate::ExtendedKalmanFilter`],
+//!   [`crate::ErrorStateKalmanFilter`], [`crate::UnscentedKalmanFilter`]):
+//!   `&[(input, dt, Option<y>)]`, the arguments of one `step`: the process model's
+//!   input, the step's dt (so a log with irregular times needs no resampling) and the
+//!   measurement, with one [`crate::MeasurementModel`] and one cross-covariance model
+//!   for the whole batch. For a measurement model that changes within the batch, loop
+//!   over `step` instead.
+//!
+//! What a batch returns per step is the runner's estimate type `E`:
+//! [`StateAndCovariance`] for every runner but the error-state filter, whose estimate
+//! is the pair (nominal state, error covariance).
 
-use nalgebra::SVector;
+use nalgebra::{SMatrix, SVector};
 
+use super::shared::Shared;
 use super::{KalmanFilter, UpdateReport};
 use crate::observer::Observer;
-use crate::smoother::{ForwardRecorder, RecordAt};
+use crate::smoother::{ForwardRecorder, RecordAt, Smoothed};
 use crate::{CrossCovariance, Error, Result, Scalar, StateAndCovariance};
 
-/// What [`KalmanFilter::filter_batch`] produced, one entry per step.
+/// What a runner's `filter_batch` produced, one entry per step (module docs for the
+/// shapes). `E` is the runner's estimate: [`StateAndCovariance`] (the default), or
+/// `(nominal state, error covariance)` for [`crate::ErrorStateKalmanFilter`].
 #[derive(Debug, Clone, PartialEq)]
-pub struct FilteredBatch<T: Scalar, const N: usize, const M: usize> {
+pub struct FilteredBatch<T: Scalar, const N: usize, const M: usize, E = StateAndCovariance<T, N>> {
     /// The estimate after step k (index k - 1): the posterior when its update was
     /// accepted, else the prediction (no measurement, or rejected by the gate).
-    pub estimates: Vec<StateAndCovariance<T, N>>,
+    pub estimates: Vec<E>,
     /// Step k's update report, `None` for a step without a measurement.
     pub reports: Vec<Option<UpdateReport<T, N, M>>>,
     /// The sum of this batch's accepted updates' [`UpdateReport::log_likelihood`], in
@@ -21,33 +44,34 @@ pub struct FilteredBatch<T: Scalar, const N: usize, const M: usize> {
     pub log_likelihood: T,
 }
 
-/// What [`KalmanFilter::smooth_batch`] produced: every estimate given every
-/// measurement of the batch (fixed-interval RTS smoothing, see [`crate::smoother`]).
+/// What a runner's `smooth_batch` produced: every estimate given every measurement of
+/// the batch (fixed-interval RTS smoothing, see [`crate::smoother`]). `E` as for
+/// [`FilteredBatch`]; for [`crate::ErrorStateKalmanFilter`] the smoothed error
+/// injected into the recorded nominal state ([`Smoothed::injected`]) and the smoothed
+/// error covariance about the recorded nominal ([`Smoothed::covariance`]).
 #[derive(Debug, Clone, PartialEq)]
-pub struct SmoothedBatch<T: Scalar, const N: usize> {
+pub struct SmoothedBatch<T: Scalar, const N: usize, E = StateAndCovariance<T, N>> {
     /// The smoothed estimate of x_0, the filter's estimate before the batch.
-    pub initial: StateAndCovariance<T, N>,
+    pub initial: E,
     /// The smoothed estimate of x_k after step k (index k - 1).
-    pub estimates: Vec<StateAndCovariance<T, N>>,
+    pub estimates: Vec<E>,
     /// As [`FilteredBatch::log_likelihood`] (smoothing does not change it).
     pub log_likelihood: T,
 }
 
-/// Run `step` over `measurements` (it returns the step's report and the estimate
-/// after it) and collect the results.
-fn filter_steps<T: Scalar, const N: usize, const M: usize>(
-    measurements: &[Option<SVector<T, M>>],
-    mut step: impl FnMut(
-        Option<&SVector<T, M>>,
-    ) -> Result<(Option<UpdateReport<T, N, M>>, StateAndCovariance<T, N>)>,
-) -> Result<FilteredBatch<T, N, M>> {
+/// Run `step` over `steps` (it returns the step's report and the estimate after it)
+/// and collect the results: every runner's `filter_batch`.
+pub(super) fn filter_steps<T: Scalar, I, E, const N: usize, const M: usize>(
+    steps: &[I],
+    mut step: impl FnMut(&I) -> Result<(Option<UpdateReport<T, N, M>>, E)>,
+) -> Result<FilteredBatch<T, N, M, E>> {
     let mut batch = FilteredBatch {
-        estimates: Vec::with_capacity(measurements.len()),
-        reports: Vec::with_capacity(measurements.len()),
+        estimates: Vec::with_capacity(steps.len()),
+        reports: Vec::with_capacity(steps.len()),
         log_likelihood: T::zero(),
     };
-    for measurement in measurements {
-        let (report, estimate) = step(measurement.as_ref())?;
+    for item in steps {
+        let (report, estimate) = step(item)?;
         if let Some(report) = report.as_ref().filter(|r| r.is_accepted()) {
             batch.log_likelihood += report.log_likelihood;
         }
@@ -57,14 +81,22 @@ fn filter_steps<T: Scalar, const N: usize, const M: usize>(
     Ok(batch)
 }
 
-/// The smoothed batch from a forward pass recorded at every step from the initial
-/// estimate. `mid_interval`: the filter had predicted since its last update before
-/// the batch (then a correlated first update shares noise from before x_0).
-fn smoothed_steps<T: Scalar, const N: usize, const M: usize>(
-    recorder: &ForwardRecorder<T, SVector<T, N>, N>,
-    filtered: &FilteredBatch<T, N, M>,
+/// The smoothed batch of every runner's `smooth_batch`: `forward` runs the batch on a
+/// copy of the runner observed by the given recorder (whose epoch 0 is `initial`, the
+/// runner's estimate as (state models see, covariance)) and hands both back;
+/// `estimate` turns a smoothed epoch into the runner's estimate type.
+/// `mid_interval`: the runner had predicted since its last update before the batch
+/// (then a correlated first update shares noise from before x_0).
+pub(super) fn smooth_steps<T: Scalar, S: Clone, E, const N: usize, const M: usize>(
+    initial: (S, SMatrix<T, N, N>),
     mid_interval: bool,
-) -> Result<SmoothedBatch<T, N>> {
+    forward: impl FnOnce(
+        ForwardRecorder<T, S, N>,
+    ) -> Result<(FilteredBatch<T, N, M, E>, ForwardRecorder<T, S, N>)>,
+    mut estimate: impl FnMut(Smoothed<T, S, N>) -> Result<E>,
+) -> Result<SmoothedBatch<T, N, E>> {
+    let recorder = ForwardRecorder::from_initial_parts(RecordAt::EveryStep, initial.0, initial.1);
+    let (filtered, recorder) = forward(recorder)?;
     let first_update = filtered
         .reports
         .iter()
@@ -80,15 +112,12 @@ fn smoothed_steps<T: Scalar, const N: usize, const M: usize>(
             });
         }
     }
-    let mut smoothed = recorder
-        .smooth()?
-        .into_iter()
-        .map(|epoch| StateAndCovariance::new_unchecked(epoch.state(), epoch.covariance));
-    let initial = smoothed.next().ok_or(Error::SmootherUnsupported {
+    let mut smoothed = recorder.smooth()?.into_iter();
+    let initial = estimate(smoothed.next().ok_or(Error::SmootherUnsupported {
         epoch: 0,
         reason: "the recording holds no initial epoch",
-    })?;
-    let estimates: Vec<_> = smoothed.collect();
+    })?)?;
+    let estimates = smoothed.map(estimate).collect::<Result<Vec<_>>>()?;
     if estimates.len() != filtered.estimates.len() {
         return Err(Error::Dimension {
             what: "smoothed epochs (one per step)",
@@ -101,6 +130,34 @@ fn smoothed_steps<T: Scalar, const N: usize, const M: usize>(
         estimates,
         log_likelihood: filtered.log_likelihood,
     })
+}
+
+/// A smoothed epoch of a runner whose state is `SVector<T, N>` as its estimate.
+pub(super) fn smoothed_estimate<T: Scalar, const N: usize>(
+    epoch: Smoothed<T, SVector<T, N>, N>,
+) -> Result<StateAndCovariance<T, N>> {
+    Ok(StateAndCovariance::new_unchecked(
+        epoch.state(),
+        epoch.covariance,
+    ))
+}
+
+/// A copy of a runner's shared core (accumulators, recorded window, configuration,
+/// gate state, log-likelihood) with `observer` in place of its own: what
+/// `smooth_batch` runs its forward pass on.
+pub(super) fn fork_shared<T: Scalar, S: Clone, U: Clone, const N: usize, O, O2>(
+    shared: &Shared<T, S, U, N, O>,
+    observer: O2,
+) -> Shared<T, S, U, N, O2> {
+    Shared {
+        accumulated: shared.accumulated.clone(),
+        history: shared.history.clone(),
+        config: shared.config.clone(),
+        observer,
+        rejections_in_a_row: shared.rejections_in_a_row,
+        noise_certificate: shared.noise_certificate,
+        log_likelihood: shared.log_likelihood,
+    }
 }
 
 impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>>
@@ -117,6 +174,13 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
     /// the first entry. pykalman's `KalmanFilter.filter` instead takes the first
     /// observation at the initial time: to get that, [`KalmanFilter::update`] with the
     /// first observation, then pass the rest.
+    ///
+    /// Every runner has this pair: [`crate::SquareRootKalmanFilter::filter_batch`] takes
+    /// the same slice; the runners over a [`crate::ProcessModel`]
+    /// ([`crate::ExtendedKalmanFilter::filter_batch`],
+    /// [`crate::ErrorStateKalmanFilter::filter_batch`],
+    /// [`crate::UnscentedKalmanFilter::filter_batch`]) take `(input, dt, measurement)`
+    /// per step, the arguments of their `step`, and one measurement model.
     ///
     /// ```
     /// use estim_core::nalgebra::{Matrix1, Matrix1x2, Matrix2, Vector1, Vector2};
@@ -150,7 +214,7 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
     {
         filter_steps(measurements, |y| {
-            let report = self.step(y, cross)?;
+            let report = self.step(y.as_ref(), cross)?;
             Ok((report, self.estimate().clone()))
         })
     }
@@ -174,13 +238,15 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
     where
         C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
     {
-        let recorder = ForwardRecorder::from_initial(RecordAt::EveryStep, self.estimate());
-        let mut forward = self.fork(recorder);
-        let filtered = forward.filter_batch(measurements, cross)?;
-        smoothed_steps(
-            forward.observer(),
-            &filtered,
+        smooth_steps(
+            (*self.estimate().state(), *self.estimate().covariance()),
             self.propagations_since_update() > 0,
+            |recorder| {
+                let mut forward = self.fork(recorder);
+                let filtered = forward.filter_batch(measurements, cross)?;
+                Ok((filtered, forward.into_observer()))
+            },
+            smoothed_estimate,
         )
     }
 }

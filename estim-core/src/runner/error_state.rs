@@ -5,8 +5,9 @@
 use crate::{Error, ExtendedKalmanFilter, KalmanFilter};
 use nalgebra::{SMatrix, SVector};
 
+use super::batch::{filter_steps, fork_shared, smooth_steps};
 use super::shared::{check_dt, CrossSource, Shared};
-use super::UpdateReport;
+use super::{FilteredBatch, SmoothedBatch, UpdateReport};
 use crate::gaussian::{check_finite, check_symmetric, symmetrize};
 use crate::observer::{NoObserver, Observer};
 use crate::{
@@ -202,6 +203,79 @@ where
             reset.as_ref(),
         )?;
         Ok(report)
+    }
+
+    /// Filter a batch of steps, each `(input, dt, measurement)`: the arguments of one
+    /// [`ErrorStateKalmanFilter::step`] (the process model's input, dt in the model's
+    /// time unit, the measurement or `None`), updated with `model` and the one-step
+    /// cross-covariance model `cross`. The same as `step` in a loop, bit for bit: the
+    /// filter advances and its observer sees every event. Time index as
+    /// [`KalmanFilter::filter_batch`]: entry k - 1 is step k, which predicts first. The
+    /// estimate after each step is the pair (nominal state, error covariance).
+    ///
+    /// # Errors
+    /// Those of [`ErrorStateKalmanFilter::step`]; the steps before the failing one stay
+    /// committed (as in a loop).
+    #[allow(clippy::type_complexity)] // the step tuple and the estimate pair, spelled out
+    pub fn filter_batch<Mm, C, const M: usize>(
+        &mut self,
+        steps: &[(P::Input, T, Option<SVector<T, M>>)],
+        model: &Mm,
+        cross: &C,
+    ) -> Result<FilteredBatch<T, N, M, (P::State, SMatrix<T, N, N>)>>
+    where
+        Mm: MeasurementModel<T, N, M, State = P::State> + ?Sized,
+        C: CrossCovariance<T, P::State, N, M> + ?Sized,
+    {
+        filter_steps(steps, |(input, dt, y)| {
+            let report = self.step(input, *dt, model, y.as_ref(), cross)?;
+            Ok((report, (self.nominal.clone(), self.covariance)))
+        })
+    }
+
+    /// Smooth a batch of steps (shape as [`ErrorStateKalmanFilter::filter_batch`]):
+    /// every estimate from x_0 (the current nominal state and error covariance) to the
+    /// last step given every measurement of the batch, by a forward pass on a copy of
+    /// this filter recorded at every step ([`crate::smoother::ForwardRecorder`] with
+    /// [`crate::smoother::RecordAt::EveryStep`]) and its fixed-interval smoothing (the
+    /// linearised RTS smoother with the resets carried, see the smoother's error-state
+    /// convention; exact on a linear model with additive injection). Each smoothed
+    /// estimate is (the smoothed error injected into the recorded nominal state with
+    /// [`ErrorStateModel::inject`], the smoothed error covariance about that recorded
+    /// nominal). This filter and its observer are left untouched; the copy needs a
+    /// `Clone` process model.
+    ///
+    /// # Errors
+    /// As [`KalmanFilter::smooth_batch`], with the errors of
+    /// [`ErrorStateKalmanFilter::step`] and of the injection.
+    #[allow(clippy::type_complexity)] // the step tuple and the estimate pair, spelled out
+    pub fn smooth_batch<Mm, C, const M: usize>(
+        &self,
+        steps: &[(P::Input, T, Option<SVector<T, M>>)],
+        model: &Mm,
+        cross: &C,
+    ) -> Result<SmoothedBatch<T, N, (P::State, SMatrix<T, N, N>)>>
+    where
+        P: Clone,
+        Mm: MeasurementModel<T, N, M, State = P::State> + ?Sized,
+        C: CrossCovariance<T, P::State, N, M> + ?Sized,
+    {
+        smooth_steps(
+            (self.nominal.clone(), self.covariance),
+            self.propagations_since_update() > 0,
+            |recorder| {
+                let mut forward = ErrorStateKalmanFilter {
+                    process: self.process.clone(),
+                    nominal: self.nominal.clone(),
+                    covariance: self.covariance,
+                    spare: self.spare,
+                    shared: fork_shared(&self.shared, recorder),
+                };
+                let filtered = forward.filter_batch(steps, model, cross)?;
+                Ok((filtered, forward.into_observer()))
+            },
+            |epoch| Ok((epoch.injected(&self.process)?, epoch.covariance)),
+        )
     }
 
     update_methods! {

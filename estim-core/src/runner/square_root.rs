@@ -6,10 +6,11 @@
 use crate::{GateRecovery, JointCheck, KalmanFilter};
 use nalgebra::{SMatrix, SVector};
 
+use super::batch::{filter_steps, fork_shared, smooth_steps, smoothed_estimate};
 use super::shared::{
     bisect_inflation, propagate_symmetric, Attempt, CrossSource, GateVerdict, Shared,
 };
-use super::UpdateReport;
+use super::{FilteredBatch, SmoothedBatch, UpdateReport};
 use crate::gaussian::{all_zero, check_finite, symmetrize};
 use crate::linalg::{mul_static, spd_inverse};
 use crate::observer::{NoObserver, Observer};
@@ -308,6 +309,72 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             None,
         )?;
         Ok(report)
+    }
+
+    /// Filter `measurements`, one entry per step: predict, then update with the one-step
+    /// cross-covariance model `cross` when the entry is `Some`. The same as
+    /// [`SquareRootKalmanFilter::step`] in a loop, bit for bit: the filter advances and
+    /// its observer sees every event. Shape and time index as
+    /// [`KalmanFilter::filter_batch`] (this filter's predict takes no argument either):
+    /// entry k - 1 is step k, which predicts first.
+    ///
+    /// # Errors
+    /// Those of [`SquareRootKalmanFilter::step`]; the steps before the failing one stay
+    /// committed (as in a loop).
+    pub fn filter_batch<C>(
+        &mut self,
+        measurements: &[Option<SVector<T, M>>],
+        cross: &C,
+    ) -> Result<FilteredBatch<T, N, M>>
+    where
+        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
+    {
+        filter_steps(measurements, |y| {
+            let report = self.step(y.as_ref(), cross)?;
+            Ok((report, self.estimate.clone()))
+        })
+    }
+
+    /// Smooth `measurements` (shape as [`SquareRootKalmanFilter::filter_batch`]): every
+    /// estimate from x_0 (the current one) to the last step given every measurement of
+    /// the batch, by a forward pass on a copy of this filter recorded at every step
+    /// ([`crate::smoother::ForwardRecorder`] with
+    /// [`crate::smoother::RecordAt::EveryStep`]; the events carry F, H, the gain and
+    /// S = S_nu S_nu') and its fixed-interval smoothing, in covariance form (the
+    /// backward pass is not a square-root one). This filter and its observer are left
+    /// untouched.
+    ///
+    /// # Errors
+    /// As [`KalmanFilter::smooth_batch`], with the errors of
+    /// [`SquareRootKalmanFilter::step`].
+    pub fn smooth_batch<C>(
+        &self,
+        measurements: &[Option<SVector<T, M>>],
+        cross: &C,
+    ) -> Result<SmoothedBatch<T, N>>
+    where
+        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
+    {
+        smooth_steps(
+            (*self.estimate.state(), *self.estimate.covariance()),
+            self.propagations_since_update() > 0,
+            |recorder| {
+                let mut forward = SquareRootKalmanFilter {
+                    transition: self.transition,
+                    process_noise: self.process_noise,
+                    noise_factor: self.noise_factor,
+                    observation: self.observation,
+                    measurement_noise: self.measurement_noise,
+                    measurement_certificate: self.measurement_certificate,
+                    factor: self.factor,
+                    estimate: self.estimate.clone(),
+                    shared: fork_shared(&self.shared, recorder),
+                };
+                let filtered = forward.filter_batch(measurements, cross)?;
+                Ok((filtered, forward.into_observer()))
+            },
+            smoothed_estimate,
+        )
     }
 
     update_methods! {

@@ -8,8 +8,9 @@ use crate::sigma_point::{unscented_predict, unscented_update, SigmaPointUpdate};
 use crate::{CovarianceUpdate, Error, ExtendedKalmanFilter, GateRecovery, KalmanFilter};
 use nalgebra::{SMatrix, SVector};
 
+use super::batch::{filter_steps, fork_shared, smooth_steps, smoothed_estimate};
 use super::shared::{bisect_inflation, check_dt, Attempt, CrossSource, GateVerdict, Shared};
-use super::UpdateReport;
+use super::{FilteredBatch, SmoothedBatch, UpdateReport};
 use crate::gaussian::check_finite;
 use crate::observer::{NoObserver, Observer};
 use crate::sigma_point::{sigma_statistics, UnscentedTransform};
@@ -42,6 +43,9 @@ use crate::{
 ///   observer's events. The state's mean and covariance never use them. On linear
 ///   models everything is exact: the filter equals [`KalmanFilter`] to round-off, with
 ///   and without M (tested to 1e-10).
+/// - **Smoothing** ([`UnscentedKalmanFilter::smooth_batch`]): the RTS pass of the
+///   linearised model (Phi, H) around this filter's forward pass, not the unscented RTS
+///   smoother; exact on linear models.
 /// - **Gate recovery** ([`GateRecovery::Inflate`]): P -> lambda P moves the sigma
 ///   points, so each trial factor recomputes the sigma-point statistics (the NIS is
 ///   that of y - y_hat(lambda P), not necessarily monotone in lambda: the factor
@@ -315,6 +319,82 @@ where
             None,
         )?;
         Ok(report)
+    }
+
+    /// Filter a batch of steps, each `(input, dt, measurement)`: the arguments of one
+    /// [`UnscentedKalmanFilter::step`] (the process model's input, dt in the model's time
+    /// unit, the measurement or `None`), updated with `model` and the one-step
+    /// cross-covariance model `cross`. The same as `step` in a loop, bit for bit: the
+    /// filter advances and its observer sees every event. Time index as
+    /// [`KalmanFilter::filter_batch`]: entry k - 1 is step k, which predicts first.
+    ///
+    /// # Errors
+    /// Those of [`UnscentedKalmanFilter::step`]; the steps before the failing one stay
+    /// committed (as in a loop).
+    #[allow(clippy::type_complexity)] // the step tuple, spelled out for the reader
+    pub fn filter_batch<Mm, C, const M: usize>(
+        &mut self,
+        steps: &[(P::Input, T, Option<SVector<T, M>>)],
+        model: &Mm,
+        cross: &C,
+    ) -> Result<FilteredBatch<T, N, M>>
+    where
+        Mm: MeasurementModel<T, N, M, State = SVector<T, N>> + ?Sized,
+        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
+    {
+        filter_steps(steps, |(input, dt, y)| {
+            let report = self.step(input, *dt, model, y.as_ref(), cross)?;
+            Ok((report, self.estimate.clone()))
+        })
+    }
+
+    /// Smooth a batch of steps (shape as [`UnscentedKalmanFilter::filter_batch`]): every
+    /// estimate from x_0 (the current one) to the last step given every measurement of
+    /// the batch, by a forward pass on a copy of this filter recorded at every step
+    /// ([`crate::smoother::ForwardRecorder`] with
+    /// [`crate::smoother::RecordAt::EveryStep`]) and its fixed-interval smoothing.
+    ///
+    /// The smoother reads what the forward pass reported: the sigma-point gain and
+    /// P_yy, and the model's Jacobians Phi and H (which this filter evaluates for its
+    /// bookkeeping, struct docs). Its backward pass uses the linearised
+    /// Cov(x_k, x_{k+1}) = P_k Phi', not sigma-point cross-covariances: it is the
+    /// RTS smoother of the linearised model around the unscented forward pass, not the
+    /// unscented RTS smoother (Saerkkae 2008). On a linear model both are exact and
+    /// equal the [`KalmanFilter`]'s.
+    /// This filter and its observer are left untouched; the copy needs a `Clone` process
+    /// model.
+    ///
+    /// # Errors
+    /// As [`KalmanFilter::smooth_batch`], with the errors of
+    /// [`UnscentedKalmanFilter::step`].
+    #[allow(clippy::type_complexity)] // the step tuple, spelled out for the reader
+    pub fn smooth_batch<Mm, C, const M: usize>(
+        &self,
+        steps: &[(P::Input, T, Option<SVector<T, M>>)],
+        model: &Mm,
+        cross: &C,
+    ) -> Result<SmoothedBatch<T, N>>
+    where
+        P: Clone,
+        Mm: MeasurementModel<T, N, M, State = SVector<T, N>> + ?Sized,
+        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
+    {
+        smooth_steps(
+            (*self.estimate.state(), *self.estimate.covariance()),
+            self.propagations_since_update() > 0,
+            |recorder| {
+                let mut forward = UnscentedKalmanFilter {
+                    process: self.process.clone(),
+                    transform: self.transform,
+                    estimate: self.estimate.clone(),
+                    spare: self.spare,
+                    shared: fork_shared(&self.shared, recorder),
+                };
+                let filtered = forward.filter_batch(steps, model, cross)?;
+                Ok((filtered, forward.into_observer()))
+            },
+            smoothed_estimate,
+        )
     }
 
     update_methods! {
