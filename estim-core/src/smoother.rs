@@ -5,7 +5,9 @@
 //!
 //! A [`ForwardRecorder`] is an [`Observer`]: attach it to any runner
 //! ([`crate::KalmanFilter`], [`crate::ExtendedKalmanFilter`],
-//! [`crate::ErrorStateKalmanFilter`]) and it keeps, per *epoch*, the filtered state and
+//! [`crate::ErrorStateKalmanFilter`], [`crate::SquareRootKalmanFilter`],
+//! [`crate::UnscentedKalmanFilter`]; for the last, the linearised smoother around the
+//! unscented forward pass, exact on linear models) and it keeps, per *epoch*, the filtered state and
 //! covariance and three quantities that link the epoch to the previous one (below). An
 //! epoch is a moment of the forward pass: with [`RecordAt::EveryStep`] every predict
 //! opens one (the updates that follow belong to it); with [`RecordAt::Updates`] the
@@ -105,7 +107,8 @@ use crate::gaussian::symmetrize;
 use crate::observer::{Observer, PredictEvent, UpdateEvent};
 use crate::{Error, ErrorStateModel, Result, Scalar};
 
-/// The result of [`crate::KalmanFilter::smooth_batch`] (defined with the runners).
+/// The result of every runner's `smooth_batch` (e.g.
+/// [`crate::KalmanFilter::smooth_batch`]; defined with the runners).
 pub use crate::runner::SmoothedBatch;
 
 /// When a [`ForwardRecorder`] opens an epoch.
