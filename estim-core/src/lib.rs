@@ -123,6 +123,16 @@
 //! the result committed. Sizes are const generics: a 15-state filter does not
 //! allocate per step (the optional joint eigenvalue check does, see [`JointCheck`]).
 //!
+//! ## Learning the noise, batch calls
+//!
+//! Module [`noise`]: maximum-likelihood Q(theta), R(theta) and M(theta) from any runner's
+//! log-likelihood, with exact derivatives from dual numbers and standard errors
+//! (`noise::ml`, feature `fit`); EM of a linear-Gaussian model ([`noise::em`]); Q_d of
+//! integrator chains and Van Loan's discretization ([`noise::process`]). Every runner
+//! filters or smooths a slice of steps in one call (`filter_batch`, `smooth_batch`:
+//! estimates and the log-likelihood); [`KalmanFilter`] also takes a control input and
+//! per-step F, Q, H and R.
+//!
 //! ## Hand-tuned paths and `ESTIM_FORCE_PORTABLE`
 //!
 //! Three hot loops have a hand-tuned build beside the portable one, chosen at run

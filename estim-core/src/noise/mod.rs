@@ -3,7 +3,7 @@
 //!
 //! - [`process`]: Q_d of integrator chains (filterpy's forms) and Van Loan's
 //!   discretization of (F, G Qc G').
-//! - [`ml`] (feature `fit`, default on): maximum-likelihood Q(theta), R(theta) and
+//! - `ml` (feature `fit`, default on): maximum-likelihood Q(theta), R(theta) and
 //!   M(theta) for any runner, with exact gradients and observed information from dual
 //!   numbers, standard errors and the likelihood-ratio test (e.g. of M = 0).
 //! - [`em`]: EM of Q, R, mu_0, Sigma_0 of a linear-Gaussian model (pykalman's `em`),
