@@ -106,6 +106,20 @@ pub(crate) fn all_zero<T: Scalar>(values: &[T]) -> bool {
     values.iter().fold(true, |ok, v| ok & v.is_zero())
 }
 
+/// Whether every value is exactly zero, derivatives included: the test that lets the
+/// update skip the terms of M = 0. [`all_zero`] for `f64` and `f32`, whose `is_zero`
+/// is exact; other scalars answer `false`, so the general formulas run (with M = 0 they
+/// give the same values). A dual number's `is_zero` (num-dual) reads its value only,
+/// and an M whose value is 0 but whose derivative is not (d M / d rho at rho = 0) would
+/// otherwise lose that derivative.
+#[inline(always)]
+pub(crate) fn exactly_zero<T: Scalar>(values: &[T]) -> bool {
+    use core::any::TypeId;
+    let exact =
+        TypeId::of::<T>() == TypeId::of::<f64>() || TypeId::of::<T>() == TypeId::of::<f32>();
+    exact && all_zero(values)
+}
+
 /// Fail with [`Error::NonFinite`] if any value is NaN or infinite.
 #[inline(always)]
 pub fn check_finite<T: Scalar>(values: &[T], what: &'static str) -> Result<()> {

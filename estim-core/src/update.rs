@@ -12,7 +12,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use crate::gaussian::{all_finite, all_zero, check_finite, symmetrize};
+use crate::gaussian::{all_finite, check_finite, exactly_zero, symmetrize};
 use crate::linalg::{
     gram_pair_into, joint_factor_into, minus_product_into, mul_lower_into, mul_static,
     mul_transpose_static, positive_normal, product_transposed, spd_inverse_log_det, Blocks,
@@ -369,7 +369,7 @@ pub(crate) fn factor_innovation<'a, T: Scalar, const N: usize, const M: usize>(
     cross_covariance: &SMatrix<T, N, M>,
 ) -> Result<FactoredInnovation<'a, T, N, M>> {
     let p = prior.covariance();
-    let correlated = !all_zero(cross_covariance.as_slice());
+    let correlated = !exactly_zero(cross_covariance.as_slice());
     let pht = product_transposed(p, jacobian);
     let s = if correlated {
         innovation_covariance(p, jacobian, measurement_noise, cross_covariance)

@@ -153,6 +153,48 @@ fn gradient_and_information_equal_finite_differences() {
     assert!(worst_h < 1e-6, "{worst_h:e}");
 }
 
+#[test]
+fn derivatives_at_m_zero_equal_finite_differences() {
+    // At c = 0 the cross-covariance's value is 0 but its derivative is not: the
+    // update must not take the M = 0 shortcut for dual numbers (d ln p / d c would be 0).
+    let data = Dataset::simulate(
+        Setup {
+            updates: 60,
+            ..Setup::default()
+        },
+        TRUTH,
+        13,
+    );
+    let theta = SVector::from([0.4, 0.3, 0.015, 0.0]);
+    let free = [false; 4];
+    let (_, grad) = gradient(&data, &theta, &free).expect("gradient");
+    let info = observed_information(&data, &theta, &free).expect("information");
+    let h = 1e-5;
+    let at = |c: f64| {
+        let mut t = theta;
+        t[3] = c;
+        data.log_likelihood(&t).unwrap()
+    };
+    let fd = (at(h) - at(-h)) / (2.0 * h);
+    let fd2 = -(at(h) - 2.0 * at(0.0) + at(-h)) / (h * h);
+    println!(
+        "d ln p / d c at c = 0: dual {} vs central difference {fd}",
+        grad[3]
+    );
+    assert!(fd.abs() > 1.0, "the data must make the slope visible: {fd}");
+    assert!(
+        (grad[3] - fd).abs() < 1e-6 * fd.abs(),
+        "{} vs {fd}",
+        grad[3]
+    );
+    // Second difference: rounding ~ eps |ln p| / h^2 ~ 1e-6 relative at h = 1e-5.
+    assert!(
+        (info[(3, 3)] - fd2).abs() < 1e-4 * fd2.abs(),
+        "{} vs {fd2}",
+        info[(3, 3)]
+    );
+}
+
 fn fit(data: &Dataset, bounds: &Bounds<4>, start: [f64; 4]) -> MaximumLikelihood<4> {
     maximize(data, &SVector::from(start), bounds, &FitOptions::default()).expect("fit")
 }

@@ -35,7 +35,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use crate::gaussian::all_zero;
+use crate::gaussian::exactly_zero;
 use crate::scalar::{lit, Scalar};
 
 /// A matrix made of four static blocks (the joint factor, the pre-arrays of the
@@ -348,7 +348,7 @@ fn joint_factor_body<T: Scalar, const N: usize, const M: usize>(
     if !semidefinite_cholesky_sized(N, tol_size, 0, |i, k| covariance[(i, k)], &mut l.a) {
         return false;
     }
-    if all_zero(cross_covariance.as_slice()) {
+    if exactly_zero(cross_covariance.as_slice()) {
         // M = 0: the joint is block diagonal, L21 = 0 and L22 = chol(R). The general
         // elimination below would subtract only zero products from R's entries
         // (R_ij - 0 = R_ij exactly) before the same operations in the same order, and

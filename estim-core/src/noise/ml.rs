@@ -27,7 +27,12 @@
 //! [`maximize`] minimises -ln p with argmin's L-BFGS (More-Thuente line search; restarted
 //! from its best point when it stops short of its gradient tolerance), then polishes
 //! with damped Newton steps on the exact Hessian, over unconstrained coordinates phi,
-//! mapped to theta inside [`Bounds`]:
+//! mapped to theta inside [`Bounds`]. When L-BFGS makes no progress at all (from a
+//! start far from the optimum its first step, the gradient itself, can overflow
+//! exp(phi)), capped steps follow (Newton's direction, or the gradient scaled by the
+//! Hessian's diagonal where the Hessian is indefinite), each moving no bounded
+//! coordinate by more than 3 in phi (a factor of 20 on a variance), until the Newton
+//! step is shorter than that; then L-BFGS again.
 //!
 //! ```text
 //! (-inf, inf): theta = phi                 [lo, inf): theta = lo + exp(phi)
@@ -247,6 +252,10 @@ impl<const P: usize> Bounds<P> {
     }
 }
 
+/// The largest move of a bounded parameter's unconstrained coordinate in one step of
+/// [`maximize`]'s approach phase: a factor e^3 = 20 on a variance's scale.
+const APPROACH_CAP: f64 = 3.0;
+
 /// Options of [`maximize`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FitOptions {
@@ -461,13 +470,21 @@ pub fn maximize<L: LogLikelihood<P>, const P: usize>(
                 .map_err(model_or_optimizer_error)?;
             let state = result.state();
             iterations += state.get_iter();
+            let mut moved = false;
             if let Some(best) = state.get_best_param() {
+                moved = *best != phi;
                 phi.clone_from(best);
             }
             termination = format!("{:?}", state.get_termination_status());
             let grad = objective.gradient(&phi).map_err(model_or_optimizer_error)?;
             let norm = grad.iter().map(|g| g * g).sum::<f64>().sqrt();
             if norm <= options.gradient_tolerance || iterations >= options.max_iterations {
+                break;
+            }
+            // No progress at all (from a start far from the optimum, L-BFGS's first
+            // step, the gradient itself, can overflow exp(phi) and end the line
+            // search): approach with capped steps, then L-BFGS again.
+            if !moved && !approach(&objective, &mut phi, options.newton_steps)? {
                 break;
             }
         }
@@ -517,6 +534,56 @@ fn newton_step<L: LogLikelihood<P>, const P: usize>(
     objective: &Objective<'_, L, P>,
     phi: &[f64],
 ) -> Result<Option<(Vec<f64>, f64)>> {
+    Ok(match safeguarded_step(objective, phi, None)? {
+        Step::Taken(next, decrement) => Some((next, decrement)),
+        Step::Capped(..) | Step::Failed => None,
+    })
+}
+
+/// Up to `steps` capped steps ([`safeguarded_step`] with [`APPROACH_CAP`]) from `phi`,
+/// ending early at the first full Newton step; whether `phi` moved.
+fn approach<L: LogLikelihood<P>, const P: usize>(
+    objective: &Objective<'_, L, P>,
+    phi: &mut Vec<f64>,
+    steps: usize,
+) -> Result<bool> {
+    let mut moved = false;
+    for _ in 0..steps {
+        match safeguarded_step(objective, phi, Some(APPROACH_CAP))? {
+            Step::Capped(next) => *phi = next,
+            Step::Taken(next, _) => {
+                *phi = next;
+                return Ok(true);
+            }
+            Step::Failed => break,
+        }
+        moved = true;
+    }
+    Ok(moved)
+}
+
+/// What [`safeguarded_step`] did.
+enum Step {
+    /// A full-length Newton direction, damped until -ln p decreased (point, decrement).
+    Taken(Vec<f64>, f64),
+    /// The direction was longer than the cap and was shortened to it (point).
+    Capped(Vec<f64>),
+    /// No step decreased -ln p (or the Newton direction was not defined).
+    Failed,
+}
+
+/// One damped step on -ln p in the unconstrained coordinates. Without a cap: the
+/// Newton step (`None` when the Hessian is not positive definite). With `cap`: far from
+/// the optimum, where the Hessian may be indefinite and a full step may overflow a
+/// bounded parameter's transform (exp(phi)), the direction is Newton's when the Hessian
+/// is positive definite, else the gradient scaled by the Hessian's diagonal magnitude;
+/// it is shortened so that no bounded coordinate moves by more than `cap`, and halved
+/// while -ln p does not decrease (an evaluation that fails counts as no decrease).
+fn safeguarded_step<L: LogLikelihood<P>, const P: usize>(
+    objective: &Objective<'_, L, P>,
+    phi: &[f64],
+    cap: Option<f64>,
+) -> Result<Step> {
     let (bounds, free) = (objective.bounds, &objective.free);
     let theta = theta_of(bounds, free, phi);
     let (value, g) = gradient(objective.model, &theta, &objective.fixed)?;
@@ -538,13 +605,29 @@ fn newton_step<L: LogLikelihood<P>, const P: usize>(
         let diag = if r == c { -g[free[r]] * curv[r] } else { 0.0 };
         info[(free[r], free[c])] * jac[r] * jac[c] + diag
     });
-    let Some(chol) = hess.cholesky() else {
-        return Ok(None);
+    let mut step = match (hess.clone().cholesky(), cap) {
+        (Some(chol), _) => -chol.solve(&grad),
+        (None, None) => return Ok(Step::Failed),
+        (None, Some(_)) => nalgebra::DVector::from_fn(n, |r, _| {
+            -grad[r] / hess[(r, r)].abs().max(f64::MIN_POSITIVE)
+        }),
     };
-    let step = -chol.solve(&grad);
+    let longest = free
+        .iter()
+        .zip(step.iter())
+        .filter(|(&i, _)| bounds.lower[i].is_finite() || bounds.upper[i].is_finite())
+        .map(|(_, d)| d.abs())
+        .fold(0.0, f64::max);
+    let capped = match cap {
+        Some(cap) if longest > cap => {
+            step *= cap / longest;
+            true
+        }
+        _ => false,
+    };
     let decrement = -grad.dot(&step);
-    if !decrement.is_finite() {
-        return Ok(None);
+    if !decrement.is_finite() || (capped && decrement <= 0.0) {
+        return Ok(Step::Failed);
     }
     let mut t = 1.0;
     for _ in 0..40 {
@@ -557,14 +640,19 @@ fn newton_step<L: LogLikelihood<P>, const P: usize>(
             .model
             .log_likelihood(&theta_of(bounds, free, &next));
         if let Ok(l) = candidate {
-            if -l <= -value - 1e-4 * t * decrement || decrement / 2.0 <= f64::EPSILON * value.abs()
+            if capped && l.is_finite() && -l < -value {
+                return Ok(Step::Capped(next));
+            }
+            if !capped
+                && (-l <= -value - 1e-4 * t * decrement
+                    || decrement / 2.0 <= f64::EPSILON * value.abs())
             {
-                return Ok(Some((next, decrement)));
+                return Ok(Step::Taken(next, decrement));
             }
         }
         t *= 0.5;
     }
-    Ok(None)
+    Ok(Step::Failed)
 }
 
 fn model_or_optimizer_error(e: argmin::core::Error) -> Error {
