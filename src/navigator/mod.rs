@@ -9,6 +9,9 @@
 //!   [`NavSolution`]s (state and 1-sigma per state group);
 //! - [`navigate`]: the batch run over time-merged inputs ([`SurveyInputs`]), with the
 //!   initial state from the configuration, the first fix and a coarse alignment.
+//! - [`tune`]: maximum-likelihood noise parameters (IMU white-noise densities, DVL
+//!   beam noise and mismatch, the scale of the paper's M) with standard errors and a
+//!   likelihood-ratio test of M = 0, on trajectories with DVL velocities.
 //!
 //! Conventions (estim-ins): NED, body x forward y right z down, true = nominal +
 //! error, misalignment in NED. A sensor's time offset tau means a sample stamped t
@@ -20,6 +23,7 @@ mod config;
 mod filter;
 mod pd0;
 mod smooth;
+pub mod tune;
 
 pub use aiding::{DepthModel, PositionFixModel};
 pub use batch::{

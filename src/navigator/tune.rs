@@ -1,0 +1,547 @@
+//! Maximum-likelihood noise parameters of the INS/DVL filter: the IMU's white-noise
+//! densities, the DVL's beam-level noise and the DVL-versus-motion mismatch, and the
+//! scale of the paper's cross-covariance heuristic, with standard errors and a
+//! likelihood-ratio test of M = 0. `estim tune` runs it on A-KIT training trajectories.
+//!
+//! ## Parameters
+//!
+//! theta = \[q_a, q_g, s_b, s_m, rho\] ([`PARAMETER_NAMES`]):
+//! - q_a, q_g: the accelerometer's and the gyroscope's white-noise PSD (the square of
+//!   [`estim_ins::SensorSpec::white_noise_density`]); the bias drift stays as given;
+//! - R(theta) = s_b (A'A)^-1 + s_m I: s_b the variance of each beam's velocity (A the
+//!   beam geometry, so s_b (A'A)^-1 is the least-squares velocity's covariance), s_m a
+//!   per-axis variance for what the DVL measures beyond the vehicle's motion; the two
+//!   are told apart by their different shares of the horizontal and vertical axes;
+//! - M(theta) = rho sqrt(diag Q_acc(theta)) sqrt(diag R(theta))' (the paper's heuristic,
+//!   [`estim_core::ScaledCorrelation`], over the process noise accumulated since the
+//!   previous update); rho = 0 is M = 0.
+//!
+//! ## The likelihood
+//!
+//! The error-state filter is run once at a linearization point theta_0
+//! ([`linearize`]). Its steps are recorded between DVL epochs as the accumulated
+//! transition Phi_acc and the accumulated process noise split into its three parts,
+//! Q_acc(theta) = q_a Q_a + q_g Q_g + Q_bias (Q_d is linear in the PSDs), and at each
+//! epoch the DVL Jacobian H, the innovation y_k = z_k - h(nominal), the injected
+//! correction Delta_k and the reset Jacobian J_k. The error of the corrected nominal
+//! then follows a linear-Gaussian model with a known input (the corrections, which
+//! depend on past data only):
+//!
+//! ```text
+//! dx_k = Phi_acc,k J_{k-1} (dx_{k-1} - Delta_{k-1}) + w_k,   y_k = H_k dx_k + v_k
+//! ```
+//!
+//! whose exact Gaussian log-likelihood ([`InsDvlLikelihood`]) is that of a
+//! time-varying [`estim_core::KalmanFilter`] with control input, at one step per DVL
+//! epoch; at theta = theta_0 it equals the error-state filter's own
+//! `log_likelihood()` (tested). The fit ([`tune`]) maximises it with
+//! [`estim_core::noise::ml::maximize`] (exact derivatives by dual numbers),
+//! relinearizes the filter at the estimate and fits again
+//! ([`TuneOptions::linearizations`] passes), then refits with rho fixed at 0 for the
+//! likelihood-ratio test. Every DVL epoch enters: the filter runs with no innovation
+//! gate, so the likelihood is of all the measurements given.
+
+use estim_core::nalgebra::{Matrix3, SMatrix, SVector, Vector3};
+use estim_core::noise::ml::{
+    likelihood_ratio_test, maximize, Bounds, FitOptions, LikelihoodRatioTest, LogLikelihood,
+    MaximumLikelihood,
+};
+use estim_core::numeric::lit;
+use estim_core::{
+    ErrorStateKalmanFilter, ErrorStateModel, FilterConfig, Fixed, JointCheck, KalmanFilter,
+    MeasurementModel, ProcessModel, Scalar, ScaledCorrelation, StateAndCovariance,
+};
+use estim_dvl::{BeamGeometry, DvlVelocityModel};
+use estim_ins::{ErrorMatrix, ImuSample, ImuSpec, InsErrorModel, InsState, ERROR_STATES};
+
+use super::{filter_imu_spec, NavigatorError, Result, IMU_PERIOD_SNAP};
+
+/// Number of parameters.
+pub const TUNE_PARAMETERS: usize = 5;
+
+/// The parameters' names, in theta's order.
+pub const PARAMETER_NAMES: [&str; TUNE_PARAMETERS] = [
+    "accelerometer_psd",
+    "gyroscope_psd",
+    "dvl_beam_variance",
+    "dvl_mismatch_variance",
+    "m_scale",
+];
+
+/// The parameters' units, in theta's order.
+pub const PARAMETER_UNITS: [&str; TUNE_PARAMETERS] =
+    ["(m/s^2)^2/Hz", "(rad/s)^2/Hz", "(m/s)^2", "(m/s)^2", "1"];
+
+/// Index of rho (the M scale) in theta.
+pub const M_SCALE: usize = 4;
+
+/// theta = \[q_a, q_g, s_b, s_m, rho\] (module docs).
+pub type TuneParameters = SVector<f64, TUNE_PARAMETERS>;
+
+/// One trajectory to learn from: IMU samples, DVL velocities and the initial state.
+#[derive(Debug, Clone, Copy)]
+pub struct TuneTrajectory<'a> {
+    /// IMU samples in time order; sample j is held from its time to the next one's.
+    pub imu: &'a [ImuSample],
+    /// Nominal IMU period \[s\] (an interval within [`IMU_PERIOD_SNAP`] relative of it
+    /// is taken as exactly the period, as the navigator does).
+    pub imu_period: f64,
+    /// DVL measurements: (index of the IMU sample at whose time it was taken, velocity in
+    /// the DVL frame \[m/s\]), indices ascending.
+    pub dvl: &'a [(usize, Vector3<f64>)],
+    /// The nominal state at the first IMU sample's time.
+    pub initial: InsState,
+    /// Its error covariance.
+    pub covariance: ErrorMatrix,
+}
+
+/// The fixed part of the model: the IMU's error model (its white-noise densities are
+/// replaced by theta), the DVL model (lever arm, scale factor, misalignment; its R is
+/// replaced by R(theta)) and the beam geometry of R(theta).
+#[derive(Debug, Clone)]
+pub struct TuneModel {
+    /// The IMU's error model (the filter uses [`filter_imu_spec`] of it).
+    pub sensor_spec: ImuSpec,
+    /// The DVL measurement model.
+    pub dvl: DvlVelocityModel,
+    /// The beam geometry: R(theta)'s beam term is s_b (A'A)^-1.
+    pub geometry: BeamGeometry,
+}
+
+impl TuneModel {
+    /// (A'A)^-1 of the beam geometry.
+    pub fn beam_covariance(&self) -> Matrix3<f64> {
+        let pinv = self.geometry.pseudo_inverse();
+        pinv * pinv.transpose()
+    }
+
+    /// R(theta) = s_b (A'A)^-1 + s_m I.
+    pub fn measurement_noise(&self, theta: &TuneParameters) -> Matrix3<f64> {
+        measurement_noise(&self.beam_covariance(), theta[2], theta[3])
+    }
+
+    /// The filter's IMU spec at theta (white-noise densities sqrt(q_a), sqrt(q_g)).
+    ///
+    /// # Errors
+    /// [`NavigatorError::Config`] for a negative or non-finite PSD.
+    pub fn filter_spec(&self, theta: &TuneParameters) -> Result<ImuSpec> {
+        let (qa, qg) = (theta[0], theta[1]);
+        if !(qa.is_finite() && qa >= 0.0 && qg.is_finite() && qg >= 0.0) {
+            return Err(NavigatorError::Config(format!(
+                "tune: IMU PSDs {qa}, {qg} must be finite and >= 0"
+            )));
+        }
+        let mut acc = *self.sensor_spec.accelerometer();
+        let mut gyro = *self.sensor_spec.gyroscope();
+        acc.white_noise_density = qa.sqrt();
+        gyro.white_noise_density = qg.sqrt();
+        let spec = ImuSpec::builder()
+            .accelerometer(acc)
+            .gyroscope(gyro)
+            .build()?;
+        filter_imu_spec(&spec)
+    }
+
+    /// The DVL model with R(theta).
+    fn dvl_with_noise(&self, r: Matrix3<f64>) -> Result<DvlVelocityModel> {
+        Ok(DvlVelocityModel::builder()
+            .lever_arm(*self.dvl.lever_arm())
+            .scale_factor_error(self.dvl.scale_factor_error())
+            .mounting_misalignment(*self.dvl.mounting_misalignment())
+            .noise_covariance(r)
+            .build()?)
+    }
+}
+
+fn measurement_noise<T: Scalar>(beam: &SMatrix<T, 3, 3>, sb: T, sm: T) -> SMatrix<T, 3, 3> {
+    beam * sb + SMatrix::<T, 3, 3>::identity() * sm
+}
+
+/// One DVL epoch of the linearized model (module docs).
+#[derive(Debug, Clone)]
+struct Epoch {
+    /// Phi_acc,k J_{k-1}.
+    transition: ErrorMatrix,
+    /// -Phi_acc,k J_{k-1} Delta_{k-1}.
+    control: SVector<f64, ERROR_STATES>,
+    /// Q_a, Q_g, Q_bias accumulated since the previous epoch.
+    noise: [ErrorMatrix; 3],
+    jacobian: SMatrix<f64, 3, ERROR_STATES>,
+    innovation: Vector3<f64>,
+}
+
+/// The filter of one trajectory linearized at theta_0 ([`linearize`]).
+#[derive(Debug, Clone)]
+pub struct Linearization {
+    epochs: Vec<Epoch>,
+    covariance: ErrorMatrix,
+    /// The linearization point theta_0.
+    pub theta: TuneParameters,
+    /// The error-state filter's own cumulative log-likelihood at theta_0.
+    pub filter_log_likelihood: f64,
+    /// The largest |rho| for which [[Q_acc, M], [M', R]] is positive semidefinite at
+    /// every epoch, at theta_0.
+    pub largest_valid_rho: f64,
+}
+
+impl Linearization {
+    /// DVL epochs (updates).
+    pub fn epochs(&self) -> usize {
+        self.epochs.len()
+    }
+}
+
+/// Run the error-state filter over `trajectory` at `theta` (no gate) and record its
+/// linearization (module docs).
+///
+/// # Errors
+/// [`NavigatorError::Config`] for an invalid theta, an IMU period that is not positive,
+/// a DVL index beyond the IMU or out of order, or IMU times that do not increase;
+/// [`NavigatorError::Filter`] for a numerical failure (with the time).
+pub fn linearize(
+    trajectory: &TuneTrajectory<'_>,
+    model: &TuneModel,
+    theta: &TuneParameters,
+) -> Result<Linearization> {
+    if !theta.iter().all(|v| v.is_finite()) {
+        return Err(NavigatorError::Config(format!(
+            "tune: parameters {:?} must be finite",
+            theta.as_slice()
+        )));
+    }
+    let period = trajectory.imu_period;
+    if !(period.is_finite() && period > 0.0) {
+        return Err(NavigatorError::Config(format!(
+            "tune: IMU period {period} s is not positive and finite"
+        )));
+    }
+    let spec = model.filter_spec(theta)?;
+    // One error model per part of Q_d; their transitions are the same (same time
+    // constants), their noises the parts (PSDs 1 or 0).
+    let part = |qa: f64, qg: f64, bias: bool| -> Result<InsErrorModel> {
+        let mut acc = *spec.accelerometer();
+        let mut gyro = *spec.gyroscope();
+        acc.white_noise_density = qa;
+        gyro.white_noise_density = qg;
+        if !bias {
+            acc.bias_instability = 0.0;
+            gyro.bias_instability = 0.0;
+        }
+        Ok(InsErrorModel::new(
+            ImuSpec::builder()
+                .accelerometer(acc)
+                .gyroscope(gyro)
+                .build()?,
+        ))
+    };
+    let parts = [
+        part(1.0, 0.0, false)?,
+        part(0.0, 1.0, false)?,
+        part(0.0, 0.0, true)?,
+    ];
+    let r = model.measurement_noise(theta);
+    let dvl = model.dvl_with_noise(r)?;
+    let cross = ScaledCorrelation {
+        rho: theta[M_SCALE],
+    };
+    let mut filter = ErrorStateKalmanFilter::new(
+        InsErrorModel::new(spec),
+        trajectory.initial,
+        trajectory.covariance,
+    )?
+    .with_config(FilterConfig::default());
+    let imu = trajectory.imu;
+    let identity = ErrorMatrix::identity();
+    let (mut phi_acc, mut q_acc) = (identity, [ErrorMatrix::zeros(); 3]);
+    let (mut reset, mut correction) = (identity, SVector::<f64, ERROR_STATES>::zeros());
+    let mut epochs = Vec::with_capacity(trajectory.dvl.len());
+    let mut largest_valid_rho = f64::INFINITY;
+    let mut next = 0;
+    for j in 0..imu.len() {
+        let time = imu[j].time;
+        while let Some(&(index, y)) = trajectory.dvl.get(next) {
+            if index < j {
+                return Err(NavigatorError::Config(format!(
+                    "tune: DVL measurement {next} at IMU index {index} is out of order"
+                )));
+            }
+            if index > j {
+                break;
+            }
+            let fail = |source| NavigatorError::Filter { time, source };
+            let before = *filter.nominal();
+            let jacobian = dvl.jacobian(&before).map_err(fail)?;
+            largest_valid_rho = largest_valid_rho.min(
+                ScaledCorrelation::largest_valid_rho(filter.accumulated_process_noise(), &r)
+                    .map_err(fail)?,
+            );
+            let report = filter.update(&dvl, &y, &cross).map_err(fail)?;
+            let transition = phi_acc * reset;
+            epochs.push(Epoch {
+                control: -(transition * correction),
+                transition,
+                noise: q_acc,
+                jacobian,
+                innovation: report.innovation,
+            });
+            correction = report.correction.unwrap_or_else(SVector::zeros);
+            reset = filter.process().reset_jacobian(&before, &correction);
+            phi_acc = identity;
+            q_acc = [ErrorMatrix::zeros(); 3];
+            next += 1;
+        }
+        let Some(following) = imu.get(j + 1) else {
+            break;
+        };
+        let mut dt = following.time - time;
+        if !(dt.is_finite() && dt > 0.0) {
+            return Err(NavigatorError::Config(format!(
+                "tune: IMU sample {} at t = {} s does not follow sample {j} at t = {time} s",
+                j + 1,
+                following.time
+            )));
+        }
+        if (dt - period).abs() <= IMU_PERIOD_SNAP * period {
+            dt = period;
+        }
+        let before = *filter.nominal();
+        let fail = |source| NavigatorError::Filter { time, source };
+        filter.predict(&imu[j], dt).map_err(fail)?;
+        let mut phi = identity;
+        for (q, model) in q_acc.iter_mut().zip(&parts) {
+            let (p, qd) = model.transition_and_noise(&before, &imu[j], dt);
+            *q = model.propagate_covariance(q, &p, &qd);
+            phi = p;
+        }
+        phi_acc = parts[0].compose_transitions(&phi, &phi_acc);
+    }
+    if let Some(&(index, _)) = trajectory.dvl.get(next) {
+        return Err(NavigatorError::Config(format!(
+            "tune: DVL measurement {next} at IMU index {index} is beyond the IMU ({} samples)",
+            imu.len()
+        )));
+    }
+    Ok(Linearization {
+        epochs,
+        covariance: trajectory.covariance,
+        theta: *theta,
+        filter_log_likelihood: filter.log_likelihood(),
+        largest_valid_rho,
+    })
+}
+
+/// The log-likelihood of the linearized filters of one or more trajectories (their
+/// sum), as a function of theta (module docs).
+#[derive(Debug, Clone, Copy)]
+pub struct InsDvlLikelihood<'a> {
+    /// (A'A)^-1 of the beam geometry ([`TuneModel::beam_covariance`]).
+    pub beam_covariance: Matrix3<f64>,
+    /// The linearized trajectories.
+    pub trajectories: &'a [Linearization],
+}
+
+/// sqrt of a nonnegative diagonal entry, 0 where it is 0 (no derivative to carry: the
+/// entry's value does not depend on theta there).
+fn root<T: Scalar>(d: T) -> T {
+    if d > T::zero() {
+        d.sqrt()
+    } else {
+        T::zero()
+    }
+}
+
+impl LogLikelihood<TUNE_PARAMETERS> for InsDvlLikelihood<'_> {
+    fn log_likelihood<T: Scalar>(
+        &self,
+        theta: &SVector<T, TUNE_PARAMETERS>,
+    ) -> estim_core::Result<T> {
+        let beam = self.beam_covariance.map(lit::<T>);
+        let r = measurement_noise(&beam, theta[2], theta[3]);
+        let r_root = r.diagonal().map(root);
+        let config = FilterConfig::builder()
+            .joint_check(JointCheck::Skip)
+            .build()?;
+        let input = SMatrix::<T, ERROR_STATES, ERROR_STATES>::identity();
+        let mut total = T::zero();
+        for linearization in self.trajectories {
+            let initial =
+                StateAndCovariance::new(SVector::zeros(), linearization.covariance.map(lit::<T>))?;
+            let mut kf = KalmanFilter::new(
+                SMatrix::identity(),
+                SMatrix::zeros(),
+                SMatrix::zeros(),
+                r,
+                initial,
+            )?
+            .with_config(config.clone());
+            for epoch in &linearization.epochs {
+                let [qa, qg, qb] = &epoch.noise;
+                let q =
+                    qa.map(lit::<T>) * theta[0] + qg.map(lit::<T>) * theta[1] + qb.map(lit::<T>);
+                let m = q.diagonal().map(root) * r_root.transpose() * theta[M_SCALE];
+                kf.predict_with(
+                    epoch.transition.map(lit::<T>),
+                    q,
+                    Some((&input, &epoch.control.map(lit::<T>))),
+                )?;
+                kf.update_with(
+                    epoch.jacobian.map(lit::<T>),
+                    r,
+                    &epoch.innovation.map(lit::<T>),
+                    &Fixed(m),
+                )?;
+            }
+            total += kf.log_likelihood();
+        }
+        Ok(total)
+    }
+}
+
+/// Options of [`tune`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TuneOptions {
+    /// The optimiser's options.
+    pub fit: FitOptions,
+    /// Linearizations: the first at the starting point, each next one at the previous
+    /// fit's estimate (default 2).
+    pub linearizations: usize,
+    /// rho is bounded by this fraction of the largest valid |rho| at the last
+    /// linearization point (default 0.99), so that the joint covariance stays valid.
+    pub rho_margin: f64,
+}
+
+impl Default for TuneOptions {
+    fn default() -> Self {
+        Self {
+            fit: FitOptions::default(),
+            linearizations: 2,
+            rho_margin: 0.99,
+        }
+    }
+}
+
+/// The result of [`tune`].
+#[derive(Debug, Clone)]
+pub struct TuneFit {
+    /// The fit with rho free.
+    pub full: MaximumLikelihood<TUNE_PARAMETERS>,
+    /// Whether each parameter of `full` ended on its bound (a variance below 1e-6 of its
+    /// starting value, or |rho| within 1e-4 relative of its bound).
+    pub on_bound: [bool; TUNE_PARAMETERS],
+    /// Standard errors of `full` from the observed information over the parameters
+    /// that are not on a bound (`None` for those on one, where the quadratic
+    /// approximation does not hold, and for all when that information is not positive
+    /// definite). `full.standard_errors` is the same when no parameter is on a bound.
+    pub standard_errors: [Option<f64>; TUNE_PARAMETERS],
+    /// The fit with rho = 0 (M = 0), on the same linearization.
+    pub restricted: MaximumLikelihood<TUNE_PARAMETERS>,
+    /// The likelihood-ratio test of rho = 0 (1 degree of freedom).
+    pub test: LikelihoodRatioTest,
+    /// The linearization points, in order (the first is the start).
+    pub points: Vec<TuneParameters>,
+    /// The bound on |rho| of the last pass.
+    pub rho_bound: f64,
+    /// DVL epochs in all.
+    pub epochs: usize,
+}
+
+/// Fit theta on `trajectories` from `start` (module docs).
+///
+/// # Errors
+/// [`NavigatorError::Config`] for no trajectories, zero linearizations or an invalid
+/// start; [`linearize`]'s; the fit's errors as [`NavigatorError::Core`].
+pub fn tune(
+    trajectories: &[TuneTrajectory<'_>],
+    model: &TuneModel,
+    start: &TuneParameters,
+    options: &TuneOptions,
+) -> Result<TuneFit> {
+    if trajectories.is_empty() || options.linearizations == 0 {
+        return Err(NavigatorError::Config(
+            "tune: at least one trajectory and one linearization are needed".into(),
+        ));
+    }
+    if !(start.iter().take(4).all(|v| *v > 0.0) && start[M_SCALE].is_finite()) {
+        return Err(NavigatorError::Config(format!(
+            "tune: the starting variances {:?} must be positive",
+            &start.as_slice()[..4]
+        )));
+    }
+    let beam_covariance = model.beam_covariance();
+    let mut point = *start;
+    let mut points = vec![point];
+    loop {
+        let linearized = trajectories
+            .iter()
+            .map(|t| linearize(t, model, &point))
+            .collect::<Result<Vec<_>>>()?;
+        let rho_bound = options.rho_margin
+            * linearized
+                .iter()
+                .map(|l| l.largest_valid_rho)
+                .fold(f64::INFINITY, f64::min);
+        let likelihood = InsDvlLikelihood {
+            beam_covariance,
+            trajectories: &linearized,
+        };
+        let mut lower = SVector::from([0.0, 0.0, 0.0, 0.0, -rho_bound]);
+        let mut upper = SVector::from([f64::INFINITY; TUNE_PARAMETERS]);
+        upper[M_SCALE] = rho_bound;
+        let bounds = Bounds::new(lower, upper)?;
+        let mut begin = point;
+        begin[M_SCALE] = begin[M_SCALE].clamp(-0.5 * rho_bound, 0.5 * rho_bound);
+        let full = maximize(&likelihood, &begin, &bounds, &options.fit)?;
+        if points.len() < options.linearizations {
+            point = full.theta;
+            points.push(point);
+            continue;
+        }
+        lower[M_SCALE] = 0.0;
+        upper[M_SCALE] = 0.0;
+        let restricted_bounds = Bounds::new(lower, upper)?;
+        let mut begin = full.theta;
+        begin[M_SCALE] = 0.0;
+        let restricted = maximize(&likelihood, &begin, &restricted_bounds, &options.fit)?;
+        let test = likelihood_ratio_test(full.log_likelihood, restricted.log_likelihood, 1)?;
+        let on_bound: [bool; TUNE_PARAMETERS] = std::array::from_fn(|i| {
+            if i == M_SCALE {
+                full.theta[i].abs() >= (1.0 - 1e-4) * rho_bound
+            } else {
+                full.theta[i] < 1e-6 * start[i]
+            }
+        });
+        let standard_errors = interior_standard_errors(&full.information, &on_bound);
+        return Ok(TuneFit {
+            full,
+            on_bound,
+            standard_errors,
+            restricted,
+            test,
+            points,
+            rho_bound,
+            epochs: linearized.iter().map(Linearization::epochs).sum(),
+        });
+    }
+}
+
+/// sqrt of the diagonal of the inverse of `information` over the parameters not on a
+/// bound (`None` for those on one, and for all when that block is not positive
+/// definite).
+fn interior_standard_errors(
+    information: &SMatrix<f64, TUNE_PARAMETERS, TUNE_PARAMETERS>,
+    on_bound: &[bool; TUNE_PARAMETERS],
+) -> [Option<f64>; TUNE_PARAMETERS] {
+    let interior: Vec<usize> = (0..TUNE_PARAMETERS).filter(|&i| !on_bound[i]).collect();
+    let n = interior.len();
+    let block = estim_core::nalgebra::DMatrix::from_fn(n, n, |r, c| {
+        information[(interior[r], interior[c])]
+    });
+    let mut out = [None; TUNE_PARAMETERS];
+    if let Some(chol) = block.cholesky() {
+        let inverse = chol.inverse();
+        for (r, &i) in interior.iter().enumerate() {
+            out[i] = Some(inverse[(r, r)].max(0.0).sqrt());
+        }
+    }
+    out
+}
