@@ -19,6 +19,7 @@ mod reproduce;
 mod schema;
 mod simulate;
 mod smooth;
+mod tune;
 
 /// The paper study (reproduce, montecarlo, report): private to the binary, not
 /// library API. See docs/design.md.
@@ -54,6 +55,10 @@ enum Command {
     Navigate(navigate::Args),
     /// Synthesize sensor files from a recorded trajectory (IMU, beams): a simulation.
     Simulate(simulate::Args),
+    /// Fit the INS/DVL noise parameters (IMU densities, DVL noise and mismatch, the M
+    /// scale) by maximum likelihood on A-KIT training trajectories, with standard
+    /// errors and a likelihood-ratio test of M = 0.
+    Tune(tune::Args),
 }
 
 fn main() -> ExitCode {
@@ -70,6 +75,7 @@ fn main() -> ExitCode {
         Command::Smooth(args) => smooth::run(args),
         Command::Navigate(args) => navigate::run(args),
         Command::Simulate(args) => simulate::run(args),
+        Command::Tune(args) => tune::run(args),
     };
     // Exit statuses: see `schema` (0 ok, 2 bad input, 3 some filter failed, 141
     // stdout closed).

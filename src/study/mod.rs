@@ -20,6 +20,7 @@ mod run;
 mod scenario;
 mod smooth;
 pub mod stats;
+mod tune;
 
 pub use config::{Config, PaperMBasis, MAX_SEED};
 pub use faults::{apply_faults, DvlOutage, FaultConfig, ImuGap};
@@ -46,6 +47,7 @@ pub use run::{
 };
 pub use scenario::{synthesize_imu, BeamLoss, Scenario};
 pub use smooth::{least_squares_measurements, smooth_scenario, SmoothReport};
+pub use tune::{tune_akit, TuneReport};
 
 use std::path::PathBuf;
 

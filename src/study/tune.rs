@@ -1,0 +1,162 @@
+//! `estim tune` on A-KIT: the maximum-likelihood noise parameters of the LS-aided
+//! INS/DVL filter ([`estim::navigator::tune`]) on chosen training trajectories.
+//!
+//! Each trajectory is the study's scenario (IMU synthesized from the ground truth with
+//! the configured error model and `seed`, the real DVL velocity through the BeamsNet
+//! beam protocol and least squares, the configured lever arm and time offset). The
+//! test trajectories 4 and 13 are refused, and every DVL epoch whose row also occurs in
+//! one of them (the A-KIT segments overlap) is left out of the likelihood: the filter
+//! propagates through it without an update.
+
+use std::collections::HashSet;
+use std::path::Path;
+
+use estim::datasets::{load_dvl_with, trajectory_files};
+use estim::navigator::tune::{
+    tune, TuneFit, TuneModel, TuneOptions, TuneParameters, TuneTrajectory,
+};
+use estim::navigator::{DvlConfig, NavigatorConfig};
+use estim_core::nalgebra::Vector3;
+
+use super::{
+    initial_covariance, initial_nominal, least_squares_velocities, Config, PipelineError, Result,
+    Scenario, AKIT_TEST_TRAJECTORIES,
+};
+
+/// What [`tune_akit`] fitted, with what it was fitted on.
+#[derive(Debug, Clone)]
+pub struct TuneReport {
+    /// The trajectories, in the order given.
+    pub trajectories: Vec<u32>,
+    /// DVL epochs used per trajectory.
+    pub epochs: Vec<usize>,
+    /// DVL epochs left out per trajectory (rows shared with a test trajectory).
+    pub overlapping: Vec<usize>,
+    /// The starting point.
+    pub start: TuneParameters,
+    /// The IMU PSDs the IMU was synthesized with (the values q_a and q_g recover when
+    /// the filter's model is right).
+    pub synthesized_psd: [f64; 2],
+    /// The fit.
+    pub fit: TuneFit,
+}
+
+fn bits(v: &Vector3<f64>) -> [u64; 3] {
+    [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()]
+}
+
+/// Fit on A-KIT `trajectories` under `dir` (module docs), from the configuration's
+/// noise values (IMU densities, beam noise of the protocol, the reference mismatch,
+/// rho = 0).
+///
+/// # Errors
+/// [`PipelineError::Invalid`] for a test trajectory, a repeated one or none; loader
+/// errors (file and line); the fit's errors.
+pub fn tune_akit(
+    dir: &Path,
+    trajectories: &[u32],
+    config: &Config,
+    seed: u64,
+    options: &TuneOptions,
+) -> Result<TuneReport> {
+    if trajectories.is_empty() {
+        return Err(PipelineError::Invalid("tune: no trajectory given".into()));
+    }
+    for (i, n) in trajectories.iter().enumerate() {
+        if AKIT_TEST_TRAJECTORIES.contains(n) {
+            return Err(PipelineError::Invalid(format!(
+                "tune: A-KIT trajectory {n} is a held-out test trajectory (4 and 13 are never \
+                 used to fit anything)"
+            )));
+        }
+        if trajectories[..i].contains(n) {
+            return Err(PipelineError::Invalid(format!(
+                "tune: A-KIT trajectory {n} is given twice"
+            )));
+        }
+    }
+    let mut test_rows = HashSet::new();
+    for &n in &AKIT_TEST_TRAJECTORIES {
+        let files = trajectory_files(dir, n)?;
+        for row in load_dvl_with(&files.dvl, &config.columns)? {
+            test_rows.insert(bits(&Vector3::from(row.velocity_body)));
+        }
+    }
+    let scenarios = trajectories
+        .iter()
+        .map(|&n| Scenario::akit(dir, n, config, seed))
+        .collect::<Result<Vec<_>>>()?;
+    let mut measurements = Vec::with_capacity(scenarios.len());
+    let mut overlapping = Vec::with_capacity(scenarios.len());
+    for scenario in &scenarios {
+        let velocities = least_squares_velocities(scenario, config);
+        let mut used = Vec::with_capacity(velocities.len());
+        let mut left_out = 0;
+        for (epoch, v) in scenario.dvl.iter().zip(velocities) {
+            if test_rows.contains(&bits(&epoch.reference_velocity)) {
+                left_out += 1;
+            } else if let Some(v) = v {
+                used.push((epoch.imu_index, v));
+            }
+        }
+        measurements.push(used);
+        overlapping.push(left_out);
+    }
+    let mut inputs = Vec::with_capacity(scenarios.len());
+    for (scenario, dvl) in scenarios.iter().zip(&measurements) {
+        let truth0 = scenario
+            .truth
+            .first()
+            .ok_or_else(|| PipelineError::Invalid(format!("{}: no samples", scenario.name)))?;
+        let covariance = initial_covariance(config, scenario);
+        inputs.push(TuneTrajectory {
+            imu: &scenario.imu,
+            imu_period: scenario.imu_dt,
+            dvl,
+            initial: initial_nominal(truth0, &covariance, seed),
+            covariance,
+        });
+    }
+    let first = scenarios
+        .first()
+        .ok_or_else(|| PipelineError::Invalid("tune: no trajectory given".into()))?;
+    let spec = first.imu_spec;
+    let settings = NavigatorConfig {
+        dvl: DvlConfig {
+            lever_arm_m: config.dvl.lever_arm_m,
+            ..DvlConfig::default()
+        },
+        ..NavigatorConfig::default()
+    }
+    .check()?;
+    let protocol = if config.dvl.protocol == "v2" {
+        estim_dvl::BeamsNetProtocol::v2()
+    } else {
+        estim_dvl::BeamsNetProtocol::v1()
+    };
+    let model = TuneModel {
+        sensor_spec: spec,
+        dvl: settings.dvl_model().clone(),
+        geometry: protocol.geometry().clone(),
+    };
+    let psd = [
+        spec.accelerometer().white_noise_density.powi(2),
+        spec.gyroscope().white_noise_density.powi(2),
+    ];
+    let start = TuneParameters::from([
+        psd[0],
+        psd[1],
+        protocol.error_model().noise_std().powi(2),
+        config.dvl.akit_reference_mismatch_std.powi(2),
+        0.0,
+    ]);
+    let fit = tune(&inputs, &model, &start, options)?;
+    Ok(TuneReport {
+        trajectories: trajectories.to_vec(),
+        epochs: measurements.iter().map(Vec::len).collect(),
+        overlapping,
+        start,
+        synthesized_psd: psd,
+        fit,
+    })
+}
