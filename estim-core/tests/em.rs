@@ -357,7 +357,7 @@ fn em_of_the_noise_covariances_equals_pykalman_test_kalman_fit() {
 #[test]
 fn em_of_noise_and_initial_state_equals_pykalman() {
     let robot = robot();
-    let fits = fits(&robot, EmVariables::ALL, 10);
+    let fits = fits(&robot, EmVariables::NOISE_AND_INITIAL_STATE, 10);
     let d = against_pykalman(&robot, "fit_all", &fits);
     // Measured: trace 1.4e-13, matrices 3.8e-10 (in Q at iteration 10; 4e-14 after
     // iteration 1, growing about 5x per iteration from the 7th), pykalman's own
@@ -386,7 +386,41 @@ fn no_variables_keep_the_model() {
     let vars = EmVariables::TRANSITION_COVARIANCE | EmVariables::OBSERVATION_COVARIANCE;
     assert_eq!(vars, EmVariables::NOISE_COVARIANCES);
     assert!(EmVariables::ALL.contains(vars) && !vars.contains(EmVariables::ALL));
+    let structure = EmVariables::TRANSITION_MATRIX
+        | EmVariables::OBSERVATION_MATRIX
+        | EmVariables::TRANSITION_OFFSETS
+        | EmVariables::OBSERVATION_OFFSET;
+    assert_eq!(
+        EmVariables::NOISE_AND_INITIAL_STATE | structure,
+        EmVariables::ALL
+    );
+    assert!(!EmVariables::NOISE_AND_INITIAL_STATE.contains(EmVariables::TRANSITION_MATRIX));
     assert!(EmVariables::NONE.is_empty());
+}
+
+/// F, H, b, d alone: Q, R, mu_0, Sigma_0 stay as given, and the likelihood rises.
+#[test]
+fn em_of_the_structure_alone_keeps_the_noise() {
+    let robot = robot();
+    let start = robot.start();
+    let vars = EmVariables::TRANSITION_MATRIX
+        | EmVariables::OBSERVATION_MATRIX
+        | EmVariables::TRANSITION_OFFSETS
+        | EmVariables::OBSERVATION_OFFSET;
+    let fit = em(&start, &robot.measurements, vars, 3).unwrap();
+    let model = &fit.model;
+    assert_eq!(model.transition_covariance(), start.transition_covariance());
+    assert_eq!(
+        model.observation_covariance(),
+        start.observation_covariance()
+    );
+    assert_eq!(model.initial_state_mean(), start.initial_state_mean());
+    assert_eq!(
+        model.initial_state_covariance(),
+        start.initial_state_covariance()
+    );
+    assert_ne!(model.transition_matrix(), start.transition_matrix());
+    assert_increasing(&fit.log_likelihoods);
 }
 
 fn scalar_model() -> LinearGaussianModel {
@@ -575,6 +609,30 @@ fn bad_models_and_measurements_are_typed_errors() {
             ..
         })
     ));
+    for vars in [
+        EmVariables::OBSERVATION_MATRIX,
+        EmVariables::OBSERVATION_OFFSET,
+    ] {
+        assert!(matches!(
+            em(&model, &[None, None], vars, 1),
+            Err(Error::InvalidParameter {
+                name: "measurements",
+                ..
+            })
+        ));
+    }
+    for vars in [
+        EmVariables::TRANSITION_MATRIX,
+        EmVariables::TRANSITION_OFFSETS,
+    ] {
+        assert!(matches!(
+            em(&model, &[Some(dvector![0.1])], vars, 1),
+            Err(Error::InvalidParameter {
+                name: "measurements",
+                ..
+            })
+        ));
+    }
     // R = 0 and P_0 = 0 make S_0 = 0: not positive definite.
     let degenerate = LinearGaussianModel::new(
         dmatrix![1.0],
