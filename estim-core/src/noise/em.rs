@@ -62,26 +62,50 @@
 //! ## M-step (Shumway & Stoffer 1982; Ghahramani & Hinton 1996, eqs. 12-15)
 //!
 //! With the smoothed moments, for the variables chosen in [`EmVariables`] (the others
-//! kept), each from the same E-step:
+//! kept), each from the same E-step, in pykalman's order (H, R, F, Q, mu_0, Sigma_0,
+//! b, d); a right-hand side reads a parameter updated before it in that order (when
+//! it is learned) and the given one otherwise. Sums over "measured t" are over the
+//! epochs with a measurement (n_y of them), sums over t = 0 .. T-2 over every
+//! transition, measured or not.
 //!
 //! ```text
+//! H       = [ sum_{measured t} (y_t - d) x_{t|T}' ] [ sum_{measured t} M_t ]^+,
+//!                                     M_t = P_{t|T} + x_{t|T} x_{t|T}'
 //! R       = 1/n_y sum_{measured t} [ e_t e_t' + H P_{t|T} H' ],   e_t = y_t - H x_{t|T} - d
+//! F       = [ sum_{t=0}^{T-2} (V_{t+1,t} + x_{t+1|T} x_{t|T}' - b_t x_{t|T}') ]
+//!           [ sum_{t=0}^{T-2} M_t ]^+
 //! Q       = 1/(T-1) sum_{t=0}^{T-2} [ f_t f_t' + F P_{t|T} F' + P_{t+1|T}
 //!                                     - V_{t+1,t} F' - F V_{t+1,t}' ],
 //!                                     f_t = x_{t+1|T} - F x_{t|T} - b_t
 //! mu_0    = x_{0|T}
-//! Sigma_0 = P_{0|T} + (x_{0|T} - mu_0)(x_{0|T} - mu_0)'   (mu_0 the new one if learned)
+//! Sigma_0 = P_{0|T} + (x_{0|T} - mu_0)(x_{0|T} - mu_0)'
+//! b       = 1/(T-1) sum_{t=0}^{T-2} (x_{t+1|T} - F x_{t|T})
+//! d       = 1/n_y sum_{measured t} (y_t - H x_{t|T})
 //! ```
 //!
-//! These are pykalman's `_em_observation_covariance`, `_em_transition_covariance`,
-//! `_em_initial_state_mean` and `_em_initial_state_covariance` (R averages over the
-//! measured epochs only; Q over every transition, measured or not; Sigma_0 uses the
-//! updated mu_0, so it is P_{0|T} when both are learned). Sigma_0 is written in the
-//! difference form, algebraically pykalman's
-//! `E[x_0 x_0'] - mu_0 E[x_0]' - E[x_0] mu_0' + mu_0 mu_0'`. The fitted covariances are symmetrised ((A + A') / 2) and checked
-//! like the inputs: the filter's and smoother's products leave a round-off
+//! So R and d use the new H when it is learned, Q and b the new F, Sigma_0 the new
+//! mu_0; H and R use the old d, F and Q the old b (pykalman's `_em` passes the
+//! offsets it was given to those four). These are pykalman's
+//! `_em_observation_matrix`, `_em_observation_covariance`, `_em_transition_matrix`,
+//! `_em_transition_covariance`, `_em_initial_state_mean`,
+//! `_em_initial_state_covariance`, `_em_transition_offset` and
+//! `_em_observation_offset`. H and F are the least-squares regressions of the
+//! expected sufficient statistics, through the same pseudo-inverse (scipy's
+//! cutoff) as pykalman's `linalg.pinv`; learned, b is one constant offset
+//! ([`TransitionOffsets::Constant`]) even if per-step ones were given, as in
+//! pykalman. With F, H, b, Q, mu_0 and Sigma_0 all learned, the likelihood is
+//! invariant under a change of state coordinates (x -> A x for any invertible A):
+//! the fit is pykalman's, one point of that family, not a canonical one, and the
+//! EM map amplifies round-off faster (on the robot problem pykalman's own Q moves
+//! by 9.4e-8 relative after ten iterations when Q_0 is perturbed by 1e-15).
+//!
+//! Sigma_0 is written in the difference form, algebraically pykalman's
+//! `E[x_0 x_0'] - mu_0 E[x_0]' - E[x_0] mu_0' + mu_0 mu_0'` (it is P_{0|T} when
+//! mu_0 is learned too). The fitted covariances are symmetrised ((A + A') / 2) and
+//! checked like the inputs: the filter's and smoother's products leave a round-off
 //! asymmetry that EM iterations amplify (pykalman, which never symmetrises, ends
-//! the robot problem's ten iterations with a Q asymmetric by 6e-10 relative).
+//! the robot problem's ten iterations of Q, R, mu_0, Sigma_0 with a Q asymmetric by
+//! 2.2e-9 relative, and of every parameter by 1.5e-7).
 //!
 //! Each iteration does not decrease the log-likelihood (Dempster, Laird & Rubin
 //! 1977); [`EmFit::log_likelihoods`] records it before the first iteration and after
@@ -318,6 +342,8 @@ impl LinearGaussianModel {
 /// Which parameters [`em`] learns; the others stay as given. A small bit set:
 /// combine with `|`, e.g. `EmVariables::TRANSITION_COVARIANCE |
 /// EmVariables::OBSERVATION_COVARIANCE` (= [`EmVariables::NOISE_COVARIANCES`]).
+/// Whatever the set, one iteration updates its members in pykalman's order H, R, F,
+/// Q, mu_0, Sigma_0, b, d (module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub struct EmVariables(u8);
 
@@ -332,10 +358,23 @@ impl EmVariables {
     pub const INITIAL_STATE_MEAN: Self = Self(4);
     /// Sigma_0.
     pub const INITIAL_STATE_COVARIANCE: Self = Self(8);
+    /// F (pykalman's `transition_matrices`).
+    pub const TRANSITION_MATRIX: Self = Self(16);
+    /// H (pykalman's `observation_matrices`).
+    pub const OBSERVATION_MATRIX: Self = Self(32);
+    /// b: one constant offset is learned, [`TransitionOffsets::Constant`], even from
+    /// per-step ones (as pykalman, which warns that the time-varying offsets become
+    /// one).
+    pub const TRANSITION_OFFSETS: Self = Self(64);
+    /// d (pykalman's `observation_offsets`).
+    pub const OBSERVATION_OFFSET: Self = Self(128);
     /// Q and R (pykalman's `test_kalman_fit`).
     pub const NOISE_COVARIANCES: Self = Self(1 | 2);
     /// Q, R, mu_0 and Sigma_0 (pykalman's default `em_vars`).
-    pub const ALL: Self = Self(1 | 2 | 4 | 8);
+    pub const NOISE_AND_INITIAL_STATE: Self = Self(1 | 2 | 4 | 8);
+    /// Every parameter: Q, R, mu_0, Sigma_0, F, H, b and d (pykalman's
+    /// `em_vars='all'`).
+    pub const ALL: Self = Self(u8::MAX);
 
     /// Whether every variable of `other` is in `self`.
     pub const fn contains(self, other: Self) -> bool {
@@ -390,10 +429,12 @@ pub fn log_likelihood(
 /// log-likelihood. `iterations = 0` returns the model and its log-likelihood.
 ///
 /// # Errors
-/// Those of [`log_likelihood`]; [`Error::InvalidParameter`] when learning R with no
-/// measured epoch or Q with fewer than 2 epochs (nothing to average);
+/// Those of [`log_likelihood`]; [`Error::InvalidParameter`] when learning R, H or d
+/// with no measured epoch or Q, F or b with fewer than 2 epochs (nothing to
+/// average);
 /// [`Error::InvalidCovariance`] if a fitted covariance is not positive semidefinite
-/// to round-off; [`Error::NonFinite`] if a smoother gain or a fitted value overflows.
+/// to round-off; [`Error::NonFinite`] if a smoother gain, an M-step sum or a fitted
+/// value overflows.
 pub fn em(
     model: &LinearGaussianModel,
     measurements: &[Option<DVector<f64>>],
@@ -402,17 +443,32 @@ pub fn em(
 ) -> Result<EmFit> {
     check_measurements(model, measurements)?;
     let measured = measurements.iter().filter(|y| y.is_some()).count();
-    if vars.contains(EmVariables::OBSERVATION_COVARIANCE) && measured == 0 {
-        return Err(Error::InvalidParameter {
-            name: "measurements",
-            reason: "learning the observation covariance needs at least one measured epoch".into(),
-        });
+    for (var, what) in [
+        (
+            EmVariables::OBSERVATION_COVARIANCE,
+            "observation covariance",
+        ),
+        (EmVariables::OBSERVATION_MATRIX, "observation matrix"),
+        (EmVariables::OBSERVATION_OFFSET, "observation offset"),
+    ] {
+        if vars.contains(var) && measured == 0 {
+            return Err(Error::InvalidParameter {
+                name: "measurements",
+                reason: format!("learning the {what} needs at least one measured epoch"),
+            });
+        }
     }
-    if vars.contains(EmVariables::TRANSITION_COVARIANCE) && measurements.len() < 2 {
-        return Err(Error::InvalidParameter {
-            name: "measurements",
-            reason: "learning the transition covariance needs at least 2 epochs".into(),
-        });
+    for (var, what) in [
+        (EmVariables::TRANSITION_COVARIANCE, "transition covariance"),
+        (EmVariables::TRANSITION_MATRIX, "transition matrix"),
+        (EmVariables::TRANSITION_OFFSETS, "transition offsets"),
+    ] {
+        if vars.contains(var) && measurements.len() < 2 {
+            return Err(Error::InvalidParameter {
+                name: "measurements",
+                reason: format!("learning the {what} needs at least 2 epochs"),
+            });
+        }
     }
     let mut model = model.clone();
     let mut log_likelihoods = Vec::with_capacity(iterations + 1);
@@ -526,7 +582,10 @@ fn smooth(model: &LinearGaussianModel, forward: &Forward) -> Result<Smoothed> {
     let mut covariances = forward.filtered_covariances.clone();
     let mut lag_one = vec![DMatrix::zeros(0, 0); steps.saturating_sub(1)];
     for t in (0..steps.saturating_sub(1)).rev() {
-        let predicted_inverse = pseudo_inverse(&forward.predicted_covariances[t + 1])?;
+        let predicted_inverse = pseudo_inverse(
+            &forward.predicted_covariances[t + 1],
+            "predicted state covariance",
+        )?;
         let gain = &forward.filtered_covariances[t] * (&f_t * predicted_inverse);
         check_finite(gain.as_slice(), "smoother gain (overflow)")?;
         means[t] =
@@ -544,7 +603,9 @@ fn smooth(model: &LinearGaussianModel, forward: &Forward) -> Result<Smoothed> {
     })
 }
 
-/// The M-step for `vars` (module docs); the other parameters are kept.
+/// The M-step for `vars` (module docs), in pykalman's order H, R, F, Q, mu_0,
+/// Sigma_0, b, d, each from the same E-step and the parameters already updated;
+/// the others are kept.
 fn maximise(
     model: &LinearGaussianModel,
     measurements: &[Option<DVector<f64>>],
@@ -552,25 +613,50 @@ fn maximise(
     vars: EmVariables,
 ) -> Result<LinearGaussianModel> {
     let mut next = model.clone();
-    let (f, h) = (&model.transition_matrix, &model.observation_matrix);
+    let (n, m) = (model.state_dimension(), model.observation_dimension());
+    // The old offsets: H and R use the old d, F and Q the old b (pykalman's `_em`).
+    let (b, d) = (&model.transition_offsets, &model.observation_offset);
+    let second_moment =
+        |t: usize| &smoothed.covariances[t] + &smoothed.means[t] * smoothed.means[t].transpose();
+    if vars.contains(EmVariables::OBSERVATION_MATRIX) {
+        let (mut cross, mut moment) = (DMatrix::zeros(m, n), DMatrix::zeros(n, n));
+        for (t, y) in measurements.iter().enumerate() {
+            if let Some(y) = y {
+                cross += (y - d) * smoothed.means[t].transpose();
+                moment += second_moment(t);
+            }
+        }
+        next.observation_matrix =
+            regress(&cross, &moment, "observation matrix M-step sums (overflow)")?;
+    }
     if vars.contains(EmVariables::OBSERVATION_COVARIANCE) {
-        let m = model.observation_dimension();
+        let h = &next.observation_matrix;
         let (mut sum, mut count) = (DMatrix::zeros(m, m), 0usize);
         for (t, y) in measurements.iter().enumerate() {
             if let Some(y) = y {
-                let error = y - h * &smoothed.means[t] - &model.observation_offset;
+                let error = y - h * &smoothed.means[t] - d;
                 sum += &error * error.transpose() + h * (&smoothed.covariances[t] * h.transpose());
                 count += 1;
             }
         }
         next.observation_covariance = symmetric_part(sum / count as f64);
     }
+    if vars.contains(EmVariables::TRANSITION_MATRIX) {
+        let (mut cross, mut moment) = (DMatrix::zeros(n, n), DMatrix::zeros(n, n));
+        for t in 0..smoothed.lag_one.len() {
+            let previous = smoothed.means[t].transpose();
+            cross +=
+                &smoothed.lag_one[t] + &smoothed.means[t + 1] * &previous - b.at(t) * &previous;
+            moment += second_moment(t);
+        }
+        next.transition_matrix =
+            regress(&cross, &moment, "transition matrix M-step sums (overflow)")?;
+    }
     if vars.contains(EmVariables::TRANSITION_COVARIANCE) {
-        let n = model.state_dimension();
+        let f = &next.transition_matrix;
         let mut sum = DMatrix::zeros(n, n);
         for t in 0..smoothed.lag_one.len() {
-            let error =
-                &smoothed.means[t + 1] - f * &smoothed.means[t] - model.transition_offsets.at(t);
+            let error = &smoothed.means[t + 1] - f * &smoothed.means[t] - b.at(t);
             let lag_f = &smoothed.lag_one[t] * f.transpose();
             sum += &error * error.transpose()
                 + f * (&smoothed.covariances[t] * f.transpose())
@@ -588,7 +674,38 @@ fn maximise(
         next.initial_state_covariance =
             symmetric_part(&smoothed.covariances[0] + &offset * offset.transpose());
     }
+    if vars.contains(EmVariables::TRANSITION_OFFSETS) {
+        let f = &next.transition_matrix;
+        let mut sum = DVector::zeros(n);
+        for t in 0..smoothed.lag_one.len() {
+            sum += &smoothed.means[t + 1] - f * &smoothed.means[t];
+        }
+        next.transition_offsets = TransitionOffsets::Constant(sum / smoothed.lag_one.len() as f64);
+    }
+    if vars.contains(EmVariables::OBSERVATION_OFFSET) {
+        let h = &next.observation_matrix;
+        let (mut sum, mut count) = (DVector::zeros(m), 0usize);
+        for (t, y) in measurements.iter().enumerate() {
+            if let Some(y) = y {
+                sum += y - h * &smoothed.means[t];
+                count += 1;
+            }
+        }
+        next.observation_offset = sum / count as f64;
+    }
     fitted(next.validate()).map(|()| next)
+}
+
+/// The least-squares M-step of a matrix, cross moment^+ (pykalman's
+/// `np.dot(res1, linalg.pinv(res2))`); `what` names the sums in an error.
+fn regress(
+    cross: &DMatrix<f64>,
+    moment: &DMatrix<f64>,
+    what: &'static str,
+) -> Result<DMatrix<f64>> {
+    check_finite(cross.as_slice(), what)?;
+    check_finite(moment.as_slice(), what)?;
+    Ok(cross * pseudo_inverse(moment, what)?)
 }
 
 /// Names a fitted covariance's failure as such.
@@ -608,15 +725,16 @@ fn symmetric_part(a: DMatrix<f64>) -> DMatrix<f64> {
 }
 
 /// The Moore-Penrose pseudo-inverse through the SVD, singular values at or below
-/// n eps sigma_max dropped (scipy.linalg.pinv's default cutoff, as pykalman).
-fn pseudo_inverse(a: &DMatrix<f64>) -> Result<DMatrix<f64>> {
+/// n eps sigma_max dropped (scipy.linalg.pinv's default cutoff, as pykalman);
+/// `what` names the matrix in the error.
+fn pseudo_inverse(a: &DMatrix<f64>, what: &'static str) -> Result<DMatrix<f64>> {
     let svd = a.clone().svd(true, true);
     let largest = svd.singular_values.max();
     let cutoff = a.nrows().max(a.ncols()) as f64 * f64::EPSILON * largest;
     // nalgebra keeps singular values strictly above its eps; a zero matrix has none.
     svd.pseudo_inverse(cutoff)
         .map_err(|reason| Error::InvalidCovariance {
-            what: "predicted state covariance",
+            what,
             reason: format!("no pseudo-inverse: {reason}"),
         })
 }

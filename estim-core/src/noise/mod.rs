@@ -6,8 +6,9 @@
 //! - `ml` (feature `fit`, default on): maximum-likelihood Q(theta), R(theta) and
 //!   M(theta) for any runner, with exact gradients and observed information from dual
 //!   numbers, standard errors and the likelihood-ratio test (e.g. of M = 0).
-//! - [`em`]: EM of Q, R, mu_0, Sigma_0 of a linear-Gaussian model (pykalman's `em`),
-//!   and its log-likelihood.
+//! - [`em`]: EM of Q, R, mu_0, Sigma_0 and also F, H and the offsets b, d of a
+//!   linear-Gaussian model (pykalman's `em`, up to `em_vars='all'`), and its
+//!   log-likelihood.
 //!
 //! The submodules are independent of each other; each one's docs give its model,
 //! conventions and references.
