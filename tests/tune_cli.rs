@@ -73,3 +73,81 @@ fn json_gives_every_parameter_a_standard_error_and_the_test_a_p_value() {
         doc["epochs"]
     );
 }
+
+fn tune_json(args: &[&str]) -> serde_json::Value {
+    let out = estim(args);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("JSON")
+}
+
+#[test]
+fn survey_files_give_the_fit_of_the_study_trajectory() {
+    // The study's trajectory 2 written as a survey (`estim simulate`: the synthesized
+    // IMU, the protocol's beams, the vehicle file of the study's filter), tuned from
+    // the files, against `--trajectories 2`.
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let files = estim::datasets::trajectory_files(&root, 2).unwrap();
+    let (gt, dvl) = (files.gt.to_string_lossy(), files.dvl.to_string_lossy());
+    let vehicle = dir.path().join("v.toml");
+    let imu = estim(&[
+        "simulate",
+        "imu",
+        "--gt",
+        &gt,
+        "--vehicle-out",
+        &vehicle.to_string_lossy(),
+    ]);
+    assert_eq!(imu.status.code(), Some(0));
+    let beams = estim(&["simulate", "beams", "--gt", &gt, "--dvl", &dvl]);
+    assert_eq!(beams.status.code(), Some(0));
+    let (imu_path, beams_path) = (dir.path().join("imu.csv"), dir.path().join("beams.csv"));
+    std::fs::write(&imu_path, imu.stdout).unwrap();
+    std::fs::write(&beams_path, beams.stdout).unwrap();
+    let survey = tune_json(&[
+        "tune",
+        "--imu",
+        &imu_path.to_string_lossy(),
+        "--beams",
+        &beams_path.to_string_lossy(),
+        "--vehicle",
+        &vehicle.to_string_lossy(),
+        "--linearizations",
+        "1",
+        "--json",
+    ]);
+    let root = root.to_string_lossy().into_owned();
+    let study = tune_json(&[
+        "tune",
+        "--data",
+        &root,
+        "--trajectories",
+        "2",
+        "--linearizations",
+        "1",
+        "--json",
+    ]);
+    assert_eq!(survey["epochs"], study["epochs"]);
+    let (a, b) = (
+        survey["parameters"].as_array().unwrap(),
+        study["parameters"].as_array().unwrap(),
+    );
+    for (x, y) in a.iter().zip(b) {
+        let Some(se) = y["standard_error"].as_f64() else {
+            assert!(x["on_bound"].as_bool().unwrap() && y["on_bound"].as_bool().unwrap());
+            continue;
+        };
+        let z = (x["value"].as_f64().unwrap() - y["value"].as_f64().unwrap()) / se;
+        // The two start from different values (the vehicle file's DVL noise, the
+        // configuration's), so one linearization is made at different points: measured
+        // 0.006 standard errors apart at most.
+        assert!(z.abs() < 0.05, "{}: {z} standard errors apart", y["name"]);
+    }
+}

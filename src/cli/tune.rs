@@ -1,5 +1,6 @@
-//! `estim tune`: maximum-likelihood noise parameters of the INS/DVL filter on A-KIT
-//! training trajectories, with standard errors and the likelihood-ratio test of M = 0.
+//! `estim tune`: maximum-likelihood noise parameters of the INS/DVL filter, with
+//! standard errors and the likelihood-ratio test of M = 0, on A-KIT training
+//! trajectories (`--trajectories`) or on a survey's own IMU and DVL files (`--imu`).
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -18,8 +19,28 @@ pub struct Args {
     data: Option<PathBuf>,
     /// A-KIT training trajectories, comma-separated (e.g. `1,2,3`); the test
     /// trajectories 4 and 13 are refused (exit status 2).
-    #[arg(long, value_name = "N,N,...", value_delimiter = ',', required = true)]
+    #[arg(
+        long,
+        value_name = "N,N,...",
+        value_delimiter = ',',
+        required_unless_present = "imu",
+        conflicts_with = "imu"
+    )]
     trajectories: Vec<u32>,
+    /// Survey mode: the IMU CSV of a survey (as `estim navigate --imu`), with --dvl or
+    /// --beams and optionally --vehicle; the likelihood is of its DVL rows.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["data", "config", "seed"])]
+    imu: Option<PathBuf>,
+    /// Survey mode: DVL velocity CSV (body frame).
+    #[arg(long, value_name = "FILE", requires = "imu", conflicts_with = "beams")]
+    dvl: Option<PathBuf>,
+    /// Survey mode: DVL beams CSV (least squares on 3 or 4 beams).
+    #[arg(long, value_name = "FILE", requires = "imu")]
+    beams: Option<PathBuf>,
+    /// Survey mode: vehicle configuration TOML (IMU spec, DVL lever arm, time offset,
+    /// beam geometry and noise, initial state; as `estim navigate --vehicle`).
+    #[arg(long, value_name = "FILE", requires = "imu")]
+    vehicle: Option<PathBuf>,
     /// TOML configuration (as for `estim reproduce`): the IMU error model the IMU is
     /// synthesized with, the DVL lever arm, time offset and beam protocol, the
     /// starting values.
@@ -41,6 +62,13 @@ pub struct Args {
 
 /// Run it.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    let options = TuneOptions {
+        linearizations: usize::try_from(args.linearizations)?,
+        ..TuneOptions::default()
+    };
+    if let Some(imu) = &args.imu {
+        return survey(&args, imu.clone(), &options);
+    }
     let config = match &args.config {
         Some(path) => Config::from_file(path)?,
         None => Config::default(),
@@ -55,26 +83,89 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let dir = estim::datasets::data_root(args.data.as_deref()).context(
         "no data folder: pass --data DIR, set ESTIM_DATA_DIR, or place the data at ../shared/data",
     )?;
-    let options = TuneOptions {
-        linearizations: usize::try_from(args.linearizations)?,
-        ..TuneOptions::default()
-    };
     let report = tune_akit(&dir, &args.trajectories, &config, seed, &options)?;
     let text = if args.json {
-        json(&args, &dir, seed, &report)?
+        use crate::schema::path_json;
+        let inputs = serde_json::json!({
+            "data": path_json(Some(&dir)),
+            "config": path_json(args.config.as_deref()),
+            "trajectories": report.trajectories,
+            "seed": seed,
+            "linearizations": args.linearizations,
+            "imu": "synthesized from the ground truth with the configured error model",
+        });
+        json(inputs, &report)?
     } else {
-        table(&report)
+        let list: Vec<String> = report.trajectories.iter().map(u32::to_string).collect();
+        let head = format!(
+            "Maximum likelihood on A-KIT trajectories {} ({} DVL epochs; {} left out as \
+             shared with a test trajectory). The IMU is synthesized from the ground truth \
+             with the configured error model (column `synthesized`).",
+            list.join(", "),
+            report.epochs.iter().sum::<usize>(),
+            report.overlapping.iter().sum::<usize>(),
+        );
+        table(&head, &report)
     };
     crate::output::emit(&text)
 }
 
-fn json(
-    args: &Args,
-    dir: &std::path::Path,
-    seed: u64,
-    report: &TuneReport,
-) -> anyhow::Result<String> {
-    use crate::schema::{document, path_json};
+/// Survey mode: the navigator's inputs and arithmetic, the likelihood of its DVL rows.
+fn survey(args: &Args, imu: PathBuf, options: &TuneOptions) -> anyhow::Result<()> {
+    use estim::navigator::tune::{survey_measurements, tune, TuneModel};
+    if args.dvl.is_none() && args.beams.is_none() {
+        anyhow::bail!("--imu needs --dvl or --beams");
+    }
+    let files = crate::navigate::SurveyFiles {
+        imu,
+        dvl: args.dvl.clone(),
+        beams: args.beams.clone(),
+        pd0: None,
+        depth: None,
+        fixes: None,
+        vehicle: args.vehicle.clone(),
+        truth: None,
+    };
+    let loaded = crate::navigate::load_survey(files)?;
+    let measurements = survey_measurements(&loaded.inputs, &loaded.settings)?;
+    let model = TuneModel::from_settings(&loaded.settings);
+    let start = model.start(loaded.config.dvl.noise_std_mps);
+    let trajectory = measurements.trajectory(&loaded.inputs.imu);
+    let fit = tune(&[trajectory], &model, &start, options)?;
+    let report = TuneReport {
+        trajectories: Vec::new(),
+        epochs: vec![measurements.dvl.len()],
+        overlapping: vec![measurements.skipped],
+        start,
+        synthesized_psd: None,
+        fit,
+    };
+    let text = if args.json {
+        use crate::schema::path_json;
+        let inputs = serde_json::json!({
+            "imu_file": path_json(Some(&loaded.files.imu)),
+            "dvl_file": path_json(loaded.files.dvl.as_deref()),
+            "beams_file": path_json(loaded.files.beams.as_deref()),
+            "vehicle": path_json(loaded.files.vehicle.as_deref()),
+            "linearizations": args.linearizations,
+            "dvl_rows_skipped": measurements.skipped,
+        });
+        json(inputs, &report)?
+    } else {
+        let head = format!(
+            "Maximum likelihood on the survey {} ({} DVL epochs; {} rows skipped: no \
+             bottom lock, fewer than 3 beams, or outside the IMU's span).",
+            loaded.files.imu.display(),
+            measurements.dvl.len(),
+            measurements.skipped,
+        );
+        table(&head, &report)
+    };
+    crate::output::emit(&text)
+}
+
+fn json(inputs: serde_json::Value, report: &TuneReport) -> anyhow::Result<String> {
+    use crate::schema::document;
     let fit = &report.fit;
     let se =
         |i: usize, f: &estim_core::noise::ml::MaximumLikelihood<5>| f.standard_errors.map(|s| s[i]);
@@ -87,20 +178,12 @@ fn json(
                 "standard_error": fit.standard_errors[i],
                 "on_bound": fit.on_bound[i],
                 "start": report.start[i],
-                "synthesized": report.synthesized_psd.get(i),
+                "synthesized": report.synthesized_psd.and_then(|p| p.get(i).copied()),
                 "value_with_m_zero": fit.restricted.theta[i],
                 "standard_error_with_m_zero": se(i, &fit.restricted),
             })
         })
         .collect();
-    let inputs = serde_json::json!({
-        "data": path_json(Some(dir)),
-        "config": path_json(args.config.as_deref()),
-        "trajectories": report.trajectories,
-        "seed": seed,
-        "linearizations": args.linearizations,
-        "imu": "synthesized from the ground truth with the configured error model",
-    });
     let points: Vec<Vec<f64>> = fit.points.iter().map(|p| p.as_slice().to_vec()).collect();
     let doc = document(
         "tune",
@@ -130,19 +213,10 @@ fn json(
     Ok(format!("{}\n", serde_json::to_string_pretty(&doc)?))
 }
 
-fn table(report: &TuneReport) -> String {
+fn table(head: &str, report: &TuneReport) -> String {
     let fit = &report.fit;
     let mut out = String::new();
-    let list: Vec<String> = report.trajectories.iter().map(u32::to_string).collect();
-    let _ = writeln!(
-        out,
-        "Maximum likelihood on A-KIT trajectories {} ({} DVL epochs; {} left out as shared \
-         with a test trajectory). The IMU is synthesized from the ground truth with the \
-         configured error model (column `synthesized`).",
-        list.join(", "),
-        report.epochs.iter().sum::<usize>(),
-        report.overlapping.iter().sum::<usize>(),
-    );
+    let _ = writeln!(out, "{head}");
     let _ = writeln!(
         out,
         "\n| parameter | unit | estimate | standard error | start | synthesized |\n|---|---|---|---|---|---|"
@@ -155,7 +229,7 @@ fn table(report: &TuneReport) -> String {
         };
         let synthesized = report
             .synthesized_psd
-            .get(i)
+            .and_then(|p| p.get(i).copied())
             .map_or(String::new(), |v| format!("{v:.4e}"));
         let _ = writeln!(
             out,

@@ -233,7 +233,7 @@ enum Sensor<'a> {
 }
 
 /// The nominal IMU period: 1 / `imu.rate_hz`, else the median sample interval.
-fn imu_period(imu: &[ImuSample], settings: &NavigatorSettings) -> Result<f64> {
+pub(super) fn imu_period(imu: &[ImuSample], settings: &NavigatorSettings) -> Result<f64> {
     if let Some(rate) = settings.config.imu.rate_hz {
         return Ok(1.0 / rate);
     }
@@ -248,7 +248,7 @@ fn imu_period(imu: &[ImuSample], settings: &NavigatorSettings) -> Result<f64> {
 }
 
 /// The initial nominal state and covariance from the configuration and the data.
-fn initial_state(
+pub(super) fn initial_state(
     inputs: &SurveyInputs,
     settings: &NavigatorSettings,
 ) -> Result<(InsState, ErrorMatrix, Alignment)> {
@@ -385,7 +385,7 @@ enum Event {
 /// end of the last sample's interval counts as one), when within half a period; `t`
 /// itself inside an IMU gap; `None` before the first sample's end or after the
 /// IMU's end.
-fn snap(imu: &[ImuSample], period: f64, t: f64) -> Option<f64> {
+pub(super) fn snap(imu: &[ImuSample], period: f64, t: f64) -> Option<f64> {
     let last = imu.last()?;
     let end = last.time + period;
     let time_at = |j: usize| imu.get(j).map_or(end, |s| s.time);

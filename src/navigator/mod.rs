@@ -11,7 +11,8 @@
 //!   initial state from the configuration, the first fix and a coarse alignment.
 //! - [`tune`]: maximum-likelihood noise parameters (IMU white-noise densities, DVL
 //!   beam noise and mismatch, the scale of the paper's M) with standard errors and a
-//!   likelihood-ratio test of M = 0, on trajectories with DVL velocities.
+//!   likelihood-ratio test of M = 0, on A-KIT scenarios or a survey's inputs
+//!   ([`tune::survey_measurements`]).
 //!
 //! Conventions (estim-ins): NED, body x forward y right z down, true = nominal +
 //! error, misalignment in NED. A sensor's time offset tau means a sample stamped t

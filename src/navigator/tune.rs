@@ -54,7 +54,10 @@ use estim_core::{
 use estim_dvl::{BeamGeometry, DvlVelocityModel};
 use estim_ins::{ErrorMatrix, ImuSample, ImuSpec, InsErrorModel, InsState, ERROR_STATES};
 
-use super::{filter_imu_spec, NavigatorError, Result, IMU_PERIOD_SNAP};
+use super::{
+    filter_imu_spec, DvlInput, NavigatorError, NavigatorSettings, Result, SurveyInputs,
+    IMU_PERIOD_SNAP,
+};
 
 /// Number of parameters.
 pub const TUNE_PARAMETERS: usize = 5;
@@ -86,9 +89,11 @@ pub struct TuneTrajectory<'a> {
     /// Nominal IMU period \[s\] (an interval within [`IMU_PERIOD_SNAP`] relative of it
     /// is taken as exactly the period, as the navigator does).
     pub imu_period: f64,
-    /// DVL measurements: (index of the IMU sample at whose time it was taken, velocity in
-    /// the DVL frame \[m/s\]), indices ascending.
-    pub dvl: &'a [(usize, Vector3<f64>)],
+    /// DVL measurements: (time of the motion measured \[s\], i.e. the stamp minus the
+    /// DVL's time offset; velocity in the DVL frame \[m/s\]), times ascending, within
+    /// the IMU's span (up to one period after the last sample). A time between two IMU
+    /// samples cuts the held sample's interval there, as the navigator does.
+    pub dvl: &'a [(f64, Vector3<f64>)],
     /// The nominal state at the first IMU sample's time.
     pub initial: InsState,
     /// Its error covariance.
@@ -151,6 +156,119 @@ impl TuneModel {
             .noise_covariance(r)
             .build()?)
     }
+}
+
+impl TuneModel {
+    /// The model of a navigator configuration: its IMU spec, its DVL model (lever arm,
+    /// scale factor, misalignment) and its beam geometry.
+    pub fn from_settings(settings: &NavigatorSettings) -> Self {
+        Self {
+            sensor_spec: *settings.sensor_spec(),
+            dvl: settings.dvl_model().clone(),
+            geometry: settings.beam_geometry().clone(),
+        }
+    }
+
+    /// A starting point from a configuration: the IMU spec's white-noise PSDs, and the
+    /// DVL's per-axis variance `dvl_std^2` split evenly between the beam term and the
+    /// mismatch term (the beam term's share averaged over the axes), rho = 0.
+    pub fn start(&self, dvl_std: f64) -> TuneParameters {
+        let beam = self.beam_covariance();
+        let half = 0.5 * dvl_std * dvl_std;
+        TuneParameters::from([
+            self.sensor_spec.accelerometer().white_noise_density.powi(2),
+            self.sensor_spec.gyroscope().white_noise_density.powi(2),
+            half / (beam.trace() / 3.0),
+            half,
+            0.0,
+        ])
+    }
+}
+
+/// A survey's inputs as [`tune`] takes them, with the navigator's arithmetic
+/// ([`super::navigate`]): each DVL row at its stamp minus the configured time offset,
+/// applied at the nearest IMU sample time within half a period; beams solved by least
+/// squares with the configured geometry (3 or 4 beams); the initial state and
+/// covariance from the configuration, the first fix and a coarse alignment.
+#[derive(Debug, Clone)]
+pub struct SurveyMeasurements {
+    /// (time, DVL-frame velocity) per usable DVL row.
+    pub dvl: Vec<(f64, Vector3<f64>)>,
+    /// The initial nominal state.
+    pub initial: InsState,
+    /// Its error covariance.
+    pub covariance: ErrorMatrix,
+    /// The nominal IMU period \[s\].
+    pub imu_period: f64,
+    /// Rows skipped: no bottom lock, fewer than 3 beams, or outside the IMU's span.
+    pub skipped: usize,
+}
+
+impl SurveyMeasurements {
+    /// The trajectory over `imu` (the same IMU samples the measurements came with).
+    pub fn trajectory<'a>(&'a self, imu: &'a [ImuSample]) -> TuneTrajectory<'a> {
+        TuneTrajectory {
+            imu,
+            imu_period: self.imu_period,
+            dvl: &self.dvl,
+            initial: self.initial,
+            covariance: self.covariance,
+        }
+    }
+}
+
+/// [`SurveyMeasurements`] of `inputs` (depth and fixes only seed the initial state;
+/// the likelihood is of the DVL velocities).
+///
+/// # Errors
+/// [`NavigatorError::Inputs`] for no IMU samples, no initial position, DVL velocities
+/// in earth coordinates (their rotation into the body frame would need the filter's
+/// attitude, which the likelihood does not model), or no usable DVL row.
+pub fn survey_measurements(
+    inputs: &SurveyInputs,
+    settings: &NavigatorSettings,
+) -> Result<SurveyMeasurements> {
+    let imu = &inputs.imu;
+    let imu_period = super::batch::imu_period(imu, settings)?;
+    let (initial, covariance, _) = super::batch::initial_state(inputs, settings)?;
+    let offset = settings.config().dvl.time_offset_s;
+    let mut dvl = Vec::with_capacity(inputs.dvl.len());
+    let mut skipped = 0;
+    for (row, record) in inputs.dvl.iter().enumerate() {
+        let velocity = match record.input {
+            DvlInput::Velocity(v) => Some(v),
+            DvlInput::Beams(beams) => settings.beam_geometry().solve(&beams).velocity(),
+            DvlInput::NoLock => None,
+            DvlInput::EarthVelocity(_) => {
+                return Err(NavigatorError::Inputs(format!(
+                    "DVL row {row} (t = {} s): tune takes body-frame velocities or beams, \
+                     not earth-frame velocities",
+                    record.time
+                )))
+            }
+        };
+        match (
+            velocity,
+            super::batch::snap(imu, imu_period, record.time - offset),
+        ) {
+            (Some(v), Some(time)) => dvl.push((time, v)),
+            _ => skipped += 1,
+        }
+    }
+    if dvl.is_empty() {
+        return Err(NavigatorError::Inputs(
+            "no usable DVL row inside the IMU's span".into(),
+        ));
+    }
+    // Stable, as the navigator merges its events.
+    dvl.sort_by(|a, b| a.0.total_cmp(&b.0));
+    Ok(SurveyMeasurements {
+        dvl,
+        initial,
+        covariance,
+        imu_period,
+        skipped,
+    })
 }
 
 fn measurement_noise<T: Scalar>(beam: &SMatrix<T, 3, 3>, sb: T, sm: T) -> SMatrix<T, 3, 3> {
@@ -251,22 +369,69 @@ pub fn linearize(
     )?
     .with_config(FilterConfig::default());
     let imu = trajectory.imu;
+    let Some(first) = imu.first() else {
+        return Err(NavigatorError::Config("tune: no IMU samples".into()));
+    };
+    let tolerance = IMU_PERIOD_SNAP * period;
     let identity = ErrorMatrix::identity();
     let (mut phi_acc, mut q_acc) = (identity, [ErrorMatrix::zeros(); 3]);
     let (mut reset, mut correction) = (identity, SVector::<f64, ERROR_STATES>::zeros());
     let mut epochs = Vec::with_capacity(trajectory.dvl.len());
     let mut largest_valid_rho = f64::INFINITY;
+    let mut clock = first.time;
     let mut next = 0;
-    for j in 0..imu.len() {
-        let time = imu[j].time;
-        while let Some(&(index, y)) = trajectory.dvl.get(next) {
-            if index < j {
+    // Integrate `sample` over dt (the period when within the snap tolerance of it),
+    // recording Phi and the parts of Q_d.
+    let step = |filter: &mut ErrorStateKalmanFilter<f64, InsErrorModel, ERROR_STATES>,
+                sample: &ImuSample,
+                mut dt: f64,
+                phi_acc: &mut ErrorMatrix,
+                q_acc: &mut [ErrorMatrix; 3]|
+     -> Result<()> {
+        if (dt - period).abs() <= tolerance {
+            dt = period;
+        }
+        let before = *filter.nominal();
+        filter
+            .predict(sample, dt)
+            .map_err(|source| NavigatorError::Filter {
+                time: before.time,
+                source,
+            })?;
+        let mut phi = identity;
+        for (q, model) in q_acc.iter_mut().zip(&parts) {
+            let (p, qd) = model.transition_and_noise(&before, sample, dt);
+            *q = model.propagate_covariance(q, &p, &qd);
+            phi = p;
+        }
+        *phi_acc = parts[0].compose_transitions(&phi, phi_acc);
+        Ok(())
+    };
+    for (j, sample) in imu.iter().enumerate() {
+        let last = j + 1 == imu.len();
+        let end = imu.get(j + 1).map_or(sample.time + period, |s| s.time);
+        if !(end.is_finite() && end > sample.time) {
+            return Err(NavigatorError::Config(format!(
+                "tune: IMU sample {} at t = {end} s does not follow sample {j} at t = {} s",
+                j + 1,
+                sample.time
+            )));
+        }
+        while let Some(&(time, y)) = trajectory.dvl.get(next) {
+            // A measurement at the next sample's time belongs to the next interval.
+            let inside = time < end - tolerance || (last && time <= end + tolerance);
+            if !inside {
+                break;
+            }
+            if !(time.is_finite() && time >= clock - tolerance) {
                 return Err(NavigatorError::Config(format!(
-                    "tune: DVL measurement {next} at IMU index {index} is out of order"
+                    "tune: DVL measurement {next} at t = {time} s is before t = {clock} s \
+                     (out of order, or before the first IMU sample)"
                 )));
             }
-            if index > j {
-                break;
+            if time - clock > tolerance {
+                step(&mut filter, sample, time - clock, &mut phi_acc, &mut q_acc)?;
+                clock = time;
             }
             let fail = |source| NavigatorError::Filter { time, source };
             let before = *filter.nominal();
@@ -290,35 +455,18 @@ pub fn linearize(
             q_acc = [ErrorMatrix::zeros(); 3];
             next += 1;
         }
-        let Some(following) = imu.get(j + 1) else {
+        if last {
             break;
-        };
-        let mut dt = following.time - time;
-        if !(dt.is_finite() && dt > 0.0) {
-            return Err(NavigatorError::Config(format!(
-                "tune: IMU sample {} at t = {} s does not follow sample {j} at t = {time} s",
-                j + 1,
-                following.time
-            )));
         }
-        if (dt - period).abs() <= IMU_PERIOD_SNAP * period {
-            dt = period;
+        if end - clock > tolerance {
+            step(&mut filter, sample, end - clock, &mut phi_acc, &mut q_acc)?;
+            clock = end;
         }
-        let before = *filter.nominal();
-        let fail = |source| NavigatorError::Filter { time, source };
-        filter.predict(&imu[j], dt).map_err(fail)?;
-        let mut phi = identity;
-        for (q, model) in q_acc.iter_mut().zip(&parts) {
-            let (p, qd) = model.transition_and_noise(&before, &imu[j], dt);
-            *q = model.propagate_covariance(q, &p, &qd);
-            phi = p;
-        }
-        phi_acc = parts[0].compose_transitions(&phi, &phi_acc);
     }
-    if let Some(&(index, _)) = trajectory.dvl.get(next) {
+    if let Some(&(time, _)) = trajectory.dvl.get(next) {
         return Err(NavigatorError::Config(format!(
-            "tune: DVL measurement {next} at IMU index {index} is beyond the IMU ({} samples)",
-            imu.len()
+            "tune: DVL measurement {next} at t = {time} s is beyond the IMU's end (t = {} s)",
+            clock.max(imu.last().map_or(clock, |s| s.time + period))
         )));
     }
     Ok(Linearization {

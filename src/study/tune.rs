@@ -35,8 +35,8 @@ pub struct TuneReport {
     /// The starting point.
     pub start: TuneParameters,
     /// The IMU PSDs the IMU was synthesized with (the values q_a and q_g recover when
-    /// the filter's model is right).
-    pub synthesized_psd: [f64; 2],
+    /// the filter's model is right); `None` for a recorded IMU.
+    pub synthesized_psd: Option<[f64; 2]>,
     /// The fit.
     pub fit: TuneFit,
 }
@@ -96,7 +96,17 @@ pub fn tune_akit(
             if test_rows.contains(&bits(&epoch.reference_velocity)) {
                 left_out += 1;
             } else if let Some(v) = v {
-                used.push((epoch.imu_index, v));
+                let time = scenario
+                    .imu
+                    .get(epoch.imu_index)
+                    .map(|s| s.time)
+                    .ok_or_else(|| {
+                        PipelineError::Invalid(format!(
+                            "{}: DVL epoch at IMU index {} beyond the IMU",
+                            scenario.name, epoch.imu_index
+                        ))
+                    })?;
+                used.push((time, v));
             }
         }
         measurements.push(used);
@@ -156,7 +166,7 @@ pub fn tune_akit(
         epochs: measurements.iter().map(Vec::len).collect(),
         overlapping,
         start,
-        synthesized_psd: psd,
+        synthesized_psd: Some(psd),
         fit,
     })
 }

@@ -17,7 +17,7 @@ use rand_distr::{Distribution, StandardNormal};
 pub struct TuneMission {
     pub imu: Vec<ImuSample>,
     pub imu_period: f64,
-    pub dvl: Vec<(usize, Vector3<f64>)>,
+    pub dvl: Vec<(f64, Vector3<f64>)>,
     pub initial: InsState,
     pub covariance: ErrorMatrix,
     pub model: TuneModel,
@@ -72,7 +72,7 @@ pub fn mission(duration: f64, seed: u64) -> TuneMission {
         .map(|k| {
             let n = Vector3::from_fn(|_, _| StandardNormal.sample(&mut rng));
             let clean = dvl_model.predict(&mission.truth[k]).expect("finite truth");
-            (k, clean + chol * n)
+            (mission.imu[k].time, clean + chol * n)
         })
         .collect();
     let (a, g) = (spec.accelerometer(), spec.gyroscope());
