@@ -3,6 +3,7 @@
 
 use nalgebra::SMatrix;
 
+use crate::window::RecordedWindow;
 use crate::{Result, Scalar};
 
 /// Reported after each prediction.
@@ -78,6 +79,10 @@ pub struct UpdateEvent<'a, T: Scalar, S, const N: usize> {
     /// The error-state reset J applied after injection (P <- J P J'), `None` when it
     /// is the identity or the runner has no reset (KF, EKF).
     pub reset: Option<&'a SMatrix<T, N, N>>,
+    /// For an accepted windowed update, when the observer asks for it
+    /// ([`Observer::wants_window`]): the window's steps (Phi_j, Q_j, D_j) and the other
+    /// updates inside it. `None` otherwise.
+    pub window: Option<&'a dyn RecordedWindow<T, N>>,
 }
 
 /// Receives a runner's events. Every method has a default that does nothing.
@@ -115,6 +120,14 @@ pub trait Observer<T: Scalar, S, const N: usize> {
     fn on_rejected(&mut self, _event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
         Ok(())
     }
+
+    /// Whether accepted windowed updates should carry their recorded window
+    /// ([`UpdateEvent::window`]). The runner then asks the windowed model for every
+    /// step's D_j once more (and keeps them in a buffer); `false` by default. The
+    /// smoothers ask for it.
+    fn wants_window(&self) -> bool {
+        false
+    }
 }
 
 /// The observer that does nothing (the runners' default).
@@ -134,6 +147,9 @@ impl<T: Scalar, S, const N: usize, O: Observer<T, S, N> + ?Sized> Observer<T, S,
     fn on_rejected(&mut self, event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
         (**self).on_rejected(event)
     }
+    fn wants_window(&self) -> bool {
+        (**self).wants_window()
+    }
 }
 
 impl<T: Scalar, S, const N: usize, A: Observer<T, S, N>, B: Observer<T, S, N>> Observer<T, S, N>
@@ -150,6 +166,9 @@ impl<T: Scalar, S, const N: usize, A: Observer<T, S, N>, B: Observer<T, S, N>> O
     fn on_rejected(&mut self, event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
         self.0.on_rejected(event)?;
         self.1.on_rejected(event)
+    }
+    fn wants_window(&self) -> bool {
+        self.0.wants_window() || self.1.wants_window()
     }
 }
 

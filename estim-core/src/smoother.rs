@@ -56,32 +56,69 @@
 //!
 //! The step above needs Cov(e_k, v) = 0 for every update of epoch k+1 (conditional on
 //! the earlier updates). It holds when each measurement's noise is correlated only
-//! with the process noise since the previous epoch. When the recording cannot
-//! guarantee it, [`ForwardRecorder::smooth`] returns
-//! [`Error::SmootherUnsupported`] naming the epoch, never a number:
+//! with the process noise since the previous epoch. A windowed update
+//! ([`crate::WindowedCrossCovariance`]) whose window reaches further back, or that
+//! follows another update of its epoch, is smoothed with an augmented state (next
+//! section). When the recording cannot give the answer exactly,
+//! [`ForwardRecorder::smooth`] returns [`Error::SmootherUnsupported`] naming the
+//! epoch, never a number:
 //!
-//! - a windowed update ([`crate::WindowedCrossCovariance`]) whose window reaches back
-//!   past the previous epoch: with [`RecordAt::Updates`], a window longer than the
-//!   predicts since the previous update; with [`RecordAt::EveryStep`], a window of more
-//!   than one step;
 //! - an update the gate's recovery rule accepted with an inflated prior covariance
 //!   ([`crate::GateRecovery::Inflate`]): the forward pass then is not a Kalman filter
 //!   of the recorded model;
-//! - a correlated update (M != 0) that is not the first accepted update of its epoch
-//!   (the earlier update made its noise correlated with e_k);
-//! - with [`RecordAt::EveryStep`], a one-step correlated update after more than one
-//!   predict: M = Cov(sum of the interval's noise, v) does not say how v is shared
+//! - a one-step correlated update (M != 0 from a [`crate::CrossCovariance`]) that is
+//!   not the first accepted update of its epoch (the earlier update made its noise
+//!   correlated with e_k), or, with [`RecordAt::EveryStep`], that follows more than
+//!   one predict: M = Cov(sum of the interval's noise, v) does not say how v is shared
 //!   between the intermediate steps (record with [`RecordAt::Updates`], where M is
 //!   exactly the cross-covariance with the composed step, or state the sharing with a
-//!   windowed M).
+//!   windowed M);
+//! - a correlated window that starts before the recording (a recorder attached after
+//!   its first step), or a D_j outside the range of its step's Q_j (no valid joint
+//!   covariance has those blocks).
 //!
-//! Windowed updates inside these limits are smoothed exactly: with
+//! A windowed update inside its epoch needs no augmentation: with
 //! [`RecordAt::Updates`] a window within the interval since the previous update makes
 //! the window's C = sum_j Phi(k, j) D_j the cross-covariance with the composed step (no
 //! other update lies inside it, so Var(v) = R and E\[v\] = 0); with
 //! [`RecordAt::EveryStep`] a one-step window is the textbook Cov(w_{k-1}, v_k), also
-//! after unmeasured steps (`tests/smoother.rs`, `windowed_*`, against joint-Gaussian
-//! conditioning).
+//! after unmeasured steps.
+//!
+//! ## Windows over several epochs
+//!
+//! A measurement whose noise shares the process noise of L steps, D_j = Cov(G_j w_j,
+//! v), decomposes as v = s + v_perp with s = sum_j B_j G_j w_j, B_j = D_j' Q_j^+ (the
+//! regression of v on the window's noise; exact when D_j lies in the range of Q_j,
+//! which a valid joint covariance guarantees) and v_perp independent of every w. The
+//! partial sum s_i over the window's steps up to epoch i is what makes the epochs of
+//! the window Markov again: given [e_i; s_i] and Y up to i, the earlier epochs are
+//! independent of every later measurement. So inside the window the recorder smooths
+//! the augmented state z_i = [e_i; s_i] (e alone at the window's last epoch, after
+//! its update, and before the window). The runner hands the window's Phi_j, Q_j, D_j
+//! and the other updates inside it (J (I - K H), H' S^-1 H, H' S^-1 nu) with the
+//! windowed update ([`crate::UpdateEvent::window`], asked for by
+//! [`Observer::wants_window`]); the recorder then fills, epoch by epoch, with
+//! C_s = Cov(e, s) and V_s = Var(s):
+//!
+//! ```text
+//! each step j:           C_s <- Phi_j C_s + D_j        V_s <- V_s + D_j' Q_j^+ D_j
+//! another update (M=0):  V_s <- V_s - C_s' H'S^-1H C_s  C_s <- J (I - K H) C_s
+//! filtered Cov(z_i)    = [[P_i, C_s], [C_s', V_s]]
+//! link, before epoch i's updates: Cov(z_{i-1}, e_i) = Cov(z_{i-1}, e_{i-1}) Phi_i',
+//!                        Cov(z_{i-1}, s_i) = Cov(z_{i-1}, s_{i-1})
+//! ```
+//!
+//! and conditions each link on its epoch's updates as above, the windowed one with
+//! Cov(z_{i-1}, y) = Cov(z_{i-1}, e_i) H' + Cov(z_{i-1}, s_i) (its noise is s + v_perp).
+//! The backward pass is the one above in these coordinates, with P^+ (scale-free
+//! pseudo-inverse) where s is still zero or determined by e. This equals joint-Gaussian
+//! conditioning of the stacked problem for windows over any number of epochs with
+//! other updates inside, recorded either way, for the EKF, the error-state filter and
+//! the UKF, fixed interval, fixed lag and online (`tests/smoother.rs`,
+//! `windows_over_several_epochs_*`, to 1e-9 relative). The cost is L N^2 M per
+//! windowed update in the forward pass and (N + M)^3 per augmented epoch in the
+//! backward one; the online [`FixedLagSmoother`] needs no more memory (epochs it no
+//! longer holds are only passed through).
 //!
 //! ## Error-state convention
 //!
@@ -105,6 +142,7 @@ use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 
 use crate::gaussian::symmetrize;
 use crate::observer::{Observer, PredictEvent, UpdateEvent};
+use crate::window::RecordedWindow;
 use crate::{Error, ErrorStateModel, Result, Scalar};
 
 /// The result of every runner's `smooth_batch` (e.g.
@@ -142,6 +180,105 @@ struct Epoch<T: Scalar, S, const N: usize> {
     /// No more predicts join this epoch (it has an update, or is the initial one).
     closed: bool,
     accepted_updates: usize,
+    /// Number of predicts composed into the epoch (0 for an initial one).
+    steps: usize,
+    /// Their composed transition Phi (identity for an initial epoch).
+    transition: SMatrix<T, N, N>,
+    /// Set when the epoch lies in a correlated window that spans several epochs.
+    augmented: Option<Augmented<T>>,
+}
+
+/// An epoch inside a correlated window that spans several epochs: its Markov state
+/// is e augmented with s, the part of the window's measurement noise shared so far
+/// (module docs, "Windows over several epochs").
+#[derive(Debug, Clone, PartialEq)]
+struct Augmented<T: Scalar> {
+    /// Cov([e; s] | Y up to the epoch); `None`: the state is e alone (the epoch of
+    /// the windowed update itself).
+    covariance: Option<DMatrix<T>>,
+    /// The link back to the previous epoch in these coordinates (`None` when the
+    /// previous epoch is not held).
+    link: Option<DynamicLink<T>>,
+}
+
+/// [`Link`] in augmented (dynamic) coordinates.
+#[derive(Debug, Clone, PartialEq)]
+struct DynamicLink<T: Scalar> {
+    shift: DVector<T>,
+    previous_covariance: DMatrix<T>,
+    cross: DMatrix<T>,
+}
+
+impl<T: Scalar> DynamicLink<T> {
+    fn from_static<const N: usize>(link: &Link<T, N>) -> Self {
+        Self {
+            shift: DVector::from_column_slice(link.shift.as_slice()),
+            previous_covariance: DMatrix::from_column_slice(
+                N,
+                N,
+                link.previous_covariance.as_slice(),
+            ),
+            cross: DMatrix::from_column_slice(N, N, link.cross.as_slice()),
+        }
+    }
+
+    /// Joint-Gaussian conditioning of the link on one accepted update (innovation nu,
+    /// covariance S, gain K, reset J) whose noise has covariance `noise_cross` with
+    /// the previous epoch's state (`None`: zero):
+    ///
+    /// ```text
+    /// Cov(z_prev, y) = C H' + X        A = Cov(z_prev, y) S^-1
+    /// shift += A nu     P_prev -= A Cov(z_prev, y)'     C <- (C - Cov(z_prev, y) K') J'
+    /// ```
+    fn condition(
+        &mut self,
+        update: &UpdateTerms<T>,
+        noise_cross: Option<&DMatrix<T>>,
+    ) -> Result<()> {
+        let mut cov_prev_y = &self.cross * update.jacobian.transpose();
+        if let Some(x) = noise_cross {
+            cov_prev_y += x;
+        }
+        let a =
+            solve_spd(update.innovation_covariance.clone(), cov_prev_y.transpose())?.transpose();
+        self.shift += &a * &update.innovation;
+        self.previous_covariance -= &a * cov_prev_y.transpose();
+        self.previous_covariance = symmetrize_dynamic(&self.previous_covariance);
+        let mut cross = &self.cross - &cov_prev_y * update.gain.transpose();
+        if let Some(reset) = update.reset.as_ref() {
+            cross *= reset.transpose();
+        }
+        self.cross = cross;
+        Ok(())
+    }
+}
+
+/// One accepted update's terms, in dynamic matrices.
+struct UpdateTerms<T: Scalar> {
+    jacobian: DMatrix<T>,
+    innovation_covariance: DMatrix<T>,
+    innovation: DVector<T>,
+    gain: DMatrix<T>,
+    reset: Option<DMatrix<T>>,
+}
+
+impl<T: Scalar> UpdateTerms<T> {
+    fn new<S, const N: usize>(event: &UpdateEvent<'_, T, S, N>, gain: &[T]) -> Self {
+        let m = event.measurement_size;
+        Self {
+            jacobian: DMatrix::from_column_slice(m, N, event.jacobian),
+            innovation_covariance: DMatrix::from_column_slice(m, m, event.innovation_covariance),
+            innovation: DVector::from_column_slice(event.innovation),
+            gain: DMatrix::from_column_slice(N, m, gain),
+            reset: event
+                .reset
+                .map(|j| DMatrix::from_column_slice(N, N, j.as_slice())),
+        }
+    }
+}
+
+fn symmetrize_dynamic<T: Scalar>(m: &DMatrix<T>) -> DMatrix<T> {
+    (m + m.transpose()) * crate::scalar::lit::<T>(0.5)
 }
 
 /// One smoothed epoch.
@@ -247,6 +384,9 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
             link: None,
             closed: true,
             accepted_updates: 0,
+            steps: 0,
+            transition: SMatrix::identity(),
+            augmented: None,
         });
         recorder
     }
@@ -308,6 +448,8 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
                 if let Some(link) = last.link.as_mut() {
                     link.cross *= transition.transpose();
                 }
+                last.transition = transition * last.transition;
+                last.steps += 1;
                 last.state = state.clone();
                 last.covariance = *covariance;
             }
@@ -324,24 +466,14 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
             link,
             closed: self.mode == RecordAt::EveryStep,
             accepted_updates: 0,
+            steps: 1,
+            transition: *transition,
+            augmented: None,
         });
     }
 
     fn record_update(&mut self, event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
         let correlated = event.cross_covariance.iter().any(|v| !v.is_zero());
-        match (event.window_steps, self.mode) {
-            (Some(window), RecordAt::Updates) if window > self.predicts_since_update => {
-                self.mark_unsupported(
-                    "windowed update whose window reaches back past the previous update (recorded at updates, its noise is then correlated with the previous epoch's error)",
-                );
-            }
-            (Some(window), RecordAt::EveryStep) if window > 1 => {
-                self.mark_unsupported(
-                    "windowed update over more than one step recorded at every step (its noise is correlated with several epochs; record with RecordAt::Updates)",
-                );
-            }
-            _ => {}
-        }
         if event.covariance_inflation.is_some() {
             self.mark_unsupported(
                 "update accepted by the gate's recovery rule with an inflated prior covariance \
@@ -357,61 +489,70 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
                 link: None,
                 closed: true,
                 accepted_updates: 1,
+                steps: 0,
+                transition: SMatrix::identity(),
+                augmented: None,
             });
             return Ok(());
         };
-        if correlated && last.accepted_updates > 0 {
+        // A correlated window that reaches back past this epoch's start, or follows
+        // another update of the epoch: smoothed with the augmented state.
+        let augment = correlated
+            && match (event.window_steps, self.mode) {
+                (Some(window), RecordAt::Updates) => {
+                    window > self.predicts_since_update || last.accepted_updates > 0
+                }
+                (Some(window), RecordAt::EveryStep) => window > 1 || last.accepted_updates > 0,
+                (None, _) => false,
+            };
+        if correlated && !augment && last.accepted_updates > 0 {
             self.mark_unsupported(
-                "correlated update after another update at the same epoch (its noise is then correlated with the previous epoch's error)",
+                "correlated one-step update after another update at the same epoch (its noise is then correlated with the previous epoch's error; state the window with a WindowedCrossCovariance)",
             );
         }
         // A one-step M after several predicts does not say which of them v shares; a
-        // windowed M over one step does (the last one).
+        // windowed M does.
         if correlated
             && event.window_steps.is_none()
             && self.mode == RecordAt::EveryStep
             && self.predicts_since_update > 1
         {
             self.mark_unsupported(
-                "correlated update after several predicts recorded at every step (how v shares the interval's noise is unknown; record with RecordAt::Updates)",
+                "correlated one-step update after several predicts recorded at every step (how v shares the interval's noise is unknown; record with RecordAt::Updates, or state the window with a WindowedCrossCovariance)",
             );
         }
         self.predicts_since_update = 0;
-        let m = event.measurement_size;
-        let gain = match event.gain {
-            Some(gain) => gain,
-            None => return Ok(()),
+        let Some(gain) = event.gain else {
+            return Ok(());
         };
+        let terms = UpdateTerms::new(event, gain);
+        if augment {
+            match event.window {
+                Some(window) => {
+                    if let Err(reason) = self.augment_window(window, &terms) {
+                        self.mark_unsupported(reason);
+                    }
+                }
+                None => self.mark_unsupported(
+                    "windowed update over several epochs without its recorded window (an observer wrapper that does not forward Observer::wants_window)",
+                ),
+            }
+        } else if let Some(last) = self.epochs.back_mut() {
+            if let Some(link) = last.augmented.as_mut().and_then(|a| a.link.as_mut()) {
+                link.condition(&terms, None)?;
+            }
+            if let Some(link) = last.link.as_mut() {
+                let mut dynamic = DynamicLink::from_static(link);
+                dynamic.condition(&terms, None)?;
+                link.shift = SVector::from_column_slice(dynamic.shift.as_slice());
+                link.previous_covariance =
+                    SMatrix::from_column_slice(dynamic.previous_covariance.as_slice());
+                link.cross = SMatrix::from_column_slice(dynamic.cross.as_slice());
+            }
+        }
         let Some(last) = self.epochs.back_mut() else {
             return Ok(());
         };
-        if let Some(link) = last.link.as_mut() {
-            let jacobian = DMatrix::from_column_slice(m, N, event.jacobian);
-            let innovation_covariance =
-                DMatrix::from_column_slice(m, m, event.innovation_covariance);
-            let innovation = DVector::from_column_slice(event.innovation);
-            let gain = DMatrix::from_column_slice(N, m, gain);
-            let cross = DMatrix::from_column_slice(N, N, link.cross.as_slice());
-            // Cov(e_k, y) = C H'; A = C H' S^-1 = (S^-1 H C')'.
-            let cov_prev_y = &cross * jacobian.transpose();
-            let solved = solve_spd(innovation_covariance, cov_prev_y.transpose())?;
-            let a = solved.transpose();
-            let shift = &a * innovation;
-            let reduction = &a * cov_prev_y.transpose();
-            let mut transform = DMatrix::<T>::identity(N, N) - &gain * &jacobian;
-            if let Some(reset) = event.reset {
-                transform = DMatrix::from_column_slice(N, N, reset.as_slice()) * transform;
-            }
-            let new_cross = cross * transform.transpose();
-            for i in 0..N {
-                link.shift[i] += shift[i];
-                for j in 0..N {
-                    link.previous_covariance[(i, j)] -= reduction[(i, j)];
-                    link.cross[(i, j)] = new_cross[(i, j)];
-                }
-            }
-            link.previous_covariance = symmetrize(&link.previous_covariance);
-        }
         last.state = event.state.clone();
         last.covariance = *event.covariance;
         last.closed = true;
@@ -419,9 +560,265 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
         Ok(())
     }
 
+    /// The augmented links and covariances of the epochs a correlated window spans
+    /// (module docs, "Windows over several epochs"), ending with the windowed update
+    /// `update` itself on the newest epoch. Writes nothing unless all of it succeeds.
+    fn augment_window(
+        &mut self,
+        window: &dyn RecordedWindow<T, N>,
+        update: &UpdateTerms<T>,
+    ) -> std::result::Result<(), &'static str> {
+        const NOT_RECORDED: &str = "a windowed update's recorded window is incomplete";
+        let m = update.innovation.len();
+        let length = window.steps();
+        // The window's steps on the held epochs, newest first: (epoch, first, last).
+        let mut segments: Vec<(Option<usize>, usize, usize)> = Vec::new();
+        let mut remaining = length;
+        let mut position = self.epochs.len();
+        while remaining > 0 {
+            if position == 0 {
+                if self.first_index == 0 {
+                    return Err("a windowed update's window starts before the recording");
+                }
+                segments.push((None, 0, remaining - 1));
+                break;
+            }
+            position -= 1;
+            let steps = self.epochs[position].steps;
+            if steps == 0 {
+                return Err("a windowed update's window starts before the recording");
+            }
+            let first = remaining.saturating_sub(steps);
+            segments.push((Some(position), first, remaining - 1));
+            remaining = first;
+        }
+        segments.reverse();
+        if segments.last().map(|s| s.0) != Some(Some(self.epochs.len() - 1)) {
+            return Err(NOT_RECORDED);
+        }
+        let mut cs = DMatrix::<T>::zeros(N, m);
+        let mut vs = DMatrix::<T>::zeros(m, m);
+        let mut next_update = 0;
+        let mut results: Vec<(usize, Augmented<T>)> = Vec::with_capacity(segments.len());
+        for (i, &(epoch, first, last)) in segments.iter().enumerate() {
+            let newest = i + 1 == segments.len();
+            // The link needs the previous epoch; before the window's first epoch its
+            // state is e alone (nothing of the window shared yet).
+            let shared_before = if i > 0 { m } else { 0 };
+            let mut link = match epoch {
+                Some(q) if q > 0 => {
+                    let previous = &self.epochs[q - 1];
+                    let dim = N + shared_before;
+                    let mut prior = DMatrix::<T>::zeros(dim, dim);
+                    prior
+                        .view_mut((0, 0), (N, N))
+                        .copy_from_slice(previous.covariance.as_slice());
+                    if shared_before > 0 {
+                        prior.view_mut((0, N), (N, m)).copy_from(&cs);
+                        prior.view_mut((N, 0), (m, N)).copy_from(&cs.transpose());
+                        prior.view_mut((N, N), (m, m)).copy_from(&vs);
+                    }
+                    let phi =
+                        DMatrix::from_column_slice(N, N, self.epochs[q].transition.as_slice());
+                    // Cov(z_prev, e) = Cov(z_prev, e_prev) Phi' and Cov(z_prev, s) =
+                    // Cov(z_prev, s_prev) before the epoch's updates.
+                    let cross_e = prior.columns(0, N) * phi.transpose();
+                    let cross_s = if shared_before > 0 {
+                        prior.columns(N, m).into_owned()
+                    } else {
+                        DMatrix::zeros(dim, m)
+                    };
+                    Some((
+                        DynamicLink {
+                            shift: DVector::zeros(dim),
+                            previous_covariance: prior,
+                            cross: cross_e,
+                        },
+                        cross_s,
+                    ))
+                }
+                _ => None,
+            };
+            for p in first..=last {
+                let phi = window.transition(p).ok_or(NOT_RECORDED)?;
+                let q = window.process_noise(p).ok_or(NOT_RECORDED)?;
+                let d = window.step_cross_covariance(p).ok_or(NOT_RECORDED)?;
+                let d = DMatrix::from_column_slice(N, m, d);
+                let phi = DMatrix::from_column_slice(N, N, phi.as_slice());
+                let q = DMatrix::from_column_slice(N, N, q.as_slice());
+                vs += shared_noise_increment(&q, &d).ok_or(
+                    "a window step's D_j is not in the range of its process noise (the joint covariance of the window is not valid)",
+                )?;
+                cs = phi * cs + d;
+                while let Some(u) = window.update(next_update).filter(|u| u.after_step == p) {
+                    if link.is_some() && p != last {
+                        return Err("an update inside an epoch's composed steps");
+                    }
+                    let transform = DMatrix::from_column_slice(N, N, u.transform.as_slice());
+                    let information = DMatrix::from_column_slice(N, N, u.information.as_slice());
+                    let weighted = DVector::from_column_slice(u.weighted_innovation.as_slice());
+                    if let Some((link, cross_s)) = link.as_mut() {
+                        let xi = &link.cross * &information;
+                        link.shift += &link.cross * &weighted;
+                        link.previous_covariance -= &xi * link.cross.transpose();
+                        *cross_s -= &xi * &cs;
+                        link.cross = &link.cross * transform.transpose();
+                    }
+                    vs -= cs.transpose() * &information * &cs;
+                    cs = transform * cs;
+                    next_update += 1;
+                }
+            }
+            let Some(q) = epoch else {
+                continue;
+            };
+            if newest {
+                let link = match link {
+                    Some((mut link, cross_s)) => {
+                        link.condition(update, Some(&cross_s)).map_err(|_| {
+                            "a windowed update's innovation covariance could not be factored"
+                        })?;
+                        Some(link)
+                    }
+                    None => None,
+                };
+                results.push((
+                    q,
+                    Augmented {
+                        covariance: None,
+                        link,
+                    },
+                ));
+            } else {
+                let dim = N + m;
+                let mut covariance = DMatrix::<T>::zeros(dim, dim);
+                covariance
+                    .view_mut((0, 0), (N, N))
+                    .copy_from_slice(self.epochs[q].covariance.as_slice());
+                covariance.view_mut((0, N), (N, m)).copy_from(&cs);
+                covariance
+                    .view_mut((N, 0), (m, N))
+                    .copy_from(&cs.transpose());
+                covariance
+                    .view_mut((N, N), (m, m))
+                    .copy_from(&symmetrize_dynamic(&vs));
+                let link = link.map(|(mut link, cross_s)| {
+                    let rows = link.cross.nrows();
+                    let mut cross = DMatrix::<T>::zeros(rows, dim);
+                    cross.columns_mut(0, N).copy_from(&link.cross);
+                    cross.columns_mut(N, m).copy_from(&cross_s);
+                    link.cross = cross;
+                    link.previous_covariance = symmetrize_dynamic(&link.previous_covariance);
+                    link
+                });
+                results.push((
+                    q,
+                    Augmented {
+                        covariance: Some(covariance),
+                        link,
+                    },
+                ));
+            }
+        }
+        if next_update != window.updates() {
+            return Err(NOT_RECORDED);
+        }
+        if results
+            .iter()
+            .any(|(q, _)| self.epochs[*q].augmented.is_some())
+        {
+            return Err("correlated windows that overlap on an epoch");
+        }
+        for (q, augmented) in results {
+            self.epochs[q].augmented = Some(augmented);
+        }
+        Ok(())
+    }
+
     /// Backward pass over the held epochs with positions `from..=to` (positions in
     /// `self.epochs`), returning them oldest first.
     fn backward(&self, from: usize, to: usize) -> Result<Vec<Smoothed<T, S, N>>> {
+        if self.epochs.range(from..=to).any(|e| e.augmented.is_some()) {
+            self.backward_augmented(from, to)
+        } else {
+            self.backward_static(from, to)
+        }
+    }
+
+    /// The epoch's Markov-state covariance (augmented inside a window).
+    fn markov_covariance(&self, position: usize) -> DMatrix<T> {
+        let epoch = &self.epochs[position];
+        match epoch.augmented.as_ref().and_then(|a| a.covariance.as_ref()) {
+            Some(covariance) => covariance.clone(),
+            None => DMatrix::from_column_slice(N, N, epoch.covariance.as_slice()),
+        }
+    }
+
+    /// [`ForwardRecorder::backward_static`] in the epochs' Markov coordinates, e
+    /// augmented with s inside a correlated window (module docs).
+    fn backward_augmented(&self, from: usize, to: usize) -> Result<Vec<Smoothed<T, S, N>>> {
+        let head = |c: &DVector<T>, p: &DMatrix<T>| {
+            (
+                SVector::<T, N>::from_fn(|i, _| c[i]),
+                SMatrix::<T, N, N>::from_fn(|i, j| p[(i, j)]),
+            )
+        };
+        let mut out = Vec::with_capacity(to + 1 - from);
+        let mut covariance = self.markov_covariance(to);
+        let mut correction = DVector::<T>::zeros(covariance.nrows());
+        let (c, p) = head(&correction, &covariance);
+        out.push(self.smoothed(to, c, p));
+        for k in (from..to).rev() {
+            let unsupported = |reason| Error::SmootherUnsupported {
+                epoch: self.first_index + k,
+                reason,
+            };
+            let next = &self.epochs[k + 1];
+            let link = match (
+                next.augmented.as_ref().and_then(|a| a.link.as_ref()),
+                next.link.as_ref(),
+            ) {
+                (Some(link), _) => link.clone(),
+                (None, Some(link)) => DynamicLink::from_static(link),
+                (None, None) => return Err(unsupported("no link to this epoch was recorded")),
+            };
+            let next_covariance = self.markov_covariance(k + 1);
+            if link.cross.ncols() != next_covariance.nrows()
+                || correction.len() != next_covariance.nrows()
+                || link.cross.nrows() != link.shift.len()
+            {
+                return Err(unsupported("inconsistent augmented link"));
+            }
+            // G = C P_{k+1}^+ (a pseudo-inverse where a shared part is still zero).
+            let gain = psd_solve(&next_covariance, &link.cross.transpose())
+                .ok_or_else(|| Error::InvalidCovariance {
+                    what: "filtered covariance (smoother gain)",
+                    reason: format!(
+                        "not positive semidefinite at epoch {}",
+                        self.first_index + k + 1
+                    ),
+                })?
+                .transpose();
+            correction = &link.shift + &gain * &correction;
+            covariance = symmetrize_dynamic(
+                &(&link.previous_covariance
+                    + &gain * (&covariance - &next_covariance) * gain.transpose()),
+            );
+            if correction.iter().any(|v| !v.is_finite())
+                || covariance.iter().any(|v| !v.is_finite())
+            {
+                return Err(Error::NonFinite {
+                    what: "smoothed estimate",
+                });
+            }
+            let (c, p) = head(&correction, &covariance);
+            out.push(self.smoothed(k, c, p));
+        }
+        out.reverse();
+        Ok(out)
+    }
+
+    fn backward_static(&self, from: usize, to: usize) -> Result<Vec<Smoothed<T, S, N>>> {
         let mut out = Vec::with_capacity(to + 1 - from);
         let newest = &self.epochs[to];
         let mut correction = SVector::<T, N>::zeros();
@@ -522,6 +919,85 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
     }
 }
 
+/// D' Q^+ D: the variance a window step adds to the shared part s of the measurement
+/// noise (v = sum_j D_j' Q_j^+ G_j w_j + an independent rest), or `None` when D is not
+/// in the range of Q (then no valid joint covariance has these blocks). Q^+ from the
+/// symmetric eigendecomposition, eigenvalues below 1e-12 of the largest taken as zero.
+fn shared_noise_increment<T: Scalar>(q: &DMatrix<T>, d: &DMatrix<T>) -> Option<DMatrix<T>> {
+    use crate::scalar::lit;
+    let eigen = symmetrize_dynamic(q).symmetric_eigen();
+    let largest = eigen
+        .eigenvalues
+        .iter()
+        .fold(T::zero(), |a, &b| if b.abs() > a { b.abs() } else { a });
+    let floor = largest * lit::<T>(1e-12);
+    let vectors = &eigen.eigenvectors;
+    let projected = vectors.transpose() * d;
+    let mut scaled = projected.clone();
+    let mut residual = T::zero();
+    for (i, &lambda) in eigen.eigenvalues.iter().enumerate() {
+        for j in 0..d.ncols() {
+            if lambda > floor {
+                scaled[(i, j)] = projected[(i, j)] / lambda;
+            } else {
+                let r = projected[(i, j)].abs();
+                residual = if r > residual { r } else { residual };
+                scaled[(i, j)] = T::zero();
+            }
+        }
+    }
+    let size = d
+        .iter()
+        .fold(T::zero(), |a, &b| if b.abs() > a { b.abs() } else { a });
+    if residual > lit::<T>(1e-6) * size + T::default_epsilon() {
+        return None;
+    }
+    Some(symmetrize_dynamic(&(projected.transpose() * scaled)))
+}
+
+/// x = P^+ b for a symmetric positive semidefinite P, scale-free: the
+/// eigendecomposition of the correlation matrix, eigenvalues below 1e-10 taken as zero
+/// (an augmented state [e; s] is singular where s is still fully determined by e's
+/// noise, e.g. a window's first step with fewer noise components than M); rows and
+/// columns of zero variance are left out. `None` if P has a negative variance or a
+/// clearly negative eigenvalue.
+fn psd_solve<T: Scalar>(p: &DMatrix<T>, b: &DMatrix<T>) -> Option<DMatrix<T>> {
+    use crate::scalar::lit;
+    if (0..p.nrows()).any(|i| p[(i, i)] < T::zero()) {
+        return None;
+    }
+    let kept: Vec<usize> = (0..p.nrows()).filter(|&i| p[(i, i)] > T::zero()).collect();
+    let scale: Vec<T> = kept.iter().map(|&i| p[(i, i)].sqrt()).collect();
+    let k = kept.len();
+    let correlation = symmetrize_dynamic(&DMatrix::from_fn(k, k, |i, j| {
+        p[(kept[i], kept[j])] / (scale[i] * scale[j])
+    }));
+    let rhs = DMatrix::from_fn(k, b.ncols(), |i, j| b[(kept[i], j)] / scale[i]);
+    let eigen = correlation.symmetric_eigen();
+    let mut projected = eigen.eigenvectors.transpose() * &rhs;
+    for (i, &lambda) in eigen.eigenvalues.iter().enumerate() {
+        if lambda < -lit::<T>(1e-8) {
+            return None;
+        }
+        let inverse = if lambda > lit::<T>(1e-10) {
+            T::one() / lambda
+        } else {
+            T::zero()
+        };
+        for j in 0..rhs.ncols() {
+            projected[(i, j)] *= inverse;
+        }
+    }
+    let solved = &eigen.eigenvectors * projected;
+    let mut x = DMatrix::<T>::zeros(p.nrows(), b.ncols());
+    for (i, &row) in kept.iter().enumerate() {
+        for j in 0..b.ncols() {
+            x[(row, j)] = solved[(i, j)] / scale[i];
+        }
+    }
+    Some(x)
+}
+
 /// x = S^-1 b for a symmetric positive definite S (Cholesky, LU as a fallback for a
 /// numerically semidefinite one the forward pass accepted).
 fn solve_spd<T: Scalar>(s: DMatrix<T>, b: DMatrix<T>) -> Result<DMatrix<T>> {
@@ -532,6 +1008,10 @@ fn solve_spd<T: Scalar>(s: DMatrix<T>, b: DMatrix<T>) -> Result<DMatrix<T>> {
 }
 
 impl<T: Scalar, S: Clone, const N: usize> Observer<T, S, N> for ForwardRecorder<T, S, N> {
+    fn wants_window(&self) -> bool {
+        true
+    }
+
     fn on_predict(&mut self, event: &PredictEvent<'_, T, S, N>) -> Result<()> {
         self.record_predict(event.state, event.covariance, event.transition);
         Ok(())
@@ -634,6 +1114,10 @@ impl<T: Scalar, S: Clone, const N: usize> FixedLagSmoother<T, S, N> {
 }
 
 impl<T: Scalar, S: Clone, const N: usize> Observer<T, S, N> for FixedLagSmoother<T, S, N> {
+    fn wants_window(&self) -> bool {
+        true
+    }
+
     fn on_predict(&mut self, event: &PredictEvent<'_, T, S, N>) -> Result<()> {
         let before = self.recorder.newest_epoch();
         self.recorder.on_predict(event)?;

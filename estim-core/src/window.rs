@@ -81,6 +81,8 @@ pub struct ProcessStep<'a, T: Scalar, S, U, const N: usize> {
     pub dt: Option<T>,
     /// The step's transition Phi_j (e_j = Phi_j e_{j-1} + G_j w_j).
     pub transition: &'a SMatrix<T, N, N>,
+    /// The step's process noise Q_j = Cov(G_j w_j).
+    pub process_noise: &'a SMatrix<T, N, N>,
 }
 
 /// Produces D_j = Cov(G_j w_j, v) for every process step of a measurement's window.
@@ -189,6 +191,7 @@ struct StepRecord<T: Scalar, S, U, const N: usize> {
     input: U,
     dt: Option<T>,
     transition: SMatrix<T, N, N>,
+    process_noise: SMatrix<T, N, N>,
 }
 
 /// A recorded accepted update, in sizes independent of its measurement size.
@@ -240,6 +243,7 @@ impl<T: Scalar, S, U, const N: usize> History<T, S, U, N> {
         input: &U,
         dt: Option<T>,
         transition: &SMatrix<T, N, N>,
+        process_noise: &SMatrix<T, N, N>,
     ) where
         S: Clone,
         U: Clone,
@@ -257,6 +261,7 @@ impl<T: Scalar, S, U, const N: usize> History<T, S, U, N> {
             input: input.clone(),
             dt,
             transition: *transition,
+            process_noise: *process_noise,
         });
         // Updates before the oldest kept step can lie in no window any more.
         let oldest = self.steps.front().map_or(self.steps_done, |s| s.index);
@@ -310,6 +315,129 @@ impl<T: Scalar, S, U, const N: usize> History<T, S, U, N> {
     }
 }
 
+impl<T: Scalar, S, U, const N: usize> History<T, S, U, N> {
+    /// Number of accepted updates recorded (the end of a window's updates, taken
+    /// before the update that reads the window is recorded).
+    pub(crate) fn recorded_updates(&self) -> usize {
+        self.updates.len()
+    }
+
+    /// The last `steps` steps with their D_j (`cross`, `steps` blocks of N x
+    /// `measurement_size`, column-major) and the updates among them before index
+    /// `end_update`, as a [`RecordedWindow`].
+    pub(crate) fn recorded_window<'a>(
+        &'a self,
+        steps: usize,
+        end_update: usize,
+        cross: &'a [T],
+        measurement_size: usize,
+    ) -> Option<WindowView<'a, T, S, U, N>> {
+        let window = self.window(steps).ok()?;
+        let end_update = end_update.min(self.updates.len());
+        (cross.len() == steps * N * measurement_size && window.first_update <= end_update).then(
+            || WindowView {
+                window,
+                end_update,
+                cross,
+                block: N * measurement_size,
+            },
+        )
+    }
+}
+
+/// An accepted update inside a recorded window ([`RecordedWindow::update`]).
+#[derive(Debug, Clone, Copy)]
+pub struct RecordedUpdate<'a, T: Scalar, const N: usize> {
+    /// Position (0 = oldest) of the window's step the update followed.
+    pub after_step: usize,
+    /// J (I - K H), J the error-state reset (identity for the other runners).
+    pub transform: &'a SMatrix<T, N, N>,
+    /// H' S^-1 H.
+    pub information: &'a SMatrix<T, N, N>,
+    /// H' S^-1 nu.
+    pub weighted_innovation: &'a SVector<T, N>,
+}
+
+/// A windowed update's window as the runner recorded it: each step's Phi_j, Q_j and
+/// D_j = Cov(G_j w_j, v), and the other accepted updates inside the window (whose
+/// noise is uncorrelated with the process noise: the runner refuses the others).
+/// What a smoother needs to smooth a window that spans several of its epochs
+/// ([`crate::smoother`]); observers receive it in [`crate::UpdateEvent::window`]
+/// when they ask ([`crate::Observer::wants_window`]).
+pub trait RecordedWindow<T: Scalar, const N: usize>: std::fmt::Debug {
+    /// Number of steps L.
+    fn steps(&self) -> usize;
+    /// Phi_j of step `position` (0 = oldest).
+    fn transition(&self, position: usize) -> Option<&SMatrix<T, N, N>>;
+    /// Q_j = Cov(G_j w_j) of step `position`.
+    fn process_noise(&self, position: usize) -> Option<&SMatrix<T, N, N>>;
+    /// D_j of step `position`: N x M, column-major (M the update's measurement size).
+    fn step_cross_covariance(&self, position: usize) -> Option<&[T]>;
+    /// Number of other accepted updates inside the window.
+    fn updates(&self) -> usize;
+    /// Other update `index` (0 = oldest).
+    fn update(&self, index: usize) -> Option<RecordedUpdate<'_, T, N>>;
+}
+
+/// [`RecordedWindow`] over a runner's [`History`].
+pub(crate) struct WindowView<'a, T: Scalar, S, U, const N: usize> {
+    window: StepWindow<'a, T, S, U, N>,
+    end_update: usize,
+    cross: &'a [T],
+    block: usize,
+}
+
+impl<T: Scalar, S, U, const N: usize> std::fmt::Debug for WindowView<'_, T, S, U, N> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RecordedWindow")
+            .field("steps", &self.window.len())
+            .field("updates", &(self.end_update - self.window.first_update))
+            .finish()
+    }
+}
+
+impl<T: Scalar, S, U, const N: usize> RecordedWindow<T, N> for WindowView<'_, T, S, U, N> {
+    fn steps(&self) -> usize {
+        self.window.len()
+    }
+    fn transition(&self, position: usize) -> Option<&SMatrix<T, N, N>> {
+        (position < self.window.len())
+            .then(|| self.window.steps.get(self.window.start + position))
+            .flatten()
+            .map(|r| &r.transition)
+    }
+    fn process_noise(&self, position: usize) -> Option<&SMatrix<T, N, N>> {
+        (position < self.window.len())
+            .then(|| self.window.steps.get(self.window.start + position))
+            .flatten()
+            .map(|r| &r.process_noise)
+    }
+    fn step_cross_covariance(&self, position: usize) -> Option<&[T]> {
+        (position < self.window.len())
+            .then(|| {
+                self.cross
+                    .get(position * self.block..(position + 1) * self.block)
+            })
+            .flatten()
+    }
+    fn updates(&self) -> usize {
+        self.end_update - self.window.first_update
+    }
+    fn update(&self, index: usize) -> Option<RecordedUpdate<'_, T, N>> {
+        if index >= self.updates() {
+            return None;
+        }
+        let u = self.window.updates.get(self.window.first_update + index)?;
+        let first = self.window.steps.get(self.window.start)?.index;
+        Some(RecordedUpdate {
+            after_step: usize::try_from(u.after_step.checked_sub(first)?).ok()?,
+            transform: &u.transform,
+            information: &u.information,
+            weighted_innovation: &u.weighted_innovation,
+        })
+    }
+}
+
 /// The last L recorded process steps before an update, and the other updates among
 /// them, as handed to a [`WindowedCrossCovariance`].
 #[derive(Debug)]
@@ -340,6 +468,7 @@ impl<'a, T: Scalar, S, U, const N: usize> StepWindow<'a, T, S, U, N> {
             input: &r.input,
             dt: r.dt,
             transition: &r.transition,
+            process_noise: &r.process_noise,
         })
     }
 

@@ -157,6 +157,8 @@ pub(super) fn fork_shared<T: Scalar, S: Clone, U: Clone, const N: usize, O, O2>(
         rejections_in_a_row: shared.rejections_in_a_row,
         noise_certificate: shared.noise_certificate,
         log_likelihood: shared.log_likelihood,
+        window_cross: Vec::new(),
+        window_prepared: None,
     }
 }
 
@@ -228,8 +230,8 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
     /// # Errors
     /// Those of [`KalmanFilter::step`] and [`ForwardRecorder::smooth`]
     /// ([`Error::SmootherUnsupported`] for a correlated update after an unmeasured step,
-    /// a windowed or inflated update, or a correlated first update when the filter had
-    /// predicted since its last update before the batch).
+    /// an inflated update, or a correlated first update when the filter had predicted
+    /// since its last update before the batch).
     pub fn smooth_batch<C>(
         &self,
         measurements: &[Option<SVector<T, M>>],

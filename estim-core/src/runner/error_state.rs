@@ -150,10 +150,11 @@ where
         let jacobian = model.jacobian(&self.nominal)?;
         let noise = model.noise_covariance(&self.nominal)?;
         let prior = StateAndCovariance::new_unchecked(SVector::zeros(), self.covariance);
-        let windowed = match source {
-            CrossSource::Windowed(w) => Some(w.window_steps()),
+        let window_model = match source {
+            CrossSource::Windowed(w) => Some(w),
             CrossSource::OneStep(_) => None,
         };
+        let windowed = window_model.map(|w| w.window_steps());
         // Filled in place by the attempt (the copies of returned matrices were a
         // tenth of an update at N = 15).
         let mut report = UpdateReport::blank();
@@ -183,6 +184,7 @@ where
             }
             committed = Some(nominal);
         }
+        self.shared.prepare_window(window_model, &report);
         self.shared
             .record_update(&attempt, &report, &jacobian, reset.as_ref());
         let prior_covariance = match committed {

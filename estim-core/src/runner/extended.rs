@@ -138,10 +138,11 @@ where
         let predicted = model.predict(x)?;
         let jacobian = model.jacobian(x)?;
         let noise = model.noise_covariance(x)?;
-        let windowed = match source {
-            CrossSource::Windowed(w) => Some(w.window_steps()),
+        let window_model = match source {
+            CrossSource::Windowed(w) => Some(w),
             CrossSource::OneStep(_) => None,
         };
+        let windowed = window_model.map(|w| w.window_steps());
         // Filled in place by the attempt (the copies of returned matrices were a
         // tenth of an update at N = 15).
         let mut report = UpdateReport::blank();
@@ -157,6 +158,7 @@ where
             &mut self.spare,
             &mut report,
         )?;
+        self.shared.prepare_window(window_model, &report);
         self.shared
             .record_update(&attempt, &report, &jacobian, None);
         let prior_covariance = match attempt.posterior {

@@ -138,15 +138,7 @@ impl<T: Scalar, const N: usize, const M: usize, O> KalmanFilter<T, N, M, O> {
             work: self.work,
             measurement_certificate: self.measurement_certificate,
             model_unchanged: self.model_unchanged,
-            shared: Shared {
-                accumulated: self.shared.accumulated.clone(),
-                history: self.shared.history.clone(),
-                config: self.shared.config.clone(),
-                observer,
-                rejections_in_a_row: self.shared.rejections_in_a_row,
-                noise_certificate: self.shared.noise_certificate,
-                log_likelihood: self.shared.log_likelihood,
-            },
+            shared: super::batch::fork_shared(&self.shared, observer),
         }
     }
 
@@ -428,10 +420,11 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         W: WindowedCrossCovariance<T, SVector<T, N>, (), N, M> + ?Sized,
     {
         let predicted = mul_static(&self.observation, self.estimate.state());
-        let windowed = match source {
-            CrossSource::Windowed(w) => Some(w.window_steps()),
+        let window_model = match source {
+            CrossSource::Windowed(w) => Some(w),
             CrossSource::OneStep(_) => None,
         };
+        let windowed = window_model.map(|w| w.window_steps());
         // Filled in place by the attempt (the copies of returned matrices were a
         // tenth of an update at N = 15).
         let mut report = UpdateReport::blank();
@@ -447,6 +440,7 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             &mut self.spare,
             &mut report,
         )?;
+        self.shared.prepare_window(window_model, &report);
         self.shared
             .record_update(&attempt, &report, &self.observation, None);
         let prior_covariance = match attempt.posterior {

@@ -231,6 +231,11 @@ pub(super) struct Shared<T: Scalar, S, U, const N: usize, O> {
     pub(super) noise_certificate: Option<(SMatrix<T, N, N>, Option<T>)>,
     /// Sum of the accepted updates' `UpdateReport::log_likelihood` since construction.
     pub(super) log_likelihood: T,
+    /// D_j of the window of the update being reported, for an observer that wants it
+    /// ([`Observer::wants_window`]; allocated on first use).
+    pub(super) window_cross: Vec<T>,
+    /// (steps, end of its updates in the history, measurement size) of that window.
+    pub(super) window_prepared: Option<(usize, usize, usize)>,
 }
 
 impl<T: Scalar, S, U, const N: usize> Shared<T, S, U, N, NoObserver> {
@@ -244,6 +249,8 @@ impl<T: Scalar, S, U, const N: usize> Shared<T, S, U, N, NoObserver> {
             rejections_in_a_row: 0,
             noise_certificate: None,
             log_likelihood: T::zero(),
+            window_cross: Vec::new(),
+            window_prepared: None,
         }
     }
 }
@@ -267,6 +274,8 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
             rejections_in_a_row: self.rejections_in_a_row,
             noise_certificate: self.noise_certificate,
             log_likelihood: self.log_likelihood,
+            window_cross: self.window_cross,
+            window_prepared: None,
         }
     }
 
@@ -298,7 +307,46 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
         } else {
             self.accumulated.steps += 1;
         }
-        self.history.push_step(state_before, input, dt, transition);
+        self.history
+            .push_step(state_before, input, dt, transition, process_noise);
+    }
+
+    /// Before an accepted windowed update is recorded: when the observer wants the
+    /// window ([`Observer::wants_window`]), collect every step's D_j from `model` for
+    /// [`Shared::notify_update`]. A model that fails here leaves the event without its
+    /// window (the smoother then reports it); the update itself is not affected.
+    pub(super) fn prepare_window<W, const M: usize>(
+        &mut self,
+        model: Option<&W>,
+        report: &UpdateReport<T, N, M>,
+    ) where
+        O: Observer<T, S, N>,
+        W: WindowedCrossCovariance<T, S, U, N, M> + ?Sized,
+    {
+        self.window_prepared = None;
+        let Some(model) = model else {
+            return;
+        };
+        if !report.is_accepted() || !self.observer.wants_window() {
+            return;
+        }
+        let steps = model.window_steps();
+        let Shared {
+            history,
+            window_cross,
+            ..
+        } = self;
+        let Ok(window) = history.window(steps) else {
+            return;
+        };
+        window_cross.clear();
+        let collected = model.step_cross_covariances(&window, &mut |d: &SMatrix<T, N, M>| {
+            window_cross.extend_from_slice(d.as_slice());
+            Ok(())
+        });
+        if collected.is_ok() && window_cross.len() == steps * N * M {
+            self.window_prepared = Some((steps, self.history.recorded_updates(), M));
+        }
     }
 
     /// Cross-covariance, noise covariance, noise mean and joint eigenvalue for an
@@ -609,7 +657,17 @@ impl<T: Scalar, S, U, const N: usize, O> Shared<T, S, U, N, O> {
     where
         O: Observer<T, S, N>,
     {
+        let view = self
+            .window_prepared
+            .take()
+            .and_then(|(steps, end_update, size)| {
+                self.history
+                    .recorded_window(steps, end_update, &self.window_cross, size)
+            });
         let event = UpdateEvent {
+            window: view
+                .as_ref()
+                .map(|v| v as &dyn crate::window::RecordedWindow<T, N>),
             windowed: window_steps.is_some(),
             window_steps,
             reset,

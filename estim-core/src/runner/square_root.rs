@@ -200,10 +200,11 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         W: WindowedCrossCovariance<T, SVector<T, N>, (), N, M> + ?Sized,
     {
         check_finite(measurement.as_slice(), "measurement")?;
-        let windowed = match source {
-            CrossSource::Windowed(w) => Some(w.window_steps()),
+        let window_model = match source {
+            CrossSource::Windowed(w) => Some(w),
             CrossSource::OneStep(_) => None,
         };
+        let windowed = window_model.map(|w| w.window_steps());
         let x = *self.estimate.state();
         let h = &self.observation;
         let mut report = UpdateReport::blank();
@@ -286,6 +287,7 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
                     Some(spd_inverse(&s).ok_or(Error::InnovationNotPositiveDefinite)?);
             }
         }
+        self.shared.prepare_window(window_model, &report);
         self.shared.record_update(&attempt, &report, h, None);
         let prior = match accepted {
             Some(used) => {

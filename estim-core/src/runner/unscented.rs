@@ -235,10 +235,11 @@ where
         let x = prior.state();
         let jacobian = model.jacobian(x)?;
         let noise = model.noise_covariance(x)?;
-        let windowed = match source {
-            CrossSource::Windowed(w) => Some(w.window_steps()),
+        let window_model = match source {
+            CrossSource::Windowed(w) => Some(w),
             CrossSource::OneStep(_) => None,
         };
+        let windowed = window_model.map(|w| w.window_steps());
         let mut report = UpdateReport::blank();
         let certificate = self.shared.cross_terms(
             source,
@@ -300,6 +301,7 @@ where
             attempt.posterior = Some(state);
             attempt.innovation_inverse = self.shared.history.is_enabled().then_some(inverse);
         }
+        self.shared.prepare_window(window_model, &report);
         self.shared
             .record_update(&attempt, &report, &jacobian, None);
         let prior_covariance = match attempt.posterior {
