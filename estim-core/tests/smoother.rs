@@ -19,8 +19,8 @@
 //! - `windows_over_several_epochs_*`: windows of any length up to the previous
 //!   correlated measurement, across other (uncorrelated) measurements, one of them
 //!   possibly at the windowed update's own step before it, and steps that share
-//!   nothing (D_j = 0); recorded either way; EKF, ESKF and UKF (exact on these
-//!   linear models).
+//!   nothing (D_j = 0); recorded either way; EKF, ESKF, UKF (exact on these linear
+//!   models) and the KalmanFilter with its matrices set per step.
 //! - The ambiguous cases are refused with a typed error.
 //!
 //! Checked also with 200 cases under proptest seeds 1, 2 and 3 (all pass); the
@@ -497,11 +497,13 @@ enum Runner {
     /// The unscented filter; on these linear models its sigma points are exact, so
     /// its smoother (linearised around the unscented pass) must equal the reference.
     Ukf,
+    /// The linear filter, its F, Q, H and R set before each step and update.
+    Kf,
 }
 
 impl Runner {
     fn pick(index: usize) -> Self {
-        [Runner::Ekf, Runner::Eskf, Runner::Ukf][index % 3]
+        [Runner::Ekf, Runner::Eskf, Runner::Ukf, Runner::Kf][index % 4]
     }
 }
 
@@ -522,7 +524,7 @@ fn to_outputs<const N: usize>(
     list.iter()
         .map(|s| {
             let state = match runner {
-                Runner::Ekf | Runner::Ukf => s.state(),
+                Runner::Ekf | Runner::Ukf | Runner::Kf => s.state(),
                 Runner::Eskf => s.injected(&TimeVarying)?,
             };
             Ok((dy(&state), dm(&s.covariance)))
@@ -539,15 +541,15 @@ impl<const N: usize, const M: usize> PlanWindow<N, M> {
     }
 }
 
-impl<const N: usize, const M: usize>
-    WindowedCrossCovariance<f64, SVector<f64, N>, StepInput<N>, N, M> for PlanWindow<N, M>
+impl<U, const N: usize, const M: usize> WindowedCrossCovariance<f64, SVector<f64, N>, U, N, M>
+    for PlanWindow<N, M>
 {
     fn window_steps(&self) -> usize {
         self.0.len()
     }
     fn step_cross_covariances(
         &self,
-        _: &StepWindow<'_, f64, SVector<f64, N>, StepInput<N>, N>,
+        _: &StepWindow<'_, f64, SVector<f64, N>, U, N>,
         sink: &mut dyn FnMut(&SMatrix<f64, N, M>) -> Result<()>,
     ) -> Result<()> {
         self.0.iter().try_for_each(sink)
@@ -623,6 +625,39 @@ fn run<const N: usize, const M: usize>(
                     .with_config(window_config(plan))
                     .with_observer(observer)
             )
+        }
+        Runner::Kf => {
+            let mut kf = KalmanFilter::new(
+                SMatrix::<f64, N, N>::identity(),
+                SMatrix::<f64, N, N>::identity(),
+                SMatrix::<f64, M, N>::zeros(),
+                SMatrix::<f64, M, M>::identity(),
+                initial,
+            )?
+            .with_config(window_config(plan))
+            .with_observer(observer);
+            for (j, step) in plan.steps.iter().enumerate() {
+                kf.set_transition(st(&step.f))?;
+                kf.set_process_noise(st(&step.q))?;
+                kf.predict()?;
+                for meas in &step.measurements {
+                    kf.set_observation(st(&meas.h))?;
+                    kf.set_measurement_noise(st(&meas.r))?;
+                    let y = SVector::<f64, M>::from_column_slice(meas.y.as_slice());
+                    if plan.windowed && !meas.shares.is_empty() {
+                        kf.update_windowed(&y, &PlanWindow::<N, M>::new(meas))?;
+                    } else {
+                        kf.update(&y, &estim_core::Fixed(st::<N, M>(&meas.cross)))?;
+                    }
+                }
+                if mode == RecordAt::EveryStep
+                    || !step.measurements.is_empty()
+                    || j + 1 == plan.steps.len()
+                {
+                    epoch_steps.push(j + 1);
+                }
+            }
+            kf.into_observer()
         }
     };
     let smoothed = recorder.smooth()?;
@@ -731,12 +766,12 @@ proptest! {
 
     /// Windows over several epochs: other measurements inside the window and at the
     /// update's own epoch before it, steps that share nothing; recorded at every step
-    /// or at updates; EKF, ESKF and UKF; fixed interval, fixed lag and online fixed
+    /// or at updates; EKF, ESKF, UKF and KF; fixed interval, fixed lag and online fixed
     /// lag (whose L + 2 epochs may hold only part of a window).
     #[test]
     fn windows_over_several_epochs_smoother_equals_conditioning(
         n in 1usize..=6, m in 1usize..=3, k in 1usize..=40, seed in any::<u64>(),
-        runner in 0usize..3, every_step in any::<bool>(), lag in 0usize..=5,
+        runner in 0usize..4, every_step in any::<bool>(), lag in 0usize..=5,
     ) {
         let plan = make_window_plan(n, m, k, seed);
         let mode = if every_step { RecordAt::EveryStep } else { RecordAt::Updates };
