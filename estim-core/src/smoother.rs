@@ -115,10 +115,14 @@
 //! conditioning of the stacked problem for windows over any number of epochs with
 //! other updates inside, recorded either way, for the linear filter, the EKF, the
 //! error-state filter and the UKF, fixed interval, fixed lag and online (`tests/smoother.rs`,
-//! `windows_over_several_epochs_*`, to 1e-9 relative). The cost is L N^2 M per
-//! windowed update in the forward pass and (N + M)^3 per augmented epoch in the
-//! backward one; the online [`FixedLagSmoother`] needs no more memory (epochs it no
-//! longer holds are only passed through).
+//! `windows_over_several_epochs_*`, to 1e-9 relative). The cost is L N^3 per
+//! windowed update in the forward pass (each step's Q_j^+ from its
+//! eigendecomposition, and the runner asks the model for the D_j once more) and
+//! (N + M)^3 per augmented epoch in the backward one: at N = 15, M = 3 and windows of
+//! 10 steps, the recorded forward pass costs 6.1 times the plain one and smoothing
+//! 2,000 epochs 50.8 ms (`cargo bench -p estim-core --bench smoother`). The online
+//! [`FixedLagSmoother`] needs no more memory (epochs it no longer holds are only
+//! passed through).
 //!
 //! ## Error-state convention
 //!
