@@ -141,11 +141,21 @@ pub fn check_symmetric<T: Scalar, const N: usize>(
     m: &SMatrix<T, N, N>,
     what: &'static str,
 ) -> Result<()> {
+    check_symmetric_entries(N, |i, j| m[(i, j)], what)
+}
+
+/// [`check_symmetric`] for any square matrix of size `n` read through `entry(i, j)`.
+pub(crate) fn check_symmetric_entries<T: Scalar>(
+    n: usize,
+    entry: impl Fn(usize, usize) -> T,
+    what: &'static str,
+) -> Result<()> {
+    let m = |i, j| entry(i, j);
     let tol = crate::scalar::relative_tolerance::<T>();
-    for i in 0..N {
-        for j in (i + 1)..N {
-            let (upper, lower) = (m[(i, j)], m[(j, i)]);
-            let scale = (m[(i, i)].abs().sqrt() * m[(j, j)].abs().sqrt())
+    for i in 0..n {
+        for j in (i + 1)..n {
+            let (upper, lower) = (m(i, j), m(j, i));
+            let scale = (m(i, i).abs().sqrt() * m(j, j).abs().sqrt())
                 .max(upper.abs())
                 .max(lower.abs());
             if (upper - lower).abs() > tol * scale {

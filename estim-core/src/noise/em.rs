@@ -761,22 +761,8 @@ fn check_shape(m: &DMatrix<f64>, (rows, cols): (usize, usize), what: &'static st
 /// positive semidefinite to round-off (the crate's semidefinite Cholesky).
 fn check_covariance(m: &DMatrix<f64>, what: &'static str) -> Result<()> {
     check_finite(m.as_slice(), what)?;
-    let tol = crate::scalar::relative_tolerance::<f64>();
     let n = m.nrows();
-    for i in 0..n {
-        for j in (i + 1)..n {
-            let (upper, lower) = (m[(i, j)], m[(j, i)]);
-            let scale = (m[(i, i)].abs().sqrt() * m[(j, j)].abs().sqrt())
-                .max(upper.abs())
-                .max(lower.abs());
-            if (upper - lower).abs() > tol * scale {
-                return Err(Error::InvalidCovariance {
-                    what,
-                    reason: format!("not symmetric at ({i}, {j})"),
-                });
-            }
-        }
-    }
+    crate::gaussian::check_symmetric_entries(n, |i, j| m[(i, j)], what)?;
     let mut factor = Factor(DMatrix::zeros(n, n));
     if semidefinite_cholesky(n, 0, |i, k| m[(i, k)], &mut factor) {
         Ok(())
