@@ -8,7 +8,7 @@ use estim::datasets::data_root;
 
 use crate::output::emit;
 use crate::schema::{document, path_json, status_result};
-use crate::study::{beamsnet_without_sensitivity, paired_study, Config, MAX_SEED};
+use crate::study::{beamsnet_without_sensitivity, paired_study, Config, Gate, MAX_SEED};
 
 /// Arguments of `estim compare`.
 #[derive(Debug, clap::Args)]
@@ -30,6 +30,10 @@ pub struct Args {
     /// off whatever it says.
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
+    /// Common gate decisions instead of the gate off: each variant first runs with the
+    /// configured gate, then all run on the updates that all of them accepted.
+    #[arg(long)]
+    common_gate: bool,
     /// JSON on stdout.
     #[arg(long)]
     json: bool,
@@ -61,13 +65,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let seeds: Vec<u64> = (args.first_seed..=last).collect();
     let learned = beamsnet_without_sensitivity(&config)?;
-    let study = paired_study(&config, &dir, &trajectories, &seeds, learned.as_ref())?;
+    let gate = if args.common_gate {
+        Gate::Common
+    } else {
+        Gate::Off
+    };
+    let study = paired_study(&config, &dir, &trajectories, &seeds, gate, learned.as_ref())?;
     let failures = study.failures.len();
     if args.json {
         let inputs = serde_json::json!({
             "data": path_json(args.data.as_deref()),
             "trajectories": trajectories,
             "seeds": seeds,
+            "common_gate": args.common_gate,
             "config_file": path_json(args.config.as_deref()),
             "config": config,
         });
@@ -78,12 +88,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let mut text = String::new();
         writeln!(
             text,
-            "Paired comparison, innovation gate off; {} trajectories x {} seeds ({}-{}).\n\
+            "Paired comparison, {}; {} trajectories x {} seeds ({}-{}).\n\
              IMU synthesized from the ground truth (error model `{}`), beams by the BeamsNet \
              protocol from the real DVL; the seeds redraw only that synthetic noise.\n\
              Intervals: 95 % Student t confidence intervals of the mean paired difference \
              (minuend - subtrahend); over trajectories = each trajectory's seed mean is one \
              sample (the real sample); over cells = every (trajectory, seed) is one sample.\n",
+            match gate {
+                Gate::Off => "innovation gate off".to_string(),
+                Gate::Common => format!(
+                    "common gate decisions (the updates all variants accepted with the gate at \
+                     probability {})",
+                    config.filter.gate_probability
+                ),
+            },
             trajectories.len(),
             seeds.len(),
             args.first_seed,

@@ -37,7 +37,7 @@ pub use montecarlo::{
 };
 pub use oracle::{oracle_measurements, OracleSensor};
 pub use paired::{
-    beamsnet_without_sensitivity, markdown as paired_markdown, paired_study, PairedInterval,
+    beamsnet_without_sensitivity, markdown as paired_markdown, paired_study, Gate, PairedInterval,
     PairedStudy, BEAMSNET_PER_STEP,
 };
 pub use report::{

@@ -3,7 +3,9 @@
 //! Every variant of one (trajectory, seed) cell runs on the same scenario: the same
 //! synthesized IMU, the same beam-noise draw, the same initial error. The innovation
 //! gate is off (`filter.gate_probability = 0`), so every variant takes every DVL
-//! update and no difference comes from one variant rejecting updates another accepts.
+//! update and no difference comes from one variant rejecting updates another accepts;
+//! or, with [`Gate::Common`], every variant takes the same updates: those all of them
+//! accepted when run with the configured gate.
 //! Per cell and variant the run gives three numbers (time-averaged NEES, time-averaged
 //! NIS, position RMSE); per pair of variants the difference of each number is taken
 //! inside the cell (a paired difference), and [`PairedInterval`] summarises them.
@@ -136,6 +138,8 @@ pub struct CellRun {
     pub position_rmse_m: f64,
     /// Epochs at which P was not positive definite.
     pub covariance_not_positive_definite_epochs: usize,
+    /// DVL updates applied (the gate is off in these runs).
+    pub updates_accepted: usize,
     /// Median over the updates of the largest valid rho of the paper's per-step M
     /// against the per-step Q_k itself ([`FilterRun::largest_valid_rho_per_step_own`]).
     pub largest_valid_rho_per_step_own: f64,
@@ -193,8 +197,8 @@ pub struct PairedStudy {
     pub trajectories: Vec<u32>,
     /// Seeds, in the order run.
     pub seeds: Vec<u64>,
-    /// Always `"off"`: the innovation gate is off in every run.
-    pub gate: &'static str,
+    /// How the innovation gate entered.
+    pub gate: Gate,
     /// The paper's rho of the per-step variant.
     pub rho: f64,
     /// Every run that completed.
@@ -203,6 +207,17 @@ pub struct PairedStudy {
     pub failures: Vec<FilterFailure>,
     /// The pairs of [`PAIRS`].
     pub comparisons: Vec<Comparison>,
+}
+
+/// How the innovation gate enters a paired comparison.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Gate {
+    /// The gate is off: every variant takes every update.
+    Off,
+    /// Common gate decisions: each variant first runs with the configured gate; then
+    /// all run with the gate off on the updates that all of them accepted.
+    Common,
 }
 
 /// Human label of a variant of this study.
@@ -219,10 +234,14 @@ fn cell(
     data: &Path,
     trajectory: u32,
     seed: u64,
+    gate: Gate,
     learned: &LearnedSource,
 ) -> Result<Vec<std::result::Result<CellRun, FilterFailure>>> {
-    let mut config = config.clone();
-    config.seed = seed;
+    let gated = Config {
+        seed,
+        ..config.clone()
+    };
+    let mut config = gated.clone();
     config.filter.gate_probability = 0.0;
     let scenario = Scenario::akit(data, trajectory, &config, seed)?;
     let mismatch = Matrix3::identity() * config.dvl.akit_reference_mismatch_std.powi(2);
@@ -247,15 +266,32 @@ fn cell(
         velocities: inputs.velocities,
         noise_covariance: inputs.noise_covariance + mismatch,
     };
-    let jobs = [
-        (LS, &ls, CrossSource::Zero),
-        (BEAMSNET_NEGLECTED, &net, CrossSource::Zero),
+    let mut jobs = [
+        (LS, ls, CrossSource::Zero),
+        (BEAMSNET_NEGLECTED, net.clone(), CrossSource::Zero),
         (
             BEAMSNET_PER_STEP,
-            &net,
+            net,
             CrossSource::ScaledPerStep(config.filter.rho),
         ),
     ];
+    if gate == Gate::Common {
+        // The gated runs decide; an update stays where all three accepted it.
+        let mut decisions = Vec::with_capacity(jobs.len());
+        for (id, set, cross) in &jobs {
+            match run_variant(id, &scenario, &gated, set, cross, seed)? {
+                Ok(run) => decisions.push(run.update_accepted),
+                Err(failure) => return Ok(vec![Err(failure)]),
+            }
+        }
+        for (_, set, _) in &mut jobs {
+            for (k, v) in set.velocities.iter_mut().enumerate() {
+                if !decisions.iter().all(|d| d.get(k) == Some(&Some(true))) {
+                    *v = None;
+                }
+            }
+        }
+    }
     jobs.iter()
         .map(|(id, set, cross)| {
             Ok(
@@ -269,6 +305,7 @@ fn cell(
                         position_rmse_m: error_summary(&run.position_error).rmse,
                         covariance_not_positive_definite_epochs: run
                             .covariance_not_positive_definite,
+                        updates_accepted: run.accepted,
                         largest_valid_rho_per_step_own: median(&run.largest_valid_rho_per_step_own),
                         paper_cross_term_over_r: std::array::from_fn(|basis| {
                             let values = run
@@ -290,8 +327,8 @@ fn cell(
         .collect()
 }
 
-/// Run [`PAIRED_VARIANTS`] on every (trajectory, seed) of A-KIT under `data`, gate
-/// off, with `learned` as the BeamsNet sensor (its M is not used), and compare
+/// Run [`PAIRED_VARIANTS`] on every (trajectory, seed) of A-KIT under `data`, with
+/// the gate off or common gate decisions ([`Gate`]), with `learned` as the BeamsNet sensor (its M is not used), and compare
 /// [`PAIRS`]. The cells run in parallel (rayon).
 ///
 /// # Errors
@@ -302,6 +339,7 @@ pub fn paired_study(
     data: &Path,
     trajectories: &[u32],
     seeds: &[u64],
+    gate: Gate,
     learned: &LearnedSource,
 ) -> Result<PairedStudy> {
     if trajectories.is_empty() || seeds.is_empty() {
@@ -323,7 +361,7 @@ pub fn paired_study(
         .collect();
     let outcomes: Vec<_> = cells
         .par_iter()
-        .map(|(t, s)| cell(config, data, *t, *s, learned))
+        .map(|(t, s)| cell(config, data, *t, *s, gate, learned))
         .collect::<Result<_>>()?;
     let mut runs = Vec::new();
     let mut failures = Vec::new();
@@ -340,7 +378,7 @@ pub fn paired_study(
     Ok(PairedStudy {
         trajectories: trajectories.to_vec(),
         seeds: seeds.to_vec(),
-        gate: "off",
+        gate,
         rho: config.filter.rho,
         runs,
         failures,

@@ -85,6 +85,9 @@ pub struct FilterRun {
     pub accepted: usize,
     /// Updates rejected by the innovation gate.
     pub rejected: usize,
+    /// Per DVL epoch: `None` without a measurement, else whether the update was
+    /// accepted (the gate's decision; with the recovery rule, accepted after inflation).
+    pub update_accepted: Vec<Option<bool>>,
     /// Smallest eigenvalue of [[Q_acc, M], [M', R]] at each update.
     pub joint_min_eigenvalue: Vec<f64>,
     /// Largest valid rho of the paper's heuristic at each update (M built from the
@@ -344,6 +347,7 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
         nis: Vec::with_capacity(n),
         accepted: 0,
         rejected: 0,
+        update_accepted: Vec::with_capacity(n),
         joint_min_eigenvalue: Vec::with_capacity(n),
         largest_valid_rho: Vec::with_capacity(n),
         largest_valid_rho_per_step: Vec::with_capacity(n),
@@ -467,6 +471,9 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
             } else {
                 run.rejected += 1;
             }
+            run.update_accepted.push(Some(report.is_accepted()));
+        } else {
+            run.update_accepted.push(None);
         }
         let nominal = nav.nominal();
         let p = nav.covariance();

@@ -6,7 +6,7 @@
 //! Needs the A-KIT data: skipped with a printed reason without it, required in CI.
 
 use crate::study::{
-    beamsnet_without_sensitivity, paired_study, Config, PairedInterval, BEAMSNET_NEGLECTED,
+    beamsnet_without_sensitivity, paired_study, Config, Gate, PairedInterval, BEAMSNET_NEGLECTED,
     BEAMSNET_PER_STEP, LS,
 };
 
@@ -20,11 +20,18 @@ fn paired_study_runs_on_a_slice_of_akit() {
     let config = Config::default();
     let learned = beamsnet_without_sensitivity(&config).expect("committed model");
     let (trajectories, seeds) = ([2, 4], [2000, 2001]);
-    let study =
-        paired_study(&config, &data, &trajectories, &seeds, learned.as_ref()).expect("study");
+    let study = paired_study(
+        &config,
+        &data,
+        &trajectories,
+        &seeds,
+        Gate::Off,
+        learned.as_ref(),
+    )
+    .expect("study");
     assert!(study.failures.is_empty(), "{:?}", study.failures);
     assert_eq!(study.runs.len(), 2 * 2 * 3);
-    assert_eq!(study.gate, "off");
+    assert_eq!(study.gate, Gate::Off);
     for c in &study.comparisons {
         assert_eq!(c.cells, 4, "{}", c.label);
         for m in &c.metrics {
@@ -59,7 +66,8 @@ fn paired_study_runs_on_a_slice_of_akit() {
         PairedInterval::of(&per_trajectory, 0.95)
     );
     // Same scenario, same seed: LS alone gives the same NEES as in the study.
-    let alone = paired_study(&config, &data, &[4], &[2001], learned.as_ref()).expect("alone");
+    let alone =
+        paired_study(&config, &data, &[4], &[2001], Gate::Off, learned.as_ref()).expect("alone");
     let ls = |s: &crate::study::PairedStudy| {
         s.runs
             .iter()
@@ -82,6 +90,32 @@ fn a_repeated_trajectory_or_seed_is_refused() {
         (&[4][..], &[1, 1][..]),
         (&[][..], &[1][..]),
     ] {
-        assert!(paired_study(&config, data, t, s, learned.as_ref()).is_err());
+        assert!(paired_study(&config, data, t, s, Gate::Off, learned.as_ref()).is_err());
     }
+}
+
+/// Common gate decisions: on A-KIT 4 (where the gate rejects updates) the three
+/// variants apply the same number of updates, fewer than with the gate off.
+#[test]
+fn common_gate_decisions_give_every_variant_the_same_updates() {
+    let Some(data) = common::data_root() else {
+        return;
+    };
+    let config = Config::default();
+    let learned = beamsnet_without_sensitivity(&config).expect("committed model");
+    let run =
+        |gate| paired_study(&config, &data, &[4], &[2001], gate, learned.as_ref()).expect("study");
+    let (common, off) = (run(Gate::Common), run(Gate::Off));
+    assert!(common.failures.is_empty() && off.failures.is_empty());
+    let counts: Vec<usize> = common.runs.iter().map(|r| r.updates_accepted).collect();
+    println!(
+        "common gate: updates {counts:?}; gate off: {:?}",
+        off.runs
+            .iter()
+            .map(|r| r.updates_accepted)
+            .collect::<Vec<_>>()
+    );
+    assert_eq!(counts.len(), 3);
+    assert!(counts.iter().all(|c| *c == counts[0]), "{counts:?}");
+    assert!(off.runs.iter().all(|r| r.updates_accepted > counts[0]));
 }
