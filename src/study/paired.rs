@@ -645,4 +645,54 @@ mod tests {
         assert!(one.lo.is_nan() && one.hi.is_nan());
         assert!(PairedInterval::of(&[1.0, f64::NAN], 0.95).mean.is_nan());
     }
+
+    /// The heading dependence of the paper's M, against the formula docs/results.md
+    /// gives: level vehicle at rest, heading psi, zero lever arm, Q diagonal with
+    /// velocity std s per NED axis. Then the forward entry of the cross term over R_xx is
+    /// 2 s (cos psi + sin psi) / sqrt(R_xx) at rho = 1: it changes sign over a turn.
+    #[test]
+    fn paper_cross_term_depends_on_heading() {
+        use estim_core::nalgebra::{SMatrix, SVector, UnitQuaternion, Vector3};
+        use estim_core::{MeasurementModel, ScaledCorrelation};
+        let (s, r_x) = (0.003_f64, 0.0174_f64.powi(2));
+        let r = Matrix3::from_diagonal(&Vector3::new(r_x, 2.0 * r_x, 3.0 * r_x));
+        let model = estim_dvl::DvlVelocityModel::builder()
+            .noise_covariance(r)
+            .build()
+            .expect("model");
+        let mut q_diag = SVector::<f64, 15>::from_element(1e-8);
+        for i in 3..6 {
+            q_diag[i] = s * s;
+        }
+        let q = SMatrix::<f64, 15, 15>::from_diagonal(&q_diag);
+        let unit = ScaledCorrelation::unit(&q, &r);
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for k in 0..360 {
+            let psi = (k as f64).to_radians();
+            let state = estim_ins::InsState {
+                time: 0.0,
+                latitude: 0.57,
+                longitude: 0.61,
+                height: -20.0,
+                velocity_ned: Vector3::zeros(),
+                attitude: UnitQuaternion::from_euler_angles(0.0, 0.0, psi),
+                acc_bias: Vector3::zeros(),
+                gyro_bias: Vector3::zeros(),
+                angular_rate: Vector3::zeros(),
+            };
+            let h = model.jacobian(&state).expect("H");
+            let got = 2.0 * (h * unit)[(0, 0)] / r_x;
+            let expected = 2.0 * s * (psi.cos() + psi.sin()) / r_x.sqrt();
+            assert!(
+                (got - expected).abs() < 1e-12,
+                "psi {k} deg: {got} vs {expected}"
+            );
+            lo = lo.min(got);
+            hi = hi.max(got);
+        }
+        let amplitude = 2.0 * 2f64.sqrt() * s / r_x.sqrt();
+        assert!(
+            (hi - amplitude).abs() < 1e-3 * amplitude && (lo + amplitude).abs() < 1e-3 * amplitude
+        );
+    }
 }
