@@ -5,6 +5,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod beamsnet;
+mod compare;
 mod dataset;
 mod dvl;
 mod learned;
@@ -38,6 +39,9 @@ struct Cli {
 enum Command {
     /// Reproduce the paper (INS/DVL + BeamsNet, M-aware vs M-neglected).
     Reproduce(reproduce::Args),
+    /// Paired comparisons of filter variants on all A-KIT trajectories, innovation
+    /// gate off: mean paired differences with 95 % t confidence intervals.
+    Compare(compare::Args),
     /// Monte Carlo consistency (NEES / NIS) over seeded simulated missions.
     Montecarlo(montecarlo::Args),
     /// DVL beams: least squares, calibration.
@@ -67,6 +71,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Reproduce(args) => reproduce::run(args),
+        Command::Compare(args) => compare::run(args),
         Command::Montecarlo(args) => montecarlo::run(args),
         Command::Dvl(args) => dvl::run(args),
         Command::Beamsnet(args) => beamsnet::run(args),

@@ -15,6 +15,7 @@ pub mod markdown;
 mod mismatch;
 mod montecarlo;
 mod oracle;
+mod paired;
 mod report;
 mod run;
 mod scenario;
@@ -35,6 +36,10 @@ pub use montecarlo::{
     ORACLE_SCALED, ORACLE_TRUE_M,
 };
 pub use oracle::{oracle_measurements, OracleSensor};
+pub use paired::{
+    beamsnet_without_sensitivity, markdown as paired_markdown, paired_study, Gate, PairedInterval,
+    PairedStudy, BEAMSNET_PER_STEP,
+};
 pub use report::{
     analyse, filter_label, least_squares_velocities, run_variant, summarise, FilterSummary,
     Improvement, LearnedInputs, TrajectoryReport, BEAMSNET, BEAMSNET_NEGLECTED, BEAMSNET_SCALED,

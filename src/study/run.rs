@@ -7,7 +7,8 @@ use estim::navigator::{
 use estim_core::consistency::nees;
 use estim_core::nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 use estim_core::{
-    Fixed, JointCovariance, NoObserver, Observer, ProcessModel, ScaledCorrelation, Zero,
+    Fixed, JointCovariance, MeasurementModel, NoObserver, Observer, ProcessModel,
+    ScaledCorrelation, Zero,
 };
 use estim_ins::{inject, ImuSpec, InsState, ACC_BIAS, ATT, ERROR_STATES, GYRO_BIAS, POS, VEL};
 use rand::SeedableRng;
@@ -84,6 +85,9 @@ pub struct FilterRun {
     pub accepted: usize,
     /// Updates rejected by the innovation gate.
     pub rejected: usize,
+    /// Per DVL epoch: `None` without a measurement, else whether the update was
+    /// accepted (the gate's decision; with the recovery rule, accepted after inflation).
+    pub update_accepted: Vec<Option<bool>>,
     /// Smallest eigenvalue of [[Q_acc, M], [M', R]] at each update.
     pub joint_min_eigenvalue: Vec<f64>,
     /// Largest valid rho of the paper's heuristic at each update (M built from the
@@ -92,6 +96,16 @@ pub struct FilterRun {
     /// The same with M built from the last IMU step's process noise Q_k (the joint
     /// covariance is still [[Q_acc, M], [M', R]]).
     pub largest_valid_rho_per_step: Vec<f64>,
+    /// The largest valid rho of the per-step M against the same per-step Q_k, i.e. of
+    /// [[Q_k, M], [M', R]] with M = rho sqrt(diag Q_k) sqrt(diag R)' (the paper's
+    /// letter, read against its own Q_k); NaN before the first IMU step.
+    pub largest_valid_rho_per_step_own: Vec<f64>,
+    /// Per update, the diagonal of the cross term H U + U' H' of S divided by the
+    /// diagonal of R, for the paper's M at rho = 1 (U = sqrt(diag Q) sqrt(diag R)'),
+    /// on the accumulated basis (`[0]`) and the per-step basis (`[1]`); multiply by rho.
+    /// The NED-frame standard deviations of U meet the body-frame H, so it depends on
+    /// heading.
+    pub paper_cross_term_over_r: Vec<[[f64; 3]; 2]>,
     /// North/east position of the estimate relative to the start \[m\].
     pub north_east: Vec<[f64; 2]>,
     /// Epochs at which P was not positive definite (NEES recorded as NaN).
@@ -333,9 +347,12 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
         nis: Vec::with_capacity(n),
         accepted: 0,
         rejected: 0,
+        update_accepted: Vec::with_capacity(n),
         joint_min_eigenvalue: Vec::with_capacity(n),
         largest_valid_rho: Vec::with_capacity(n),
         largest_valid_rho_per_step: Vec::with_capacity(n),
+        largest_valid_rho_per_step_own: Vec::with_capacity(n),
+        paper_cross_term_over_r: Vec::with_capacity(n),
         north_east: Vec::with_capacity(n),
         covariance_not_positive_definite: 0,
     };
@@ -404,6 +421,27 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
                 JointCovariance::new(*filter.accumulated_process_noise(), step_unit, r)
                     .largest_valid_scale()?,
             );
+            run.largest_valid_rho_per_step_own
+                .push(if nav.last_step().is_some() {
+                    // A diagnostic: a failure here is a NaN, never a stopped run.
+                    JointCovariance::new(step_noise, step_unit, r)
+                        .largest_valid_scale()
+                        .unwrap_or(f64::NAN)
+                } else {
+                    f64::NAN
+                });
+            let h = model.jacobian(filter.nominal())?;
+            let over_r = |u: &CrossMatrix| -> [f64; 3] {
+                let hu = h * u;
+                std::array::from_fn(|j| 2.0 * hu[(j, j)] / r[(j, j)])
+            };
+            run.paper_cross_term_over_r.push([
+                over_r(&ScaledCorrelation::unit(
+                    filter.accumulated_process_noise(),
+                    &r,
+                )),
+                over_r(&step_unit),
+            ]);
             let scaled;
             let fixed;
             let source: &DvlCross<'_> = match cross {
@@ -433,6 +471,9 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
             } else {
                 run.rejected += 1;
             }
+            run.update_accepted.push(Some(report.is_accepted()));
+        } else {
+            run.update_accepted.push(None);
         }
         let nominal = nav.nominal();
         let p = nav.covariance();

@@ -14,6 +14,7 @@ mod long_mission;
 mod montecarlo_fields;
 mod montecarlo_shards;
 mod oracle_monte_carlo;
+mod paired;
 mod reference_mismatch;
 mod results_tables;
 mod smooth_ins;

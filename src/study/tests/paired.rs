@@ -1,0 +1,121 @@
+//! The paired comparison (`estim compare`) on a slice of the real data: A-KIT 2 and 4,
+//! two seeds, gate off. Checks the pairing (every variant of a cell ran on the same
+//! scenario: LS is the same whether run alone or beside the others), the counts, and
+//! that each interval is the t interval of the differences the runs give.
+//!
+//! Needs the A-KIT data: skipped with a printed reason without it, required in CI.
+
+use crate::study::{
+    beamsnet_without_sensitivity, paired_study, Config, Gate, PairedInterval, BEAMSNET_NEGLECTED,
+    BEAMSNET_PER_STEP, LS,
+};
+
+use super::common;
+
+#[test]
+fn paired_study_runs_on_a_slice_of_akit() {
+    let Some(data) = common::data_root() else {
+        return;
+    };
+    let config = Config::default();
+    let learned = beamsnet_without_sensitivity(&config).expect("committed model");
+    let (trajectories, seeds) = ([2, 4], [2000, 2001]);
+    let study = paired_study(
+        &config,
+        &data,
+        &trajectories,
+        &seeds,
+        Gate::Off,
+        learned.as_ref(),
+    )
+    .expect("study");
+    assert!(study.failures.is_empty(), "{:?}", study.failures);
+    assert_eq!(study.runs.len(), 2 * 2 * 3);
+    assert_eq!(study.gate, Gate::Off);
+    for c in &study.comparisons {
+        assert_eq!(c.cells, 4, "{}", c.label);
+        for m in &c.metrics {
+            assert_eq!(m.over_cells.n, 4);
+            assert_eq!(m.over_trajectories.n, 2);
+            assert!(m.over_cells.lo <= m.over_cells.mean && m.over_cells.mean <= m.over_cells.hi);
+        }
+    }
+    // The NEES difference of (per-step M - M neglected), recomputed from the runs.
+    let value = |t: u32, s: u64, id: &str| {
+        study
+            .runs
+            .iter()
+            .find(|r| r.trajectory == t && r.seed == s && r.id == id)
+            .expect("run")
+            .nees
+    };
+    let diffs: Vec<f64> = trajectories
+        .iter()
+        .flat_map(|t| seeds.iter().map(move |s| (*t, *s)))
+        .map(|(t, s)| value(t, s, BEAMSNET_PER_STEP) - value(t, s, BEAMSNET_NEGLECTED))
+        .collect();
+    let first = &study.comparisons[0];
+    assert_eq!(first.minuend, BEAMSNET_PER_STEP);
+    assert_eq!(
+        first.metrics[0].over_cells,
+        PairedInterval::of(&diffs, 0.95)
+    );
+    let per_trajectory = [(diffs[0] + diffs[1]) / 2.0, (diffs[2] + diffs[3]) / 2.0];
+    assert_eq!(
+        first.metrics[0].over_trajectories,
+        PairedInterval::of(&per_trajectory, 0.95)
+    );
+    // Same scenario, same seed: LS alone gives the same NEES as in the study.
+    let alone =
+        paired_study(&config, &data, &[4], &[2001], Gate::Off, learned.as_ref()).expect("alone");
+    let ls = |s: &crate::study::PairedStudy| {
+        s.runs
+            .iter()
+            .find(|r| r.trajectory == 4 && r.seed == 2001 && r.id == LS)
+            .expect("LS")
+            .nees
+    };
+    assert_eq!(ls(&alone), ls(&study));
+    println!("{}", crate::study::paired_markdown(&study));
+}
+
+#[test]
+fn a_repeated_trajectory_or_seed_is_refused() {
+    // Refused before any file is read.
+    let data = std::path::Path::new("/nonexistent");
+    let config = Config::default();
+    let learned = beamsnet_without_sensitivity(&config).expect("committed model");
+    for (t, s) in [
+        (&[4, 4][..], &[1][..]),
+        (&[4][..], &[1, 1][..]),
+        (&[][..], &[1][..]),
+    ] {
+        assert!(paired_study(&config, data, t, s, Gate::Off, learned.as_ref()).is_err());
+    }
+}
+
+/// Common gate decisions: on A-KIT 4 (where the gate rejects updates) the three
+/// variants apply the same number of updates, fewer than with the gate off.
+#[test]
+fn common_gate_decisions_give_every_variant_the_same_updates() {
+    let Some(data) = common::data_root() else {
+        return;
+    };
+    let config = Config::default();
+    let learned = beamsnet_without_sensitivity(&config).expect("committed model");
+    let run =
+        |gate| paired_study(&config, &data, &[4], &[2001], gate, learned.as_ref()).expect("study");
+    let (common, off) = (run(Gate::Common), run(Gate::Off));
+    assert!(common.failures.is_empty() && off.failures.is_empty());
+    let counts: Vec<usize> = common.runs.iter().map(|r| r.updates_accepted).collect();
+    println!(
+        "common gate: updates {counts:?}; gate off: {:?}",
+        off.runs
+            .iter()
+            .map(|r| r.updates_accepted)
+            .collect::<Vec<_>>()
+    );
+    assert_eq!(counts.len(), 3);
+    assert!(counts.iter().all(|c| *c == counts[0]), "{counts:?}");
+    assert!(off.runs.iter().all(|r| r.updates_accepted > counts[0]));
+}
