@@ -113,8 +113,9 @@
 //! The backward pass is the one above in these coordinates, with P^+ (scale-free
 //! pseudo-inverse) where s is still zero or determined by e. This equals joint-Gaussian
 //! conditioning of the stacked problem for windows over any number of epochs with
-//! other updates inside, recorded either way, for the linear filter, the EKF, the
-//! error-state filter and the UKF, fixed interval, fixed lag and online (`tests/smoother.rs`,
+//! other updates inside, recorded either way, for the linear filter (plain and square
+//! root), the EKF, the error-state filter and the UKF, fixed interval, fixed lag and
+//! online (`tests/smoother.rs`,
 //! `windows_over_several_epochs_*`, to 1e-9 relative). The cost is L N^3 per
 //! windowed update in the forward pass (each step's Q_j^+ from its
 //! eigendecomposition, and the runner asks the model for the D_j once more) and

@@ -37,8 +37,8 @@ use estim_core::smoother::{FixedLagSmoother, ForwardRecorder, RecordAt, Smoothed
 use estim_core::window::StepWindow;
 use estim_core::{
     Error, ErrorStateKalmanFilter, ErrorStateModel, ExtendedKalmanFilter, FilterConfig,
-    KalmanFilter, MeasurementModel, ProcessModel, Result, StateAndCovariance,
-    UnscentedKalmanFilter, WindowedCrossCovariance,
+    KalmanFilter, MeasurementModel, ProcessModel, Result, SquareRootKalmanFilter,
+    StateAndCovariance, UnscentedKalmanFilter, WindowedCrossCovariance,
 };
 use proptest::prelude::*;
 use proptest::test_runner::{FileFailurePersistence, RngSeed, TestCaseError};
@@ -499,11 +499,19 @@ enum Runner {
     Ukf,
     /// The linear filter, its F, Q, H and R set before each step and update.
     Kf,
+    /// The square-root linear filter, set like the linear filter.
+    Sr,
 }
 
 impl Runner {
     fn pick(index: usize) -> Self {
-        [Runner::Ekf, Runner::Eskf, Runner::Ukf, Runner::Kf][index % 4]
+        [
+            Runner::Ekf,
+            Runner::Eskf,
+            Runner::Ukf,
+            Runner::Kf,
+            Runner::Sr,
+        ][index % 5]
     }
 }
 
@@ -524,7 +532,7 @@ fn to_outputs<const N: usize>(
     list.iter()
         .map(|s| {
             let state = match runner {
-                Runner::Ekf | Runner::Ukf | Runner::Kf => s.state(),
+                Runner::Ekf | Runner::Ukf | Runner::Kf | Runner::Sr => s.state(),
                 Runner::Eskf => s.injected(&TimeVarying)?,
             };
             Ok((dy(&state), dm(&s.covariance)))
@@ -628,6 +636,39 @@ fn run<const N: usize, const M: usize>(
         }
         Runner::Kf => {
             let mut kf = KalmanFilter::new(
+                SMatrix::<f64, N, N>::identity(),
+                SMatrix::<f64, N, N>::identity(),
+                SMatrix::<f64, M, N>::zeros(),
+                SMatrix::<f64, M, M>::identity(),
+                initial,
+            )?
+            .with_config(window_config(plan))
+            .with_observer(observer);
+            for (j, step) in plan.steps.iter().enumerate() {
+                kf.set_transition(st(&step.f))?;
+                kf.set_process_noise(st(&step.q))?;
+                kf.predict()?;
+                for meas in &step.measurements {
+                    kf.set_observation(st(&meas.h))?;
+                    kf.set_measurement_noise(st(&meas.r))?;
+                    let y = SVector::<f64, M>::from_column_slice(meas.y.as_slice());
+                    if plan.windowed && !meas.shares.is_empty() {
+                        kf.update_windowed(&y, &PlanWindow::<N, M>::new(meas))?;
+                    } else {
+                        kf.update(&y, &estim_core::Fixed(st::<N, M>(&meas.cross)))?;
+                    }
+                }
+                if mode == RecordAt::EveryStep
+                    || !step.measurements.is_empty()
+                    || j + 1 == plan.steps.len()
+                {
+                    epoch_steps.push(j + 1);
+                }
+            }
+            kf.into_observer()
+        }
+        Runner::Sr => {
+            let mut kf = SquareRootKalmanFilter::new(
                 SMatrix::<f64, N, N>::identity(),
                 SMatrix::<f64, N, N>::identity(),
                 SMatrix::<f64, M, N>::zeros(),
@@ -766,12 +807,12 @@ proptest! {
 
     /// Windows over several epochs: other measurements inside the window and at the
     /// update's own epoch before it, steps that share nothing; recorded at every step
-    /// or at updates; EKF, ESKF, UKF and KF; fixed interval, fixed lag and online fixed
+    /// or at updates; EKF, ESKF, UKF, KF and the square-root KF; fixed interval, fixed lag and online fixed
     /// lag (whose L + 2 epochs may hold only part of a window).
     #[test]
     fn windows_over_several_epochs_smoother_equals_conditioning(
         n in 1usize..=6, m in 1usize..=3, k in 1usize..=40, seed in any::<u64>(),
-        runner in 0usize..4, every_step in any::<bool>(), lag in 0usize..=5,
+        runner in 0usize..5, every_step in any::<bool>(), lag in 0usize..=5,
     ) {
         let plan = make_window_plan(n, m, k, seed);
         let mode = if every_step { RecordAt::EveryStep } else { RecordAt::Updates };

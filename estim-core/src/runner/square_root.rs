@@ -55,8 +55,11 @@ pub struct SquareRootKalmanFilter<T: Scalar, const N: usize, const M: usize, O =
     noise_factor: SMatrix<T, N, N>,
     observation: SMatrix<T, M, N>,
     measurement_noise: SMatrix<T, M, M>,
-    /// R's block certificate for the joint check (R never changes).
+    /// R's block certificate for the joint check (recomputed when R is replaced).
     measurement_certificate: Option<T>,
+    /// No setter replaced F or Q since the last predict (lets a one-step interval keep
+    /// F and Q in Q_acc / Phi_acc as they are).
+    model_unchanged: bool,
     factor: SMatrix<T, N, N>,
     /// The state and P = S S' (formed from `factor` after each commit).
     estimate: StateAndCovariance<T, N>,
@@ -112,6 +115,7 @@ impl<T: Scalar, const N: usize, const M: usize> SquareRootKalmanFilter<T, N, M, 
             observation,
             measurement_noise,
             measurement_certificate: crate::cross::block_certificate(&measurement_noise),
+            model_unchanged: true,
             estimate: StateAndCovariance::new_unchecked(*initial.state(), gram_lower(&factor)),
             factor,
             shared: Shared::new(),
@@ -132,6 +136,7 @@ impl<T: Scalar, const N: usize, const M: usize, O> SquareRootKalmanFilter<T, N, 
             observation: self.observation,
             measurement_noise: self.measurement_noise,
             measurement_certificate: self.measurement_certificate,
+            model_unchanged: self.model_unchanged,
             factor: self.factor,
             estimate: self.estimate,
             shared: self.shared.with_observer(observer),
@@ -152,6 +157,82 @@ impl<T: Scalar, const N: usize, const M: usize, O> SquareRootKalmanFilter<T, N, 
     pub fn estimate(&self) -> &StateAndCovariance<T, N> {
         &self.estimate
     }
+
+    /// The transition F used by the next predict.
+    pub fn transition(&self) -> &SMatrix<T, N, N> {
+        &self.transition
+    }
+
+    /// The process noise Q = Cov(G w) used by the next predict.
+    pub fn process_noise(&self) -> &SMatrix<T, N, N> {
+        &self.process_noise
+    }
+
+    /// The observation matrix H used by the next update.
+    pub fn observation(&self) -> &SMatrix<T, M, N> {
+        &self.observation
+    }
+
+    /// The measurement-noise covariance R used by the next update.
+    pub fn measurement_noise(&self) -> &SMatrix<T, M, M> {
+        &self.measurement_noise
+    }
+
+    /// Replace F for the following predicts (a time-varying model, as
+    /// [`KalmanFilter::set_transition`]). Q_acc and Phi_acc keep what earlier steps
+    /// accumulated.
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`]; the filter is then unchanged.
+    pub fn set_transition(&mut self, transition: SMatrix<T, N, N>) -> Result<()> {
+        check_finite(transition.as_slice(), "transition matrix")?;
+        self.transition = transition;
+        self.model_unchanged = false;
+        Ok(())
+    }
+
+    /// Replace Q = Cov(G w) for the following predicts (its factor is recomputed).
+    ///
+    /// # Errors
+    /// As [`SquareRootKalmanFilter::new`] for Q: [`Error::NonFinite`], or
+    /// [`Error::InvalidCovariance`]; the filter is then unchanged.
+    pub fn set_process_noise(&mut self, process_noise: SMatrix<T, N, N>) -> Result<()> {
+        let noise_factor = covariance_factor(&process_noise, "process noise")?;
+        self.process_noise = process_noise;
+        self.noise_factor = noise_factor;
+        self.model_unchanged = false;
+        Ok(())
+    }
+
+    /// Replace H for the following updates.
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`]; the filter is then unchanged.
+    pub fn set_observation(&mut self, observation: SMatrix<T, M, N>) -> Result<()> {
+        check_finite(observation.as_slice(), "observation matrix")?;
+        self.observation = observation;
+        Ok(())
+    }
+
+    /// Replace R for the following updates (its block certificate for the joint check
+    /// is recomputed).
+    ///
+    /// # Errors
+    /// As [`SquareRootKalmanFilter::new`] for R: [`Error::NonFinite`], or
+    /// [`Error::InvalidCovariance`] if R is not positive definite; the filter is then
+    /// unchanged.
+    pub fn set_measurement_noise(&mut self, measurement_noise: SMatrix<T, M, M>) -> Result<()> {
+        let r_factor = covariance_factor(&measurement_noise, "measurement noise")?;
+        if (0..M).any(|i| r_factor[(i, i)] <= T::zero()) {
+            return Err(Error::InvalidCovariance {
+                what: "measurement noise",
+                reason: "not positive definite".into(),
+            });
+        }
+        self.measurement_noise = measurement_noise;
+        self.measurement_certificate = crate::cross::block_certificate(&measurement_noise);
+        Ok(())
+    }
 }
 
 impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>>
@@ -171,8 +252,9 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         let before = *self.estimate.state();
         self.estimate = StateAndCovariance::new_unchecked(state, gram_lower(&factor));
         self.factor = factor;
+        let fixed = std::mem::replace(&mut self.model_unchanged, true);
         self.shared.record_predict(
-            true,
+            fixed,
             &before,
             &(),
             None,
@@ -368,6 +450,7 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
                     observation: self.observation,
                     measurement_noise: self.measurement_noise,
                     measurement_certificate: self.measurement_certificate,
+                    model_unchanged: self.model_unchanged,
                     factor: self.factor,
                     estimate: self.estimate.clone(),
                     shared: fork_shared(&self.shared, recorder),

@@ -73,6 +73,69 @@ fn accumulation_is_exact_across_intervals_of_any_length() {
     }
 }
 
+/// The square-root filter with F, Q, H and R replaced between steps (intervals of one
+/// and several predicts): its accumulated Q and Phi equal the explicit products, and
+/// its posterior equals a textbook Kalman filter coded here with nalgebra's inverse.
+#[test]
+fn square_root_filter_takes_a_time_varying_model() {
+    let (f0, q0) = cv_model();
+    let initial = StateAndCovariance::new(Vector2::new(0.2, -0.1), Matrix2::identity()).unwrap();
+    let mut sr = SquareRootKalmanFilter::new(
+        f0,
+        q0,
+        nalgebra::Matrix1x2::new(1.0, 0.0),
+        nalgebra::Matrix1::new(0.1),
+        initial,
+    )
+    .unwrap();
+    let (mut x, mut p) = (Vector2::new(0.2, -0.1), Matrix2::<f64>::identity());
+    let mut k = 0.0f64;
+    for steps in [1usize, 3, 1, 1, 2, 1, 4] {
+        let (mut expected_q, mut expected_f) = (Matrix2::zeros(), Matrix2::identity());
+        for _ in 0..steps {
+            k += 1.0;
+            let dt = 0.5 + 0.1 * k;
+            let f = Matrix2::new(1.0, dt, 0.0, 1.0);
+            let g = Matrix2x1::new(0.5 * dt * dt, dt);
+            let q = g * g.transpose() * (0.02 + 0.01 * k) + Matrix2::identity() * 1e-4;
+            sr.set_transition(f).unwrap();
+            sr.set_process_noise(q).unwrap();
+            sr.predict().unwrap();
+            x = f * x;
+            p = f * p * f.transpose() + q;
+            expected_q = f * expected_q * f.transpose() + q;
+            expected_f = f * expected_f;
+            assert!((sr.accumulated_process_noise() - expected_q).amax() < 1e-13);
+            assert!((sr.accumulated_transition() - expected_f).amax() < 1e-13);
+        }
+        let h = nalgebra::Matrix1x2::new(1.0, 0.3 * k.sin());
+        let r = nalgebra::Matrix1::new(0.05 + 0.01 * k);
+        sr.set_observation(h).unwrap();
+        sr.set_measurement_noise(r).unwrap();
+        let y = Vector1::new(0.1 * k.cos());
+        sr.update(&y, &Zero).unwrap();
+        let s = h * p * h.transpose() + r;
+        let gain = p * h.transpose() * s.try_inverse().unwrap();
+        x += gain * (y - h * x);
+        p -= gain * h * p;
+        assert!((sr.state() - x).amax() < 1e-12, "step {k}");
+        assert!((sr.estimate().covariance() - p).amax() < 1e-12, "step {k}");
+    }
+    assert!(sr
+        .set_process_noise(Matrix2::new(1.0, 2.0, 2.0, 1.0))
+        .is_err());
+    assert!(sr
+        .set_measurement_noise(nalgebra::Matrix1::new(0.0))
+        .is_err());
+    assert!(sr
+        .set_transition(Matrix2::new(f64::NAN, 0.0, 0.0, 1.0))
+        .is_err());
+    assert_eq!(
+        *sr.measurement_noise(),
+        nalgebra::Matrix1::new(0.05 + 0.01 * k)
+    );
+}
+
 #[test]
 fn gate_rejects_outlier_and_leaves_state_untouched() {
     let config = FilterConfig::builder()
