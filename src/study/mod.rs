@@ -37,8 +37,8 @@ pub use montecarlo::{
 };
 pub use oracle::{oracle_measurements, OracleSensor};
 pub use paired::{
-    beamsnet_without_sensitivity, markdown as paired_markdown, paired_study, Gate, PairedInterval,
-    PairedStudy, BEAMSNET_PER_STEP,
+    beamsnet_without_sensitivity, markdown as paired_markdown, paired_study, CellRun, Gate,
+    PairedInterval, PairedStudy, BEAMSNET_PER_STEP,
 };
 pub use report::{
     analyse, filter_label, least_squares_velocities, run_variant, summarise, FilterSummary,

@@ -31,7 +31,7 @@ use serde::Serialize;
 use statrs::distribution::{ContinuousCDF, StudentsT};
 
 use super::report::FilterFailure;
-use super::stats::{error_summary, finite_mean};
+use super::stats::{error_summary, finite_mean, std_summary};
 use super::{
     least_squares_velocities, run_variant, Config, CrossSource, FilterRun, LearnedSource,
     MeasurementSet, PipelineError, Result, Scenario, BEAMSNET_NEGLECTED, LS,
@@ -51,11 +51,23 @@ pub const PAIRS: [(&str, &str); 2] = [
     (BEAMSNET_NEGLECTED, LS),
 ];
 
-/// The per-run numbers compared: (key, what it is).
-pub const METRICS: [(&str, &str); 3] = [
+/// The per-run numbers compared: (key, what it is). The first three are differences
+/// (first variant minus second); the `*_std_improvement_percent` ones are the paper's
+/// metric, the percentage by which the first variant's time-averaged standard
+/// deviation (summed over the three axes, from P) is below the second's,
+/// 100 (second - first) / second, taken inside each cell.
+pub const METRICS: [(&str, &str); 5] = [
     ("nees", "time-averaged NEES (15 states) against truth"),
     ("nis", "time-averaged NIS (3 dof)"),
     ("position_rmse_m", "position RMSE against truth [m]"),
+    (
+        "velocity_std_improvement_percent",
+        "the paper's metric: % by which the time-averaged velocity std is lower",
+    ),
+    (
+        "misalignment_std_improvement_percent",
+        "the paper's metric: % by which the time-averaged misalignment std is lower",
+    ),
 ];
 
 /// Confidence level of every interval of the study.
@@ -136,6 +148,11 @@ pub struct CellRun {
     pub nis: f64,
     /// Position RMSE \[m\].
     pub position_rmse_m: f64,
+    /// Time average of the velocity std summed over N, E, D \[m/s\] (the paper's
+    /// std metric, from the diagonal of P at the DVL epochs).
+    pub velocity_std_mps: f64,
+    /// Time average of the misalignment std summed over the three axes \[rad\].
+    pub misalignment_std_rad: f64,
     /// Epochs at which P was not positive definite.
     pub covariance_not_positive_definite_epochs: usize,
     /// DVL updates applied (the gate is off in these runs).
@@ -157,8 +174,21 @@ impl CellRun {
         match key {
             "nees" => self.nees,
             "nis" => self.nis,
+            "velocity_std_improvement_percent" => self.velocity_std_mps,
+            "misalignment_std_improvement_percent" => self.misalignment_std_rad,
             _ => self.position_rmse_m,
         }
+    }
+}
+
+/// The paired value of `key` in one cell: `minuend - subtrahend`, or for the paper's
+/// std metric the improvement 100 (subtrahend - minuend) / subtrahend.
+fn cell_difference(key: &str, minuend: &CellRun, subtrahend: &CellRun) -> f64 {
+    let (a, b) = (minuend.metric(key), subtrahend.metric(key));
+    if key.ends_with("_std_improvement_percent") {
+        super::stats::improvement_percent(b, a)
+    } else {
+        a - b
     }
 }
 
@@ -303,6 +333,10 @@ fn cell(
                         nees: finite_mean(&run.nees),
                         nis: finite_mean(&run.nis),
                         position_rmse_m: error_summary(&run.position_error).rmse,
+                        velocity_std_mps: std_summary(&run.covariance_diagonal, estim_ins::VEL)
+                            .time_average,
+                        misalignment_std_rad: std_summary(&run.covariance_diagonal, estim_ins::ATT)
+                            .time_average,
                         covariance_not_positive_definite_epochs: run
                             .covariance_not_positive_definite,
                         updates_accepted: run.accepted,
@@ -431,13 +465,13 @@ fn compare(
         .map(|(key, _)| {
             let per_cell: Vec<f64> = pairs
                 .iter()
-                .flat_map(|(_, p)| p.iter().map(|(a, b)| a.metric(key) - b.metric(key)))
+                .flat_map(|(_, p)| p.iter().map(|(a, b)| cell_difference(key, a, b)))
                 .collect();
             let per_trajectory: Vec<(u32, f64)> = pairs
                 .iter()
                 .filter(|(_, p)| !p.is_empty())
                 .map(|(t, p)| {
-                    let d: f64 = p.iter().map(|(a, b)| a.metric(key) - b.metric(key)).sum();
+                    let d: f64 = p.iter().map(|(a, b)| cell_difference(key, a, b)).sum();
                     (*t, d / p.len() as f64)
                 })
                 .collect();
@@ -513,6 +547,64 @@ pub fn markdown(study: &PairedStudy) -> String {
             cell(&m(1).over_cells, 3),
             cell(&m(2).over_cells, 2),
         );
+    }
+    let _ = writeln!(s);
+    // The paper's metric: how much lower the first variant's std is, per pair.
+    let _ = writeln!(
+        s,
+        "| pair | velocity std lower by [%], over {n_t} trajectories | misalignment std lower by [%], over trajectories | trajectories where both are lower by more than 10 % |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|");
+    for c in &study.comparisons {
+        let (v, a) = (&c.metrics[3], &c.metrics[4]);
+        let both = v
+            .per_trajectory
+            .iter()
+            .zip(&a.per_trajectory)
+            .filter(|((_, dv), (_, da))| *dv > 10.0 && *da > 10.0)
+            .count();
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {both} of {} |",
+            c.label,
+            cell(&v.over_trajectories, 2),
+            cell(&a.over_trajectories, 2),
+            v.per_trajectory.len()
+        );
+    }
+    let _ = writeln!(s);
+    let _ = writeln!(
+        s,
+        "| trajectory | {} |",
+        study
+            .comparisons
+            .iter()
+            .map(|c| format!("{}: velocity / misalignment std lower by [%]", c.label))
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
+    let _ = writeln!(s, "|---|{}", "---|".repeat(study.comparisons.len()));
+    for t in &study.trajectories {
+        let cells: Vec<String> = study
+            .comparisons
+            .iter()
+            .map(|c| {
+                let at = |k: usize| {
+                    c.metrics[k]
+                        .per_trajectory
+                        .iter()
+                        .find(|(tt, _)| tt == t)
+                        .map_or("-".to_string(), |(_, d)| format!("{d:+.2}"))
+                };
+                format!("{} / {}", at(3), at(4))
+            })
+            .collect();
+        let test = if super::AKIT_TEST_TRAJECTORIES.contains(t) {
+            " (test)"
+        } else {
+            ""
+        };
+        let _ = writeln!(s, "| {t}{test} | {} |", cells.join(" | "));
     }
     let _ = writeln!(s);
     let _ = writeln!(

@@ -65,6 +65,39 @@ fn paired_study_runs_on_a_slice_of_akit() {
         first.metrics[0].over_trajectories,
         PairedInterval::of(&per_trajectory, 0.95)
     );
+    // The paper's metric, recomputed from the runs' time-averaged stds: the per-step
+    // M's velocity std below M neglected's, in percent of the latter, cell by cell.
+    let run = |t: u32, s: u64, id: &str| {
+        study
+            .runs
+            .iter()
+            .find(|r| r.trajectory == t && r.seed == s && r.id == id)
+            .expect("run")
+    };
+    for (k, std) in [
+        (
+            3,
+            (|r: &crate::study::CellRun| r.velocity_std_mps) as fn(&_) -> f64,
+        ),
+        (4, |r: &crate::study::CellRun| r.misalignment_std_rad),
+    ] {
+        let improvements: Vec<f64> = trajectories
+            .iter()
+            .flat_map(|t| seeds.iter().map(move |s| (*t, *s)))
+            .map(|(t, s)| {
+                let (aware, neglected) = (
+                    std(run(t, s, BEAMSNET_PER_STEP)),
+                    std(run(t, s, BEAMSNET_NEGLECTED)),
+                );
+                assert!(aware > 0.0 && neglected > 0.0);
+                100.0 * (neglected - aware) / neglected
+            })
+            .collect();
+        assert_eq!(
+            first.metrics[k].over_cells,
+            PairedInterval::of(&improvements, 0.95)
+        );
+    }
     // Same scenario, same seed: LS alone gives the same NEES as in the study.
     let alone =
         paired_study(&config, &data, &[4], &[2001], Gate::Off, learned.as_ref()).expect("alone");
