@@ -45,6 +45,10 @@ pub struct Args {
     /// `std_mps`, `time_constant_s`), replacing the fitted priors.
     #[arg(long, value_name = "FILE")]
     states: Option<PathBuf>,
+    /// Add DVL noise growing with the angular rate, R + κ² |ω|² I, κ fitted on the
+    /// training residuals (the Gauss-Markov bias then from the calm epochs only).
+    #[arg(long)]
+    rate_noise: bool,
     /// JSON on stdout.
     #[arg(long)]
     json: bool,
@@ -89,7 +93,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.trajectories.clone()
     };
     let seeds: Vec<u64> = (args.first_seed..=last).collect();
-    let fit = fit_training(&dir, &config, &args.fit_trajectories)?;
+    let fit = fit_training(&dir, &config, &args.fit_trajectories, args.rate_noise)?;
     let evaluation = evaluate(&dir, &config, fit, states, &trajectories, &seeds)?;
     let failures = evaluation.failures.len();
     if args.json {
@@ -100,6 +104,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "seeds": seeds,
             "config_file": path_json(args.config.as_deref()),
             "states_file": path_json(args.states.as_deref()),
+            "rate_noise": args.rate_noise,
             "config": config,
         });
         let body = serde_json::json!({ "evaluation": evaluation, "failures": evaluation.failures });

@@ -26,6 +26,13 @@
 //!    axes, consecutive DVL epochs only) give e^{-Δ/τ} = c_2 / c_1,
 //!    σ_b² = c_1 e^{Δ/τ}, and the white part σ_w² = c_0 - σ_b² (at least 1e-6 m²/s²),
 //!    which is added to R in place of `dvl.akit_reference_mismatch_std_mps`.
+//! 5. Optionally (`estim evaluate --rate-noise`), DVL noise growing with the angular
+//!    rate, R + κ² |ω|² I ([`estim::navigator::AugmentedDvlModel::with_rate_noise`]):
+//!    step 4 then uses the calm epochs only (|ω| below [`CALM_RATE_RADPS`] at both
+//!    ends of a pair), and κ² is the least-squares slope through the origin of
+//!    (mean square residual per axis - c_0) on |ω|² over every epoch. On A-KIT the
+//!    residual RMS grows from about 0.02 m/s below 0.02 rad/s to about 0.1 m/s
+//!    above 0.1 rad/s.
 //!
 //! # Evaluation ([`evaluate`])
 //!
@@ -65,8 +72,16 @@ pub const AKIT_TRAINING_TRAJECTORIES: [u32; 11] = [1, 2, 3, 5, 6, 7, 8, 9, 10, 1
 /// The variants evaluated.
 pub const EVALUATED_VARIANTS: [&str; 2] = [LS, BEAMSNET_NEGLECTED];
 
+/// Angular rate below which an epoch counts as calm for the Gauss-Markov fit
+/// \[rad/s\].
+pub const CALM_RATE_RADPS: f64 = 0.02;
+
 /// The NEES and NIS bands: [0.5, 2] x the degrees of freedom.
 pub const BAND: [f64; 2] = [0.5, 2.0];
+
+/// A DVL residual against the truth \[m/s\] and the angular rate |ω| \[rad/s\] at
+/// its epoch.
+type RateResidual = (Vector3<f64>, f64);
 
 /// One training trajectory's calibration.
 #[derive(Debug, Clone, Serialize)]
@@ -122,6 +137,8 @@ pub struct TrainingFit {
     pub bias_time_constant_s: f64,
     /// White residual std \[m/s\], added to R.
     pub white_std_mps: f64,
+    /// Rate-dependent noise κ \[m/s per rad/s\]: R grows by κ² |ω|² I.
+    pub rate_noise_mps_per_radps: f64,
 }
 
 impl TrainingFit {
@@ -220,7 +237,17 @@ fn spread3(values: &[[f64; 3]]) -> f64 {
 /// A test trajectory (4, 13) or a repeat in `trajectories`; loader errors (file and
 /// line); a calibration failure (naming the trajectory); residuals with no positive
 /// lag-1 and lag-2 autocovariance (no Gauss-Markov process to fit).
-pub fn fit_training(dir: &Path, config: &Config, trajectories: &[u32]) -> Result<TrainingFit> {
+pub fn fit_training(
+    dir: &Path,
+    config: &Config,
+    trajectories: &[u32],
+    rate_noise: bool,
+) -> Result<TrainingFit> {
+    let calm = if rate_noise {
+        CALM_RATE_RADPS
+    } else {
+        f64::INFINITY
+    };
     check_fit_trajectories(trajectories)?;
     let mut test_rows = HashSet::new();
     for &n in &AKIT_TEST_TRAJECTORIES {
@@ -301,7 +328,7 @@ pub fn fit_training(dir: &Path, config: &Config, trajectories: &[u32]) -> Result
         .map(|t| (t - offset_mean).abs())
         .fold(0.0, f64::max);
     // The residuals at each trajectory's own calibration, for the Gauss-Markov fit.
-    let residuals: Vec<Vec<Option<Vector3<f64>>>> = cals
+    let residuals: Vec<Vec<Option<RateResidual>>> = cals
         .par_iter()
         .map(|c| {
             let mut cfg = config.clone();
@@ -326,20 +353,29 @@ pub fn fit_training(dir: &Path, config: &Config, trajectories: &[u32]) -> Result
                     c.scale_factor_error,
                     &Vector3::from(c.misalignment_rad),
                 );
-                out.push(Some(epoch.reference_velocity - predicted));
+                let rr = epoch.reference_velocity - predicted;
+                out.push(Some((rr, truth.angular_rate.norm())));
             }
             Ok(out)
         })
         .collect::<Result<_>>()?;
+    // With the rate-dependent noise: the Gauss-Markov part from the calm epochs (both
+    // ends of a pair below CALM_RATE_RADPS), the rate-dependent part from all epochs.
+    // Without: the Gauss-Markov part from all epochs.
     let mut sums = [0.0; 3];
     let mut counts = [0usize; 3];
     for series in &residuals {
         for (i, r) in series.iter().enumerate() {
-            let Some(r) = r else { continue };
+            let Some((r, w)) = r else { continue };
+            if *w >= calm {
+                continue;
+            }
             for (lag, (sum, count)) in sums.iter_mut().zip(counts.iter_mut()).enumerate() {
-                if let Some(Some(s)) = series.get(i + lag) {
-                    *sum += r.dot(s);
-                    *count += 3;
+                if let Some(Some((s, ws))) = series.get(i + lag) {
+                    if *ws < calm {
+                        *sum += r.dot(s);
+                        *count += 3;
+                    }
                 }
             }
         }
@@ -349,9 +385,22 @@ pub fn fit_training(dir: &Path, config: &Config, trajectories: &[u32]) -> Result
     if !(c[1] > 0.0 && decay > 0.0 && decay < 1.0) {
         return Err(PipelineError::Invalid(format!(
             "the training residuals have no Gauss-Markov structure to fit \
-             (autocovariances at lags 0, 1, 2: {c:?})"
+             (autocovariances at lags 0, 1, 2 of the calm epochs: {c:?})"
         )));
     }
+    // kappa^2: least squares through the origin of (mean square per axis - c_0) on
+    // |omega|^2 over every epoch.
+    let (mut num, mut den) = (0.0, 0.0);
+    for (r, w) in residuals.iter().flatten().flatten() {
+        let w2 = w * w;
+        num += (r.norm_squared() / 3.0 - c[0]) * w2;
+        den += w2 * w2;
+    }
+    let rate_noise = if rate_noise && den > 0.0 {
+        (num / den).max(0.0).sqrt()
+    } else {
+        0.0
+    };
     let interval = dvl_interval(dir, config, trajectories)?;
     let bias_var = c[1] / decay;
     Ok(TrainingFit {
@@ -370,6 +419,7 @@ pub fn fit_training(dir: &Path, config: &Config, trajectories: &[u32]) -> Result
         bias_std_mps: bias_var.sqrt(),
         bias_time_constant_s: -interval / decay.ln(),
         white_std_mps: (c[0] - bias_var).max(1e-6).sqrt(),
+        rate_noise_mps_per_radps: rate_noise,
         calibrations: cals,
     })
 }
@@ -635,7 +685,7 @@ fn run_augmented(
     };
     let mut nav =
         AugmentedNavigator::with_dvl(&settings, states, nominal0, dvl0, p0, scenario.imu_dt)?;
-    let model = AugmentedDvlModel::new(r)?;
+    let model = AugmentedDvlModel::new(r)?.with_rate_noise(fit.rate_noise_mps_per_radps)?;
     let (mut nees_values, mut nis, mut position) = (Vec::new(), Vec::new(), Vec::new());
     let mut fed = 0;
     let stopped = |e: NavigatorError| -> Result<String> {
@@ -699,7 +749,7 @@ pub fn markdown(e: &Evaluation) -> String {
         "Fit on training trajectories {:?} (4 and 13 never used): lever arm [{:.3}, {:.3}, {:.3}] m, \
          scale-factor error {:+.5}, misalignment [{:+.5}, {:+.5}, {:+.5}] rad; time offset prior \
          {:.3} s +- {:.3} s (training offsets {}); bias Gauss-Markov sigma {:.4} m/s, tau {:.1} s; \
-         white residual std {:.4} m/s ({} residual epochs).\n",
+         white residual std {:.4} m/s, rate noise {:.3} m/s per rad/s ({} residual epochs).\n",
         f.trajectories,
         f.lever_arm_m[0],
         f.lever_arm_m[1],
@@ -718,6 +768,7 @@ pub fn markdown(e: &Evaluation) -> String {
         f.bias_std_mps,
         f.bias_time_constant_s,
         f.white_std_mps,
+        f.rate_noise_mps_per_radps,
         f.residual_samples,
     );
     s.push_str(
