@@ -149,3 +149,37 @@ fn evaluation_on_the_test_trajectories_reports_every_run() {
     );
     assert!(text.contains("| 4 (test) |") && text.contains("| 13 (test) |"));
 }
+
+/// The `--states` example of docs/cli.md parses and passes the checks: the command
+/// gets as far as looking for the data.
+#[test]
+fn the_documented_states_file_is_accepted() {
+    let page = include_str!("../docs/cli.md");
+    let section = &page[page
+        .find("## Evaluate the DVL error states")
+        .expect("docs/cli.md section")..];
+    let start = section.find("```toml").expect("a toml block") + "```toml".len();
+    let block = &section[start..];
+    let block = &block[..block.find("```").expect("block end")];
+    let toml: String = block
+        .lines()
+        .map(|l| l.strip_prefix("  ").unwrap_or(l).to_string() + "\n")
+        .collect();
+    assert!(toml.contains("[bias]") && toml.contains("time_constant_s"));
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("states.toml");
+    std::fs::write(&path, toml).expect("write");
+    let out = estim(&[
+        "evaluate",
+        "--data",
+        "/nonexistent",
+        "--states",
+        path.to_str().expect("utf-8 path"),
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("/nonexistent") && !err.contains("states.toml"),
+        "{err}"
+    );
+}
