@@ -54,8 +54,8 @@ fn bad_state_files_are_refused_naming_the_key() {
             "dvl_states.bias.time_constant_s",
         ),
         (
-            "[time_offset]\nestimate = true\nprior_std = 0\n",
-            "dvl_states.time_offset.prior_std",
+            "[time_offset]\nestimate = true\nprior_std_s = 0\n",
+            "dvl_states.time_offset.prior_std_s",
         ),
     ] {
         let path = dir.path().join("states.toml");

@@ -40,9 +40,11 @@ pub struct Args {
     /// TOML configuration of the study (see `estim reproduce --print-config`).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
-    /// TOML of the DVL states (`[scale_factor]`, `[misalignment]`, `[lever_arm]`,
-    /// `[time_offset]` with `estimate`, `prior_std`; `[bias]` with `estimate`,
-    /// `std_mps`, `time_constant_s`), replacing the fitted priors.
+    /// TOML of the DVL states (`[scale_factor]` with `estimate`, `prior_std`;
+    /// `[misalignment]` with `estimate`, `prior_std_rad`; `[lever_arm]` with
+    /// `estimate`, `prior_std_m`; `[time_offset]` with `estimate`, `prior_std_s`;
+    /// `[bias]` with `estimate`, `std_mps`, `time_constant_s`), replacing the fitted
+    /// priors.
     #[arg(long, value_name = "FILE")]
     states: Option<PathBuf>,
     /// Add DVL noise growing with the angular rate, R + κ² |ω|² I, κ fitted on the

@@ -141,15 +141,51 @@ pub struct AugmentedState {
     pub specific_force: Vector3<f64>,
 }
 
-/// One DVL state group's settings: estimated or not, and its prior 1-sigma.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct StateConfig {
-    /// Estimate this state (else it stays at its initial value, zero variance).
-    pub estimate: bool,
-    /// Prior 1-sigma per axis (unit of the state: see [`DvlStatesConfig`]).
-    pub prior_std: f64,
+macro_rules! state_config {
+    ($(#[$doc:meta])* $name:ident, $field:ident, $unit:literal) => {
+        $(#[$doc])*
+        #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+        #[serde(deny_unknown_fields)]
+        pub struct $name {
+            /// Estimate this state (else it stays at its initial value, zero variance).
+            pub estimate: bool,
+            #[doc = concat!("Prior 1-sigma per axis ", $unit, ".")]
+            pub $field: f64,
+        }
+
+        impl $name {
+            /// (estimated, prior 1-sigma).
+            pub fn prior(&self) -> (bool, f64) {
+                (self.estimate, self.$field)
+            }
+        }
+    };
 }
+
+state_config!(
+    /// Scale-factor error settings (`prior_std` dimensionless).
+    ScaleFactorState,
+    prior_std,
+    "(dimensionless)"
+);
+state_config!(
+    /// Mounting-misalignment settings (`prior_std_rad`).
+    MisalignmentState,
+    prior_std_rad,
+    "\\[rad\\]"
+);
+state_config!(
+    /// Lever-arm settings (`prior_std_m`).
+    LeverArmState,
+    prior_std_m,
+    "\\[m\\]"
+);
+state_config!(
+    /// Time-offset settings (`prior_std_s`).
+    TimeOffsetState,
+    prior_std_s,
+    "\\[s\\]"
+);
 
 /// The velocity-bias settings: a first-order Gauss-Markov process per DVL axis.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -169,40 +205,40 @@ pub struct BiasConfig {
 #[serde(default, deny_unknown_fields)]
 pub struct DvlStatesConfig {
     /// Scale-factor error (default estimated, prior 1-sigma 0.005).
-    pub scale_factor: StateConfig,
+    pub scale_factor: ScaleFactorState,
     /// Mounting misalignment \[rad\] (default estimated, prior 1-sigma 0.01 rad).
-    pub misalignment: StateConfig,
+    pub misalignment: MisalignmentState,
     /// Velocity bias (default estimated, 0.01 m/s, 60 s).
     pub bias: BiasConfig,
     /// Lever arm \[m\] (default estimated, prior 1-sigma 0.1 m).
-    pub lever_arm: StateConfig,
+    pub lever_arm: LeverArmState,
     /// Time offset \[s\] (default estimated, prior 1-sigma 0.5 s).
-    pub time_offset: StateConfig,
+    pub time_offset: TimeOffsetState,
 }
 
 impl Default for DvlStatesConfig {
     fn default() -> Self {
         Self {
-            scale_factor: StateConfig {
+            scale_factor: ScaleFactorState {
                 estimate: true,
                 prior_std: 0.005,
             },
-            misalignment: StateConfig {
+            misalignment: MisalignmentState {
                 estimate: true,
-                prior_std: 0.01,
+                prior_std_rad: 0.01,
             },
             bias: BiasConfig {
                 estimate: true,
                 std_mps: 0.01,
                 time_constant_s: 60.0,
             },
-            lever_arm: StateConfig {
+            lever_arm: LeverArmState {
                 estimate: true,
-                prior_std: 0.1,
+                prior_std_m: 0.1,
             },
-            time_offset: StateConfig {
+            time_offset: TimeOffsetState {
                 estimate: true,
-                prior_std: 0.5,
+                prior_std_s: 0.5,
             },
         }
     }
@@ -230,16 +266,15 @@ impl DvlStatesConfig {
     /// 0.1, misalignment 0.1 rad, lever arm 10 m, time offset 5 s).
     pub fn check(&self) -> Result<()> {
         let groups = [
-            ("scale_factor", self.scale_factor, 0.1),
-            ("misalignment", self.misalignment, 0.1),
-            ("lever_arm", self.lever_arm, 10.0),
-            ("time_offset", self.time_offset, 5.0),
+            ("scale_factor.prior_std", self.scale_factor.prior(), 0.1),
+            ("misalignment.prior_std_rad", self.misalignment.prior(), 0.1),
+            ("lever_arm.prior_std_m", self.lever_arm.prior(), 10.0),
+            ("time_offset.prior_std_s", self.time_offset.prior(), 5.0),
         ];
-        for (name, s, max) in groups {
-            if s.estimate && !(s.prior_std.is_finite() && s.prior_std > 0.0 && s.prior_std <= max) {
+        for (key, (estimate, std), max) in groups {
+            if estimate && !(std.is_finite() && std > 0.0 && std <= max) {
                 return Err(NavigatorError::Config(format!(
-                    "dvl_states.{name}.prior_std: {} is not in (0, {max}]",
-                    s.prior_std
+                    "dvl_states.{key}: {std} is not in (0, {max}]"
                 )));
             }
         }
@@ -263,20 +298,20 @@ impl DvlStatesConfig {
 
     /// Prior variance of each DVL state (zero for a state not estimated).
     pub fn prior_variances(&self) -> SVector<f64, DVL_STATES> {
-        let v = |s: StateConfig| if s.estimate { s.prior_std.powi(2) } else { 0.0 };
+        let v = |(estimate, std): (bool, f64)| if estimate { std * std } else { 0.0 };
         let b = if self.bias.estimate {
             self.bias.std_mps.powi(2)
         } else {
             0.0
         };
         let mut out = SVector::<f64, DVL_STATES>::zeros();
-        out[0] = v(self.scale_factor);
+        out[0] = v(self.scale_factor.prior());
         for i in 0..3 {
-            out[1 + i] = v(self.misalignment);
+            out[1 + i] = v(self.misalignment.prior());
             out[4 + i] = b;
-            out[7 + i] = v(self.lever_arm);
+            out[7 + i] = v(self.lever_arm.prior());
         }
-        out[10] = v(self.time_offset);
+        out[10] = v(self.time_offset.prior());
         out
     }
 }
@@ -1449,12 +1484,16 @@ mod tests {
         let e = c.check().unwrap_err().to_string();
         assert!(e.contains("dvl_states.bias.time_constant_s"), "{e}");
         let mut c = DvlStatesConfig::default();
-        c.time_offset.prior_std = f64::NAN;
+        c.time_offset.prior_std_s = f64::NAN;
         let e = c.check().unwrap_err().to_string();
-        assert!(e.contains("dvl_states.time_offset.prior_std"), "{e}");
+        assert!(e.contains("dvl_states.time_offset.prior_std_s"), "{e}");
+        let mut c = DvlStatesConfig::default();
+        c.lever_arm.prior_std_m = 11.0;
+        let e = c.check().unwrap_err().to_string();
+        assert!(e.contains("dvl_states.lever_arm.prior_std_m"), "{e}");
         // Not estimated: its values are not used and not checked.
         let mut c = DvlStatesConfig::none();
-        c.time_offset.prior_std = -1.0;
+        c.time_offset.prior_std_s = -1.0;
         assert!(c.check().is_ok());
         #[cfg(feature = "cli")]
         {

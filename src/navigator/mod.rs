@@ -34,8 +34,8 @@ pub use aiding::{DepthModel, PositionFixModel};
 pub use augmented::{
     AugmentedDvlModel, AugmentedErrorModel, AugmentedMatrix, AugmentedNavigator, AugmentedSolution,
     AugmentedState, AugmentedVector, BiasConfig, DvlParameters, DvlStateSolution, DvlStatesConfig,
-    Lifted, StateConfig, AUGMENTED_STATES, DVL_BIAS, DVL_LEVER_ARM, DVL_MISALIGNMENT, DVL_SCALE,
-    DVL_STATES, DVL_TIME_OFFSET,
+    LeverArmState, Lifted, MisalignmentState, ScaleFactorState, TimeOffsetState, AUGMENTED_STATES,
+    DVL_BIAS, DVL_LEVER_ARM, DVL_MISALIGNMENT, DVL_SCALE, DVL_STATES, DVL_TIME_OFFSET,
 };
 pub use batch::{
     coarse_alignment, navigate, navigate_learned, navigate_with, Alignment, DepthSample, DvlInput,

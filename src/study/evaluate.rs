@@ -50,7 +50,8 @@ use std::path::Path;
 use estim::datasets::{load_dvl_with, load_gt_with, trajectory_files};
 use estim::navigator::{
     AugmentedDvlModel, AugmentedNavigator, BiasConfig, DvlConfig, DvlParameters, DvlStatesConfig,
-    GateConfig, NavigatorConfig, NavigatorError, StateConfig,
+    GateConfig, LeverArmState, MisalignmentState, NavigatorConfig, NavigatorError,
+    ScaleFactorState, TimeOffsetState,
 };
 use estim_core::consistency::nees;
 use estim_core::nalgebra::{Matrix3, Rotation3, Vector3};
@@ -145,26 +146,26 @@ impl TrainingFit {
     /// The DVL states of this fit (all estimated).
     pub fn states(&self) -> DvlStatesConfig {
         DvlStatesConfig {
-            scale_factor: StateConfig {
+            scale_factor: ScaleFactorState {
                 estimate: true,
                 prior_std: self.scale_factor_std,
             },
-            misalignment: StateConfig {
+            misalignment: MisalignmentState {
                 estimate: true,
-                prior_std: self.misalignment_std_rad,
+                prior_std_rad: self.misalignment_std_rad,
             },
             bias: BiasConfig {
                 estimate: true,
                 std_mps: self.bias_std_mps,
                 time_constant_s: self.bias_time_constant_s,
             },
-            lever_arm: StateConfig {
+            lever_arm: LeverArmState {
                 estimate: true,
-                prior_std: self.lever_arm_std_m,
+                prior_std_m: self.lever_arm_std_m,
             },
-            time_offset: StateConfig {
+            time_offset: TimeOffsetState {
                 estimate: true,
-                prior_std: self.time_offset_std_s,
+                prior_std_s: self.time_offset_std_s,
             },
         }
     }
