@@ -70,6 +70,7 @@ fn bad_state_files_are_refused_naming_the_key() {
         assert_eq!(out.status.code(), Some(2), "{text}");
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(err.contains(key), "{text}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "one line: {err}");
     }
 }
 

@@ -76,8 +76,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(path) => {
             let text = std::fs::read_to_string(path)
                 .with_context(|| format!("{}: cannot read", path.display()))?;
-            let states: DvlStatesConfig =
-                toml::from_str(&text).with_context(|| format!("{}", path.display()))?;
+            // One line: the line number and the message, not toml's multi-line report.
+            let states: DvlStatesConfig = toml::from_str(&text).map_err(|e| {
+                let line = e
+                    .span()
+                    .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
+                match line {
+                    Some(l) => anyhow::anyhow!("{}: line {l}: {}", path.display(), e.message()),
+                    None => anyhow::anyhow!("{}: {}", path.display(), e.message()),
+                }
+            })?;
             states
                 .check()
                 .with_context(|| format!("{}", path.display()))?;
