@@ -8,6 +8,7 @@ mod beamsnet;
 mod compare;
 mod dataset;
 mod dvl;
+mod evaluate;
 mod learned;
 mod learned_scenarios;
 mod montecarlo;
@@ -42,6 +43,9 @@ enum Command {
     /// Paired comparisons of filter variants on all A-KIT trajectories, innovation
     /// gate off: mean paired differences with 95 % t confidence intervals.
     Compare(compare::Args),
+    /// The INS/DVL filter with DVL error states on all A-KIT trajectories, fitted on
+    /// the training trajectories only: NEES, NIS, position RMSE per trajectory.
+    Evaluate(evaluate::Args),
     /// Monte Carlo consistency (NEES / NIS) over seeded simulated missions.
     Montecarlo(montecarlo::Args),
     /// DVL beams: least squares, calibration.
@@ -72,6 +76,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Reproduce(args) => reproduce::run(args),
         Command::Compare(args) => compare::run(args),
+        Command::Evaluate(args) => evaluate::run(args),
         Command::Montecarlo(args) => montecarlo::run(args),
         Command::Dvl(args) => dvl::run(args),
         Command::Beamsnet(args) => beamsnet::run(args),

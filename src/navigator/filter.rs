@@ -38,7 +38,10 @@ pub struct UpdateCounts {
 }
 
 impl UpdateCounts {
-    fn count<const M: usize>(&mut self, report: &UpdateReport<f64, ERROR_STATES, M>) {
+    pub(crate) fn count<const N: usize, const M: usize>(
+        &mut self,
+        report: &UpdateReport<f64, N, M>,
+    ) {
         if report.is_accepted() {
             self.accepted += 1;
             if report.covariance_inflation.is_some() {

@@ -9,6 +9,9 @@
 //!   [`NavSolution`]s (state and 1-sigma per state group);
 //! - [`navigate`]: the batch run over time-merged inputs ([`SurveyInputs`]), with the
 //!   initial state from the configuration, the first fix and a coarse alignment.
+//! - [`AugmentedNavigator`]: the same filter with optional DVL error states (scale
+//!   factor, mounting misalignment, Gauss-Markov velocity bias, lever arm, time
+//!   offset; [`DvlStatesConfig`]), a 26-state error vector;
 //! - [`tune`]: maximum-likelihood noise parameters (IMU white-noise densities, DVL
 //!   beam noise and mismatch, the scale of the paper's M) with standard errors and a
 //!   likelihood-ratio test of M = 0, on A-KIT scenarios or a survey's inputs
@@ -19,6 +22,7 @@
 //! measures the motion at t - tau.
 
 mod aiding;
+mod augmented;
 mod batch;
 mod config;
 mod filter;
@@ -27,6 +31,12 @@ mod smooth;
 pub mod tune;
 
 pub use aiding::{DepthModel, PositionFixModel};
+pub use augmented::{
+    AugmentedDvlModel, AugmentedErrorModel, AugmentedMatrix, AugmentedNavigator, AugmentedSolution,
+    AugmentedState, AugmentedVector, BiasConfig, DvlParameters, DvlStateSolution, DvlStatesConfig,
+    LeverArmState, Lifted, MisalignmentState, ScaleFactorState, TimeOffsetState, AUGMENTED_STATES,
+    DVL_BIAS, DVL_LEVER_ARM, DVL_MISALIGNMENT, DVL_SCALE, DVL_STATES, DVL_TIME_OFFSET,
+};
 pub use batch::{
     coarse_alignment, navigate, navigate_learned, navigate_with, Alignment, DepthSample, DvlInput,
     DvlRecord, InitialAttitude, LearnedCounts, NavigationObserver, NavigationRun, PositionFix,

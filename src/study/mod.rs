@@ -8,6 +8,7 @@
 #![cfg_attr(not(test), allow(dead_code, unused_imports))]
 
 mod config;
+mod evaluate;
 mod faults;
 mod learned;
 mod learned_scenarios;
@@ -24,6 +25,9 @@ pub mod stats;
 mod tune;
 
 pub use config::{Config, PaperMBasis, MAX_SEED};
+pub use evaluate::{
+    check_fit_trajectories, evaluate, fit_training, markdown as evaluation_markdown,
+};
 pub use faults::{apply_faults, DvlOutage, FaultConfig, ImuGap};
 pub use learned::beamsnet_inputs;
 pub use learned_scenarios::{

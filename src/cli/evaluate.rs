@@ -1,0 +1,147 @@
+//! `estim evaluate`: the INS/DVL filter with DVL error states on the A-KIT
+//! trajectories, its parameters fitted on training trajectories only.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use estim::datasets::data_root;
+use estim::navigator::DvlStatesConfig;
+
+use crate::output::emit;
+use crate::schema::{document, path_json, status_result};
+use crate::study::{evaluate, evaluation_markdown, fit_training, Config, MAX_SEED};
+
+/// Arguments of `estim evaluate`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Folder holding A-KIT `TrajectoryN/` (or a data root holding `a-kit/`); else
+    /// `ESTIM_DATA_DIR`, then `../shared/data`.
+    #[arg(long, value_name = "DIR")]
+    data: Option<PathBuf>,
+    /// Trajectories evaluated (repeatable); default all 13.
+    #[arg(long = "trajectory", value_name = "N")]
+    trajectories: Vec<u32>,
+    /// Trajectories the DVL model and states are fitted on (comma-separated); 4 and 13
+    /// are refused.
+    #[arg(
+        long = "fit-trajectories",
+        value_name = "N,N,..",
+        value_delimiter = ',',
+        default_value = "1,2,3,5,6,7,8,9,10,11,12"
+    )]
+    fit_trajectories: Vec<u32>,
+    /// First seed; the seeds are S, S+1, ..., S+seeds-1.
+    #[arg(long = "first-seed", value_name = "S", default_value_t = 2000)]
+    first_seed: u64,
+    /// Number of seeds per trajectory (1-1000).
+    #[arg(long, value_name = "N", default_value_t = 5)]
+    seeds: u64,
+    /// TOML configuration of the study (see `estim reproduce --print-config`).
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// TOML of the DVL states (`[scale_factor]` with `estimate`, `prior_std`;
+    /// `[misalignment]` with `estimate`, `prior_std_rad`; `[lever_arm]` with
+    /// `estimate`, `prior_std_m`; `[time_offset]` with `estimate`, `prior_std_s`;
+    /// `[bias]` with `estimate`, `std_mps`, `time_constant_s`), replacing the fitted
+    /// priors.
+    #[arg(long, value_name = "FILE")]
+    states: Option<PathBuf>,
+    /// Add DVL noise growing with the angular rate, R + κ² |ω|² I, κ fitted on the
+    /// training residuals (the Gauss-Markov bias then from the calm epochs only).
+    #[arg(long)]
+    rate_noise: bool,
+    /// JSON on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Run it. Exit status 2 for bad input (a test trajectory in the fit set), 3 when a
+/// run stopped on a numerical failure (the others are reported).
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let config = match &args.config {
+        Some(path) => Config::from_file(path)?,
+        None => Config::default(),
+    };
+    crate::study::check_fit_trajectories(&args.fit_trajectories)?;
+    if !(1..=1000).contains(&args.seeds) {
+        anyhow::bail!("--seeds {} is outside 1-1000", args.seeds);
+    }
+    let last = args
+        .first_seed
+        .checked_add(args.seeds - 1)
+        .filter(|s| *s <= MAX_SEED)
+        .with_context(|| format!("--first-seed plus --seeds exceeds {MAX_SEED}"))?;
+    let states = match &args.states {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("{}: cannot read", path.display()))?;
+            // One line: the line number and the message, not toml's multi-line report.
+            let states: DvlStatesConfig = toml::from_str(&text).map_err(|e| {
+                let line = e
+                    .span()
+                    .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
+                match line {
+                    Some(l) => anyhow::anyhow!("{}: line {l}: {}", path.display(), e.message()),
+                    None => anyhow::anyhow!("{}: {}", path.display(), e.message()),
+                }
+            })?;
+            states
+                .check()
+                .with_context(|| format!("{}", path.display()))?;
+            Some(states)
+        }
+        None => None,
+    };
+    let dir = data_root(args.data.as_deref()).context(
+        "evaluate needs the A-KIT data: pass --data DIR, set ESTIM_DATA_DIR, \
+         or place it at ../shared/data",
+    )?;
+    let trajectories = if args.trajectories.is_empty() {
+        (1..=13).collect()
+    } else {
+        args.trajectories.clone()
+    };
+    let seeds: Vec<u64> = (args.first_seed..=last).collect();
+    let fit = fit_training(&dir, &config, &args.fit_trajectories, args.rate_noise)?;
+    let evaluation = evaluate(&dir, &config, fit, states, &trajectories, &seeds)?;
+    let failures = evaluation.failures.len();
+    if args.json {
+        let inputs = serde_json::json!({
+            "data": path_json(args.data.as_deref()),
+            "trajectories": trajectories,
+            "fit_trajectories": args.fit_trajectories,
+            "seeds": seeds,
+            "config_file": path_json(args.config.as_deref()),
+            "states_file": path_json(args.states.as_deref()),
+            "rate_noise": args.rate_noise,
+            "config": config,
+        });
+        let body = serde_json::json!({ "evaluation": evaluation, "failures": evaluation.failures });
+        let doc = document("evaluate", inputs, failures, body);
+        emit(&format!("{}\n", serde_json::to_string_pretty(&doc)?))?;
+    } else {
+        let mut text = String::new();
+        writeln!(
+            text,
+            "INS/DVL filter with DVL error states (scale factor, misalignment, Gauss-Markov \
+             bias, lever arm, time offset); {} trajectories x {} seeds ({}-{}), gate \
+             probability {}.\n\
+             IMU synthesized from the ground truth (error model `{}`), DVL real (LS: beams by \
+             the BeamsNet protocol from the real DVL); the seeds redraw only the synthetic \
+             noise. NEES over the 15 INS states against truth.\n",
+            trajectories.len(),
+            seeds.len(),
+            args.first_seed,
+            last,
+            config.filter.gate_probability,
+            config.imu.preset,
+        )?;
+        text.push_str(&evaluation_markdown(&evaluation));
+        for f in &evaluation.failures {
+            writeln!(text, "FAILED: {f}")?;
+        }
+        emit(&text)?;
+    }
+    status_result(failures)
+}

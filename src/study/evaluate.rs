@@ -1,0 +1,899 @@
+//! `estim evaluate`: the INS/DVL filter with DVL error states
+//! ([`estim::navigator::AugmentedNavigator`]) on every A-KIT trajectory, its
+//! parameters fitted on training trajectories only.
+//!
+//! # Fit ([`fit_training`])
+//!
+//! Only the trajectories given (default: the 11 training ones); 4 and 13 are refused
+//! ([`AKIT_TEST_TRAJECTORIES`]), and the DVL rows a training trajectory shares with
+//! 4 or 13 (the segments overlap, data README) are left out of every fit.
+//!
+//! 1. Per training trajectory, `estim_dvl::Calibrator` (lever arm, scale factor,
+//!    misalignment, time offset within +-3 s) on its ground truth and DVL log.
+//! 2. The DVL model's initial values: the mean of the training calibrations (lever
+//!    arm, scale-factor error, misalignment); the time offset's prior mean is the mean
+//!    of the training offsets, applied as the shift of the DVL time stamps, and the
+//!    online time-offset state estimates what remains. The training offsets fall in
+//!    two groups (about -1.48 s and -0.55 s), so the state's prior 1-sigma is the
+//!    larger of their RMS deviation from the mean and half the largest deviation:
+//!    it covers both groups.
+//! 3. The prior 1-sigma of scale factor, misalignment and lever arm: the RMS
+//!    deviation of the training calibrations from their mean (largest axis), at least
+//!    the mean standard error of the calibrations.
+//! 4. The velocity bias: the residual r = y_DVL - h(truth) of each training trajectory
+//!    at its own calibration is modelled as a first-order Gauss-Markov process plus
+//!    white noise; its autocovariances at lags 1 and 2 (pooled over trajectories and
+//!    axes, consecutive DVL epochs only) give e^{-Δ/τ} = c_2 / c_1,
+//!    σ_b² = c_1 e^{Δ/τ}, and the white part σ_w² = c_0 - σ_b² (at least 1e-6 m²/s²),
+//!    which is added to R in place of `dvl.akit_reference_mismatch_std_mps`. Without
+//!    a Gauss-Markov part (c_1 <= 0 or c_2 / c_1 outside (0, 1)) the bias is not
+//!    estimated and σ_w² = c_0.
+//! 5. Optionally (`estim evaluate --rate-noise`), DVL noise growing with the angular
+//!    rate, R + κ² |ω|² I ([`estim::navigator::AugmentedDvlModel::with_rate_noise`]):
+//!    step 4 then uses the calm epochs only (|ω| below [`CALM_RATE_RADPS`] at both
+//!    ends of a pair), and κ² is the least-squares slope through the origin of
+//!    (mean square residual per axis - c_0) on |ω|² over every epoch. On A-KIT the
+//!    residual RMS grows from about 0.02 m/s below 0.02 rad/s to about 0.1 m/s
+//!    above 0.1 rad/s.
+//!
+//! # Evaluation ([`evaluate`])
+//!
+//! Per (trajectory, seed): the study's scenario (IMU synthesized from the ground
+//! truth with the configured error model and the seed; the real DVL, beams by the
+//! BeamsNet protocol), the augmented filter fed the least-squares DVL velocity (`ls`)
+//! and BeamsNet's with M neglected (`beamsnet_m_neglected`), gate as configured. Per
+//! run: time-averaged NEES of the 15 INS states against truth, time-averaged NIS
+//! (3 dof), position RMSE. A trajectory meets the NEES band when its seed-mean NEES
+//! is within [0.5, 2] x 15, the NIS band when its NIS is within [0.5, 2] x 3.
+
+use std::collections::HashSet;
+use std::path::Path;
+
+use estim::datasets::{load_dvl_with, load_gt_with, trajectory_files};
+use estim::navigator::{
+    AugmentedDvlModel, AugmentedNavigator, BiasConfig, DvlConfig, DvlParameters, DvlStatesConfig,
+    GateConfig, LeverArmState, MisalignmentState, NavigatorConfig, NavigatorError,
+    ScaleFactorState, TimeOffsetState,
+};
+use estim_core::consistency::nees;
+use estim_core::nalgebra::{Matrix3, Rotation3, Vector3};
+use estim_dvl::{dvl_frame_velocity, Calibrator, DvlMeasurement, TrajectorySample};
+use estim_ins::{ERROR_STATES, POS};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::stats::{error_summary, finite_mean};
+use super::{
+    beamsnet_without_sensitivity, error_state, initial_covariance, initial_nominal,
+    least_squares_velocities, Config, PipelineError, Result, Scenario, AKIT_TEST_TRAJECTORIES,
+    BEAMSNET_NEGLECTED, LS,
+};
+
+/// The A-KIT training trajectories (all but 4 and 13).
+pub const AKIT_TRAINING_TRAJECTORIES: [u32; 11] = [1, 2, 3, 5, 6, 7, 8, 9, 10, 11, 12];
+
+/// The variants evaluated.
+pub const EVALUATED_VARIANTS: [&str; 2] = [LS, BEAMSNET_NEGLECTED];
+
+/// Angular rate below which an epoch counts as calm for the Gauss-Markov fit
+/// \[rad/s\].
+pub const CALM_RATE_RADPS: f64 = 0.02;
+
+/// The NEES and NIS bands: [0.5, 2] x the degrees of freedom.
+pub const BAND: [f64; 2] = [0.5, 2.0];
+
+/// A DVL residual against the truth \[m/s\] and the angular rate |ω| \[rad/s\] at
+/// its epoch.
+type RateResidual = (Vector3<f64>, f64);
+
+/// One training trajectory's calibration.
+#[derive(Debug, Clone, Serialize)]
+pub struct TrajectoryCalibration {
+    /// A-KIT trajectory.
+    pub trajectory: u32,
+    /// DVL rows used (those shared with 4 or 13 left out).
+    pub samples: usize,
+    /// Lever arm \[m\].
+    pub lever_arm_m: [f64; 3],
+    /// Scale-factor error.
+    pub scale_factor_error: f64,
+    /// Mounting misalignment \[rad\].
+    pub misalignment_rad: [f64; 3],
+    /// Time offset \[s\].
+    pub time_offset_s: f64,
+    /// Residual RMS per axis at the calibration \[m/s\].
+    pub residual_rms_mps: [f64; 3],
+}
+
+/// What [`fit_training`] found.
+#[derive(Debug, Clone, Serialize)]
+pub struct TrainingFit {
+    /// The trajectories fitted on.
+    pub trajectories: Vec<u32>,
+    /// Per trajectory.
+    pub calibrations: Vec<TrajectoryCalibration>,
+    /// Mean lever arm \[m\].
+    pub lever_arm_m: [f64; 3],
+    /// Mean scale-factor error.
+    pub scale_factor_error: f64,
+    /// Mean misalignment \[rad\].
+    pub misalignment_rad: [f64; 3],
+    /// Prior mean of the time offset (the stamp shift) \[s\].
+    pub time_offset_s: f64,
+    /// Prior 1-sigma of the time-offset state \[s\].
+    pub time_offset_std_s: f64,
+    /// Prior 1-sigma of the scale-factor error.
+    pub scale_factor_std: f64,
+    /// Prior 1-sigma of the misalignment \[rad\].
+    pub misalignment_std_rad: f64,
+    /// Prior 1-sigma of the lever arm \[m\].
+    pub lever_arm_std_m: f64,
+    /// Residual epochs used for the Gauss-Markov fit.
+    pub residual_samples: usize,
+    /// Pooled residual autocovariances at lags 0, 1, 2 \[m^2/s^2\].
+    pub autocovariance: [f64; 3],
+    /// DVL sample interval Δ \[s\] (median).
+    pub dvl_interval_s: f64,
+    /// Whether the residuals have a Gauss-Markov part (a positive lag-1
+    /// autocovariance and 0 < c_2 / c_1 < 1); if not, the bias is not estimated and
+    /// the whole residual is white.
+    pub bias_estimated: bool,
+    /// Gauss-Markov bias sigma \[m/s\] (0 without a Gauss-Markov part).
+    pub bias_std_mps: f64,
+    /// Gauss-Markov bias time constant \[s\].
+    pub bias_time_constant_s: f64,
+    /// White residual std \[m/s\], added to R.
+    pub white_std_mps: f64,
+    /// Rate-dependent noise κ \[m/s per rad/s\]: R grows by κ² |ω|² I.
+    pub rate_noise_mps_per_radps: f64,
+}
+
+impl TrainingFit {
+    /// The DVL states of this fit (all estimated).
+    pub fn states(&self) -> DvlStatesConfig {
+        DvlStatesConfig {
+            scale_factor: ScaleFactorState {
+                estimate: true,
+                prior_std: self.scale_factor_std,
+            },
+            misalignment: MisalignmentState {
+                estimate: true,
+                prior_std_rad: self.misalignment_std_rad,
+            },
+            bias: BiasConfig {
+                estimate: self.bias_estimated,
+                std_mps: self.bias_std_mps,
+                time_constant_s: self.bias_time_constant_s,
+            },
+            lever_arm: LeverArmState {
+                estimate: true,
+                prior_std_m: self.lever_arm_std_m,
+            },
+            time_offset: TimeOffsetState {
+                estimate: true,
+                prior_std_s: self.time_offset_std_s,
+            },
+        }
+    }
+
+    /// The DVL mounting of this fit as the navigator's configuration.
+    pub fn dvl_config(&self) -> DvlConfig {
+        DvlConfig {
+            lever_arm_m: self.lever_arm_m,
+            mounting_misalignment_rad: self.misalignment_rad,
+            scale_factor: 1.0 + self.scale_factor_error,
+            ..DvlConfig::default()
+        }
+    }
+}
+
+/// Refuse the test trajectories, an empty list and repeats.
+///
+/// # Errors
+/// [`PipelineError::Invalid`] naming the trajectory.
+pub fn check_fit_trajectories(trajectories: &[u32]) -> Result<()> {
+    if trajectories.is_empty() {
+        return Err(PipelineError::Invalid(
+            "--fit-trajectories: no trajectory to fit on".into(),
+        ));
+    }
+    for (i, n) in trajectories.iter().enumerate() {
+        if AKIT_TEST_TRAJECTORIES.contains(n) {
+            return Err(PipelineError::Invalid(format!(
+                "--fit-trajectories: trajectory {n} is an A-KIT test trajectory \
+                 (4 and 13 are never used for fitting)"
+            )));
+        }
+        if trajectories[..i].contains(n) {
+            return Err(PipelineError::Invalid(format!(
+                "--fit-trajectories: trajectory {n} given twice"
+            )));
+        }
+    }
+    Ok(())
+}
+
+fn bits(v: &[f64; 3]) -> [u64; 3] {
+    v.map(f64::to_bits)
+}
+
+fn mean3(values: impl Iterator<Item = [f64; 3]>) -> [f64; 3] {
+    let (mut sum, mut n) = ([0.0; 3], 0.0);
+    for v in values {
+        for i in 0..3 {
+            sum[i] += v[i];
+        }
+        n += 1.0;
+    }
+    sum.map(|s| s / n)
+}
+
+/// RMS deviation from the mean, largest axis.
+fn spread3(values: &[[f64; 3]]) -> f64 {
+    let m = mean3(values.iter().copied());
+    (0..3)
+        .map(|i| {
+            (values.iter().map(|v| (v[i] - m[i]).powi(2)).sum::<f64>() / values.len() as f64).sqrt()
+        })
+        .fold(0.0, f64::max)
+}
+
+/// Fit the DVL model and its error states on `trajectories` (see the module docs).
+///
+/// # Errors
+/// A test trajectory (4, 13) or a repeat in `trajectories`; loader errors (file and
+/// line); a calibration failure (naming the trajectory). Residuals without a
+/// Gauss-Markov part are not an error: the bias is then not estimated
+/// ([`TrainingFit::bias_estimated`]).
+pub fn fit_training(
+    dir: &Path,
+    config: &Config,
+    trajectories: &[u32],
+    rate_noise: bool,
+) -> Result<TrainingFit> {
+    let calm = if rate_noise {
+        CALM_RATE_RADPS
+    } else {
+        f64::INFINITY
+    };
+    check_fit_trajectories(trajectories)?;
+    let mut test_rows = HashSet::new();
+    for &n in &AKIT_TEST_TRAJECTORIES {
+        let files = trajectory_files(dir, n)?;
+        for row in load_dvl_with(&files.dvl, &config.columns)? {
+            test_rows.insert(bits(&row.velocity_body));
+        }
+    }
+    let calibrator = Calibrator::builder()
+        .build()
+        .map_err(|e| PipelineError::Invalid(e.to_string()))?;
+    let calibrations: Vec<(TrajectoryCalibration, [f64; 3])> = trajectories
+        .par_iter()
+        .map(|&n| {
+            let files = trajectory_files(dir, n)?;
+            let gt = load_gt_with(&files.gt, &config.columns)?;
+            let dvl = load_dvl_with(&files.dvl, &config.columns)?;
+            let reference: Vec<TrajectorySample> = gt
+                .iter()
+                .map(|s| TrajectorySample {
+                    time: s.time,
+                    velocity_ned: Vector3::from(s.velocity_ned),
+                    roll_pitch_yaw: Vector3::from(s.roll_pitch_yaw),
+                })
+                .collect();
+            let log: Vec<DvlMeasurement> = dvl
+                .iter()
+                .filter(|s| !test_rows.contains(&bits(&s.velocity_body)))
+                .map(|s| DvlMeasurement {
+                    time: s.time,
+                    velocity: Vector3::from(s.velocity_body),
+                })
+                .collect();
+            let c = calibrator.calibrate(&reference, &log).map_err(|e| {
+                PipelineError::Invalid(format!("calibration of A-KIT trajectory {n}: {e}"))
+            })?;
+            let standard_errors = [
+                c.scale_factor_error.standard_error,
+                c.mounting_misalignment
+                    .iter()
+                    .map(|e| e.standard_error)
+                    .fold(0.0, f64::max),
+                c.lever_arm
+                    .iter()
+                    .map(|e| e.standard_error)
+                    .fold(0.0, f64::max),
+            ];
+            Ok((
+                TrajectoryCalibration {
+                    trajectory: n,
+                    samples: c.samples,
+                    lever_arm_m: c.lever_arm_vector().into(),
+                    scale_factor_error: c.scale_factor_error.value,
+                    misalignment_rad: c.mounting_misalignment_vector().into(),
+                    time_offset_s: c.time_offset.value,
+                    residual_rms_mps: c.residual_rms.into(),
+                },
+                standard_errors,
+            ))
+        })
+        .collect::<Result<_>>()?;
+    let k = calibrations.len() as f64;
+    let se = mean3(calibrations.iter().map(|(_, s)| *s));
+    let cals: Vec<TrajectoryCalibration> = calibrations.into_iter().map(|(c, _)| c).collect();
+    let lever: Vec<[f64; 3]> = cals.iter().map(|c| c.lever_arm_m).collect();
+    let mis: Vec<[f64; 3]> = cals.iter().map(|c| c.misalignment_rad).collect();
+    let scale: Vec<[f64; 3]> = cals.iter().map(|c| [c.scale_factor_error; 3]).collect();
+    let offsets: Vec<f64> = cals.iter().map(|c| c.time_offset_s).collect();
+    let offset_mean = offsets.iter().sum::<f64>() / k;
+    let offset_rms = (offsets
+        .iter()
+        .map(|t| (t - offset_mean).powi(2))
+        .sum::<f64>()
+        / k)
+        .sqrt();
+    let offset_max = offsets
+        .iter()
+        .map(|t| (t - offset_mean).abs())
+        .fold(0.0, f64::max);
+    // The residuals at each trajectory's own calibration, for the Gauss-Markov fit.
+    let residuals: Vec<Vec<Option<RateResidual>>> = cals
+        .par_iter()
+        .map(|c| {
+            let mut cfg = config.clone();
+            cfg.dvl.akit_time_offset_s = c.time_offset_s;
+            let scenario = Scenario::akit(dir, c.trajectory, &cfg, cfg.seed)?;
+            let mut out = Vec::with_capacity(scenario.dvl.len());
+            for epoch in &scenario.dvl {
+                if test_rows.contains(&bits(&epoch.reference_velocity.into())) {
+                    out.push(None);
+                    continue;
+                }
+                let truth = scenario.truth.get(epoch.imu_index).ok_or_else(|| {
+                    PipelineError::Invalid(format!(
+                        "A-KIT trajectory {}: DVL epoch beyond the truth",
+                        c.trajectory
+                    ))
+                })?;
+                let predicted = dvl_frame_velocity(
+                    &(truth.attitude.inverse() * truth.velocity_ned),
+                    &truth.angular_rate,
+                    &Vector3::from(c.lever_arm_m),
+                    c.scale_factor_error,
+                    &Vector3::from(c.misalignment_rad),
+                );
+                let rr = epoch.reference_velocity - predicted;
+                out.push(Some((rr, truth.angular_rate.norm())));
+            }
+            Ok(out)
+        })
+        .collect::<Result<_>>()?;
+    // With the rate-dependent noise: the Gauss-Markov part from the calm epochs (both
+    // ends of a pair below CALM_RATE_RADPS), the rate-dependent part from all epochs.
+    // Without: the Gauss-Markov part from all epochs.
+    let mut sums = [0.0; 3];
+    let mut counts = [0usize; 3];
+    for series in &residuals {
+        for (i, r) in series.iter().enumerate() {
+            let Some((r, w)) = r else { continue };
+            if *w >= calm {
+                continue;
+            }
+            for (lag, (sum, count)) in sums.iter_mut().zip(counts.iter_mut()).enumerate() {
+                if let Some(Some((s, ws))) = series.get(i + lag) {
+                    if *ws < calm {
+                        *sum += r.dot(s);
+                        *count += 3;
+                    }
+                }
+            }
+        }
+    }
+    let c: [f64; 3] = std::array::from_fn(|i| sums[i] / counts[i].max(1) as f64);
+    // kappa^2: least squares through the origin of (mean square per axis - c_0) on
+    // |omega|^2 over every epoch.
+    let (mut num, mut den) = (0.0, 0.0);
+    for (r, w) in residuals.iter().flatten().flatten() {
+        let w2 = w * w;
+        num += (r.norm_squared() / 3.0 - c[0]) * w2;
+        den += w2 * w2;
+    }
+    let rate_noise = if rate_noise && den > 0.0 {
+        (num / den).max(0.0).sqrt()
+    } else {
+        0.0
+    };
+    let interval = dvl_interval(dir, config, trajectories)?;
+    let gm = gauss_markov_from_autocovariance(c, interval);
+    Ok(TrainingFit {
+        trajectories: trajectories.to_vec(),
+        lever_arm_m: mean3(lever.iter().copied()),
+        scale_factor_error: scale.iter().map(|s| s[0]).sum::<f64>() / k,
+        misalignment_rad: mean3(mis.iter().copied()),
+        time_offset_s: offset_mean,
+        time_offset_std_s: offset_rms.max(offset_max / 2.0),
+        scale_factor_std: spread3(&scale).max(se[0]),
+        misalignment_std_rad: spread3(&mis).max(se[1]),
+        lever_arm_std_m: spread3(&lever).max(se[2]),
+        residual_samples: counts[0] / 3,
+        autocovariance: c,
+        dvl_interval_s: interval,
+        bias_estimated: gm.is_some(),
+        bias_std_mps: gm.map_or(0.0, |g| g.0),
+        bias_time_constant_s: gm.map_or(0.0, |g| g.1),
+        white_std_mps: (c[0] - gm.map_or(0.0, |g| g.0 * g.0)).max(1e-6).sqrt(),
+        rate_noise_mps_per_radps: rate_noise,
+        calibrations: cals,
+    })
+}
+
+/// A first-order Gauss-Markov process (sigma, tau) plus white noise from the
+/// autocovariances `c` at lags 0, 1, 2 of a series sampled every `interval`:
+/// e^{-interval/tau} = c_2 / c_1, sigma² = c_1 e^{interval/tau}. `None` when the
+/// series has no such part (c_1 <= 0, or c_2 / c_1 outside (0, 1)).
+pub fn gauss_markov_from_autocovariance(c: [f64; 3], interval: f64) -> Option<(f64, f64)> {
+    let decay = c[2] / c[1];
+    (c[1] > 0.0 && decay > 0.0 && decay < 1.0)
+        .then(|| ((c[1] / decay).sqrt(), -interval / decay.ln()))
+}
+
+/// Median DVL interval over the trajectories \[s\].
+fn dvl_interval(dir: &Path, config: &Config, trajectories: &[u32]) -> Result<f64> {
+    let mut dts = Vec::new();
+    for &n in trajectories {
+        let files = trajectory_files(dir, n)?;
+        let log = load_dvl_with(&files.dvl, &config.columns)?;
+        dts.extend(log.windows(2).map(|w| w[1].time - w[0].time));
+    }
+    dts.sort_by(f64::total_cmp);
+    dts.get(dts.len() / 2)
+        .copied()
+        .filter(|d| *d > 0.0)
+        .ok_or_else(|| PipelineError::Invalid("no DVL interval in the training logs".into()))
+}
+
+/// The numbers of one run.
+#[derive(Debug, Clone, Serialize)]
+pub struct EvaluationRun {
+    /// A-KIT trajectory.
+    pub trajectory: u32,
+    /// Seed.
+    pub seed: u64,
+    /// Variant id.
+    pub id: String,
+    /// Time-averaged NEES of the 15 INS states.
+    pub nees: f64,
+    /// Time-averaged NIS (3 dof).
+    pub nis: f64,
+    /// Position RMSE \[m\].
+    pub position_rmse_m: f64,
+    /// DVL updates accepted / rejected by the gate.
+    pub accepted: usize,
+    /// Rejected.
+    pub rejected: usize,
+    /// Final time-offset estimate beyond the stamp shift \[s\] and its 1-sigma.
+    pub time_offset_s: [f64; 2],
+    /// Final scale-factor error and its 1-sigma.
+    pub scale_factor_error: [f64; 2],
+}
+
+/// Per trajectory and variant, means over the seeds.
+#[derive(Debug, Clone, Serialize)]
+pub struct EvaluationRow {
+    /// A-KIT trajectory.
+    pub trajectory: u32,
+    /// Variant id.
+    pub id: String,
+    /// Runs that completed.
+    pub runs: usize,
+    /// Mean NEES.
+    pub nees: f64,
+    /// Mean NIS.
+    pub nis: f64,
+    /// Mean position RMSE \[m\].
+    pub position_rmse_m: f64,
+    /// NEES within the band.
+    pub nees_in_band: bool,
+    /// NIS within the band.
+    pub nis_in_band: bool,
+    /// Mean final time offset (stamp shift plus state) \[s\].
+    pub time_offset_s: f64,
+}
+
+/// Per variant, how many trajectories meet the bands.
+#[derive(Debug, Clone, Serialize)]
+pub struct EvaluationCount {
+    /// Variant id.
+    pub id: String,
+    /// Trajectories evaluated.
+    pub trajectories: usize,
+    /// Within [0.5, 2] x 15 (NEES).
+    pub nees_in_band: usize,
+    /// Within [0.5, 2] x 3 (NIS).
+    pub nis_in_band: usize,
+}
+
+/// The whole evaluation.
+#[derive(Debug, Clone, Serialize)]
+pub struct Evaluation {
+    /// The fit it used.
+    pub fit: TrainingFit,
+    /// The DVL states (the fit's, or the given ones).
+    pub states: DvlStatesConfig,
+    /// Seeds.
+    pub seeds: Vec<u64>,
+    /// Every completed run.
+    pub runs: Vec<EvaluationRun>,
+    /// Runs that stopped, as text.
+    pub failures: Vec<String>,
+    /// Per trajectory and variant.
+    pub rows: Vec<EvaluationRow>,
+    /// Per variant.
+    pub counts: Vec<EvaluationCount>,
+}
+
+fn in_band(value: f64, dof: f64) -> bool {
+    value >= BAND[0] * dof && value <= BAND[1] * dof
+}
+
+/// Run the augmented filter on `trajectories` x `seeds` with the fit (and `states`
+/// in place of the fitted DVL states when given).
+///
+/// # Errors
+/// An empty or repeated trajectory or seed list; loader and settings errors (a run's
+/// numerical failure is recorded in [`Evaluation::failures`]).
+pub fn evaluate(
+    dir: &Path,
+    config: &Config,
+    fit: TrainingFit,
+    states: Option<DvlStatesConfig>,
+    trajectories: &[u32],
+    seeds: &[u64],
+) -> Result<Evaluation> {
+    if trajectories.is_empty() || seeds.is_empty() {
+        return Err(PipelineError::Invalid(
+            "an evaluation needs at least one trajectory and one seed".into(),
+        ));
+    }
+    for (i, t) in trajectories.iter().enumerate() {
+        if trajectories[..i].contains(t) {
+            return Err(PipelineError::Invalid(format!(
+                "trajectory {t} given twice"
+            )));
+        }
+    }
+    for (i, s) in seeds.iter().enumerate() {
+        if seeds[..i].contains(s) {
+            return Err(PipelineError::Invalid(format!("seed {s} given twice")));
+        }
+    }
+    let states = states.unwrap_or_else(|| fit.states());
+    states.check()?;
+    let learned = beamsnet_without_sensitivity(config)?;
+    let cells: Vec<(u32, u64)> = trajectories
+        .iter()
+        .flat_map(|t| seeds.iter().map(move |s| (*t, *s)))
+        .collect();
+    let outcomes: Vec<Vec<std::result::Result<EvaluationRun, String>>> = cells
+        .par_iter()
+        .map(|&(n, seed)| {
+            let mut cfg = Config {
+                seed,
+                ..config.clone()
+            };
+            cfg.dvl.akit_time_offset_s = fit.time_offset_s;
+            let scenario = Scenario::akit(dir, n, &cfg, seed)?;
+            let white = Matrix3::identity() * fit.white_std_mps.powi(2);
+            let ls = least_squares_velocities(&scenario, &cfg);
+            let ls_r = Matrix3::identity() * cfg.dvl.ls_noise_std.powi(2) + white;
+            let net = learned(&scenario)?;
+            let net_r = net.noise_covariance + white;
+            let jobs = [(LS, ls, ls_r), (BEAMSNET_NEGLECTED, net.velocities, net_r)];
+            jobs.iter()
+                .map(|(id, velocities, r)| {
+                    run_augmented(&scenario, &cfg, &fit, &states, velocities, *r, seed).map(|m| {
+                        m.map(|m| EvaluationRun {
+                            trajectory: n,
+                            seed,
+                            id: id.to_string(),
+                            ..m
+                        })
+                        .map_err(|e| format!("trajectory {n}, seed {seed}, {id}: {e}"))
+                    })
+                })
+                .collect::<Result<Vec<_>>>()
+        })
+        .collect::<Result<_>>()?;
+    let mut runs = Vec::new();
+    let mut failures = Vec::new();
+    for outcome in outcomes.into_iter().flatten() {
+        match outcome {
+            Ok(r) => runs.push(r),
+            Err(f) => failures.push(f),
+        }
+    }
+    let mut rows = Vec::new();
+    for &t in trajectories {
+        for id in EVALUATED_VARIANTS {
+            let mine: Vec<&EvaluationRun> = runs
+                .iter()
+                .filter(|r| r.trajectory == t && r.id == id)
+                .collect();
+            let mean = |f: &dyn Fn(&EvaluationRun) -> f64| {
+                finite_mean(&mine.iter().map(|r| f(r)).collect::<Vec<_>>())
+            };
+            let nees = mean(&|r| r.nees);
+            let nis = mean(&|r| r.nis);
+            rows.push(EvaluationRow {
+                trajectory: t,
+                id: id.to_string(),
+                runs: mine.len(),
+                nees,
+                nis,
+                position_rmse_m: mean(&|r| r.position_rmse_m),
+                nees_in_band: in_band(nees, ERROR_STATES as f64),
+                nis_in_band: in_band(nis, 3.0),
+                time_offset_s: fit.time_offset_s + mean(&|r| r.time_offset_s[0]),
+            });
+        }
+    }
+    let counts = EVALUATED_VARIANTS
+        .iter()
+        .map(|id| {
+            let mine: Vec<&EvaluationRow> = rows.iter().filter(|r| r.id == *id).collect();
+            EvaluationCount {
+                id: id.to_string(),
+                trajectories: mine.len(),
+                nees_in_band: mine.iter().filter(|r| r.nees_in_band).count(),
+                nis_in_band: mine.iter().filter(|r| r.nis_in_band).count(),
+            }
+        })
+        .collect();
+    Ok(Evaluation {
+        fit,
+        states,
+        seeds: seeds.to_vec(),
+        runs,
+        failures,
+        rows,
+        counts,
+    })
+}
+
+/// One run of the augmented filter; `Ok(Err(..))` for a numerical failure of the
+/// filter (a finding), `Err` for invalid input.
+fn run_augmented(
+    scenario: &Scenario,
+    config: &Config,
+    fit: &TrainingFit,
+    states: &DvlStatesConfig,
+    velocities: &[Option<Vector3<f64>>],
+    r: Matrix3<f64>,
+    seed: u64,
+) -> Result<std::result::Result<EvaluationRun, String>> {
+    let truth0 = scenario
+        .truth
+        .first()
+        .ok_or_else(|| PipelineError::Invalid("empty scenario".into()))?;
+    let p0 = initial_covariance(config, scenario);
+    let nominal0 = initial_nominal(truth0, &p0, seed);
+    let nav_config = NavigatorConfig {
+        dvl: fit.dvl_config(),
+        gate: GateConfig {
+            probability: config.filter.gate_probability,
+            recovery_after: config.filter.gate_recovery_after,
+        },
+        ..NavigatorConfig::default()
+    };
+    let settings = nav_config
+        .check()?
+        .with_sensor_spec(scenario.imu_spec)?
+        .with_dvl_noise_covariance(r)?;
+    let dvl0 = DvlParameters {
+        scale_factor_error: fit.scale_factor_error,
+        dvl_to_body: Rotation3::new(Vector3::from(fit.misalignment_rad)),
+        bias: Vector3::zeros(),
+        lever_arm: Vector3::from(fit.lever_arm_m),
+        time_offset: 0.0,
+    };
+    let mut nav =
+        AugmentedNavigator::with_dvl(&settings, states, nominal0, dvl0, p0, scenario.imu_dt)?;
+    let model = AugmentedDvlModel::new(r)?.with_rate_noise(fit.rate_noise_mps_per_radps)?;
+    let (mut nees_values, mut nis, mut position) = (Vec::new(), Vec::new(), Vec::new());
+    let mut fed = 0;
+    let stopped = |e: NavigatorError| -> Result<String> {
+        match e {
+            NavigatorError::Filter { time, source } => Ok(format!(
+                "stopped at t = {:.2} s: {source}",
+                time - truth0.time
+            )),
+            other => Err(PipelineError::from(other)),
+        }
+    };
+    for (epoch, dvl) in scenario.dvl.iter().enumerate() {
+        let truth = scenario.truth.get(dvl.imu_index).ok_or_else(|| {
+            PipelineError::Invalid(format!(
+                "DVL epoch {epoch}: truth index beyond the scenario"
+            ))
+        })?;
+        let target = truth.time;
+        while let Some(sample) = scenario.imu.get(fed).filter(|s| s.time <= target) {
+            if let Err(e) = nav.imu(sample) {
+                return Ok(Err(stopped(e)?));
+            }
+            fed += 1;
+        }
+        if let Err(e) = nav.propagate_to(target) {
+            return Ok(Err(stopped(e)?));
+        }
+        if let Some(y) = velocities.get(epoch).copied().flatten() {
+            match nav.dvl_velocity_with(target, &y, &model) {
+                Ok(report) => nis.push(report.nis),
+                Err(e) => return Ok(Err(stopped(e)?)),
+            }
+        }
+        let e = error_state(truth, &nav.nominal().ins);
+        position.push(e.fixed_rows::<3>(POS).norm());
+        nees_values.push(nees(&e, &nav.ins_covariance()).unwrap_or(f64::NAN));
+    }
+    let s = nav.solution().dvl;
+    Ok(Ok(EvaluationRun {
+        trajectory: 0,
+        seed,
+        id: String::new(),
+        nees: finite_mean(&nees_values),
+        nis: finite_mean(&nis),
+        position_rmse_m: error_summary(&position).rmse,
+        accepted: nav.dvl_counts.accepted,
+        rejected: nav.dvl_counts.gated,
+        time_offset_s: [s.time_offset_s, s.time_offset_sigma_s],
+        scale_factor_error: [s.scale_factor_error, s.scale_factor_sigma],
+    }))
+}
+
+/// The evaluation as markdown: the fit, then per trajectory LS and BeamsNet, then the
+/// counts.
+pub fn markdown(e: &Evaluation) -> String {
+    use std::fmt::Write as _;
+    let f = &e.fit;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "Fit on training trajectories {:?} (4 and 13 never used): lever arm [{:.3}, {:.3}, {:.3}] m, \
+         scale-factor error {:+.5}, misalignment [{:+.5}, {:+.5}, {:+.5}] rad; time offset prior \
+         {:.3} s +- {:.3} s (training offsets {}); {}; \
+         white residual std {:.4} m/s, rate noise {:.3} m/s per rad/s ({} residual epochs).\n",
+        f.trajectories,
+        f.lever_arm_m[0],
+        f.lever_arm_m[1],
+        f.lever_arm_m[2],
+        f.scale_factor_error,
+        f.misalignment_rad[0],
+        f.misalignment_rad[1],
+        f.misalignment_rad[2],
+        f.time_offset_s,
+        f.time_offset_std_s,
+        f.calibrations
+            .iter()
+            .map(|c| format!("{}: {:.2}", c.trajectory, c.time_offset_s))
+            .collect::<Vec<_>>()
+            .join(", "),
+        if f.bias_estimated {
+            format!(
+                "bias Gauss-Markov sigma {:.4} m/s, tau {:.1} s",
+                f.bias_std_mps, f.bias_time_constant_s
+            )
+        } else {
+            format!(
+                "no Gauss-Markov part in the residuals (autocovariances {:.2e}, {:.2e}, \
+                 {:.2e} m^2/s^2): bias not estimated",
+                f.autocovariance[0], f.autocovariance[1], f.autocovariance[2]
+            )
+        },
+        f.white_std_mps,
+        f.rate_noise_mps_per_radps,
+        f.residual_samples,
+    );
+    s.push_str(
+        "| trajectory | LS: NEES / NIS / position RMSE [m] | BeamsNet, M neglected: NEES / NIS / \
+         position RMSE [m] | final time offset LS / BeamsNet [s] |\n|---|---|---|---|\n",
+    );
+    let trajectories: Vec<u32> = {
+        let mut t: Vec<u32> = e.rows.iter().map(|r| r.trajectory).collect();
+        t.dedup();
+        t
+    };
+    for t in trajectories {
+        let cell = |id: &str| e.rows.iter().find(|r| r.trajectory == t && r.id == id);
+        let text = |r: Option<&EvaluationRow>| match r {
+            Some(r) if r.runs > 0 => format!(
+                "{:.1}{} / {:.2}{} / {:.2}",
+                r.nees,
+                if r.nees_in_band { "" } else { " (out)" },
+                r.nis,
+                if r.nis_in_band { "" } else { " (out)" },
+                r.position_rmse_m
+            ),
+            _ => "failed".into(),
+        };
+        let offset = |r: Option<&EvaluationRow>| r.map_or(f64::NAN, |r| r.time_offset_s);
+        let test = if AKIT_TEST_TRAJECTORIES.contains(&t) {
+            " (test)"
+        } else {
+            ""
+        };
+        let _ = writeln!(
+            s,
+            "| {t}{test} | {} | {} | {:.2} / {:.2} |",
+            text(cell(LS)),
+            text(cell(BEAMSNET_NEGLECTED)),
+            offset(cell(LS)),
+            offset(cell(BEAMSNET_NEGLECTED)),
+        );
+    }
+    s.push('\n');
+    for c in &e.counts {
+        let _ = writeln!(
+            s,
+            "{}: NEES within [0.5, 2] x 15 on {} of {} trajectories; NIS within [0.5, 2] x 3 on {} of {}.",
+            super::filter_label(&c.id, f64::NAN),
+            c.nees_in_band,
+            c.trajectories,
+            c.nis_in_band,
+            c.trajectories
+        );
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, StandardNormal};
+
+    /// A simulated Gauss-Markov process (exact discretisation) plus white noise: the
+    /// fit recovers sigma and tau within their sampling error, for several seeds; white
+    /// noise alone gives no Gauss-Markov part.
+    #[test]
+    fn gauss_markov_fit_recovers_a_simulated_process() {
+        let (sigma, tau, white, dt) = (0.03, 8.0, 0.01, 1.0);
+        let phi = f64::exp(-dt / tau);
+        let n = 200_000;
+        for seed in [1u64, 2, 3] {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let mut normal = || -> f64 { StandardNormal.sample(&mut rng) };
+            let mut b = sigma * normal();
+            let mut series = Vec::with_capacity(n);
+            for _ in 0..n {
+                series.push(b + white * normal());
+                b = phi * b + sigma * (1.0 - phi * phi).sqrt() * normal();
+            }
+            let lag = |k: usize| -> f64 {
+                (0..n - k).map(|i| series[i] * series[i + k]).sum::<f64>() / (n - k) as f64
+            };
+            let c = [lag(0), lag(1), lag(2)];
+            let (s, t) = gauss_markov_from_autocovariance(c, dt).expect("a Gauss-Markov part");
+            assert!((s - sigma).abs() < 0.1 * sigma, "seed {seed}: sigma {s}");
+            assert!((t - tau).abs() < 0.2 * tau, "seed {seed}: tau {t}");
+            let w = (c[0] - s * s).sqrt();
+            assert!((w - white).abs() < 0.3 * white, "seed {seed}: white {w}");
+            // No decaying correlation (white: c_1 = 0; growing or sign-changing): none.
+            assert!(gauss_markov_from_autocovariance([1.0, 0.0, 0.0], dt).is_none());
+            assert!(gauss_markov_from_autocovariance([1.0, 0.1, 0.2], dt).is_none());
+            assert!(gauss_markov_from_autocovariance([1.0, 0.1, -0.01], dt).is_none());
+        }
+    }
+
+    #[test]
+    fn test_trajectories_and_repeats_are_refused_for_fitting() {
+        for bad in [&[1, 4][..], &[13], &[2, 3, 2], &[]] {
+            let e = check_fit_trajectories(bad).unwrap_err().to_string();
+            assert!(e.contains("--fit-trajectories"), "{e}");
+        }
+        assert!(check_fit_trajectories(&AKIT_TRAINING_TRAJECTORIES).is_ok());
+        assert!(AKIT_TRAINING_TRAJECTORIES
+            .iter()
+            .all(|t| !AKIT_TEST_TRAJECTORIES.contains(t)));
+    }
+}

@@ -1,0 +1,186 @@
+//! `estim evaluate`: the test trajectories refused for fitting, bad state files
+//! refused, and a small run on the real data (two test trajectories, one seed, fitted
+//! on two training trajectories to keep CI cheap).
+
+mod common;
+
+use std::process::{Command, Output};
+
+fn estim(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_estim"))
+        .args(args)
+        .output()
+        .expect("run estim")
+}
+
+#[test]
+fn test_trajectories_in_the_fit_set_are_refused_with_exit_2() {
+    // Refused before any file is read: no data needed.
+    for list in ["1,4", "13", "2,13,3"] {
+        let out = estim(&[
+            "evaluate",
+            "--data",
+            "/nonexistent",
+            "--fit-trajectories",
+            list,
+        ]);
+        assert_eq!(out.status.code(), Some(2), "{list}");
+        assert!(out.stdout.is_empty(), "{list}: nothing on stdout");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains("never used for fitting"), "{list}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "one line: {err}");
+    }
+    let out = estim(&[
+        "evaluate",
+        "--data",
+        "/nonexistent",
+        "--fit-trajectories",
+        "2,2",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("given twice"));
+}
+
+#[test]
+fn bad_state_files_are_refused_naming_the_key() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    for (text, key) in [
+        (
+            "[bias]\nestimate = true\nstd = 0.01\ntime_constant_s = 10\n",
+            "std",
+        ),
+        (
+            "[bias]\nestimate = true\nstd_mps = 0.01\ntime_constant_s = -1\n",
+            "dvl_states.bias.time_constant_s",
+        ),
+        (
+            "[time_offset]\nestimate = true\nprior_std_s = 0\n",
+            "dvl_states.time_offset.prior_std_s",
+        ),
+    ] {
+        let path = dir.path().join("states.toml");
+        std::fs::write(&path, text).expect("write");
+        let out = estim(&[
+            "evaluate",
+            "--data",
+            "/nonexistent",
+            "--states",
+            path.to_str().expect("utf-8 path"),
+        ]);
+        assert_eq!(out.status.code(), Some(2), "{text}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(key), "{text}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "one line: {err}");
+    }
+}
+
+#[test]
+fn evaluation_on_the_test_trajectories_reports_every_run() {
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    let root = root.to_string_lossy().into_owned();
+    let args = [
+        "evaluate",
+        "--data",
+        &root,
+        "--fit-trajectories",
+        "2,7",
+        "--trajectory",
+        "4",
+        "--trajectory",
+        "13",
+        "--seeds",
+        "1",
+    ];
+    let out = estim(&[&args[..], &["--json"]].concat());
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    assert_eq!(doc["command"], "evaluate");
+    let e = &doc["evaluation"];
+    let fitted: Vec<u64> = e["fit"]["calibrations"]
+        .as_array()
+        .expect("calibrations")
+        .iter()
+        .map(|c| c["trajectory"].as_u64().expect("trajectory"))
+        .collect();
+    assert_eq!(fitted, [2, 7], "fitted on exactly the training set given");
+    // The lever arm the calibrations find is the known one (docs/results.md: about
+    // -1.87, -0.03, 0.2 m).
+    let lever = &e["fit"]["lever_arm_m"];
+    assert!(
+        (lever[0].as_f64().expect("x") + 1.87).abs() < 0.1,
+        "{lever}"
+    );
+    let rows = e["rows"].as_array().expect("rows");
+    assert_eq!(rows.len(), 4, "2 trajectories x 2 variants");
+    for row in rows {
+        let nees = row["nees"].as_f64().expect("nees");
+        let nis = row["nis"].as_f64().expect("nis");
+        assert!(nees.is_finite() && nees > 0.0, "{row}");
+        assert!(nis.is_finite() && nis > 0.0, "{row}");
+        assert!(row["position_rmse_m"].as_f64().expect("rmse") > 0.0);
+        // The band flags follow the documented bands.
+        assert_eq!(
+            row["nees_in_band"].as_bool(),
+            Some((7.5..=30.0).contains(&nees))
+        );
+        assert_eq!(
+            row["nis_in_band"].as_bool(),
+            Some((1.5..=6.0).contains(&nis))
+        );
+    }
+    for count in e["counts"].as_array().expect("counts") {
+        let id = count["id"].as_str().expect("id");
+        let mine: Vec<_> = rows.iter().filter(|r| r["id"] == id).collect();
+        let in_band = mine.iter().filter(|r| r["nees_in_band"] == true).count();
+        assert_eq!(count["nees_in_band"].as_u64(), Some(in_band as u64));
+    }
+    let text = estim(&args);
+    assert_eq!(text.status.code(), Some(0));
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(
+        text.contains("IMU synthesized from the ground truth"),
+        "{text}"
+    );
+    assert!(text.contains("| 4 (test) |") && text.contains("| 13 (test) |"));
+}
+
+/// The `--states` example of docs/cli.md parses and passes the checks: the command
+/// gets as far as looking for the data.
+#[test]
+fn the_documented_states_file_is_accepted() {
+    let page = include_str!("../docs/cli.md");
+    let section = &page[page
+        .find("## Evaluate the DVL error states")
+        .expect("docs/cli.md section")..];
+    let start = section.find("```toml").expect("a toml block") + "```toml".len();
+    let block = &section[start..];
+    let block = &block[..block.find("```").expect("block end")];
+    let toml: String = block
+        .lines()
+        .map(|l| l.strip_prefix("  ").unwrap_or(l).to_string() + "\n")
+        .collect();
+    assert!(toml.contains("[bias]") && toml.contains("time_constant_s"));
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("states.toml");
+    std::fs::write(&path, toml).expect("write");
+    let out = estim(&[
+        "evaluate",
+        "--data",
+        "/nonexistent",
+        "--states",
+        path.to_str().expect("utf-8 path"),
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("/nonexistent") && !err.contains("states.toml"),
+        "{err}"
+    );
+}
