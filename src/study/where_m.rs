@@ -479,14 +479,13 @@ pub fn stand_in_measurements(
     Ok(out)
 }
 
-/// The configuration of the study's missions for `grade`: `base` with that IMU preset,
-/// the mission cut to `duration_s` and the innovation gate off (the two filters of a
-/// pair then fuse the same updates).
+/// The configuration of the study's missions for `grade`: `base` with that IMU preset
+/// (`base`'s per-sensor overrides, if any, still apply), the mission cut to
+/// `duration_s` and the innovation gate off (the two filters of a pair then fuse the
+/// same updates).
 pub fn cell_config(base: &Config, grade: &str, duration_s: f64) -> Config {
     let mut config = base.clone();
     config.imu.preset = grade.into();
-    config.imu.accelerometer = None;
-    config.imu.gyroscope = None;
     config.mission.duration_s = duration_s;
     config.filter.gate_probability = 0.0;
     config
@@ -703,7 +702,13 @@ pub fn where_m(
                 let scenario = Scenario::simulated(&config, seed)?;
                 let out = pairs
                     .iter()
-                    .map(|(noise, kind)| paired_runs(*kind, *noise, &scenario, &config, seed))
+                    .map(|(noise, kind)| {
+                        paired_runs(*kind, *noise, &scenario, &config, seed).map_err(|e| {
+                            PipelineError::Invalid(format!(
+                                "{grade}, {noise:?} DVL noise, {kind:?}, seed {seed}: {e}"
+                            ))
+                        })
+                    })
                     .collect::<Result<Vec<_>>>();
                 tick();
                 out
@@ -779,4 +784,224 @@ pub fn markdown(report: &WhereM) -> String {
         ));
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use estim_ins::ImuSpec;
+
+    /// A short mission of `grade` (5 DVL epochs).
+    fn short(grade: &str, seed: u64) -> (Config, Scenario) {
+        let config = cell_config(&Config::default(), grade, 5.0);
+        let scenario = Scenario::simulated(&config, seed).expect("simulated mission");
+        (config, scenario)
+    }
+
+    /// The generic M of the dead-reckoning stand-ins against two references coded
+    /// apart from it: the forward recursion S <- Phi_j S + G_j,acc q dt α C_{b_k <- b_j}'
+    /// over the recorded steps (Simon 2006 sec. 7.1 carried over the window; the
+    /// oracle's form), to rounding; and the closed form of its velocity block,
+    /// -α q T C_b^n(t_k) (Phi_vv = I over 1 s up to the Earth-rate terms), to 1e-3.
+    #[test]
+    fn dead_reckoning_m_equals_the_closed_form() {
+        let (config, scenario) = short("akit_observed", 11);
+        let error_model = InsErrorModel::new(filter_imu_spec(&scenario.imu_spec).unwrap());
+        let q = scenario
+            .imu_spec
+            .accelerometer()
+            .white_noise_density
+            .powi(2);
+        let dt = scenario.imu_dt;
+        let window = 100;
+        for kind in [SensorKind::DeadReckoning, SensorKind::HalfDeadReckoning] {
+            let alpha = kind.imu_gain();
+            let sensor =
+                stand_in_measurements(kind, DvlNoise::Beam, &scenario, &config, 3).unwrap();
+            for (k, epoch) in scenario.dvl.iter().enumerate() {
+                let end = epoch.imu_index;
+                let m = sensor.cross_covariances[k];
+                let recording = FilterConfig::builder()
+                    .window_capacity(window)
+                    .build()
+                    .unwrap();
+                let mut recorder = ErrorStateKalmanFilter::new(
+                    error_model,
+                    scenario.truth[end - window],
+                    SMatrix::<f64, ERROR_STATES, ERROR_STATES>::identity(),
+                )
+                .unwrap()
+                .with_config(recording);
+                for sample in &scenario.imu[end - window..end] {
+                    recorder.predict(sample, dt).unwrap();
+                }
+                let c_nb_k = scenario.truth[end]
+                    .attitude
+                    .inverse()
+                    .to_rotation_matrix()
+                    .into_inner();
+                let mut s = CrossMatrix::zeros();
+                for (j, step) in recorder.step_window(window).unwrap().iter().enumerate() {
+                    let c_bn_nominal = step.state.attitude.to_rotation_matrix().into_inner();
+                    let c_bn_truth = scenario.truth[end - window + j]
+                        .attitude
+                        .to_rotation_matrix()
+                        .into_inner();
+                    let mut g = CrossMatrix::zeros();
+                    g.fixed_view_mut::<3, 3>(VEL, 0).copy_from(
+                        &(-c_bn_nominal * (c_nb_k * c_bn_truth).transpose() * (q * dt * alpha)),
+                    );
+                    s = step.transition * s + g;
+                }
+                let scale = s.abs().max();
+                assert!(scale > 0.0);
+                assert!(
+                    (m - s).abs().max() <= 1e-12 * scale,
+                    "{kind:?} epoch {k}: generic {m} vs recursion {s}"
+                );
+                let closed = -c_nb_k.transpose() * (alpha * q * dt * window as f64);
+                let velocity_block = m.fixed_view::<3, 3>(VEL, 0).into_owned();
+                assert!(
+                    (velocity_block - closed).abs().max() <= 1e-3 * closed.abs().max(),
+                    "{kind:?} epoch {k}: {velocity_block} vs {closed}"
+                );
+            }
+        }
+    }
+
+    /// The beams-only stand-in reads the IMU window and ignores it: its M is zero to the
+    /// bit, at every epoch, for every grade's window.
+    #[test]
+    fn beams_only_m_is_zero() {
+        for grade in GRADES {
+            let (config, scenario) = short(grade, 5);
+            let sensor = stand_in_measurements(
+                SensorKind::BeamsOnly,
+                DvlNoise::Mismatch,
+                &scenario,
+                &config,
+                1,
+            )
+            .unwrap();
+            assert_eq!(
+                sensor.velocities.iter().flatten().count(),
+                scenario.dvl.len()
+            );
+            assert!(sensor
+                .cross_covariances
+                .iter()
+                .all(|m| m.iter().all(|v| *v == 0.0)));
+        }
+    }
+
+    /// The stand-ins' errors against the truth at the DVL have the R they report: the
+    /// mean of e' R⁻¹ e over 3 missions x 60 epochs is that of chi-square(3), 3 with
+    /// standard error sqrt(6 / 180) = 0.18; asserted within 0.75 (4 standard errors).
+    /// The IMU noise is the A-KIT level with the accelerometer noise x 3, so that the
+    /// carried IMU noise dominates R where α > 0.
+    /// The A-KIT IMU level with the accelerometer white noise x 3.
+    fn noisy_accelerometer(mut config: Config) -> Config {
+        let acc = *ImuSpec::akit_observed().accelerometer();
+        config.imu.accelerometer = Some(super::super::config::SensorSection {
+            white_noise_density: 3.0 * acc.white_noise_density,
+            bias_instability: acc.bias_instability,
+            bias_time_constant: acc.bias_time_constant,
+            turn_on_bias: acc.turn_on_bias,
+            scale_factor: acc.scale_factor,
+        });
+        config
+    }
+
+    #[test]
+    fn stand_in_errors_have_the_reported_covariance() {
+        for kind in SensorKind::ALL {
+            for noise in DvlNoise::ALL {
+                let mut sum = 0.0;
+                let mut count = 0;
+                for seed in 0..3 {
+                    let config =
+                        noisy_accelerometer(cell_config(&Config::default(), "akit_observed", 60.0));
+                    let scenario = Scenario::simulated(&config, 40 + seed).unwrap();
+                    let sensor =
+                        stand_in_measurements(kind, noise, &scenario, &config, seed).unwrap();
+                    for (k, epoch) in scenario.dvl.iter().enumerate() {
+                        let (Some(y), Some(r)) =
+                            (sensor.velocities[k], sensor.noise_covariances[k])
+                        else {
+                            continue;
+                        };
+                        let e = y - epoch.reference_velocity;
+                        sum += (e.transpose() * r.try_inverse().unwrap() * e)[0];
+                        count += 1;
+                    }
+                }
+                let mean = sum / count as f64;
+                assert_eq!(count, 180);
+                assert!(
+                    (mean - 3.0).abs() < 0.75,
+                    "{kind:?} {noise:?}: mean e'R^-1 e {mean}"
+                );
+            }
+        }
+    }
+
+    /// Where M matters most (the A-KIT IMU with the accelerometer noise x 3, beam-level
+    /// DVL noise, the dead-reckoning stand-in: correlation 0.99), 100 missions of 30 s
+    /// (seeds 500-599): with the exact M the time mean of the run-averaged NEES lies in
+    /// the 95 % band of one epoch's run-average (13.95-16.09; a consistent filter's
+    /// time mean varies less than one epoch's) and at least 70 % of the epochs have
+    /// their average in it (95 % expected; successive epochs are correlated); with M
+    /// neglected the time mean is above the band. Other seed blocks (set
+    /// `WHERE_M_FIRST_SEED`, and `WHERE_M_RUNS` / `WHERE_M_DURATION` to vary the cell)
+    /// measured before committing: first seeds 0, 100, 200, 300, 400 give exact
+    /// 14.95, 15.57, 14.62, 15.25, 15.37 (100 % of epochs in band) and neglected
+    /// 17.24, 17.84, 16.80, 17.51, 17.63. With 40 missions of 60 s the band is wider
+    /// than the spread of the exact filter's time mean allows (it left the band in 2
+    /// of 5 blocks): the unobservable states keep each run's NEES level, so the time
+    /// mean averages over runs, not epochs.
+    #[test]
+    fn exact_m_is_consistent_and_neglected_m_is_not_where_m_matters() {
+        let env = |name: &str, default: u64| {
+            std::env::var(name)
+                .ok()
+                .and_then(|s| s.parse().ok())
+                .unwrap_or(default)
+        };
+        let first_seed = env("WHERE_M_FIRST_SEED", 500);
+        let runs = env("WHERE_M_RUNS", 100) as usize;
+        let mut base = noisy_accelerometer(Config::default());
+        base.mission.duration_s = env("WHERE_M_DURATION", 30) as f64;
+        let report = where_m(
+            &base,
+            &["akit_observed"],
+            &[DvlNoise::Beam],
+            &[SensorKind::DeadReckoning],
+            runs,
+            first_seed,
+            &|| {},
+        )
+        .unwrap();
+        let cell = &report.cells[0];
+        let [lower, upper] = cell.nees_band;
+        eprintln!(
+            "seeds {first_seed}..: exact {:.2} ({:.0} % in band), neglected {:.2}, band {lower:.2}-{upper:.2}, corr. {:.2}",
+            cell.exact.nees_average,
+            cell.exact.nees_epochs_in_band_percent,
+            cell.neglected.nees_average,
+            cell.output_imu_correlation
+        );
+        assert!(
+            (lower..=upper).contains(&cell.exact.nees_average)
+                && cell.exact.nees_epochs_in_band_percent >= 70.0,
+            "exact M: {:?}",
+            cell.exact
+        );
+        assert!(
+            cell.neglected.nees_average > upper,
+            "M neglected: {:?}",
+            cell.neglected
+        );
+        // The sign: the exact M raises the velocity std.
+        assert!(cell.velocity_std_change > 0.0, "{cell:?}");
+    }
 }
