@@ -1,6 +1,7 @@
 //! `estim where-m`: where the exact cross-covariance M changes the filter (IMU grade x
 //! DVL noise x sensor type; docs/results.md "Where M matters").
 
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use crate::output::emit;
@@ -30,6 +31,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut config = Config::default();
     config.mission.duration_s = MISSION_DURATION_S;
     let start = Instant::now();
+    // Progress on stderr (stdout stays clean): a line per tenth of the missions.
+    let total = args.runs * GRADES.len();
+    let done = AtomicUsize::new(0);
+    let tick = || {
+        let n = done.fetch_add(1, Ordering::SeqCst) + 1;
+        if n * 10 / total != (n - 1) * 10 / total {
+            eprintln!(
+                "where-m: {n}/{total} missions done ({:.0} s)",
+                start.elapsed().as_secs_f64()
+            );
+        }
+    };
     let report = where_m(
         &config,
         &GRADES,
@@ -37,7 +50,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &SensorKind::ALL,
         args.runs,
         args.first_seed,
-        &|| {},
+        &tick,
     )?;
     let wall_s = start.elapsed().as_secs_f64();
     if args.json {
