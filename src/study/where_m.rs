@@ -512,6 +512,7 @@ pub fn paired_runs(
     seed: u64,
 ) -> Result<PairedRuns> {
     let sensor = stand_in_measurements(kind, noise, scenario, config, seed)?;
+    // The set's R only configures the navigator: every measured epoch has its own R.
     let set = MeasurementSet {
         velocities: sensor.velocities,
         noise_covariance: Matrix3::identity() * MISMATCH_STD.powi(2),
