@@ -254,9 +254,8 @@ impl StandInNetwork {
         Matrix3::from_fn(|r, c| carry[(3 * r + c, column)])
     }
 
-    /// y(imu, beams, carry, offset) with the carry of `carry` and, if given, the
-    /// carry's direction `d_carry` applied to the (otherwise fixed) `imu` / `beams`
-    /// instead (the bilinear term of the JVP).
+    /// y(imu, beams, carry, offset): linear in (imu, beams, offset) for a fixed carry
+    /// and linear in the carry for fixed (imu, beams), which the JVPs use.
     fn evaluate(
         &self,
         imu: &DMatrix<f64>,
