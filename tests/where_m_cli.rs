@@ -27,8 +27,8 @@ fn one_mission_per_grade_gives_every_cell() {
     assert_eq!(doc["schema_version"], 2);
     assert_eq!(doc["inputs"]["seeds"], serde_json::json!([3, 3]));
     let cells = doc["cells"].as_array().expect("cells");
-    // 4 IMU grades x 2 DVL noise levels x 3 sensors.
-    assert_eq!(cells.len(), 24);
+    // 4 IMU grades x 2 DVL noise levels x 4 sensors.
+    assert_eq!(cells.len(), 32);
     for cell in cells {
         for filter in ["exact", "neglected"] {
             let nees = cell[filter]["nees_average"].as_f64().expect("nees_average");

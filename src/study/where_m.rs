@@ -104,21 +104,26 @@ pub enum SensorKind {
     /// As `DeadReckoning`, but half of the carried increment comes from the
     /// accelerometer and half from a noise-free motion model: error +dt Σ n / 2.
     HalfDeadReckoning,
+    /// As `DeadReckoning`, with the attitude also dead-reckoned from the window's
+    /// gyroscope samples (from the attitude at the beams' epoch): it shares the
+    /// accelerometer and the gyroscope white noise ([`GyroStandIn`]).
+    GyroDeadReckoning,
 }
 
 impl SensorKind {
     /// The three types.
-    pub const ALL: [Self; 3] = [
+    pub const ALL: [Self; 4] = [
         Self::BeamsOnly,
         Self::DeadReckoning,
         Self::HalfDeadReckoning,
+        Self::GyroDeadReckoning,
     ];
 
     /// Gain α on the integrated accelerometer samples.
     pub fn imu_gain(self) -> f64 {
         match self {
             Self::BeamsOnly => 0.0,
-            Self::DeadReckoning => 1.0,
+            Self::DeadReckoning | Self::GyroDeadReckoning => 1.0,
             Self::HalfDeadReckoning => 0.5,
         }
     }
@@ -134,6 +139,7 @@ impl SensorKind {
             Self::BeamsOnly => "beams only",
             Self::DeadReckoning => "dead-reckons IMU",
             Self::HalfDeadReckoning => "half IMU",
+            Self::GyroDeadReckoning => "dead-reckons IMU + gyro",
         }
     }
 }
@@ -320,6 +326,287 @@ impl LearnedMeasurement<f64, 3> for StandInNetwork {
     }
 }
 
+/// Input streams of [`GyroStandIn`], in order.
+const GYRO_STREAMS: usize = 5;
+
+/// An analytic stand-in that dead-reckons both the velocity and the attitude from the
+/// IMU window, as an estim-core [`LearnedMeasurement`] with exact Jacobian-vector
+/// products (forward mode through the recursion).
+///
+/// Inputs: `imu` (6 x L, \[f_b; ω_b\] of the window), `beams` (4 x 1, of the epoch one
+/// window ago), `attitude` (9 x 1, C_b^n at that epoch, row-major; from the
+/// reference), `gyro_bias` (3 x 1, subtracted from ω), `offset` (3 x 1). With
+/// P = (A'A)⁻¹ A' and first-order attitude steps A_i = I + dt [(ω_i - β)×]:
+///
+/// ```text
+/// C_0 = attitude,  C_{i+1} = C_i A_i,  v = C_0 P beams + dt Σ_i C_i f_i,  y = C_L' v + offset
+/// ```
+///
+/// The study sets `offset` = truth - y(noise-free inputs), so the output error is
+/// y(noisy) - y(noise-free): to first order J n in the IMU white noise and the beam
+/// noise ([`GyroStandIn::noise_covariance_at`]). Gravity, Coriolis and the lever arm
+/// are in that offset; the gyroscope noise tilts the carried attitude, as the INS's.
+#[derive(Debug, Clone)]
+pub struct GyroStandIn {
+    specs: Vec<InputSpec>,
+    pseudo_inverse: Matrix3x4<f64>,
+    dt: f64,
+    dvl_covariance: Matrix3<f64>,
+}
+
+fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+fn column3(m: &DMatrix<f64>, first_row: usize, column: usize) -> Vector3<f64> {
+    Vector3::new(
+        m[(first_row, column)],
+        m[(first_row + 1, column)],
+        m[(first_row + 2, column)],
+    )
+}
+
+fn beams4(m: &DMatrix<f64>) -> Vector4<f64> {
+    Vector4::new(m[0], m[1], m[2], m[3])
+}
+
+impl GyroStandIn {
+    /// Reading `window` IMU samples of period `dt`, beams of `geometry` with `noise`.
+    pub fn new(window: usize, dt: f64, geometry: &BeamGeometry, noise: DvlNoise) -> Self {
+        let spec = |name: &str, channels, window| InputSpec {
+            name: name.into(),
+            channels,
+            window,
+            sample_rate_hz: 1.0 / dt,
+        };
+        let pseudo_inverse = *geometry.pseudo_inverse();
+        Self {
+            specs: vec![
+                spec("imu", IMU_CHANNELS, window),
+                spec("beams", 4, 1),
+                spec("attitude", 9, 1),
+                spec("gyro_bias", 3, 1),
+                spec("offset", 3, 1),
+            ],
+            pseudo_inverse,
+            dt,
+            dvl_covariance: Matrix3::identity() * noise.velocity_std().powi(2)
+                + pseudo_inverse * pseudo_inverse.transpose() * BEAM_NOISE_STD.powi(2),
+        }
+    }
+
+    /// The IMU window L.
+    pub fn window(&self) -> usize {
+        self.specs[0].window
+    }
+
+    fn check(&self, inputs: &[DMatrix<f64>]) -> CoreResult<()> {
+        let ok = inputs.len() == GYRO_STREAMS
+            && inputs
+                .iter()
+                .zip(&self.specs)
+                .all(|(m, s)| m.shape() == (s.channels, s.window));
+        if ok {
+            Ok(())
+        } else {
+            Err(estim_core::Error::Model(format!(
+                "gyro stand-in: expected inputs imu 6 x L, beams 4 x 1, attitude 9 x 1, \
+                 gyro_bias 3 x 1, offset 3 x 1 (L = {}), got {:?}",
+                self.window(),
+                inputs.iter().map(DMatrix::shape).collect::<Vec<_>>()
+            )))
+        }
+    }
+
+    /// y and, with `direction` (one matrix per stream), its directional derivative
+    /// (forward mode through the recursion). Inputs checked.
+    fn evaluate(
+        &self,
+        inputs: &[DMatrix<f64>],
+        direction: Option<&[DMatrix<f64>]>,
+    ) -> (Vector3<f64>, Vector3<f64>) {
+        let (imu, beams, bias) = (&inputs[0], beams4(&inputs[1]), column3(&inputs[3], 0, 0));
+        let mut c = StandInNetwork::rotation(&inputs[2], 0);
+        let mut v = c * (self.pseudo_inverse * beams);
+        let (mut dc, mut dv, mut d_bias) = (Matrix3::zeros(), Vector3::zeros(), Vector3::zeros());
+        if let Some(d) = direction {
+            dc = StandInNetwork::rotation(&d[2], 0);
+            dv = dc * (self.pseudo_inverse * beams) + c * (self.pseudo_inverse * beams4(&d[1]));
+            d_bias = column3(&d[3], 0, 0);
+        }
+        for i in 0..self.window() {
+            let f = column3(imu, 0, i);
+            let step = Matrix3::identity() + skew(&(column3(imu, 3, i) - bias)) * self.dt;
+            v += c * f * self.dt;
+            if let Some(d) = direction {
+                let d_f = column3(&d[0], 0, i);
+                let d_omega = column3(&d[0], 3, i) - d_bias;
+                dv += (dc * f + c * d_f) * self.dt;
+                dc = dc * step + c * skew(&d_omega) * self.dt;
+            }
+            c *= step;
+        }
+        let y = c.transpose() * v + column3(&inputs[4], 0, 0);
+        let dy = match direction {
+            Some(d) => dc.transpose() * v + c.transpose() * dv + column3(&d[4], 0, 0),
+            None => Vector3::zeros(),
+        };
+        (y, dy)
+    }
+
+    /// R of the output error at these inputs: the beams' R carried by C_L' C_0, plus
+    /// Σ_j J_j Σ_j J_j' over the window's samples, with the closed-form columns
+    /// J_f,j = dt C_L' C_j and J_ω,j = dt (E_{j+1}' [(C_j' v)×] - C_L' C_j [W_{j+1}×]),
+    /// E_m = A_m ... A_{L-1}, W_m = Σ_{i >= m} dt A_m ... A_{i-1} f_i (backward
+    /// recursions E_m = A_m E_{m+1}, W_m = dt f_m + A_m W_{m+1}); `psd` = the
+    /// accelerometer and gyroscope white-noise PSDs (per-sample variance PSD / dt).
+    ///
+    /// # Errors
+    /// Inputs not shaped as declared.
+    pub fn noise_covariance_at(
+        &self,
+        inputs: &[DMatrix<f64>],
+        psd: [f64; 2],
+    ) -> CoreResult<Matrix3<f64>> {
+        self.check(inputs)?;
+        let (imu, beams, bias) = (&inputs[0], beams4(&inputs[1]), column3(&inputs[3], 0, 0));
+        let (window, dt) = (self.window(), self.dt);
+        let mut rotations = Vec::with_capacity(window + 1);
+        let mut steps = Vec::with_capacity(window);
+        let mut c = StandInNetwork::rotation(&inputs[2], 0);
+        let mut v = c * (self.pseudo_inverse * beams);
+        rotations.push(c);
+        for i in 0..window {
+            v += c * column3(imu, 0, i) * dt;
+            let step = Matrix3::identity() + skew(&(column3(imu, 3, i) - bias)) * dt;
+            c *= step;
+            steps.push(step);
+            rotations.push(c);
+        }
+        let c_l = rotations[window];
+        let carry = c_l.transpose() * rotations[0];
+        let mut r = carry * self.dvl_covariance * carry.transpose();
+        let (acc, gyro) = (psd[0] / dt, psd[1] / dt);
+        let (mut e, mut w) = (Matrix3::identity(), Vector3::zeros());
+        for j in (0..window).rev() {
+            // Here e = E_{j+1}, w = W_{j+1}.
+            let c_j = rotations[j];
+            let j_f = c_l.transpose() * c_j * dt;
+            let j_omega: Matrix3<f64> = (e.transpose() * skew(&(c_j.transpose() * v))
+                - c_l.transpose() * c_j * skew(&w))
+                * dt;
+            r += j_f * j_f.transpose() * acc + j_omega * j_omega.transpose() * gyro;
+            w = column3(imu, 0, j) * dt + steps[j] * w;
+            e = steps[j] * e;
+        }
+        Ok(r)
+    }
+}
+
+impl LearnedMeasurement<f64, 3> for GyroStandIn {
+    fn input_specs(&self) -> &[InputSpec] {
+        &self.specs
+    }
+
+    fn measure(&self, inputs: &[DMatrix<f64>]) -> CoreResult<Vector3<f64>> {
+        self.check(inputs)?;
+        Ok(self.evaluate(inputs, None).0)
+    }
+
+    /// R of the beams alone (the per-epoch R with the IMU part is
+    /// [`GyroStandIn::noise_covariance_at`]).
+    fn noise_covariance(&self) -> Matrix3<f64> {
+        self.dvl_covariance
+    }
+
+    fn sensitivity(
+        &self,
+        inputs: &[DMatrix<f64>],
+        directions: &[DMatrix<f64>],
+        products: &mut [Vector3<f64>],
+    ) -> CoreResult<bool> {
+        self.check(inputs)?;
+        if directions.len() != products.len() * GYRO_STREAMS {
+            return Err(estim_core::Error::Model(format!(
+                "gyro stand-in: {} direction matrices for {} products",
+                directions.len(),
+                products.len()
+            )));
+        }
+        for (d, product) in directions
+            .chunks_exact(GYRO_STREAMS)
+            .zip(products.iter_mut())
+        {
+            self.check(d)?;
+            *product = self.evaluate(inputs, Some(d)).1;
+        }
+        Ok(true)
+    }
+}
+
+/// One epoch's per-update inputs of a [`GyroStandIn`] (beams, attitude, gyro bias,
+/// offset) and its R; the offset makes the output exact on the noise-free inputs (the
+/// clean IMU plus its bias, noise-free beams). `None` when the window does not fit.
+#[allow(clippy::too_many_arguments)]
+fn gyro_update_inputs(
+    model: &GyroStandIn,
+    scenario: &Scenario,
+    lever_arm: &Vector3<f64>,
+    geometry: &BeamGeometry,
+    psd: [f64; 2],
+    noise: DvlNoise,
+    end: usize,
+    rng: &mut ChaCha8Rng,
+) -> Option<(Vec<DMatrix<f64>>, Matrix3<f64>)> {
+    let window = model.window();
+    let start = end.checked_sub(window)?;
+    let now = scenario.truth.get(end)?;
+    let then = scenario.truth.get(start)?;
+    let mut imu = DMatrix::zeros(IMU_CHANNELS, window);
+    let mut clean = DMatrix::zeros(IMU_CHANNELS, window);
+    for (column, i) in (start..end).enumerate() {
+        let (measured, state) = (scenario.imu.get(i)?, scenario.truth.get(i)?);
+        let reference = scenario.clean_imu.get(i)?;
+        let f = reference.specific_force + state.acc_bias;
+        let w = reference.angular_rate + state.gyro_bias;
+        for r in 0..3 {
+            imu[(r, column)] = measured.specific_force[r];
+            imu[(3 + r, column)] = measured.angular_rate[r];
+            clean[(r, column)] = f[r];
+            clean[(3 + r, column)] = w[r];
+        }
+    }
+    let mut attitude = DMatrix::zeros(9, 1);
+    put_rotation(
+        &mut attitude,
+        0,
+        &then.attitude.to_rotation_matrix().into_inner(),
+    );
+    let bias = DMatrix::from_column_slice(3, 1, then.gyro_bias.as_slice());
+    let v_then = dvl_velocity(then, lever_arm);
+    let mut normal = || -> f64 { StandardNormal.sample(&mut *rng) };
+    let velocity_noise = Vector3::from_fn(|_, _| normal() * noise.velocity_std());
+    let beams = geometry.beams(&(v_then + velocity_noise))
+        + Vector4::from_fn(|_, _| normal() * BEAM_NOISE_STD);
+    let noise_free = [
+        clean,
+        DMatrix::from_column_slice(4, 1, geometry.beams(&v_then).as_slice()),
+        attitude.clone(),
+        bias.clone(),
+        DMatrix::zeros(3, 1),
+    ];
+    let offset = dvl_velocity(now, lever_arm) - model.evaluate(&noise_free, None).0;
+    let inputs = vec![
+        imu,
+        DMatrix::from_column_slice(4, 1, beams.as_slice()),
+        attitude,
+        bias,
+        DMatrix::from_column_slice(3, 1, offset.as_slice()),
+    ];
+    let r = model.noise_covariance_at(&inputs, psd).ok()?;
+    Some((inputs.into_iter().skip(1).collect(), r))
+}
+
 /// Row-major 3 x 3 rotation into column `column` of a 9-row matrix.
 fn put_rotation(carry: &mut DMatrix<f64>, column: usize, rotation: &Matrix3<f64>) {
     for r in 0..3 {
@@ -417,16 +704,50 @@ pub fn stand_in_measurements(
 ) -> Result<StandInMeasurements> {
     let window = (config.mission.dvl_period_s / scenario.imu_dt).round() as usize;
     let error_model = InsErrorModel::new(filter_imu_spec(&scenario.imu_spec)?);
-    let q = scenario
+    let accelerometer_psd = scenario
         .imu_spec
         .accelerometer()
         .white_noise_density
         .powi(2);
+    let gyroscope_psd = scenario.imu_spec.gyroscope().white_noise_density.powi(2);
     let geometry = BeamGeometry::beamsnet();
-    let model = StandInNetwork::new(kind, window, scenario.imu_dt, &geometry, noise, q);
     let lever_arm = Vector3::from(config.dvl.lever_arm_m);
-    let recording = FilterConfig::builder().window_capacity(window).build()?;
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x3E2E_0001);
+    if kind == SensorKind::GyroDeadReckoning {
+        let model = GyroStandIn::new(window, scenario.imu_dt, &geometry, noise);
+        let psd = [accelerometer_psd, gyroscope_psd];
+        return measurements_of(&model, window, scenario, &error_model, |end| {
+            gyro_update_inputs(
+                &model, scenario, &lever_arm, &geometry, psd, noise, end, &mut rng,
+            )
+        });
+    }
+    let model = StandInNetwork::new(
+        kind,
+        window,
+        scenario.imu_dt,
+        &geometry,
+        noise,
+        accelerometer_psd,
+    );
+    measurements_of(&model, window, scenario, &error_model, |end| {
+        let (extra, carry_then) = update_inputs(
+            &model, scenario, &lever_arm, &geometry, noise, end, &mut rng,
+        )?;
+        Some((extra, model.noise_covariance_at(&carry_then)))
+    })
+}
+
+/// The measurements of `model` over the scenario's DVL epochs; `per_update(end)` gives
+/// the per-update inputs and R of the epoch whose window ends at IMU sample `end`.
+fn measurements_of<L: LearnedMeasurement<f64, 3>>(
+    model: &L,
+    window: usize,
+    scenario: &Scenario,
+    error_model: &InsErrorModel,
+    mut per_update: impl FnMut(usize) -> Option<(Vec<DMatrix<f64>>, Matrix3<f64>)>,
+) -> Result<StandInMeasurements> {
+    let recording = FilterConfig::builder().window_capacity(window).build()?;
     let len = scenario.dvl.len();
     let mut out = StandInMeasurements {
         velocities: vec![None; len],
@@ -434,18 +755,15 @@ pub fn stand_in_measurements(
         cross_covariances: vec![CrossMatrix::zeros(); len],
         output_imu_correlation: Vec::with_capacity(len),
     };
-    let blank = [
-        DMatrix::zeros(4, 1),
-        DMatrix::zeros(9, window + 1),
-        DMatrix::zeros(3, 1),
-    ];
+    let blank: Vec<DMatrix<f64>> = model.input_specs()[1..]
+        .iter()
+        .map(|s| DMatrix::zeros(s.channels, s.window))
+        .collect();
     let mut cross =
-        LearnedCrossCovariance::<f64, _, _, 3, IMU_CHANNELS>::new(&model, &error_model, &blank)?;
+        LearnedCrossCovariance::<f64, _, _, 3, IMU_CHANNELS>::new(model, error_model, &blank)?;
     for (k, epoch) in scenario.dvl.iter().enumerate() {
         let end = epoch.imu_index.min(scenario.imu.len());
-        let Some((extra, carry_then)) = update_inputs(
-            &model, scenario, &lever_arm, &geometry, noise, end, &mut rng,
-        ) else {
+        let Some((extra, r)) = per_update(end) else {
             continue;
         };
         for (index, values) in extra.iter().enumerate() {
@@ -453,7 +771,7 @@ pub fn stand_in_measurements(
         }
         // The covariance of the recording filter plays no part in M.
         let mut recorder = ErrorStateKalmanFilter::new(
-            error_model,
+            *error_model,
             scenario.truth[end - window],
             SMatrix::<f64, ERROR_STATES, ERROR_STATES>::identity(),
         )?
@@ -466,9 +784,8 @@ pub fn stand_in_measurements(
         let m = cross
             .transported_cross_covariance(&steps)?
             .ok_or_else(|| PipelineError::Invalid("stand-in network gave no M".into()))?;
-        let r = model.noise_covariance_at(&carry_then);
         let q_w =
-            driven_error_covariance::<f64, _, ERROR_STATES, IMU_CHANNELS>(&error_model, &steps)?;
+            driven_error_covariance::<f64, _, ERROR_STATES, IMU_CHANNELS>(error_model, &steps)?;
         out.velocities[k] = Some(y);
         out.noise_covariances[k] = Some(r);
         out.cross_covariances[k] = m;
@@ -1003,5 +1320,189 @@ mod tests {
         );
         // The sign: the exact M raises the velocity std.
         assert!(cell.velocity_std_change > 0.0, "{cell:?}");
+    }
+
+    /// The gyro stand-in (mismatch-level DVL noise) on one epoch of a short consumer-MEMS
+    /// mission: its inputs and the
+    /// recorded window of an error-state filter started from the truth.
+    fn gyro_epoch() -> (GyroStandIn, Vec<DMatrix<f64>>, [f64; 2], Scenario, usize) {
+        let (config, scenario) = short("consumer_mems", 21);
+        let geometry = BeamGeometry::beamsnet();
+        let model = GyroStandIn::new(100, scenario.imu_dt, &geometry, DvlNoise::Mismatch);
+        let psd = [
+            scenario
+                .imu_spec
+                .accelerometer()
+                .white_noise_density
+                .powi(2),
+            scenario.imu_spec.gyroscope().white_noise_density.powi(2),
+        ];
+        let end = scenario.dvl[2].imu_index;
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let lever_arm = Vector3::from(config.dvl.lever_arm_m);
+        let (extra, _) = gyro_update_inputs(
+            &model,
+            &scenario,
+            &lever_arm,
+            &geometry,
+            psd,
+            DvlNoise::Mismatch,
+            end,
+            &mut rng,
+        )
+        .unwrap();
+        let mut imu = DMatrix::zeros(IMU_CHANNELS, 100);
+        for (column, sample) in scenario.imu[end - 100..end].iter().enumerate() {
+            for r in 0..3 {
+                imu[(r, column)] = sample.specific_force[r];
+                imu[(3 + r, column)] = sample.angular_rate[r];
+            }
+        }
+        let inputs = std::iter::once(imu).chain(extra).collect();
+        (model, inputs, psd, scenario, end)
+    }
+
+    /// One unit direction (stream `stream`, element (row, column)) in the model's shapes.
+    fn unit(
+        inputs: &[DMatrix<f64>],
+        stream: usize,
+        row: usize,
+        column: usize,
+    ) -> Vec<DMatrix<f64>> {
+        let mut d: Vec<DMatrix<f64>> = inputs
+            .iter()
+            .map(|m| DMatrix::zeros(m.nrows(), m.ncols()))
+            .collect();
+        d[stream][(row, column)] = 1.0;
+        d
+    }
+
+    /// The gyro stand-in's JVPs against central finite differences of its `measure`
+    /// (every input stream, a sample of elements; step 1e-4 of max(|element|, 1),
+    /// agreement to 1e-6 relative: the model is a polynomial, linear in all but the
+    /// gyroscope samples and the attitude, of low curvature at that step), and its closed-form R against the R assembled from JVP columns
+    /// (G σ_v² G' + J_b σ_b² J_b' + Σ_j J_j Σ_j J_j', to 1e-9 relative).
+    #[test]
+    fn gyro_stand_in_jvps_and_r_match_independent_references() {
+        let (model, inputs, psd, _, _) = gyro_epoch();
+        let elements = [
+            (0, 0, 0),
+            (0, 2, 50),
+            (0, 3, 0),
+            (0, 4, 37),
+            (0, 5, 99),
+            (1, 1, 0),
+            (2, 4, 0),
+            (3, 2, 0),
+            (4, 0, 0),
+        ];
+        for (stream, row, column) in elements {
+            let d = unit(&inputs, stream, row, column);
+            let mut product = [Vector3::zeros()];
+            model.sensitivity(&inputs, &d, &mut product).unwrap();
+            let h = 1e-4 * inputs[stream][(row, column)].abs().max(1.0);
+            let shifted = |sign: f64| {
+                let mut x = inputs.clone();
+                x[stream][(row, column)] += sign * h;
+                model.measure(&x).unwrap()
+            };
+            let fd = (shifted(1.0) - shifted(-1.0)) / (2.0 * h);
+            assert!(
+                (product[0] - fd).norm() <= 1e-6 * fd.norm().max(1e-9),
+                "stream {stream} ({row}, {column}): jvp {} fd {}",
+                product[0],
+                fd
+            );
+        }
+        // R from JVP columns.
+        let dt = 0.01;
+        let column_of = |stream, row, column| {
+            let mut p = [Vector3::zeros()];
+            model
+                .sensitivity(&inputs, &unit(&inputs, stream, row, column), &mut p)
+                .unwrap();
+            p[0]
+        };
+        let j_beams = Matrix3x4::from_columns(&[
+            column_of(1, 0, 0),
+            column_of(1, 1, 0),
+            column_of(1, 2, 0),
+            column_of(1, 3, 0),
+        ]);
+        let g = j_beams * BeamGeometry::beamsnet().matrix();
+        let mut reference = g * g.transpose() * MISMATCH_STD.powi(2)
+            + j_beams * j_beams.transpose() * BEAM_NOISE_STD.powi(2);
+        for j in 0..100 {
+            for c in 0..6 {
+                let col = column_of(0, c, j);
+                let variance = if c < 3 { psd[0] } else { psd[1] } / dt;
+                reference += col * col.transpose() * variance;
+            }
+        }
+        let r = model.noise_covariance_at(&inputs, psd).unwrap();
+        assert!(
+            (r - reference).abs().max() <= 1e-9 * reference.abs().max(),
+            "closed form {r} vs JVP columns {reference}"
+        );
+    }
+
+    /// The generic (adjoint) M of the gyro stand-in against the forward recursion
+    /// S <- Phi_j S + A_j Σ_j J_j' with J_j from per-sample JVPs, over the recorded
+    /// steps, to 1e-9 relative; the attitude rows are non-zero (the gyroscope noise is
+    /// shared).
+    #[test]
+    fn gyro_stand_in_m_equals_the_forward_recursion() {
+        let (model, inputs, _, scenario, end) = gyro_epoch();
+        let error_model = InsErrorModel::new(filter_imu_spec(&scenario.imu_spec).unwrap());
+        let recording = FilterConfig::builder()
+            .window_capacity(100)
+            .build()
+            .unwrap();
+        let mut recorder = ErrorStateKalmanFilter::new(
+            error_model,
+            scenario.truth[end - 100],
+            SMatrix::<f64, ERROR_STATES, ERROR_STATES>::identity(),
+        )
+        .unwrap()
+        .with_config(recording);
+        for sample in &scenario.imu[end - 100..end] {
+            recorder.predict(sample, scenario.imu_dt).unwrap();
+        }
+        let steps = recorder.step_window(100).unwrap();
+        let cross = LearnedCrossCovariance::<f64, _, _, 3, IMU_CHANNELS>::new(
+            &model,
+            &error_model,
+            &inputs[1..],
+        )
+        .unwrap();
+        let m = cross.transported_cross_covariance(&steps).unwrap().unwrap();
+        let mut s = CrossMatrix::zeros();
+        for step in steps.iter() {
+            let dt = step.dt.unwrap();
+            let mut jt = SMatrix::<f64, IMU_CHANNELS, 3>::zeros();
+            for c in 0..IMU_CHANNELS {
+                let mut p = [Vector3::zeros()];
+                model
+                    .sensitivity(&inputs, &unit(&inputs, 0, c, step.position), &mut p)
+                    .unwrap();
+                jt.set_row(c, &p[0].transpose());
+            }
+            let a = estim_learned::InputNoise::input_noise_jacobian(
+                &error_model,
+                step.state,
+                step.input,
+                dt,
+            );
+            let sigma = estim_learned::InputNoise::<f64, ERROR_STATES, IMU_CHANNELS>::input_noise_covariance(
+                &error_model,
+                dt,
+            );
+            s = step.transition * s + a * sigma * jt;
+        }
+        assert!(
+            (m - s).abs().max() <= 1e-9 * s.abs().max(),
+            "adjoint {m} vs forward {s}"
+        );
+        assert!(m.fixed_view::<3, 3>(ATT, 0).abs().max() > 0.0);
     }
 }
