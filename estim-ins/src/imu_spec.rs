@@ -213,6 +213,8 @@ impl ImuSpec {
     /// applications", Satellite Navigation 1:2, 2020, table 1: gyro drift < 0.01 °/h,
     /// ARW < 0.002-0.02 °/√h, accelerometer bias < 100 µg). ARW 0.002 °/√h, VRW 20 µg/√Hz,
     /// Gauss-Markov τ = 1 h, scale factors 10 ppm (gyro) and 50 ppm (accelerometer).
+    /// The VRW, τ and the scale factors are values chosen for the class, not figures of
+    /// a cited datasheet.
     #[must_use]
     pub fn navigation_grade_fog() -> Self {
         Self {
@@ -238,7 +240,8 @@ impl ImuSpec {
     /// STIM300 datasheet (TS1524 rev. 31): gyro bias instability 0.3 °/h, ARW
     /// 0.15 °/√h; accelerometer (10 g) bias instability 0.05 mg, VRW 0.07 m/s/√h.
     /// Turn-on biases 1 °/h and 1 mg (El-Sheimy & Youssef 2020, table 1, tactical:
-    /// 1-10 °/h, 1-5 mg), τ = 600 s, scale factors 500 ppm.
+    /// 1-10 °/h, 1-5 mg), τ = 600 s, scale factors 500 ppm (τ and the scale factors are
+    /// values chosen for the class, not datasheet figures).
     #[must_use]
     pub fn tactical_mems() -> Self {
         Self {
@@ -265,7 +268,8 @@ impl ImuSpec {
     /// accelerometer noise density 120 µg/√Hz, bias instability 0.03 mg. Turn-on
     /// biases 0.2 °/s and 5 mg (typical consumer run-to-run figures, El-Sheimy & Youssef
     /// 2020 table 1: "commercial grade" 0.1 °/s, 100-1000 µg), τ = 100 s, scale factors
-    /// 0.5 % (accelerometer) and 1 % (gyro).
+    /// 0.5 % (accelerometer) and 1 % (gyro) (τ and the scale factors are values chosen
+    /// for the class, not datasheet figures).
     #[must_use]
     pub fn consumer_mems() -> Self {
         Self {

@@ -22,6 +22,7 @@ mod schema;
 mod simulate;
 mod smooth;
 mod tune;
+mod where_m;
 
 /// The paper study (reproduce, montecarlo, report): private to the binary, not
 /// library API. See docs/design.md.
@@ -67,6 +68,9 @@ enum Command {
     /// scale) by maximum likelihood on A-KIT training trajectories, with standard
     /// errors and a likelihood-ratio test of M = 0.
     Tune(tune::Args),
+    /// Where the exact cross-covariance M changes NEES or std by more than 10 %: IMU
+    /// grade x DVL noise x sensor type over seeded simulated missions.
+    WhereM(where_m::Args),
 }
 
 fn main() -> ExitCode {
@@ -86,6 +90,7 @@ fn main() -> ExitCode {
         Command::Navigate(args) => navigate::run(args),
         Command::Simulate(args) => simulate::run(args),
         Command::Tune(args) => tune::run(args),
+        Command::WhereM(args) => where_m::run(args),
     };
     // Exit statuses: see `schema` (0 ok, 2 bad input, 3 some filter failed, 141
     // stdout closed).

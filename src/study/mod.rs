@@ -23,6 +23,7 @@ mod scenario;
 mod smooth;
 pub mod stats;
 mod tune;
+pub mod where_m;
 
 pub use config::{Config, PaperMBasis, MAX_SEED};
 pub use evaluate::{
@@ -57,6 +58,7 @@ pub use run::{
 pub use scenario::{synthesize_imu, BeamLoss, Scenario};
 pub use smooth::{least_squares_measurements, smooth_scenario, SmoothReport};
 pub use tune::{tune_akit, TuneReport};
+pub use where_m::{GRADES, MISSION_DURATION_S};
 
 use std::path::PathBuf;
 
