@@ -402,4 +402,42 @@ mod tests {
             }
         }
     }
+
+    /// The committed two-beams network's dataset was aligned as the filter feeds it,
+    /// with the test scenarios' IMU error model. (The committed outage network was not
+    /// retrained: training/README.md says why.)
+    #[test]
+    fn committed_two_beams_network_was_trained_as_the_filter_uses_it() {
+        let config = Config::default();
+        let (spec, _) = filter_synthesis(&config).unwrap();
+        for (name, json) in [("two_beams", include_str!("../../models/two_beams.json"))] {
+            let meta: serde_json::Value = serde_json::from_str(json).unwrap();
+            let data = &meta["training"]["dataset_metadata"];
+            assert_eq!(data["window_alignment"]["rule"], "filter", "{name}");
+            assert_eq!(
+                data["window_alignment"]["time_offset_s"].as_f64(),
+                Some(config.dvl.akit_time_offset_s),
+                "{name}"
+            );
+            let model = &data["imu_error_model"];
+            for (sensor, s) in [
+                ("accelerometer", spec.accelerometer()),
+                ("gyroscope", spec.gyroscope()),
+            ] {
+                for (key, value) in [
+                    ("white_noise_density", s.white_noise_density),
+                    ("bias_instability", s.bias_instability),
+                    ("bias_time_constant", s.bias_time_constant),
+                    ("turn_on_bias", s.turn_on_bias),
+                    ("scale_factor", s.scale_factor),
+                ] {
+                    assert_eq!(
+                        model[sensor][key].as_f64(),
+                        Some(value),
+                        "{name} {sensor} {key}"
+                    );
+                }
+            }
+        }
+    }
 }
