@@ -130,15 +130,24 @@ fn dataset_command_leaves_out_windows_touching_held_out_rows() {
             last10 = last10.max(row[608]);
         }
     }
+    // An example of the DVL row stamped t depends on that row and on the IMU window
+    // ending at the motion instant t - offset (the filter's alignment recorded in the
+    // JSON; A-KIT's offset is negative, so the window lies after the stamp).
+    assert_eq!(meta["window_alignment"]["rule"], "filter");
+    let offset = meta["window_alignment"]["time_offset_s"].as_f64().unwrap();
+    assert!(offset < 0.0, "{offset}");
+    let last_end = last10 - offset;
     // Every kept example of 10 ends more than 2 rows (margin) before the shared part.
     assert!(
-        last10 < gt10[first_shared - 2].time,
-        "trajectory 10 keeps an example at {last10} s; shared rows start at {shared_time} s"
+        last_end < gt10[first_shared - 2].time,
+        "trajectory 10 keeps an example ending at {last_end} s; shared rows start at {shared_time} s"
     );
-    // and the rule costs only the shared part plus the margin: 10's DVL rows 1 ..
-    // first_shared - 3 keep their examples (row 0 has no full IMU window before it).
+    // and the rule costs only the shared part, the margin and the rows the offset
+    // spans: 10's DVL rows 0 ..= first_shared - 3 - ceil(|offset| / 1 s) keep their
+    // examples (1 Hz rows).
+    let offset_rows = (-offset).ceil() as usize;
     assert!(
-        per_trajectory[10] >= first_shared - 3,
+        per_trajectory[10] >= first_shared - 2 - offset_rows,
         "{} examples of 10 kept, shared rows start at row {first_shared}",
         per_trajectory[10]
     );

@@ -50,6 +50,9 @@ def main():
     data = np.load(args.dataset)
     with open(os.path.splitext(args.dataset)[0] + ".json") as f:
         meta = json.load(f)
+    # The network must see the windows the filter feeds it (issue #30).
+    if meta.get("window_alignment", {}).get("rule") != "filter":
+        sys.exit(f"{args.dataset}: windows not aligned as the filter feeds them; rebuild it with `estim dataset beamsnet`")
     if data.ndim != 2 or data.shape[1] != meta["columns"]:
         sys.exit(f"{args.dataset}: shape {data.shape}, metadata says {meta['columns']} columns")
     traj = data[:, TRAJ].astype(int)
@@ -158,7 +161,7 @@ def main():
         "inputs": [
             {"name": "acc", "stream": "acc", "channels": 3, "window": WINDOW, "sample_rate_hz": 100.0,
              "shape": [3, WINDOW], "mean": acc_mean.tolist(), "std": acc_std.tolist(),
-             "unit": "m/s^2", "description": "specific force, body frame, the 100 samples of the second before the DVL sample"},
+             "unit": "m/s^2", "description": "specific force, body frame, the 100 samples before the filter's update for the DVL sample (stamp shifted by the DVL time offset, dataset window_alignment)"},
             {"name": "gyro", "stream": "gyro", "channels": 3, "window": WINDOW, "sample_rate_hz": 100.0,
              "shape": [3, WINDOW], "mean": gyro_mean.tolist(), "std": gyro_std.tolist(),
              "unit": "rad/s", "description": "angular rate, body frame, same window as acc"},

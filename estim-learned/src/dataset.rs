@@ -23,7 +23,7 @@ pub const IMU_RATE_HZ: f64 = 100.0;
 /// One synthesized BeamsNet example.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BeamsNetSample {
-    /// DVL sample time \[s\].
+    /// DVL sample time stamp \[s\].
     pub time: f64,
     /// Network input (measured IMU window + beams).
     pub input: BeamsNetInput,
@@ -46,7 +46,79 @@ pub struct SynthesizedRun {
     pub samples: Vec<BeamsNetSample>,
 }
 
-/// Synthesize BeamsNet examples from a trajectory and DVL velocities `(time, v_body)`.
+/// How a DVL sample is paired with its IMU window.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum WindowAlignment {
+    /// The window ends at the DVL time stamp: the [`BEAMSNET_WINDOW`] samples whose
+    /// intervals end at or before the stamp t_k (index floor((t_k - t0) / dt)), no time
+    /// offset. The alignment of `estim beamsnet eval` and of the committed BeamsNet's
+    /// training set.
+    EndsAtStamp,
+    /// The window the filter feeds the network (the study's `Scenario::recorded` and
+    /// its learned measurements): a DVL sample stamped t_k measures the motion at
+    /// t_k - `time_offset_s`, its update is applied after IMU sample i - 1 with
+    /// i = round((t_k - time_offset_s - t0) / dt), and the window is IMU samples
+    /// i - [`BEAMSNET_WINDOW`] .. i - 1. Samples with i outside 1 ..= (number of IMU
+    /// samples) are dropped (the filter drops them too), as are those without a full
+    /// window.
+    Filter {
+        /// DVL time offset \[s\] (`dvl.akit_time_offset_s` of the study).
+        time_offset_s: f64,
+    },
+}
+
+impl WindowAlignment {
+    /// Index one past the window's last IMU sample for a DVL sample stamped `time`
+    /// (trajectory start `t0`, IMU period `dt`, `len` IMU samples); `None` if the
+    /// sample gets no full window.
+    fn window_end(&self, time: f64, t0: f64, dt: f64, len: usize) -> Option<usize> {
+        match *self {
+            Self::EndsAtStamp => {
+                // Samples whose interval [t0 + j dt, t0 + (j+1) dt] ends at or before `time`.
+                let end = ((time - t0) / dt + 1e-6).floor();
+                if end < BEAMSNET_WINDOW as f64 {
+                    return None;
+                }
+                let end = (end as usize).min(len);
+                (end >= BEAMSNET_WINDOW).then_some(end)
+            }
+            Self::Filter { time_offset_s } => {
+                // The same expression as the study's Scenario::recorded, so that the
+                // index is the same to the bit.
+                let t = time - time_offset_s;
+                let i = ((t - t0) / dt).round();
+                if !(1.0..=len as f64).contains(&i) || i < BEAMSNET_WINDOW as f64 {
+                    return None;
+                }
+                Some(i as usize)
+            }
+        }
+    }
+}
+
+/// [`synthesize_aligned`] with [`WindowAlignment::EndsAtStamp`].
+///
+/// # Errors
+/// As [`synthesize_aligned`].
+pub fn synthesize(
+    trajectory: &Trajectory,
+    dvl: &[(f64, Vector3<f64>)],
+    imu_spec: &ImuSpec,
+    protocol: &BeamsNetProtocol,
+    seed: u64,
+) -> Result<SynthesizedRun> {
+    synthesize_aligned(
+        trajectory,
+        dvl,
+        imu_spec,
+        protocol,
+        seed,
+        WindowAlignment::EndsAtStamp,
+    )
+}
+
+/// Synthesize BeamsNet examples from a trajectory and DVL velocities `(time stamp,
+/// v_body)`, each DVL sample paired with the IMU window given by `alignment`.
 ///
 /// Seeds: the IMU errors use `seed`, the beam noise `seed + 1_000_003` (independent
 /// ChaCha8 streams).
@@ -57,10 +129,11 @@ pub struct SynthesizedRun {
 ///    the estim-ins simulator into error-free 100 Hz IMU samples
 ///    ([`estim_ins::Trajectory::simulate`]).
 /// 2. A seeded [`estim_ins::ImuErrorGenerator`] corrupts them (white noise, turn-on
-///    bias, Gauss-Markov drift, scale factor of the given [`estim_ins::ImuSpec`]).
-/// 3. For each DVL sample at time t_k, the window is the 100 IMU samples whose
-///    intervals end at or before t_k (the second preceding the DVL sample); samples
-///    without a full window are skipped.
+///    bias, Gauss-Markov drift, scale factor of the given [`estim_ins::ImuSpec`]),
+///    one draw per sample in time order, as the study synthesizes the IMU of a
+///    recorded trajectory: the same trajectory, spec and seed give the same samples.
+/// 3. For each DVL sample, the window is the 100 IMU samples given by `alignment`
+///    ([`WindowAlignment`]); samples without a full window are skipped.
 /// 4. Beams = the BeamsNet protocol applied to the DVL velocity
 ///    ([`estim_dvl::BeamsNetProtocol::beams`]); target = the DVL velocity.
 ///
@@ -76,18 +149,32 @@ pub struct SynthesizedRun {
 /// | 600..604 | beams 1..4 (m/s) |
 /// | 604..607 | target DVL velocity x, y, z (body, m/s) |
 /// | 607 | trajectory number |
-/// | 608 | DVL sample time (s) |
+/// | 608 | DVL sample time stamp (s) |
 /// | 609 | realization index (IMU / beam noise draw) |
 ///
-/// `FILE.json` (same stem) records the column count, the IMU error model, the beam
-/// protocol and geometry, the trajectories and seeds (written by `estim dataset beamsnet`).
-pub fn synthesize(
+/// `FILE.json` (same stem) records the column count, the window alignment, the IMU
+/// error model, the beam protocol and geometry, the trajectories and seeds (written by
+/// `estim dataset beamsnet`).
+///
+/// # Errors
+/// [`Error::InvalidInput`] for a trajectory the simulator refuses, a non-finite DVL
+/// sample or a non-finite time offset.
+pub fn synthesize_aligned(
     trajectory: &Trajectory,
     dvl: &[(f64, Vector3<f64>)],
     imu_spec: &ImuSpec,
     protocol: &BeamsNetProtocol,
     seed: u64,
+    alignment: WindowAlignment,
 ) -> Result<SynthesizedRun> {
+    if let WindowAlignment::Filter { time_offset_s } = alignment {
+        if !time_offset_s.is_finite() {
+            return Err(Error::InvalidInput {
+                what: "DVL time offset",
+                reason: format!("{time_offset_s} is not finite"),
+            });
+        }
+    }
     let ins_err = |e: estim_ins::Error| Error::InvalidInput {
         what: "trajectory",
         reason: e.to_string(),
@@ -106,15 +193,9 @@ pub fn synthesize(
                 reason: format!("non-finite value at time {time}"),
             });
         }
-        // Samples whose interval [t0 + j dt, t0 + (j+1) dt] ends at or before `time`.
-        let end = ((time - t0) / dt + 1e-6).floor();
-        if end < BEAMSNET_WINDOW as f64 {
+        let Some(end) = alignment.window_end(time, t0, dt, imu.len()) else {
             continue;
-        }
-        let end = (end as usize).min(imu.len());
-        if end < BEAMSNET_WINDOW {
-            continue;
-        }
+        };
         let window = &imu[end - BEAMSNET_WINDOW..end];
         let force: Vec<Vector3<f64>> = window.iter().map(|s| s.specific_force).collect();
         let rate: Vec<Vector3<f64>> = window.iter().map(|s| s.angular_rate).collect();
@@ -187,6 +268,113 @@ pub fn write_npy(path: &Path, columns: usize, data: &[f64]) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The index of the IMU sample whose interval ends nearest to `t` (linear search
+    /// over the samples' own time stamps: an independent recomputation).
+    fn nearest_interval_end(imu: &[ImuSample], dt: f64, t: f64) -> usize {
+        (0..imu.len())
+            .min_by(|&a, &b| {
+                let da = (imu[a].time + dt - t).abs();
+                let db = (imu[b].time + dt - t).abs();
+                da.total_cmp(&db)
+            })
+            .unwrap()
+    }
+
+    #[test]
+    fn filter_alignment_pairs_the_sample_with_the_window_before_its_shifted_time() {
+        use estim_ins::{Mission, MissionConfig};
+        let mission = Mission::generate(
+            &MissionConfig::builder().duration(20.0).build().unwrap(),
+            11,
+        )
+        .unwrap();
+        let trajectory = &mission.trajectory;
+        let t0 = trajectory.start_time();
+        let end = trajectory.end_time();
+        // Stamps off the IMU grid, from before the first full window to past the end.
+        let dvl: Vec<(f64, Vector3<f64>)> = (0..25)
+            .map(|k| {
+                (
+                    t0 - 0.7 + 1.0025 * f64::from(k) + 0.0031,
+                    Vector3::new(1.0, 0.1, 0.0),
+                )
+            })
+            .collect();
+        let spec = ImuSpec::akit_observed();
+        let protocol = BeamsNetProtocol::v1();
+        let dt = 1.0 / IMU_RATE_HZ;
+        for offset in [-1.48, 0.0, 0.73] {
+            let run = synthesize_aligned(
+                trajectory,
+                &dvl,
+                &spec,
+                &protocol,
+                3,
+                WindowAlignment::Filter {
+                    time_offset_s: offset,
+                },
+            )
+            .unwrap();
+            let mut expected = 0;
+            for &(stamp, _) in &dvl {
+                let motion = stamp - offset;
+                // A full window before the motion instant, inside the simulated span.
+                let full = motion - t0 >= BEAMSNET_WINDOW as f64 * dt - dt / 2.0
+                    && motion <= run.truth.last().unwrap().time + dt / 2.0;
+                let found = run.samples.iter().find(|s| s.time == stamp);
+                assert_eq!(found.is_some(), full, "offset {offset}, stamp {stamp}");
+                let Some(sample) = found else { continue };
+                expected += 1;
+                let last = nearest_interval_end(&run.imu, dt, motion);
+                assert_eq!(sample.imu_end, last + 1, "offset {offset}, stamp {stamp}");
+                for (col, j) in [(0, last + 1 - BEAMSNET_WINDOW), (BEAMSNET_WINDOW - 1, last)] {
+                    for r in 0..3 {
+                        assert_eq!(sample.input.acc[(r, col)], run.imu[j].specific_force[r]);
+                        assert_eq!(sample.input.gyro[(r, col)], run.imu[j].angular_rate[r]);
+                    }
+                }
+            }
+            assert!(expected > 10 && expected < dvl.len(), "{expected} windows");
+            assert!(run.truth.last().unwrap().time <= end);
+        }
+    }
+
+    #[test]
+    fn ends_at_stamp_alignment_is_the_second_before_the_stamp() {
+        use estim_ins::{Mission, MissionConfig};
+        let mission = Mission::generate(
+            &MissionConfig::builder().duration(10.0).build().unwrap(),
+            12,
+        )
+        .unwrap();
+        let trajectory = &mission.trajectory;
+        let t0 = trajectory.start_time();
+        let dvl: Vec<(f64, Vector3<f64>)> = (1..9)
+            .map(|k| (t0 + 1.0025 * f64::from(k) + 0.004, Vector3::zeros()))
+            .collect();
+        let protocol = BeamsNetProtocol::v1();
+        let dt = 1.0 / IMU_RATE_HZ;
+        let run = synthesize(trajectory, &dvl, &ImuSpec::akit_observed(), &protocol, 4).unwrap();
+        assert_eq!(run.samples.len(), dvl.len());
+        for s in &run.samples {
+            // The last sample's interval ends at or before the stamp, within one period.
+            let last_end = run.imu[s.imu_end - 1].time + dt;
+            assert!(last_end <= s.time + 1e-9 && s.time - last_end < dt, "{s:?}");
+        }
+        let bad = WindowAlignment::Filter {
+            time_offset_s: f64::NAN,
+        };
+        assert!(synthesize_aligned(
+            trajectory,
+            &dvl,
+            &ImuSpec::akit_observed(),
+            &protocol,
+            4,
+            bad
+        )
+        .is_err());
+    }
 
     #[test]
     fn npy_header_is_aligned_and_data_follows() {

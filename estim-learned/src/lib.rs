@@ -5,7 +5,8 @@
 //!   stream and window, normalisation and R from the metadata, batched finite-difference
 //!   Jacobian-vector products);
 //! - [`BeamsNet`]: BeamsNetV1 (IMU windows + 4 beams -> body velocity);
-//! - [`synthesize`], [`dataset_row`], [`write_npy`]: BeamsNet training data;
+//! - [`synthesize_aligned`] (windows aligned as the filter feeds them, [`WindowAlignment`]),
+//!   [`synthesize`], [`dataset_row`], [`write_npy`]: training data of the networks;
 //! - [`TwoBeamsNet`]: IMU window + two beams -> body velocity (its M is the generic
 //!   [`LearnedCrossCovariance`], by Monte Carlo [`Empirical::for_model`]);
 //! - [`OutageNet`]: IMU window + last valid DVL velocity + time since it -> body
@@ -59,8 +60,8 @@ mod two_beams;
 
 pub use beamsnet::{default_model_path, BeamsNet, BeamsNetInput, BEAMSNET_WINDOW};
 pub use dataset::{
-    dataset_row, synthesize, write_npy, BeamsNetSample, SynthesizedRun, DATASET_COLUMNS,
-    IMU_RATE_HZ,
+    dataset_row, synthesize, synthesize_aligned, write_npy, BeamsNetSample, SynthesizedRun,
+    WindowAlignment, DATASET_COLUMNS, IMU_RATE_HZ,
 };
 pub use error::{Error, Result};
 pub use evaluation::{evaluate, Evaluation};

@@ -11,8 +11,10 @@ use estim_core::nalgebra::Vector3;
 use estim_dvl::BeamsNetProtocol;
 use estim_ins::{ImuSpec, Trajectory};
 use estim_learned::{
-    dataset_row, synthesize, write_npy, BEAMSNET_WINDOW, DATASET_COLUMNS, IMU_RATE_HZ,
+    dataset_row, synthesize_aligned, write_npy, WindowAlignment, DATASET_COLUMNS, IMU_RATE_HZ,
 };
+
+use crate::study::Config;
 
 /// Trajectories BeamsNet is trained on: A-KIT 1-3 and 5-12 (4 and 13 are held out).
 pub const TRAINING_TRAJECTORIES: [u32; 11] = [1, 2, 3, 5, 6, 7, 8, 9, 10, 11, 12];
@@ -48,10 +50,34 @@ struct BeamsnetArgs {
     seed: u64,
 }
 
-/// The A-KIT IMU error model used for synthesis: white noise as observed in the real
-/// 100 Hz stream (0.03 m/s^2, 5e-4 rad/s per sample) plus tactical-MEMS biases.
+/// The IMU error model of `estim beamsnet eval` and of the committed BeamsNet's
+/// training set: white noise as observed in the real 100 Hz stream (0.03 m/s^2, 5e-4
+/// rad/s per sample) plus tactical-MEMS biases and 500 ppm scale factors.
 pub fn imu_spec() -> ImuSpec {
     ImuSpec::akit_observed()
+}
+
+/// How `estim dataset beamsnet` synthesizes an example as the study's filter sees it
+/// under `config`: the IMU error model of the test scenarios (`config.imu_spec()`:
+/// `imu.preset`, without scale factors unless `imu.scale_factor_errors`) and the window
+/// the filter feeds the network (DVL stamps shifted by `dvl.akit_time_offset_s`).
+///
+/// # Errors
+/// An invalid IMU section, or an IMU rate other than the networks' 100 Hz.
+pub fn filter_synthesis(config: &Config) -> anyhow::Result<(ImuSpec, WindowAlignment)> {
+    let spec = config.imu_spec().map_err(anyhow::Error::msg)?;
+    if config.mission.imu_rate_hz != IMU_RATE_HZ {
+        bail!(
+            "mission.imu_rate_hz = {}: the networks' windows are {IMU_RATE_HZ} Hz",
+            config.mission.imu_rate_hz
+        );
+    }
+    Ok((
+        spec,
+        WindowAlignment::Filter {
+            time_offset_s: config.dvl.akit_time_offset_s,
+        },
+    ))
 }
 
 /// DVL velocities `(time, v_body)`.
@@ -123,7 +149,8 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
         bail!("no data folder: pass --data DIR or set ESTIM_DATA_DIR");
     };
     let protocol = BeamsNetProtocol::v1();
-    let spec = imu_spec();
+    let config = Config::default();
+    let (spec, alignment) = filter_synthesis(&config)?;
     // Rows shared between trajectories (identical GT and DVL values): every example
     // whose window touches a row shared with a held-out trajectory is left out, and the
     // groups of trajectories linked by shared rows are recorded so that the training
@@ -135,7 +162,6 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
         .collect();
     let overlaps = akit_overlaps(&root, &all)
         .context("finding rows shared with the held-out trajectories (all 13 are needed)")?;
-    let window_s = BEAMSNET_WINDOW as f64 / IMU_RATE_HZ;
     let mut data = Vec::new();
     let mut counts = Vec::new();
     for n in TRAINING_TRAJECTORIES {
@@ -148,11 +174,17 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
         let mut excluded = 0;
         for r in 0..args.realizations {
             let seed = args.seed + 1000 * u64::from(n) + u64::from(r);
-            let run = synthesize(&trajectory, &dvl, &spec, &protocol, seed)
+            let run = synthesize_aligned(&trajectory, &dvl, &spec, &protocol, seed, alignment)
                 .with_context(|| format!("trajectory {n}"))?;
             for s in &run.samples {
-                let start = s.time - window_s;
-                if touches_held_out(&overlaps, n, &gt_times, start, s.time, &TEST_TRAJECTORIES) {
+                // The GT rows the example depends on: its IMU window and its DVL row.
+                let window = [
+                    run.truth[s.imu_end - estim_learned::BEAMSNET_WINDOW].time,
+                    run.truth[s.imu_end].time,
+                ];
+                let start = window[0].min(s.time);
+                let end = window[1].max(s.time);
+                if touches_held_out(&overlaps, n, &gt_times, start, end, &TEST_TRAJECTORIES) {
                     excluded += 1;
                     continue;
                 }
@@ -184,7 +216,7 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
     let a = spec.accelerometer();
     let g = spec.gyroscope();
     let meta = serde_json::json!({
-        "format": "estim-beamsnet-dataset/1",
+        "format": "estim-beamsnet-dataset/2",
         "columns": DATASET_COLUMNS,
         "rows": data.len() / DATASET_COLUMNS,
         "layout": {
@@ -194,8 +226,18 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
         },
         "imu_rate_hz": IMU_RATE_HZ,
         "dvl_rate_hz": 1.0 / 1.0025,
+        "window_alignment": {
+            "rule": "filter",
+            "time_offset_s": config.dvl.akit_time_offset_s,
+            "description": "as the study's filter: a DVL sample stamped t measures the motion at t - time_offset_s; \
+                its update follows IMU sample i - 1, i = round((t - time_offset_s - t0) / dt); the window is IMU \
+                samples i - 100 .. i - 1 (t0: first GT time, dt = 0.01 s); column 608 holds the stamp t"
+        },
         "imu_error_model": {
-            "name": "ImuSpec::akit_observed (estim-ins)",
+            "name": format!(
+                "study default configuration: imu.preset = {}, imu.scale_factor_errors = {}",
+                config.imu.preset, config.imu.scale_factor_errors
+            ),
             "accelerometer": {
                 "white_noise_density": a.white_noise_density,
                 "per_sample_std_at_100hz": a.white_noise_density * IMU_RATE_HZ.sqrt(),
@@ -251,4 +293,151 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
         meta_path.display()
     );
     Ok(())
+}
+
+// The data lookup shared with the integration tests (one copy; the study's tests load
+// it too, privately to the study).
+#[cfg(test)]
+#[allow(clippy::duplicate_mod)]
+#[path = "../../tests/common/mod.rs"]
+mod common;
+
+#[cfg(test)]
+mod tests {
+    //! The dataset's windows are the windows the study's filter feeds the networks.
+    //! Data rule: without the A-KIT data the data tests print why and return, unless
+    //! `ESTIM_REQUIRE_DATA=1`.
+
+    use super::common;
+    use super::*;
+    use crate::study::{two_beams_measurements, Scenario};
+    use estim_core::nalgebra::DMatrix;
+    use estim_learned::{synthesize, BeamsNetSample, BEAMSNET_WINDOW};
+
+    /// Whether every example is the window, target and update the study builds for the
+    /// same trajectory and seed, and every study epoch with a full window has one.
+    fn check_windows(samples: &[BeamsNetSample], scenario: &Scenario) -> Result<(), String> {
+        let n = BEAMSNET_WINDOW;
+        let full = scenario.dvl.iter().filter(|e| e.imu_index >= n).count();
+        if full != samples.len() {
+            return Err(format!("{} examples, {full} study epochs", samples.len()));
+        }
+        for s in samples {
+            let Some(epoch) = scenario.dvl.iter().find(|e| e.imu_index == s.imu_end) else {
+                return Err(format!(
+                    "stamp {}: no study update at IMU sample {}",
+                    s.time, s.imu_end
+                ));
+            };
+            if epoch.reference_velocity != s.target {
+                return Err(format!("stamp {}: another DVL row at that update", s.time));
+            }
+            for (j, imu) in scenario.imu[s.imu_end - n..s.imu_end].iter().enumerate() {
+                for r in 0..3 {
+                    if s.input.acc[(r, j)] != imu.specific_force[r]
+                        || s.input.gyro[(r, j)] != imu.angular_rate[r]
+                    {
+                        return Err(format!("stamp {}: window sample {j} differs", s.time));
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    #[test]
+    fn dataset_windows_are_the_windows_the_filter_feeds() {
+        let Some(root) = common::data_root() else {
+            return;
+        };
+        let config = Config::default();
+        let (spec, alignment) = filter_synthesis(&config).unwrap();
+        let protocol = BeamsNetProtocol::v1();
+        for (n, seed) in [(2, 4321), (12, 98)] {
+            let (trajectory, dvl) = load_akit(&root, n).unwrap();
+            let scenario = Scenario::akit(&root, n, &config, seed).unwrap();
+            let run =
+                synthesize_aligned(&trajectory, &dvl, &spec, &protocol, seed, alignment).unwrap();
+            assert!(run.samples.len() > 350, "{} examples", run.samples.len());
+            check_windows(&run.samples, &scenario).unwrap();
+            // The former dataset (window ending at the stamp, 500 ppm scale factors)
+            // and each of its two differences alone fail the check.
+            let old = synthesize(&trajectory, &dvl, &imu_spec(), &protocol, seed).unwrap();
+            assert!(check_windows(&old.samples, &scenario).is_err());
+            let unshifted = synthesize(&trajectory, &dvl, &spec, &protocol, seed).unwrap();
+            assert!(check_windows(&unshifted.samples, &scenario).is_err());
+            let scaled =
+                synthesize_aligned(&trajectory, &dvl, &imu_spec(), &protocol, seed, alignment)
+                    .unwrap();
+            assert!(check_windows(&scaled.samples, &scenario).is_err());
+
+            // What the study's two-beams measurement computes at an update equals the
+            // network run on the dataset's window with the study's beams.
+            let net = estim::models::two_beams().unwrap();
+            let picks: Vec<usize> = [50, 200, 300]
+                .iter()
+                .map(|&i| run.samples[i].imu_end)
+                .filter_map(|end| scenario.dvl.iter().position(|e| e.imu_index == end))
+                .collect();
+            assert_eq!(picks.len(), 3);
+            let study = two_beams_measurements(&net, &scenario, &picks, 0, seed).unwrap();
+            for &k in &picks {
+                let epoch = &scenario.dvl[k];
+                let s = run
+                    .samples
+                    .iter()
+                    .find(|s| s.imu_end == epoch.imu_index)
+                    .unwrap();
+                let mut inputs = vec![
+                    DMatrix::from_fn(3, BEAMSNET_WINDOW, |r, c| s.input.acc[(r, c)]),
+                    DMatrix::from_fn(3, BEAMSNET_WINDOW, |r, c| s.input.gyro[(r, c)]),
+                ];
+                inputs.extend(net.beam_inputs(&epoch.beams).unwrap());
+                let direct = net.measurement().measure_batch(&[inputs]).unwrap()[0];
+                let via_study = study.velocities[k].unwrap();
+                assert!(
+                    (direct - via_study).amax() < 1e-6,
+                    "epoch {k}: {direct} vs {via_study}"
+                );
+            }
+        }
+    }
+
+    /// The committed two-beams network's dataset was aligned as the filter feeds it,
+    /// with the test scenarios' IMU error model. (The committed outage network was not
+    /// retrained: training/README.md says why.)
+    #[test]
+    fn committed_two_beams_network_was_trained_as_the_filter_uses_it() {
+        let config = Config::default();
+        let (spec, _) = filter_synthesis(&config).unwrap();
+        for (name, json) in [("two_beams", include_str!("../../models/two_beams.json"))] {
+            let meta: serde_json::Value = serde_json::from_str(json).unwrap();
+            let data = &meta["training"]["dataset_metadata"];
+            assert_eq!(data["window_alignment"]["rule"], "filter", "{name}");
+            assert_eq!(
+                data["window_alignment"]["time_offset_s"].as_f64(),
+                Some(config.dvl.akit_time_offset_s),
+                "{name}"
+            );
+            let model = &data["imu_error_model"];
+            for (sensor, s) in [
+                ("accelerometer", spec.accelerometer()),
+                ("gyroscope", spec.gyroscope()),
+            ] {
+                for (key, value) in [
+                    ("white_noise_density", s.white_noise_density),
+                    ("bias_instability", s.bias_instability),
+                    ("bias_time_constant", s.bias_time_constant),
+                    ("turn_on_bias", s.turn_on_bias),
+                    ("scale_factor", s.scale_factor),
+                ] {
+                    assert_eq!(
+                        model[sensor][key].as_f64(),
+                        Some(value),
+                        "{name} {sensor} {key}"
+                    );
+                }
+            }
+        }
+    }
 }

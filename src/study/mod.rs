@@ -32,8 +32,8 @@ pub use evaluate::{
 pub use faults::{apply_faults, DvlOutage, FaultConfig, ImuGap};
 pub use learned::beamsnet_inputs;
 pub use learned_scenarios::{
-    learned_monte_carlo, learned_study, max_correlation, LearnedEvent, LearnedMonteCarlo,
-    LearnedStudy, MeanInterval, STUDY_EMPIRICAL_REALIZATIONS,
+    learned_monte_carlo, learned_study, max_correlation, two_beams_measurements, LearnedEvent,
+    LearnedMonteCarlo, LearnedStudy, MeanInterval, STUDY_EMPIRICAL_REALIZATIONS,
 };
 pub use mismatch::{fit_reference_mismatch, AKIT_TEST_TRAJECTORIES, CHI_SQUARE_1_MEDIAN};
 pub use montecarlo::{
