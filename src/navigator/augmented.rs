@@ -70,10 +70,8 @@ use nalgebra::{Matrix3, Rotation3, SMatrix, SVector, Vector1, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::aiding::{DepthModel, PositionFixModel};
-use super::{
-    DvlConfig, NavSolution, NavigatorError, NavigatorSettings, Result, UpdateCounts,
-    IMU_PERIOD_SNAP,
-};
+use super::filter::ImuClock;
+use super::{DvlConfig, NavSolution, NavigatorError, NavigatorSettings, Result, UpdateCounts};
 
 /// Size of the augmented error state.
 pub const AUGMENTED_STATES: usize = ERROR_STATES + DVL_STATES;
@@ -796,10 +794,7 @@ pub struct AugmentedNavigator {
     dvl: AugmentedDvlModel,
     depth: Lifted<DepthModel>,
     fix_lever_arm: Vector3<f64>,
-    period: f64,
-    tolerance: f64,
-    clock: f64,
-    held: Option<ImuSample>,
+    imu_clock: ImuClock,
     /// DVL velocity updates.
     pub dvl_counts: UpdateCounts,
     /// Depth updates.
@@ -840,11 +835,7 @@ impl AugmentedNavigator {
         covariance: ErrorMatrix,
         imu_period_s: f64,
     ) -> Result<Self> {
-        if !(imu_period_s.is_finite() && imu_period_s > 0.0) {
-            return Err(NavigatorError::Config(format!(
-                "IMU period {imu_period_s} s is not positive and finite"
-            )));
-        }
+        let imu_clock = ImuClock::new(imu_period_s, initial.time)?;
         let process = AugmentedErrorModel::new(InsErrorModel::new(settings.filter_spec), states)?;
         let mut p = AugmentedMatrix::zeros();
         p.fixed_view_mut::<ERROR_STATES, ERROR_STATES>(0, 0)
@@ -870,10 +861,7 @@ impl AugmentedNavigator {
                 config.depth.noise_std_m,
             )),
             fix_lever_arm: Vector3::from(config.fixes.lever_arm_m),
-            period: imu_period_s,
-            tolerance: IMU_PERIOD_SNAP * imu_period_s,
-            clock: initial.time,
-            held: None,
+            imu_clock,
             dvl_counts: UpdateCounts::default(),
             depth_counts: UpdateCounts::default(),
             fix_counts: UpdateCounts::default(),
@@ -905,7 +893,7 @@ impl AugmentedNavigator {
 
     /// The time the state refers to \[s\].
     pub fn clock(&self) -> f64 {
-        self.clock
+        self.imu_clock.time()
     }
 
     /// The solution now.
@@ -915,7 +903,11 @@ impl AugmentedNavigator {
         let sigma = |i: usize| p[(i, i)].max(0.0).sqrt();
         let group = |start: usize| [sigma(start), sigma(start + 1), sigma(start + 2)];
         AugmentedSolution {
-            navigation: NavSolution::from_state(self.clock, &x.ins, &self.ins_covariance()),
+            navigation: NavSolution::from_state(
+                self.imu_clock.time(),
+                &x.ins,
+                &self.ins_covariance(),
+            ),
             dvl: DvlStateSolution {
                 scale_factor_error: x.dvl.scale_factor_error,
                 scale_factor_sigma: sigma(DVL_SCALE),
@@ -932,20 +924,14 @@ impl AugmentedNavigator {
     }
 
     fn step_to(&mut self, end: f64) -> Result<()> {
-        let Some(sample) = self.held else {
-            return Err(NavigatorError::NoImu { time: end });
-        };
-        let mut dt = end - self.clock;
-        if (dt - self.period).abs() <= self.tolerance {
-            dt = self.period;
-        }
+        let (sample, dt) = self.imu_clock.step(end)?;
         self.filter
             .predict(&sample, dt)
             .map_err(|source| NavigatorError::Filter {
-                time: self.clock,
+                time: self.imu_clock.time(),
                 source,
             })?;
-        self.clock = end;
+        self.imu_clock.advance(end);
         Ok(())
     }
 
@@ -954,28 +940,10 @@ impl AugmentedNavigator {
     /// # Errors
     /// As [`super::Navigator::imu`].
     pub fn imu(&mut self, sample: &ImuSample) -> Result<()> {
-        let finite = sample.time.is_finite()
-            && sample.specific_force.iter().all(|v| v.is_finite())
-            && sample.angular_rate.iter().all(|v| v.is_finite());
-        if !finite {
-            return Err(NavigatorError::NonFinite {
-                what: "IMU sample",
-                time: sample.time,
-            });
+        if self.imu_clock.sample_needs_step(sample)? {
+            self.step_to(sample.time)?;
         }
-        if self.held.is_some() {
-            if sample.time < self.clock - self.tolerance {
-                return Err(NavigatorError::TimeOrder {
-                    what: "IMU sample",
-                    time: sample.time,
-                    clock: self.clock,
-                });
-            }
-            if sample.time - self.clock > self.tolerance {
-                self.step_to(sample.time)?;
-            }
-        }
-        self.held = Some(*sample);
+        self.imu_clock.hold(*sample);
         Ok(())
     }
 
@@ -984,14 +952,7 @@ impl AugmentedNavigator {
     /// # Errors
     /// As [`super::Navigator::propagate_to`].
     pub fn propagate_to(&mut self, time: f64) -> Result<()> {
-        if !time.is_finite() || time < self.clock - self.tolerance {
-            return Err(NavigatorError::TimeOrder {
-                what: "measurement",
-                time,
-                clock: self.clock,
-            });
-        }
-        if time - self.clock > self.tolerance {
+        if self.imu_clock.measurement_needs_step(time)? {
             self.step_to(time)?;
         }
         Ok(())

@@ -53,6 +53,120 @@ impl UpdateCounts {
     }
 }
 
+/// The IMU timing both navigators share: the time the state refers to, the sample in
+/// effect and the nominal period. It decides what to integrate; the navigator
+/// integrates it and then advances the clock.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct ImuClock {
+    period: f64,
+    tolerance: f64,
+    clock: f64,
+    held: Option<ImuSample>,
+}
+
+impl ImuClock {
+    /// A clock at `start` for a nominal period `period` \[s\].
+    ///
+    /// # Errors
+    /// [`NavigatorError::Config`] for a period that is not positive and finite.
+    pub(super) fn new(period: f64, start: f64) -> Result<Self> {
+        if !(period.is_finite() && period > 0.0) {
+            return Err(NavigatorError::Config(format!(
+                "IMU period {period} s is not positive and finite"
+            )));
+        }
+        Ok(Self {
+            period,
+            tolerance: IMU_PERIOD_SNAP * period,
+            clock: start,
+            held: None,
+        })
+    }
+
+    /// The time the state refers to \[s\].
+    pub(super) fn time(&self) -> f64 {
+        self.clock
+    }
+
+    /// The nominal period \[s\].
+    pub(super) fn period(&self) -> f64 {
+        self.period
+    }
+
+    /// The sample in effect.
+    pub(super) fn held(&self) -> Option<&ImuSample> {
+        self.held.as_ref()
+    }
+
+    /// The step from the clock to `end`: the held sample and dt (the nominal period
+    /// when within [`IMU_PERIOD_SNAP`] of it).
+    ///
+    /// # Errors
+    /// [`NavigatorError::NoImu`] before the first sample.
+    pub(super) fn step(&self, end: f64) -> Result<(ImuSample, f64)> {
+        // Nothing to integrate before the first sample.
+        let sample = self.held.ok_or(NavigatorError::NoImu { time: end })?;
+        let dt = end - self.clock;
+        if (dt - self.period).abs() <= self.tolerance {
+            Ok((sample, self.period))
+        } else {
+            Ok((sample, dt))
+        }
+    }
+
+    /// Move the clock to `end` (after its step was integrated).
+    pub(super) fn advance(&mut self, end: f64) {
+        self.clock = end;
+    }
+
+    /// Whether `sample` needs a step to its time before it is held.
+    ///
+    /// # Errors
+    /// [`NavigatorError::NonFinite`], [`NavigatorError::TimeOrder`].
+    pub(super) fn sample_needs_step(&self, sample: &ImuSample) -> Result<bool> {
+        let finite = sample.time.is_finite()
+            && sample.specific_force.iter().all(|v| v.is_finite())
+            && sample.angular_rate.iter().all(|v| v.is_finite());
+        if !finite {
+            return Err(NavigatorError::NonFinite {
+                what: "IMU sample",
+                time: sample.time,
+            });
+        }
+        if self.held.is_none() {
+            return Ok(false);
+        }
+        if sample.time < self.clock - self.tolerance {
+            return Err(NavigatorError::TimeOrder {
+                what: "IMU sample",
+                time: sample.time,
+                clock: self.clock,
+            });
+        }
+        Ok(sample.time - self.clock > self.tolerance)
+    }
+
+    /// Hold `sample` from the clock on.
+    pub(super) fn hold(&mut self, sample: ImuSample) {
+        self.held = Some(sample);
+    }
+
+    /// Whether a measurement at `time` needs a step to it first.
+    ///
+    /// # Errors
+    /// [`NavigatorError::TimeOrder`] for a time before the clock or not finite.
+    pub(super) fn measurement_needs_step(&self, time: f64) -> Result<bool> {
+        if !time.is_finite() || time < self.clock - self.tolerance {
+            return Err(NavigatorError::TimeOrder {
+                what: "measurement",
+                time,
+                clock: self.clock,
+            });
+        }
+        Ok(time - self.clock > self.tolerance)
+    }
+}
+
 /// The navigation solution at one time, with 1-sigma per state (from the diagonal
 /// of the error covariance; the error state's own frames: position N, E, D metres,
 /// misalignment about N, E, D).
@@ -160,10 +274,7 @@ pub struct Navigator<O = NoObserver> {
     dvl: DvlVelocityModel,
     depth: DepthModel,
     fix_lever_arm: Vector3<f64>,
-    period: f64,
-    tolerance: f64,
-    clock: f64,
-    held: Option<ImuSample>,
+    imu_clock: ImuClock,
     last_step: Option<(ImuSample, f64)>,
     last_learned_velocity: Option<Vector3<f64>>,
     /// DVL velocity updates.
@@ -187,11 +298,7 @@ impl Navigator<NoObserver> {
         covariance: ErrorMatrix,
         imu_period_s: f64,
     ) -> Result<Self> {
-        if !(imu_period_s.is_finite() && imu_period_s > 0.0) {
-            return Err(NavigatorError::Config(format!(
-                "IMU period {imu_period_s} s is not positive and finite"
-            )));
-        }
+        let imu_clock = ImuClock::new(imu_period_s, initial.time)?;
         let process = InsErrorModel::new(settings.filter_spec);
         let filter = ErrorStateKalmanFilter::new(process, initial, covariance)?
             .with_config(settings.filter_config.clone());
@@ -204,10 +311,7 @@ impl Navigator<NoObserver> {
                 config.depth.noise_std_m,
             ),
             fix_lever_arm: Vector3::from(config.fixes.lever_arm_m),
-            period: imu_period_s,
-            tolerance: IMU_PERIOD_SNAP * imu_period_s,
-            clock: initial.time,
-            held: None,
+            imu_clock,
             last_step: None,
             last_learned_velocity: None,
             dvl_counts: UpdateCounts::default(),
@@ -226,10 +330,7 @@ impl<O> Navigator<O> {
             dvl: self.dvl,
             depth: self.depth,
             fix_lever_arm: self.fix_lever_arm,
-            period: self.period,
-            tolerance: self.tolerance,
-            clock: self.clock,
-            held: self.held,
+            imu_clock: self.imu_clock,
             last_step: self.last_step,
             last_learned_velocity: self.last_learned_velocity,
             dvl_counts: self.dvl_counts,
@@ -265,17 +366,17 @@ impl<O> Navigator<O> {
 
     /// The time the state refers to \[s\].
     pub fn clock(&self) -> f64 {
-        self.clock
+        self.imu_clock.time()
     }
 
     /// The nominal IMU period \[s\].
     pub fn imu_period(&self) -> f64 {
-        self.period
+        self.imu_clock.period()
     }
 
     /// The IMU sample in effect (the last one fed).
     pub fn held_sample(&self) -> Option<&ImuSample> {
-        self.held.as_ref()
+        self.imu_clock.held()
     }
 
     /// The last propagation step: the sample integrated and its dt.
@@ -296,29 +397,26 @@ impl<O> Navigator<O> {
 
     /// The solution now.
     pub fn solution(&self) -> NavSolution {
-        NavSolution::from_state(self.clock, self.filter.nominal(), self.filter.covariance())
+        NavSolution::from_state(
+            self.imu_clock.time(),
+            self.filter.nominal(),
+            self.filter.covariance(),
+        )
     }
 }
 
 impl<O: Observer<f64, InsState, ERROR_STATES>> Navigator<O> {
     /// Integrate the held sample from the clock to `end` in one step.
     fn step_to(&mut self, end: f64) -> Result<()> {
-        let Some(sample) = self.held else {
-            // Nothing to integrate before the first sample: the state stays at rest.
-            return Err(NavigatorError::NoImu { time: end });
-        };
-        let mut dt = end - self.clock;
-        if (dt - self.period).abs() <= self.tolerance {
-            dt = self.period;
-        }
+        let (sample, dt) = self.imu_clock.step(end)?;
         self.filter
             .predict(&sample, dt)
             .map_err(|source| NavigatorError::Filter {
-                time: self.clock,
+                time: self.imu_clock.time(),
                 source,
             })?;
         self.last_step = Some((sample, dt));
-        self.clock = end;
+        self.imu_clock.advance(end);
         Ok(())
     }
 
@@ -330,28 +428,10 @@ impl<O: Observer<f64, InsState, ERROR_STATES>> Navigator<O> {
     /// [`NavigatorError::TimeOrder`] for a sample before the clock,
     /// [`NavigatorError::NonFinite`] for a non-finite value; [`NavigatorError::Filter`] for a numerical failure (with the time).
     pub fn imu(&mut self, sample: &ImuSample) -> Result<()> {
-        let finite = sample.time.is_finite()
-            && sample.specific_force.iter().all(|v| v.is_finite())
-            && sample.angular_rate.iter().all(|v| v.is_finite());
-        if !finite {
-            return Err(NavigatorError::NonFinite {
-                what: "IMU sample",
-                time: sample.time,
-            });
+        if self.imu_clock.sample_needs_step(sample)? {
+            self.step_to(sample.time)?;
         }
-        if self.held.is_some() {
-            if sample.time < self.clock - self.tolerance {
-                return Err(NavigatorError::TimeOrder {
-                    what: "IMU sample",
-                    time: sample.time,
-                    clock: self.clock,
-                });
-            }
-            if sample.time - self.clock > self.tolerance {
-                self.step_to(sample.time)?;
-            }
-        }
-        self.held = Some(*sample);
+        self.imu_clock.hold(*sample);
         Ok(())
     }
 
@@ -361,14 +441,7 @@ impl<O: Observer<f64, InsState, ERROR_STATES>> Navigator<O> {
     /// [`NavigatorError::TimeOrder`] for a time before the clock,
     /// [`NavigatorError::NoImu`] before the first IMU sample, the filter's.
     pub fn propagate_to(&mut self, time: f64) -> Result<()> {
-        if !time.is_finite() || time < self.clock - self.tolerance {
-            return Err(NavigatorError::TimeOrder {
-                what: "measurement",
-                time,
-                clock: self.clock,
-            });
-        }
-        if time - self.clock > self.tolerance {
+        if self.imu_clock.measurement_needs_step(time)? {
             self.step_to(time)?;
         }
         Ok(())
