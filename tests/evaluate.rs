@@ -184,3 +184,47 @@ fn the_documented_states_file_is_accepted() {
         "{err}"
     );
 }
+
+/// `--adaptive-noise`: a zero memory is refused with exit 2; on A-KIT 13, whose DVL
+/// mismatch is below the training level, the adapted scale falls below 1 and the
+/// NIS comes into its band for both variants (it is 0.2 with the fitted level).
+#[test]
+fn adaptive_noise_scale_is_checked_and_brings_the_nis_into_band_on_13() {
+    let out = estim(&["evaluate", "--adaptive-noise", "0"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--adaptive-noise 0"));
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    let root = root.to_string_lossy().into_owned();
+    let out = estim(&[
+        "evaluate",
+        "--data",
+        &root,
+        "--fit-trajectories",
+        "2,7",
+        "--trajectory",
+        "13",
+        "--seeds",
+        "1",
+        "--adaptive-noise",
+        "100",
+        "--json",
+    ]);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    let e = &doc["evaluation"];
+    assert_eq!(e["adaptive_noise_window"].as_u64(), Some(100));
+    for row in e["rows"].as_array().expect("rows") {
+        let scale = row["noise_scale"].as_f64().expect("noise_scale");
+        let nis = row["nis"].as_f64().expect("nis");
+        println!("{}: scale {scale:.3}, NIS {nis:.2}", row["id"]);
+        assert!(scale > 0.0 && scale < 1.0, "{row}");
+        assert!((1.5..=6.0).contains(&nis), "{row}");
+    }
+}

@@ -338,6 +338,32 @@ impl AugmentedErrorModel {
         })
     }
 
+    /// The Gauss-Markov bias (sigma \[m/s\], tau \[s\]), if estimated.
+    pub fn bias(&self) -> Option<(f64, f64)> {
+        self.bias
+    }
+
+    /// Set the Gauss-Markov bias sigma \[m/s\] (> 0, finite) from the next
+    /// prediction on; tau is kept.
+    ///
+    /// # Errors
+    /// [`NavigatorError::Config`] when the bias is not estimated or sigma is not
+    /// finite and positive.
+    pub fn set_bias_std(&mut self, sigma: f64) -> Result<()> {
+        match &mut self.bias {
+            Some((s, _)) if sigma.is_finite() && sigma > 0.0 => {
+                *s = sigma;
+                Ok(())
+            }
+            Some(_) => Err(NavigatorError::Config(format!(
+                "DVL bias sigma {sigma} m/s is not finite and positive"
+            ))),
+            None => Err(NavigatorError::Config(
+                "the DVL bias is not estimated: it has no sigma to set".into(),
+            )),
+        }
+    }
+
     /// The INS error model.
     pub fn ins(&self) -> &InsErrorModel {
         &self.ins
@@ -876,6 +902,15 @@ impl AugmentedNavigator {
     /// The nominal state.
     pub fn nominal(&self) -> &AugmentedState {
         self.filter.nominal()
+    }
+
+    /// Set the Gauss-Markov bias sigma \[m/s\] from the next prediction on (as
+    /// [`AugmentedErrorModel::set_bias_std`]).
+    ///
+    /// # Errors
+    /// As [`AugmentedErrorModel::set_bias_std`].
+    pub fn set_bias_std(&mut self, sigma: f64) -> Result<()> {
+        self.filter.process_mut().set_bias_std(sigma)
     }
 
     /// The 26 x 26 error covariance.
@@ -1436,6 +1471,52 @@ mod tests {
                 .is_err());
         }
         assert!(AugmentedDvlModel::new(-r).is_err());
+    }
+
+    /// The bias block of Q after `set_bias_std` is sigma² (1 - e^{-2 dt / tau}) with
+    /// the new sigma (the exact Gauss-Markov discretisation, coded here again); a
+    /// model without a bias, or a bad sigma, is refused.
+    #[test]
+    fn set_bias_std_changes_the_bias_process_noise() {
+        let mut states = DvlStatesConfig {
+            bias: BiasConfig {
+                estimate: true,
+                std_mps: 0.04,
+                time_constant_s: 1.5,
+            },
+            ..DvlStatesConfig::default()
+        };
+        let mut m = AugmentedErrorModel::new(InsErrorModel::new(ImuSpec::akit_observed()), &states)
+            .unwrap();
+        m.set_bias_std(0.01).unwrap();
+        assert_eq!(m.bias(), Some((0.01, 1.5)));
+        let x = state(0.0);
+        let sample = ImuSample {
+            time: 0.01,
+            specific_force: x.specific_force,
+            angular_rate: x.ins.angular_rate,
+        };
+        let dt = 0.01;
+        let (_, q) = m.transition_and_noise(&x, &sample, dt).unwrap();
+        let expected = 0.01f64.powi(2) * (1.0 - (-2.0 * dt / 1.5f64).exp());
+        for i in 0..3 {
+            let got = q[(DVL_BIAS + i, DVL_BIAS + i)];
+            // 1 - phi² against 1 - e^{-2 dt/tau}: the subtraction amplifies the
+            // rounding of e^x by 1 / (1 - phi²) (about 75 here), hence 1e-12.
+            assert!(
+                (got - expected).abs() <= 1e-12 * expected,
+                "{got} vs {expected}"
+            );
+        }
+        for bad in [0.0, -0.1, f64::NAN] {
+            assert!(m.set_bias_std(bad).is_err());
+        }
+        assert_eq!(m.bias(), Some((0.01, 1.5)));
+        states.bias.estimate = false;
+        let mut without =
+            AugmentedErrorModel::new(InsErrorModel::new(ImuSpec::akit_observed()), &states)
+                .unwrap();
+        assert!(without.set_bias_std(0.01).is_err());
     }
 
     #[test]

@@ -1,6 +1,8 @@
 //! Noise models from data: process-noise discretization, the likelihood of the
 //! measurements as a function of noise parameters, maximum-likelihood and EM fits.
 //!
+//! - [`adaptive`]: an online scale on a sensor's noise level from past innovations
+//!   (covariance matching with fading weights).
 //! - [`process`]: Q_d of integrator chains (filterpy's forms) and Van Loan's
 //!   discretization of (F, G Qc G').
 //! - `ml` (feature `fit`, default on): maximum-likelihood Q(theta), R(theta) and
@@ -13,6 +15,7 @@
 //! The submodules are independent of each other; each one's docs give its model,
 //! conventions and references.
 
+pub mod adaptive;
 pub mod em;
 #[cfg(feature = "fit")]
 pub mod ml;

@@ -81,6 +81,13 @@ impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ErrorStateKalmanFilter
         &self.process
     }
 
+    /// The process model, mutable: a change (e.g. an adapted noise level) takes
+    /// effect from the next prediction; steps already recorded keep the model they
+    /// were predicted with.
+    pub fn process_mut(&mut self) -> &mut P {
+        &mut self.process
+    }
+
     /// The nominal state.
     pub fn nominal(&self) -> &P::State {
         &self.nominal

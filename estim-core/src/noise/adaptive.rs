@@ -1,0 +1,289 @@
+//! An online estimate of the level of a measurement's noise: a scale λ on the part
+//! of the innovation covariance that the sensor contributes, by covariance matching
+//! of past innovations (the innovation-based adaptive estimation of Mehra 1972 and
+//! Mohamed & Schwarz 1999, reduced to one scale factor, with the fading weights of
+//! Sage & Husa 1969).
+//!
+//! # Model
+//! The innovation covariance splits as S = S_0 + λ D: D is the sensor's part at
+//! λ = 1 (its R, plus the variance of any sensor error state it drives, such as a
+//! Gauss-Markov bias), S_0 everything else (H P H' of the other states). When the
+//! filter runs with λ_k, each innovation ν_k gives the moment estimate
+//!
+//! ```text
+//! l_k = (ν_k' ν_k - tr(S_k - D_k)) / tr(D_k / λ_k),     E[l_k] = λ
+//! ```
+//!
+//! (D_k = λ_k D is the part as used), and the estimate is their weighted mean
+//! λ̄_k = (1 - d_k) λ̄_{k-1} + d_k l_k with d_k = 1 / min(n_0 + k, N): the prior
+//! λ̄_0 = 1 counts as n_0 innovations, later ones are averaged over the last N or
+//! so (exponential forgetting). The scale the filter uses next is λ̄_k clamped to
+//! `[min, max]`.
+//!
+//! The scale at update k comes from innovations before k only, so the NIS of
+//! update k is still a one-step-ahead check of the filter, not of a fit to that
+//! innovation; but with λ adapted the time-averaged NIS is near the measurement
+//! size by construction of the moment estimate, and a consistency claim must rest
+//! on the NEES against truth.
+
+use crate::{Error, Result};
+use nalgebra::{SMatrix, SVector};
+
+/// Settings of a [`NoiseScale`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NoiseScaleConfig {
+    /// Memory N in innovations (>= 1): the weight of a new innovation is at least
+    /// 1 / N.
+    pub window: usize,
+    /// Weight n_0 of the prior λ = 1, in innovations (>= 1).
+    pub prior_weight: usize,
+    /// Smallest scale used (> 0).
+    pub min: f64,
+    /// Largest scale used (>= min).
+    pub max: f64,
+}
+
+impl Default for NoiseScaleConfig {
+    /// N = 100, n_0 = 5, λ in [0.01, 100].
+    fn default() -> Self {
+        Self {
+            window: 100,
+            prior_weight: 5,
+            min: 0.01,
+            max: 100.0,
+        }
+    }
+}
+
+/// The online noise-scale estimate (see the module docs).
+#[derive(Debug, Clone, PartialEq)]
+pub struct NoiseScale {
+    config: NoiseScaleConfig,
+    mean: f64,
+    count: usize,
+}
+
+impl NoiseScale {
+    /// A new estimate at λ = 1.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for a zero window or prior weight, or bounds that
+    /// are not finite with 0 < min <= 1 <= max.
+    pub fn new(config: NoiseScaleConfig) -> Result<Self> {
+        let bad = |name, reason: String| Err(Error::InvalidParameter { name, reason });
+        if config.window == 0 {
+            return bad("window", "the memory must be at least 1 innovation".into());
+        }
+        if config.prior_weight == 0 {
+            return bad(
+                "prior_weight",
+                "the prior must count as at least 1 innovation".into(),
+            );
+        }
+        if !(config.min.is_finite()
+            && config.max.is_finite()
+            && config.min > 0.0
+            && config.min <= 1.0
+            && config.max >= 1.0)
+        {
+            return bad(
+                "min, max",
+                format!(
+                    "[{}, {}] must be finite with 0 < min <= 1 <= max",
+                    config.min, config.max
+                ),
+            );
+        }
+        Ok(Self {
+            config,
+            mean: 1.0,
+            count: 0,
+        })
+    }
+
+    /// The scale to use for the next update (λ̄ clamped to the bounds).
+    pub fn scale(&self) -> f64 {
+        self.mean.clamp(self.config.min, self.config.max)
+    }
+
+    /// The running mean λ̄ before clamping.
+    pub fn mean(&self) -> f64 {
+        self.mean
+    }
+
+    /// Innovations taken so far.
+    pub fn count(&self) -> usize {
+        self.count
+    }
+
+    /// Take one update's innovation ν, its covariance S and the sensor's part D of
+    /// S as used (at the scale [`NoiseScale::scale`] returned before this update);
+    /// returns the scale for the next update.
+    ///
+    /// # Errors
+    /// [`Error::NonFinite`] for a non-finite input; [`Error::InvalidCovariance`]
+    /// when tr D <= 0. The estimate is unchanged on error.
+    pub fn update<const M: usize>(
+        &mut self,
+        innovation: &SVector<f64, M>,
+        innovation_covariance: &SMatrix<f64, M, M>,
+        sensor_part: &SMatrix<f64, M, M>,
+    ) -> Result<f64> {
+        if !(innovation.iter().all(|x| x.is_finite())
+            && innovation_covariance.iter().all(|x| x.is_finite())
+            && sensor_part.iter().all(|x| x.is_finite()))
+        {
+            return Err(Error::NonFinite {
+                what: "noise-scale update (innovation, S or the sensor's part)",
+            });
+        }
+        let used = self.scale();
+        let unit = sensor_part.trace() / used;
+        if unit.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+            return Err(Error::InvalidCovariance {
+                what: "sensor part D of the innovation covariance",
+                reason: format!("its trace {} is not positive", sensor_part.trace()),
+            });
+        }
+        let sample =
+            (innovation.norm_squared() - (innovation_covariance - sensor_part).trace()) / unit;
+        self.count += 1;
+        let n = (self.config.prior_weight + self.count).min(self.config.window);
+        let d = 1.0 / n.max(1) as f64;
+        self.mean += d * (sample - self.mean);
+        Ok(self.scale())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Matrix2, Vector2};
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+
+    /// A random walk observed in two axes with noise λ* R0; the filter uses λ R0
+    /// with λ from the estimate. Returns (mean scale over the last half, mean NIS
+    /// over the last half).
+    fn run(true_scale: f64, seed: u64, steps: usize) -> (f64, f64) {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+        let mut draw = || -> f64 { StandardNormal.sample(&mut rng) };
+        let q: f64 = 0.01;
+        let r0 = Matrix2::new(0.04, 0.01, 0.01, 0.09);
+        let r_chol = (r0 * true_scale).cholesky().map(|c| c.l()).unwrap();
+        let mut estimate = NoiseScale::new(NoiseScaleConfig {
+            window: 200,
+            ..NoiseScaleConfig::default()
+        })
+        .unwrap();
+        let (mut x, mut xh, mut p) = (Vector2::zeros(), Vector2::zeros(), Matrix2::identity());
+        let (mut scales, mut nis) = (0.0, 0.0);
+        for k in 0..steps {
+            x += Vector2::new(draw(), draw()) * q.sqrt();
+            p += Matrix2::identity() * q;
+            let y = x + r_chol * Vector2::new(draw(), draw());
+            let lambda = estimate.scale();
+            let r = r0 * lambda;
+            let s = p + r;
+            let nu = y - xh;
+            let s_inv = s.try_inverse().unwrap();
+            let gain = p * s_inv;
+            xh += gain * nu;
+            p = (Matrix2::identity() - gain) * p;
+            if k >= steps / 2 {
+                scales += lambda;
+                nis += (nu.transpose() * s_inv * nu)[0];
+            }
+            estimate.update(&nu, &s, &r).unwrap();
+        }
+        let half = (steps - steps / 2) as f64;
+        (scales / half, nis / half)
+    }
+
+    #[test]
+    fn the_scale_converges_to_the_true_noise_level_for_several_seeds() {
+        // The mean scale over the last 2000 of 4000 steps: over seeds 1-200 its
+        // relative deviation from lambda* has mean below 0.001 and standard deviation
+        // 0.048 (lambda* = 0.1, where R is small against P), 0.030 (1) and 0.027 (6);
+        // 0.25 is 5 standard deviations of the worst case. The NIS deviates by at
+        // most 0.04 over those 600 runs.
+        for true_scale in [0.1, 1.0, 6.0] {
+            for seed in 1..=5 {
+                let (scale, nis) = run(true_scale, seed, 4000);
+                assert!(
+                    (scale / true_scale - 1.0).abs() < 0.25,
+                    "lambda* {true_scale}, seed {seed}: mean scale {scale}"
+                );
+                assert!((nis / 2.0 - 1.0).abs() < 0.1, "seed {seed}: NIS {nis}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_moment_estimate_is_the_separately_coded_formula() {
+        let mut e = NoiseScale::new(NoiseScaleConfig {
+            window: 3,
+            prior_weight: 1,
+            min: 0.5,
+            max: 2.0,
+        })
+        .unwrap();
+        let nu = Vector2::new(0.3, -0.4);
+        let s = Matrix2::new(0.2, 0.05, 0.05, 0.3);
+        let d = Matrix2::new(0.1, 0.0, 0.0, 0.1);
+        // l = (0.25 - (0.5 - 0.2)) / 0.2 = -0.25; d_1 = 1/2: mean = 1 + (-1.25)/2.
+        assert_eq!(e.update(&nu, &s, &d).unwrap(), 0.5);
+        assert!((e.mean() - 0.375).abs() < 1e-15);
+        // The next update runs at the clamped 0.5 with D as used = 0.05 I: the sample
+        // is (0.25 - (0.5 - 0.1)) / (0.1 / 0.5) = -0.75 and d_2 = 1/3.
+        let d_used = Matrix2::identity() * 0.05;
+        e.update(&nu, &s, &d_used).unwrap();
+        assert!((e.mean() - (0.375 + (-0.75 - 0.375) / 3.0)).abs() < 1e-15);
+        // Memory 3 from then on: d = 1/3.
+        let before = e.mean();
+        e.update(&nu, &s, &d_used).unwrap();
+        assert!((e.mean() - (before + (-0.75 - before) / 3.0)).abs() < 1e-15);
+    }
+
+    #[test]
+    fn bad_settings_and_inputs_are_typed_errors() {
+        for config in [
+            NoiseScaleConfig {
+                window: 0,
+                ..NoiseScaleConfig::default()
+            },
+            NoiseScaleConfig {
+                prior_weight: 0,
+                ..NoiseScaleConfig::default()
+            },
+            NoiseScaleConfig {
+                min: 0.0,
+                ..NoiseScaleConfig::default()
+            },
+            NoiseScaleConfig {
+                min: 2.0,
+                ..NoiseScaleConfig::default()
+            },
+            NoiseScaleConfig {
+                max: f64::INFINITY,
+                ..NoiseScaleConfig::default()
+            },
+        ] {
+            assert!(matches!(
+                NoiseScale::new(config),
+                Err(Error::InvalidParameter { .. })
+            ));
+        }
+        let mut e = NoiseScale::new(NoiseScaleConfig::default()).unwrap();
+        let s = Matrix2::identity();
+        assert!(matches!(
+            e.update(&Vector2::new(f64::NAN, 0.0), &s, &s),
+            Err(Error::NonFinite { .. })
+        ));
+        assert!(matches!(
+            e.update(&Vector2::zeros(), &s, &Matrix2::zeros()),
+            Err(Error::InvalidCovariance { .. })
+        ));
+        assert_eq!((e.count(), e.mean()), (0, 1.0));
+    }
+}
