@@ -206,6 +206,24 @@ impl DvlVelocityModel {
     pub fn mounting_misalignment(&self) -> &Vector3<f64> {
         &self.mounting_misalignment
     }
+
+    /// The same model with R multiplied by `scale` (finite, > 0), e.g. a noise level
+    /// adapted online (`estim_core::noise::adaptive::NoiseScale`).
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for a scale that is not finite and positive.
+    pub fn with_noise_scale(&self, scale: f64) -> Result<Self> {
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(Error::InvalidParameter {
+                name: "noise scale",
+                reason: format!("{scale} is not finite and positive"),
+            });
+        }
+        Ok(Self {
+            noise_covariance: self.noise_covariance * scale,
+            ..self.clone()
+        })
+    }
 }
 
 impl MeasurementModel<f64, ERROR_STATES, 3> for DvlVelocityModel {

@@ -172,3 +172,37 @@ fn builder_validates() {
         .build()
         .is_err());
 }
+
+/// `with_noise_scale` multiplies R and nothing else; a scale that is not finite and
+/// positive is refused.
+#[test]
+fn noise_scale_multiplies_r_only() {
+    let r = estim_dvl::nalgebra::Matrix3::new(4e-4, 1e-5, 0.0, 1e-5, 4e-4, 0.0, 0.0, 0.0, 1e-4);
+    let model = DvlVelocityModel::builder()
+        .lever_arm(Vector3::new(1.2, -0.1, 0.3))
+        .scale_factor_error(0.002)
+        .noise_covariance(r)
+        .build()
+        .unwrap();
+    let state = InsState::new(
+        0.0,
+        0.57,
+        0.61,
+        -20.0,
+        Vector3::new(1.5, -0.2, 0.1),
+        UnitQuaternion::from_euler_angles(0.02, -0.03, 1.1),
+    );
+    let scaled = model.with_noise_scale(2.5).unwrap();
+    assert_eq!(scaled.noise_covariance(&state).unwrap(), r * 2.5);
+    assert_eq!(
+        scaled.predict(&state).unwrap(),
+        model.predict(&state).unwrap()
+    );
+    assert_eq!(
+        scaled.jacobian(&state).unwrap(),
+        model.jacobian(&state).unwrap()
+    );
+    for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        assert!(model.with_noise_scale(bad).is_err(), "{bad}");
+    }
+}

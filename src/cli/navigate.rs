@@ -549,6 +549,7 @@ pub fn summary_json(
         "outside_imu_span": run.outside_imu_span,
         "dvl_gaps_coasted": run.dvl_gaps_coasted,
         "longest_dvl_gap_s": run.longest_dvl_gap_s,
+        "dvl_noise_scale": run.dvl_noise_scale,
         "nis": {
             "dvl": stats(&run.dvl_nis),
             "depth": stats(&run.depth_nis),

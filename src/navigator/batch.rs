@@ -186,6 +186,9 @@ pub struct NavigationRun {
     pub dvl_gaps_coasted: usize,
     /// The longest interval between consecutive DVL updates \[s\].
     pub longest_dvl_gap_s: f64,
+    /// The final DVL noise scale λ when the noise level is adapted
+    /// (`dvl.adaptive_noise_window`), else `None`.
+    pub dvl_noise_scale: Option<f64>,
     /// NIS of every DVL update attempt.
     pub dvl_nis: Vec<f64>,
     /// Time of each entry of `dvl_nis` \[s\].
@@ -748,6 +751,7 @@ fn run_batch<F: Observer<f64, InsState, ERROR_STATES>>(
         outside_imu_span: outside,
         dvl_gaps_coasted: coasted,
         longest_dvl_gap_s: longest,
+        dvl_noise_scale: nav.dvl_noise_scale(),
         dvl_nis,
         dvl_nis_times,
         dvl_update_times: dvl_times.clone(),

@@ -3,6 +3,7 @@
 //! serde (unknown keys refused) and checked once by [`NavigatorConfig::check`] into
 //! [`NavigatorSettings`], which cannot be invalid.
 
+use estim_core::noise::adaptive::NoiseScaleConfig;
 use estim_core::{FilterConfig, Gate, GateRecovery};
 use estim_dvl::{BeamGeometry, DvlVelocityModel};
 use estim_ins::{ImuSpec, SensorSpec};
@@ -107,6 +108,11 @@ pub struct DvlConfig {
     pub time_offset_s: f64,
     /// Measurement noise std per axis of the DVL velocity \[m/s\] (default 0.02).
     pub noise_std_mps: f64,
+    /// Adapt the DVL noise level online: R = λ diag(`noise_std_mps`²), λ estimated
+    /// from the past DVL innovations with a memory of this many updates (1-100000;
+    /// `estim_core::noise::adaptive::NoiseScale`, λ in [0.01, 100]). Unset (default):
+    /// R fixed. BeamsNet updates keep the network's R.
+    pub adaptive_noise_window: Option<usize>,
 }
 
 impl Default for DvlConfig {
@@ -119,6 +125,7 @@ impl Default for DvlConfig {
             beam1_azimuth_deg: 45.0,
             time_offset_s: 0.0,
             noise_std_mps: 0.02,
+            adaptive_noise_window: None,
         }
     }
 }
@@ -297,6 +304,7 @@ pub struct NavigatorSettings {
     pub(crate) filter_config: FilterConfig,
     pub(crate) dvl: DvlVelocityModel,
     pub(crate) geometry: BeamGeometry,
+    pub(crate) dvl_noise_scale: Option<NoiseScaleConfig>,
 }
 
 impl NavigatorSettings {
@@ -441,6 +449,18 @@ impl NavigatorConfig {
             )));
         }
         finite("dvl.beam1_azimuth_deg", &[d.beam1_azimuth_deg])?;
+        let dvl_noise_scale = match d.adaptive_noise_window {
+            Some(window) if (1..=100_000).contains(&window) => Some(NoiseScaleConfig {
+                window,
+                ..NoiseScaleConfig::default()
+            }),
+            Some(window) => {
+                return Err(NavigatorError::Config(format!(
+                    "dvl.adaptive_noise_window: {window} is not in 1-100000"
+                )))
+            }
+            None => None,
+        };
         let geometry = BeamGeometry::janus(d.beam_angle_deg)
             .azimuth_offset(d.beam1_azimuth_deg)
             .build()?;
@@ -494,6 +514,7 @@ impl NavigatorConfig {
             filter_config: filter_config(g.probability, g.recovery_after)?,
             dvl,
             geometry,
+            dvl_noise_scale,
         })
     }
 }
