@@ -22,8 +22,8 @@ use crate::{Error, Result};
 /// Measured on the outage and two-beams networks (the `step_insensitive` tests in
 /// `estim-learned/tests/outage.rs` and `tests/two_beams.rs`,
 /// `cargo test --release -p estim-learned step_insensitive -- --nocapture`): their
-/// first-order M changes by at most 2.5 % over steps 2e-3 to 5e-3, and by up to 26 %
-/// at 1e-2 (ReLU kinks straddled) and 6.3 % at 1e-4 (rounding).
+/// first-order M changes by at most 2.3 % over steps 2e-3 to 5e-3, and by up to 26 %
+/// at 1e-2 (ReLU kinks straddled) and 36 % at 1e-4 (rounding).
 pub const DEFAULT_SENSITIVITY_STEP: f64 = 4e-3;
 
 /// An ONNX model fed with windows of sensor samples, producing an `M`-vector
