@@ -1,6 +1,6 @@
 //! Heap allocations per call of the ONNX path, counted by a global allocator after
 //! warm-up: `OnnxMeasurement::measure` (one BeamsNet inference) and
-//! `jacobian_vector_products` (one batch of 1 + 9 directions, as per update).
+//! `jacobian_vector_products` (9 directions, as per update: one batch of 2 x 9 elements).
 //!
 //! estim-learned's own part copies nothing and allocates nothing per `measure` after
 //! warm-up (the normalised inputs are written into input tensors kept between calls,
@@ -90,7 +90,7 @@ fn allocations_per_call_after_warm_up() {
             })
         })
         .collect();
-    println!("allocations per measure: {measure:?}; per 1 + 9 JVP batch: {jvp:?}");
+    println!("allocations per measure: {measure:?}; per 9-direction JVP batch: {jvp:?}");
     assert!(measure.windows(2).all(|w| w[0] == w[1]), "{measure:?}");
     assert!(jvp.windows(2).all(|w| w[0] == w[1]), "{jvp:?}");
     // Ceilings: the counts measured at this change (tract 0.23.9, the committed
@@ -98,8 +98,11 @@ fn allocations_per_call_after_warm_up() {
     // intermediate f32 vectors, a perturbed copy of the inputs per direction, a fresh
     // tract state per run), then 127 and 203 (one plan with a symbolic batch axis; a
     // returned Vec and the scales per JVP batch), 127 and 201 (caller-owned JVP
-    // buffers). Exceeding a ceiling means a copy crept back into estim-learned's path,
-    // or tract changed (then re-measure and say so).
+    // buffers), 157 (forward differences, a batch of 1 + 9). The central differences'
+    // batch of 18 elements runs through tract's plan for batch 18, whose nodes allocate
+    // more: 219, the same count as forward differences with 17 directions (batch 18).
+    // Exceeding a ceiling means a copy crept back into estim-learned's path, or tract
+    // changed (then re-measure and say so).
     assert!(measure[0] <= 85, "{measure:?}");
-    assert!(jvp[0] <= 157, "{jvp:?}");
+    assert!(jvp[0] <= 219, "{jvp:?}");
 }

@@ -121,7 +121,7 @@ fn network_sensitivity_matches_monte_carlo() {
 /// BeamsNet retrained under the beam protocol (estim issue 12) does not use the IMU:
 /// both forms give an M at the float32 resolution of the network's output (measured
 /// on this window at the default step: max |M| 1.1e-8 adjoint; the forms differ by
-/// 0.85 of that, 0.24 at step 1e-3: round-off, not signal). What is checked here is
+/// 0.31 of that, 0.06 at step 1e-2: round-off, not signal). What is checked here is
 /// that both forms say so, far below the resolved M of a network that does use the
 /// IMU (two-beams network, 2e-6 to 1e-5 on simulated windows, `tests/two_beams.rs`,
 /// where the two forms are compared). The threshold 1e-7 is 9x the measured value.

@@ -17,7 +17,7 @@ use estim_ins::{
 };
 use estim_learned::{
     driven_error_covariance, CrossMatrix, Empirical, InputNoise, LearnedCrossCovariance,
-    OnnxMeasurement, TwoBeamsNet, BEAMSNET_WINDOW, IMU_CHANNELS,
+    OnnxMeasurement, TwoBeamsNet, BEAMSNET_WINDOW, DEFAULT_SENSITIVITY_STEP, IMU_CHANNELS,
 };
 use nalgebra::{DMatrix, SMatrix, Vector3, Vector4};
 use rand::SeedableRng;
@@ -136,11 +136,12 @@ fn per_step_sum(
 
 /// The adjoint form (15 JVP directions spanning the window) and the per-step form
 /// (600 unit directions) of the generic M on a network that uses the IMU. Both are
-/// finite-difference JVPs of a piecewise-linear (ReLU) float32 network with a step of
-/// 1e-2 in normalised units, the per-step form perturbing one sample at a time, the
-/// adjoint all samples at once; they differ where the perturbations cross different
-/// kinks. Measured max |adjoint - per step| / max |M| on seeds 11, 12, 13: 0.0035,
-/// 0.062, 0.14 (max |M| 8.8e-6, 1.0e-5, 2.1e-6); the bound 0.25 holds all three.
+/// central-difference JVPs (step `DEFAULT_SENSITIVITY_STEP`) of a float32 network with
+/// tanh and ReLU units, the per-step form perturbing one sample at a time, the adjoint
+/// all samples at once; they differ by the differences' truncation error (curvature,
+/// kinks straddled) and float32 rounding. Measured max |adjoint - per step| / max |M|
+/// on seeds 11, 12, 13: 3.4e-4, 3.7e-4, 2.7e-4 (max |M| 1.0e-5, 7.8e-6, 6.6e-6); the
+/// bound 0.01 (27 times the largest) holds all three.
 #[test]
 fn adjoint_and_per_step_forms_agree() {
     let net = TwoBeamsNet::load_default().unwrap();
@@ -167,7 +168,7 @@ fn adjoint_and_per_step_forms_agree() {
         // Resolved: far above BeamsNet's float32-level M (1e-8).
         assert!(adjoint.amax() > 1e-6, "seed {seed}: M\n{adjoint}");
         assert!(
-            diff <= 0.25,
+            diff <= 0.01,
             "seed {seed}: adjoint\n{adjoint}per step\n{per_step}"
         );
     }
@@ -219,15 +220,52 @@ fn worst_ratio(first: &CrossMatrix, mc: &CrossMatrix, se: &CrossMatrix) -> f64 {
     worst
 }
 
+/// The first-order M does not depend on the central-difference step around the default
+/// (`DEFAULT_SENSITIVITY_STEP`): max |M(step) - M(default)| / max |M(default)| <= 5 %
+/// (half the 10 % of |M| the Monte Carlo comparison allows for the first-order
+/// approximation) at steps 2e-3, 3e-3 and 5e-3 on seeds 11-13. The wider range is
+/// printed: above it the two evaluations straddle more ReLU kinks, below it the float32
+/// rounding error grows as 1 / step.
+#[test]
+fn first_order_m_is_step_insensitive_around_the_default() {
+    let net = TwoBeamsNet::load_default().unwrap();
+    let model = InsErrorModel::new(ImuSpec::akit_observed());
+    for seed in [11, 12, 13] {
+        let (filter, beams) = recorded(seed);
+        let window = filter.step_window(BEAMSNET_WINDOW).unwrap();
+        let extra = net.beam_inputs(&beams).unwrap();
+        let at = |step: f64| {
+            let measurement = net.measurement().clone().with_sensitivity_step(step);
+            LearnedCrossCovariance::<f64, _, _, 3, IMU_CHANNELS>::new(&measurement, &model, &extra)
+                .unwrap()
+                .transported_cross_covariance(&window)
+                .unwrap()
+                .unwrap()
+        };
+        let reference = at(DEFAULT_SENSITIVITY_STEP);
+        for step in [3e-2, 1e-2, 5e-3, 3e-3, 2e-3, 1e-3, 3e-4, 1e-4] {
+            let change = (at(step) - reference).amax() / reference.amax();
+            println!(
+                "seed {seed}: step {step:e}: max |M - M(default)| / max |M(default)| = {change:.3}"
+            );
+            if (2e-3..=5e-3).contains(&step) {
+                assert!(change <= 0.05, "seed {seed}, step {step}: {change}");
+            }
+        }
+    }
+}
+
 /// Sign convention, window alignment and transport of the generic M, checked where the
 /// first-order model is exact: with the IMU white noise scaled by 0.1 the network is
 /// linear at the noise scale and the first-order M (which scales as 0.01, the noise
 /// variance) must match the Monte Carlo M within 4 se + 10 % per element. Measured
-/// worst ratio to that tolerance on seeds 11, 12, 13 is printed; max |M - M_MC| /
-/// max |M| was 0.089, 0.052, 0.27 with the Monte Carlo's own se / max |M| at 0.066,
-/// 0.041, 0.20 (4000 draws): agreement at the Monte Carlo's resolution. Worst ratio
-/// 0.42 / 0.44 / 0.49; on a second block (mission seeds 14-16, MC seeds 5, 6, 8)
-/// 0.39 / 0.66 / 0.54.
+/// worst ratio to that tolerance on seeds 11, 12, 13 is printed: 0.58 / 0.38 / 0.63,
+/// with max |M - M_MC| / max |M| at 0.17, 0.13, 0.072 and the Monte Carlo's own
+/// se / max |M| at 0.078, 0.077, 0.065 (4000 draws): agreement at the Monte Carlo's
+/// resolution. Re-run with Monte Carlo seeds 3-9 on each of the three windows: worst
+/// ratio at most 0.49 / 0.73 / 0.75. On a second block (mission seeds 14-16, MC seeds
+/// 5, 6, 8): 0.39 / 0.24 / 0.46, where the window of mission 16 has a velocity block
+/// (1.1e-8) below 5 se (1.4e-8), unresolved, which the last assertion refuses.
 #[test]
 fn first_order_m_matches_monte_carlo_where_the_network_is_linear() {
     let net = TwoBeamsNet::load_default().unwrap();
@@ -265,10 +303,10 @@ fn first_order_m_matches_monte_carlo_where_the_network_is_linear() {
 /// is itself one draw of J(x + n): the network-derived M is an unbiased but noisy
 /// estimate of E[J] per update (the spread is printed).
 ///
-/// Measured (seeds 11-13): local vs Monte Carlo 0.34 / 0.094 / 0.64 of max |M|;
-/// averaged vs Monte Carlo worst ratio to the tolerance 0.42 / 0.34 / 0.46; per-draw
-/// spread (std) of the first-order M 0.50 / 0.17 / 1.45 of max |E M|. Second block
-/// (mission seeds 14-16, MC seeds 5, 6, 8): worst ratio 0.25 / 0.60 / 0.34.
+/// Measured (seeds 11-13): local vs Monte Carlo 0.36 / 1.17 / 0.16 of max |M|;
+/// averaged vs Monte Carlo worst ratio to the tolerance 0.51 / 0.44 / 0.50; per-draw
+/// spread (std) of the first-order M 0.25 / 3.49 / 0.26 of max |E M|. Second block
+/// (mission seeds 14-16, MC seeds 5, 6, 8): worst ratio 0.37 / 0.25 / 0.40.
 #[test]
 fn monte_carlo_m_is_the_noise_averaged_first_order_m() {
     let net = TwoBeamsNet::load_default().unwrap();
