@@ -272,6 +272,62 @@ fn lost_lock_rows_are_skipped_and_counted() {
     assert_eq!(lost["status"], "ok");
 }
 
+/// `dvl.adaptive_noise_window` in the vehicle file: on A-KIT 4 (IMU synthesized,
+/// beams by the protocol), whose DVL mismatch is above the vehicle file's R, the
+/// final noise scale is above 1 and the mean DVL NIS comes into [0.5, 2] x 3 (it is
+/// 13.4 with the fixed R); the summary gives the scale (null when fixed); 0 is
+/// refused with exit 2 naming the key.
+#[test]
+fn adaptive_dvl_noise_from_the_vehicle_file() {
+    let Some((gt, dvl)) = trajectory4() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    evaluation_inputs(d, &gt, &dvl);
+    let vehicle = std::fs::read_to_string(d.join("vehicle.toml")).unwrap();
+    let with_window =
+        |n: &str| vehicle.replace("[dvl]\n", &format!("[dvl]\nadaptive_noise_window = {n}\n"));
+    assert_ne!(
+        with_window("1"),
+        vehicle,
+        "the vehicle file has a [dvl] table"
+    );
+    std::fs::write(d.join("adaptive.toml"), with_window("100")).unwrap();
+    std::fs::write(d.join("zero.toml"), with_window("0")).unwrap();
+    let run = |file: &str| {
+        estim(
+            &[
+                "navigate",
+                "--imu",
+                "imu.csv",
+                "--beams",
+                "beams.csv",
+                "--vehicle",
+                file,
+                "--json",
+            ],
+            d,
+        )
+    };
+    let fixed = json(&ok(run("vehicle.toml"), "navigate, fixed R"));
+    let adaptive = json(&ok(run("adaptive.toml"), "navigate, adaptive R"));
+    let nis = |v: &Value| v["nis"]["dvl"]["mean"].as_f64().unwrap();
+    println!("NIS fixed {}, adaptive {}", nis(&fixed), nis(&adaptive));
+    assert!(fixed["dvl_noise_scale"].is_null());
+    let scale = adaptive["dvl_noise_scale"].as_f64().unwrap();
+    assert!(scale > 1.0, "scale {scale}");
+    assert!(nis(&fixed) > 6.0);
+    assert!((1.5..=6.0).contains(&nis(&adaptive)));
+    let zero = run("zero.toml");
+    assert_eq!(zero.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&zero.stderr);
+    assert!(
+        stderr.contains("zero.toml") && stderr.contains("dvl.adaptive_noise_window"),
+        "{stderr}"
+    );
+}
+
 #[test]
 fn bad_input_exits_2_naming_file_and_line() {
     let dir = tempfile::tempdir().unwrap();
