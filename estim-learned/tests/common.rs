@@ -62,3 +62,19 @@ pub fn record(
     }
     filter
 }
+
+/// The first-order M `at(step)` of a learned measurement at central-difference steps
+/// from 3e-2 to 1e-4 against the default step (`DEFAULT_SENSITIVITY_STEP`): prints
+/// max |M(step) - M(default)| / max |M(default)| for each, and asserts it is at most
+/// 5 % at steps 2e-3, 3e-3 and 5e-3 (half the 10 % of |M| the Monte Carlo
+/// comparisons allow for the first-order approximation).
+pub fn assert_m_step_insensitive(label: &str, at: impl Fn(f64) -> nalgebra::SMatrix<f64, 15, 3>) {
+    let reference = at(estim_learned::DEFAULT_SENSITIVITY_STEP);
+    for step in [3e-2, 1e-2, 5e-3, 3e-3, 2e-3, 1e-3, 3e-4, 1e-4] {
+        let change = (at(step) - reference).amax() / reference.amax();
+        println!("{label}: step {step:e}: max |M - M(default)| / max |M(default)| = {change:.3}");
+        if (2e-3..=5e-3).contains(&step) {
+            assert!(change <= 0.05, "{label}, step {step}: {change}");
+        }
+    }
+}
