@@ -59,6 +59,7 @@
 //! Each block is checked against central differences of the prediction through
 //! [`AugmentedErrorModel`]'s injection (tests below).
 
+use estim_core::noise::adaptive::NoiseScale;
 use estim_core::{
     ErrorStateKalmanFilter, ErrorStateModel, MeasurementModel, ProcessModel, UpdateReport, Zero,
 };
@@ -614,6 +615,23 @@ impl AugmentedDvlModel {
         Ok(self)
     }
 
+    /// The same model with its noise scaled by `scale` (finite, > 0): R by the
+    /// scale, κ by its square root (so κ² |ω|² scales with R).
+    ///
+    /// # Errors
+    /// [`NavigatorError::Config`] for a scale that is not finite and positive.
+    pub fn with_noise_scale(&self, scale: f64) -> Result<Self> {
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(NavigatorError::Config(format!(
+                "DVL noise scale {scale} is not finite and positive"
+            )));
+        }
+        Ok(Self {
+            noise_covariance: self.noise_covariance * scale,
+            rate_noise: self.rate_noise * scale.sqrt(),
+        })
+    }
+
     fn terms(state: &AugmentedState) -> DvlTerms {
         let ins = &state.ins;
         let dvl = &state.dvl;
@@ -815,9 +833,17 @@ impl DvlParameters {
 /// the DVL update [`AugmentedDvlModel`] (M = 0) and the depth and fix models lifted.
 /// With every DVL state off ([`DvlStatesConfig::none`]) it estimates what
 /// [`super::Navigator`] does (tested to 1e-12).
+///
+/// With `dvl.adaptive_noise_window` in the settings, the DVL noise level is adapted
+/// online ([`NoiseScale`]): one scale λ multiplies the DVL model's noise
+/// ([`AugmentedDvlModel::with_noise_scale`]) and the Gauss-Markov bias variance, and
+/// is estimated from the past innovations with D = λR + the bias block of the prior
+/// covariance.
 pub struct AugmentedNavigator {
     filter: AugmentedFilter,
     dvl: AugmentedDvlModel,
+    states: DvlStatesConfig,
+    noise_scale: Option<NoiseScale>,
     depth: Lifted<DepthModel>,
     fix_lever_arm: Vector3<f64>,
     imu_clock: ImuClock,
@@ -882,6 +908,8 @@ impl AugmentedNavigator {
         Ok(Self {
             filter,
             dvl: AugmentedDvlModel::new(r)?,
+            states: *states,
+            noise_scale: settings.dvl_noise_scale.map(NoiseScale::new).transpose()?,
             depth: Lifted(DepthModel::new(
                 Vector3::from(config.depth.lever_arm_m),
                 config.depth.noise_std_m,
@@ -911,6 +939,19 @@ impl AugmentedNavigator {
     /// As [`AugmentedErrorModel::set_bias_std`].
     pub fn set_bias_std(&mut self, sigma: f64) -> Result<()> {
         self.filter.process_mut().set_bias_std(sigma)
+    }
+
+    /// Replace the DVL model of [`AugmentedNavigator::dvl_velocity`] (e.g. with rate
+    /// noise), at noise scale 1.
+    #[must_use]
+    pub fn with_dvl_model(mut self, model: AugmentedDvlModel) -> Self {
+        self.dvl = model;
+        self
+    }
+
+    /// The DVL noise scale the next update uses (with `dvl.adaptive_noise_window`).
+    pub fn dvl_noise_scale(&self) -> Option<f64> {
+        self.noise_scale.as_ref().map(NoiseScale::scale)
     }
 
     /// The 26 x 26 error covariance.
@@ -993,7 +1034,8 @@ impl AugmentedNavigator {
         Ok(())
     }
 
-    /// DVL velocity update at `time` (DVL frame \[m/s\]) with the configured R.
+    /// DVL velocity update at `time` (DVL frame \[m/s\]) with the configured R (and
+    /// the adapted noise scale, see the type's docs).
     ///
     /// # Errors
     /// As [`super::Navigator::dvl_velocity`].
@@ -1002,8 +1044,33 @@ impl AugmentedNavigator {
         time: f64,
         velocity: &Vector3<f64>,
     ) -> Result<UpdateReport<f64, AUGMENTED_STATES, 3>> {
-        let model = self.dvl.clone();
-        self.dvl_velocity_with(time, velocity, &model)
+        let Some(scale) = self.dvl_noise_scale() else {
+            let model = self.dvl.clone();
+            return self.dvl_velocity_with(time, velocity, &model);
+        };
+        let model = self.dvl.with_noise_scale(scale)?;
+        self.propagate_to(time)?;
+        let bias_prior = self
+            .filter
+            .covariance()
+            .fixed_view::<3, 3>(DVL_BIAS, DVL_BIAS)
+            .into_owned();
+        let report = self.dvl_velocity_with(time, velocity, &model)?;
+        if let Some(estimate) = &mut self.noise_scale {
+            let next = estimate
+                .update(
+                    &report.innovation,
+                    &report.innovation_covariance,
+                    &(report.noise_covariance + bias_prior),
+                )
+                .map_err(|source| NavigatorError::Filter { time, source })?;
+            if next != scale && self.states.bias.estimate {
+                self.filter
+                    .process_mut()
+                    .set_bias_std(self.states.bias.std_mps * next.sqrt())?;
+            }
+        }
+        Ok(report)
     }
 
     /// [`AugmentedNavigator::dvl_velocity`] with another model (another R).
@@ -1471,6 +1538,127 @@ mod tests {
                 .is_err());
         }
         assert!(AugmentedDvlModel::new(-r).is_err());
+    }
+
+    /// `with_noise_scale` multiplies R + κ² |ω|² I by the scale; a bad scale is refused.
+    #[test]
+    fn noise_scale_scales_r_and_the_rate_noise() {
+        let x = state(0.0);
+        let r = Matrix3::from_diagonal(&Vector3::new(1e-4, 2e-4, 3e-4));
+        let model = AugmentedDvlModel::new(r)
+            .unwrap()
+            .with_rate_noise(0.5)
+            .unwrap();
+        let base = model.noise_covariance(&x).unwrap();
+        for scale in [0.01, 0.3, 7.0] {
+            let got = model
+                .with_noise_scale(scale)
+                .unwrap()
+                .noise_covariance(&x)
+                .unwrap();
+            let expected = base * scale;
+            assert!(
+                (got - expected).abs().max() <= 1e-15 * expected.abs().max(),
+                "{got} vs {expected}"
+            );
+        }
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert!(model.with_noise_scale(bad).is_err());
+        }
+    }
+
+    /// With `dvl.adaptive_noise_window`, `dvl_velocity` equals a loop coded here
+    /// again: update with the model at λ, feed the innovation, S and λR + the bias
+    /// block of the prior P to a `NoiseScale`, then set the bias sigma to σ √λ. The
+    /// DVL noise is 3x the configured std, so λ moves well away from 1.
+    #[test]
+    fn adaptive_noise_equals_the_loop_coded_again() {
+        use crate::navigator::NavigatorConfig;
+        use estim_core::noise::adaptive::NoiseScaleConfig;
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mission = estim_ins::Mission::generate(
+            &estim_ins::MissionConfig::builder()
+                .duration(120.0)
+                .build()
+                .unwrap(),
+            5,
+        )
+        .unwrap();
+        let mut config = NavigatorConfig::default();
+        config.dvl.noise_std_mps = 0.01;
+        config.gate.probability = 0.0;
+        let fixed = config.check().unwrap();
+        config.dvl.adaptive_noise_window = Some(50);
+        let adaptive = config.check().unwrap();
+        let states = DvlStatesConfig {
+            bias: BiasConfig {
+                estimate: true,
+                std_mps: 0.01,
+                time_constant_s: 30.0,
+            },
+            ..DvlStatesConfig::default()
+        };
+        let x0 = mission.truth[0];
+        let p0 = ErrorMatrix::from_diagonal(&SVector::<f64, ERROR_STATES>::from_iterator([
+            1.0, 1.0, 1.0, 1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-5, 1e-6, 1e-6, 1e-6, 1e-10, 1e-10,
+            1e-10,
+        ]));
+        let dt = mission.imu_dt;
+        let mut nav = AugmentedNavigator::new(&adaptive, &states, x0, p0, dt).unwrap();
+        let mut reference = AugmentedNavigator::new(&fixed, &states, x0, p0, dt).unwrap();
+        let r = Matrix3::identity() * 1e-4;
+        let mut estimate = NoiseScale::new(NoiseScaleConfig {
+            window: 50,
+            ..NoiseScaleConfig::default()
+        })
+        .unwrap();
+        let truth_model = estim_dvl::DvlVelocityModel::builder()
+            .noise_std(0.01)
+            .build()
+            .unwrap();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let mut lambda = 1.0;
+        for k in 0..mission.imu.len() {
+            nav.imu(&mission.imu[k]).unwrap();
+            reference.imu(&mission.imu[k]).unwrap();
+            if (k + 1) % 100 != 0 {
+                continue;
+            }
+            let truth = &mission.truth[k + 1];
+            let noise = Vector3::from_fn(|_, _| {
+                let z: f64 = StandardNormal.sample(&mut rng);
+                0.03 * z
+            });
+            let y = truth_model.predict(truth).unwrap() + noise;
+            assert_eq!(nav.dvl_noise_scale(), Some(lambda));
+            let a = nav.dvl_velocity(truth.time, &y).unwrap();
+            reference.propagate_to(truth.time).unwrap();
+            let bias_prior = reference
+                .covariance()
+                .fixed_view::<3, 3>(DVL_BIAS, DVL_BIAS)
+                .into_owned();
+            let model = AugmentedDvlModel::new(r * lambda).unwrap();
+            let b = reference.dvl_velocity_with(truth.time, &y, &model).unwrap();
+            assert!((a.nis - b.nis).abs() <= 1e-9 * b.nis.max(1.0));
+            lambda = estimate
+                .update(
+                    &b.innovation,
+                    &b.innovation_covariance,
+                    &(r * lambda + bias_prior),
+                )
+                .unwrap();
+            reference.set_bias_std(0.01 * lambda.sqrt()).unwrap();
+        }
+        assert!(lambda > 3.0, "scale {lambda}");
+        let d = (nav.covariance() - reference.covariance()).abs().max();
+        assert!(
+            d <= 1e-9 * reference.covariance().abs().max(),
+            "P differs by {d}"
+        );
+        let (a, b) = (nav.solution(), reference.solution());
+        assert!((a.dvl.bias_mps[0] - b.dvl.bias_mps[0]).abs() < 1e-12);
+        assert!((a.navigation.latitude_deg - b.navigation.latitude_deg).abs() < 1e-12);
     }
 
     /// The bias block of Q after `set_bias_std` is sigma² (1 - e^{-2 dt / tau}) with

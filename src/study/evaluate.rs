@@ -36,8 +36,9 @@
 //!    residual RMS grows from about 0.02 m/s below 0.02 rad/s to about 0.1 m/s
 //!    above 0.1 rad/s.
 //! 6. Optionally (`estim evaluate --adaptive-noise N`), the DVL noise level
-//!    adapted online per run ([`estim_core::noise::adaptive::NoiseScale`], memory N
-//!    updates): one scale λ multiplies R, the Gauss-Markov bias variance (its sigma
+//!    adapted online per run by the navigator (`dvl.adaptive_noise_window` = N,
+//!    [`estim::navigator::AugmentedNavigator`]; [`estim_core::noise::adaptive::NoiseScale`],
+//!    memory N updates): one scale λ multiplies R, the Gauss-Markov bias variance (its sigma
 //!    by √λ) and κ² (κ by √λ); λ is the covariance-matching estimate from the past
 //!    innovations of the run, S = S_0 + λ D with D = R + the bias block of the prior
 //!    covariance, every update counted (accepted or gated). A-KIT's trajectories
@@ -62,11 +63,10 @@ use estim::datasets::{load_dvl_with, load_gt_with, trajectory_files};
 use estim::navigator::{
     AugmentedDvlModel, AugmentedNavigator, BiasConfig, DvlConfig, DvlParameters, DvlStatesConfig,
     GateConfig, LeverArmState, MisalignmentState, NavigatorConfig, NavigatorError,
-    ScaleFactorState, TimeOffsetState, DVL_BIAS,
+    ScaleFactorState, TimeOffsetState,
 };
 use estim_core::consistency::nees;
 use estim_core::nalgebra::{Matrix3, Rotation3, Vector3};
-use estim_core::noise::adaptive::{NoiseScale, NoiseScaleConfig};
 use estim_dvl::{dvl_frame_velocity, Calibrator, DvlMeasurement, TrajectorySample};
 use estim_ins::{ERROR_STATES, POS};
 use rayon::prelude::*;
@@ -586,15 +586,13 @@ pub fn evaluate(
     }
     let states = states.unwrap_or_else(|| fit.states());
     states.check()?;
-    let noise_scale = adaptive_noise
-        .map(|window| NoiseScaleConfig {
-            window,
-            ..NoiseScaleConfig::default()
-        })
-        .map(|c| {
-            NoiseScale::new(c).map_err(|e| PipelineError::Invalid(format!("--adaptive-noise: {e}")))
-        })
-        .transpose()?;
+    if let Some(window) = adaptive_noise {
+        if !(1..=100_000).contains(&window) {
+            return Err(PipelineError::Invalid(format!(
+                "--adaptive-noise: {window} is not in 1-100000"
+            )));
+        }
+    }
     let learned = beamsnet_without_sensitivity(config)?;
     let cells: Vec<(u32, u64)> = trajectories
         .iter()
@@ -622,7 +620,7 @@ pub fn evaluate(
                         config: &cfg,
                         fit: &fit,
                         states: &states,
-                        noise_scale: noise_scale.clone(),
+                        adaptive_noise,
                     };
                     run.run(velocities, *r, seed).map(|m| {
                         m.map(|m| EvaluationRun {
@@ -701,7 +699,7 @@ struct Run<'a> {
     config: &'a Config,
     fit: &'a TrainingFit,
     states: &'a DvlStatesConfig,
-    noise_scale: Option<NoiseScale>,
+    adaptive_noise: Option<usize>,
 }
 
 impl Run<'_> {
@@ -718,7 +716,7 @@ impl Run<'_> {
             config,
             fit,
             states,
-            mut noise_scale,
+            adaptive_noise,
         } = self;
         let truth0 = scenario
             .truth
@@ -727,7 +725,10 @@ impl Run<'_> {
         let p0 = initial_covariance(config, scenario);
         let nominal0 = initial_nominal(truth0, &p0, seed);
         let nav_config = NavigatorConfig {
-            dvl: fit.dvl_config(),
+            dvl: DvlConfig {
+                adaptive_noise_window: adaptive_noise,
+                ..fit.dvl_config()
+            },
             gate: GateConfig {
                 probability: config.filter.gate_probability,
                 recovery_after: config.filter.gate_recovery_after,
@@ -745,14 +746,10 @@ impl Run<'_> {
             lever_arm: Vector3::from(fit.lever_arm_m),
             time_offset: 0.0,
         };
+        let model = AugmentedDvlModel::new(r)?.with_rate_noise(fit.rate_noise_mps_per_radps)?;
         let mut nav =
-            AugmentedNavigator::with_dvl(&settings, states, nominal0, dvl0, p0, scenario.imu_dt)?;
-        let model_at = |lambda: f64| -> Result<AugmentedDvlModel> {
-            Ok(AugmentedDvlModel::new(r * lambda)?
-                .with_rate_noise(fit.rate_noise_mps_per_radps * lambda.sqrt())?)
-        };
-        let mut lambda = 1.0;
-        let mut model = model_at(lambda)?;
+            AugmentedNavigator::with_dvl(&settings, states, nominal0, dvl0, p0, scenario.imu_dt)?
+                .with_dvl_model(model);
         let (mut nees_values, mut nis, mut position) = (Vec::new(), Vec::new(), Vec::new());
         let mut fed = 0;
         let stopped = |e: NavigatorError| -> Result<String> {
@@ -781,31 +778,9 @@ impl Run<'_> {
                 return Ok(Err(stopped(e)?));
             }
             if let Some(y) = velocities.get(epoch).copied().flatten() {
-                let bias_prior = nav
-                    .covariance()
-                    .fixed_view::<3, 3>(DVL_BIAS, DVL_BIAS)
-                    .into_owned();
-                let report = match nav.dvl_velocity_with(target, &y, &model) {
-                    Ok(report) => report,
+                match nav.dvl_velocity(target, &y) {
+                    Ok(report) => nis.push(report.nis),
                     Err(e) => return Ok(Err(stopped(e)?)),
-                };
-                nis.push(report.nis);
-                if let Some(estimate) = &mut noise_scale {
-                    let next = match estimate.update(
-                        &report.innovation,
-                        &report.innovation_covariance,
-                        &(report.noise_covariance + bias_prior),
-                    ) {
-                        Ok(next) => next,
-                        Err(e) => return Ok(Err(format!("DVL epoch {epoch}: noise scale: {e}"))),
-                    };
-                    if next != lambda {
-                        lambda = next;
-                        model = model_at(lambda)?;
-                        if states.bias.estimate {
-                            nav.set_bias_std(states.bias.std_mps * lambda.sqrt())?;
-                        }
-                    }
                 }
             }
             let e = error_state(truth, &nav.nominal().ins);
@@ -824,7 +799,7 @@ impl Run<'_> {
             rejected: nav.dvl_counts.gated,
             time_offset_s: [s.time_offset_s, s.time_offset_sigma_s],
             scale_factor_error: [s.scale_factor_error, s.scale_factor_sigma],
-            noise_scale: lambda,
+            noise_scale: nav.dvl_noise_scale().unwrap_or(1.0),
         }))
     }
 }
