@@ -1,7 +1,8 @@
 //! `estim navigate` end to end: the A-KIT evaluation path (`simulate imu` +
 //! `simulate beams` + `navigate --truth`) equals `reproduce`'s LS filter; the same
 //! inputs in the Unix epoch give the same figures and a solution in that epoch;
-//! lost-lock DVL rows are skipped and counted; bad input exits 2 naming file:line.
+//! lost-lock DVL rows are skipped and counted; the vehicle file's adaptive DVL noise
+//! and DVL error states work; bad input exits 2 naming file:line.
 
 mod common;
 
@@ -326,6 +327,114 @@ fn adaptive_dvl_noise_from_the_vehicle_file() {
         stderr.contains("zero.toml") && stderr.contains("dvl.adaptive_noise_window"),
         "{stderr}"
     );
+}
+
+/// `[dvl_states]` in the vehicle file runs the 26-state filter: with every state held
+/// it gives the 15-state run's final solution (to 1e-9); with the misalignment and
+/// lever arm estimated the summary reports them with sigmas below their priors; the
+/// smoother and BeamsNet refuse the table, and a bad prior exits 2 naming its key.
+#[test]
+fn dvl_states_from_the_vehicle_file() {
+    let Some((gt, dvl)) = trajectory4() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    evaluation_inputs(d, &gt, &dvl);
+    let vehicle = std::fs::read_to_string(d.join("vehicle.toml")).unwrap();
+    let held = "[dvl_states]\n\
+        scale_factor = { estimate = false, prior_std = 0.005 }\n\
+        misalignment = { estimate = false, prior_std_rad = 0.01 }\n\
+        bias = { estimate = false, std_mps = 0.01, time_constant_s = 60.0 }\n\
+        lever_arm = { estimate = false, prior_std_m = 0.1 }\n\
+        time_offset = { estimate = false, prior_std_s = 0.5 }\n";
+    let estimated = "[dvl_states]\n\
+        scale_factor = { estimate = false, prior_std = 0.005 }\n\
+        misalignment = { estimate = true, prior_std_rad = 0.01 }\n\
+        bias = { estimate = false, std_mps = 0.01, time_constant_s = 60.0 }\n\
+        lever_arm = { estimate = true, prior_std_m = 0.1 }\n\
+        time_offset = { estimate = false, prior_std_s = 0.5 }\n";
+    let bad = "[dvl_states]\nbias = { estimate = true, std_mps = -1.0, time_constant_s = 60.0 }\n";
+    for (name, table) in [("held", held), ("estimated", estimated), ("bad", bad)] {
+        std::fs::write(
+            d.join(format!("{name}.toml")),
+            format!("{vehicle}\n{table}"),
+        )
+        .unwrap();
+    }
+    let run = |file: &str, extra: &[&str]| {
+        let mut args = vec![
+            "navigate",
+            "--imu",
+            "imu.csv",
+            "--beams",
+            "beams.csv",
+            "--vehicle",
+            file,
+        ];
+        args.extend_from_slice(extra);
+        estim(&args, d)
+    };
+    let plain = json(&ok(run("vehicle.toml", &["--json"]), "navigate, 15 states"));
+    let same = json(&ok(run("held.toml", &["--json"]), "navigate, states held"));
+    assert!(plain["dvl_states"].is_null());
+    for key in ["latitude_deg", "longitude_deg", "depth_m"] {
+        let (a, b) = (
+            plain["final"][key].as_f64().unwrap(),
+            same["final"][key].as_f64().unwrap(),
+        );
+        assert!(
+            (a - b).abs() <= 1e-9 * a.abs().max(1.0),
+            "{key}: {a} vs {b}"
+        );
+    }
+    assert_eq!(plain["updates"], same["updates"]);
+    let states = json(&ok(
+        run("estimated.toml", &["--json"]),
+        "navigate, states estimated",
+    ));
+    let s = &states["dvl_states"];
+    println!("{s}");
+    assert_eq!(s["estimated"]["lever_arm"], true);
+    assert_eq!(s["estimated"]["scale_factor"], false);
+    assert_eq!(s["scale_factor_sigma"].as_f64(), Some(0.0));
+    for i in 0..3 {
+        let lever = s["lever_arm_sigma_m"][i].as_f64().unwrap();
+        let misalignment = s["mounting_misalignment_sigma_rad"][i].as_f64().unwrap();
+        assert!(lever > 0.0 && lever < 0.1, "lever arm sigma {lever}");
+        assert!(
+            misalignment > 0.0 && misalignment < 0.01,
+            "misalignment sigma {misalignment}"
+        );
+    }
+    let text = String::from_utf8(ok(run("estimated.toml", &[]), "navigate, text")).unwrap();
+    assert!(text.contains("DVL states:"), "{text}");
+    let smooth = estim(
+        &[
+            "smooth",
+            "--imu",
+            "imu.csv",
+            "--beams",
+            "beams.csv",
+            "--vehicle",
+            "estimated.toml",
+        ],
+        d,
+    );
+    let learned = run("estimated.toml", &["--learned"]);
+    let bad = run("bad.toml", &[]);
+    for (what, out, key) in [
+        ("smooth", smooth, "dvl_states"),
+        ("--learned", learned, "dvl_states"),
+        ("bad prior", bad, "dvl_states.bias.std_mps"),
+    ] {
+        assert_eq!(out.status.code(), Some(2), "{what}");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            stderr.contains(".toml") && stderr.contains(key),
+            "{what}: {stderr}"
+        );
+    }
 }
 
 #[test]

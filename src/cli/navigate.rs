@@ -550,6 +550,7 @@ pub fn summary_json(
         "dvl_gaps_coasted": run.dvl_gaps_coasted,
         "longest_dvl_gap_s": run.longest_dvl_gap_s,
         "dvl_noise_scale": run.dvl_noise_scale,
+        "dvl_states": dvl_states_json(run, &survey.config),
         "nis": {
             "dvl": stats(&run.dvl_nis),
             "depth": stats(&run.depth_nis),
@@ -590,6 +591,49 @@ pub fn summary_json(
     )
 }
 
+/// The final DVL error states of a run with `[dvl_states]` (null without): each
+/// state's value and 1-sigma, and the time offset in total (the configured stamp
+/// shift plus the estimated rest), in the units of the `[dvl]` keys they refine.
+fn dvl_states_json(run: &NavigationRun, config: &NavigatorConfig) -> Value {
+    let (Some(s), Some(states)) = (&run.dvl_states, &config.dvl_states) else {
+        return Value::Null;
+    };
+    json!({
+        "estimated": {
+            "scale_factor": states.scale_factor.estimate,
+            "misalignment": states.misalignment.estimate,
+            "bias": states.bias.estimate,
+            "lever_arm": states.lever_arm.estimate,
+            "time_offset": states.time_offset.estimate,
+        },
+        "scale_factor": 1.0 + s.scale_factor_error,
+        "scale_factor_sigma": s.scale_factor_sigma,
+        "mounting_misalignment_rad": s.misalignment_rad,
+        "mounting_misalignment_sigma_rad": s.misalignment_sigma_rad,
+        "bias_mps": s.bias_mps,
+        "bias_sigma_mps": s.bias_sigma_mps,
+        "lever_arm_m": s.lever_arm_m,
+        "lever_arm_sigma_m": s.lever_arm_sigma_m,
+        "time_offset_s": config.dvl.time_offset_s + s.time_offset_s,
+        "time_offset_sigma_s": s.time_offset_sigma_s,
+    })
+}
+
+/// Refuse a run that takes the 15-state filter only (`what`) when the vehicle file
+/// asks for DVL error states, naming the file and the table.
+pub fn refuse_dvl_states(survey: &Survey, what: &str) -> anyhow::Result<()> {
+    if survey.config.dvl_states.is_none() {
+        return Ok(());
+    }
+    let file = survey.files.vehicle.as_deref().map_or_else(
+        || "vehicle configuration".to_string(),
+        |p| p.display().to_string(),
+    );
+    anyhow::bail!(
+        "{file}: dvl_states: {what} runs the 15-state filter; remove the [dvl_states] table"
+    )
+}
+
 /// The text summary of a survey run.
 pub fn summary_text(
     verb: &str,
@@ -620,6 +664,23 @@ pub fn summary_text(
         f.position_sigma_m[0],
         f.position_sigma_m[1]
     );
+    if let Some(d) = &run.dvl_states {
+        let mrad =
+            |v: &[f64; 3]| format!("[{:.2}, {:.2}, {:.2}]", v[0] * 1e3, v[1] * 1e3, v[2] * 1e3);
+        let _ = writeln!(
+            text,
+            "DVL states: scale factor {:.5} +- {:.5}, misalignment {} +- {} mrad, lever arm [{:.3}, {:.3}, {:.3}] m, time offset {:.3} +- {:.3} s",
+            summary["dvl_states"]["scale_factor"].as_f64().unwrap_or(f64::NAN),
+            d.scale_factor_sigma,
+            mrad(&d.misalignment_rad),
+            mrad(&d.misalignment_sigma_rad),
+            d.lever_arm_m[0],
+            d.lever_arm_m[1],
+            d.lever_arm_m[2],
+            summary["dvl_states"]["time_offset_s"].as_f64().unwrap_or(f64::NAN),
+            d.time_offset_sigma_s
+        );
+    }
     if let Some(e) = summary.get("evaluation").filter(|v| !v.is_null()) {
         let _ = writeln!(
             text,
@@ -662,6 +723,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut writer =
         Writer::new(staged.as_ref(), survey.epoch, survey.truth.take())?.with_plot_rows(args.plots);
     let network = if args.learned {
+        refuse_dvl_states(&survey, "--learned (BeamsNet)")?;
         anyhow::ensure!(
             survey.files.beams.is_some(),
             "--learned takes a DVL beams CSV (--beams) in the network's beam geometry"

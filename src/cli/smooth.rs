@@ -167,6 +167,7 @@ fn smooth_survey_files(
 
     let staged = out.map(crate::output::StagedDir::new).transpose()?;
     let mut survey = load_survey(files)?;
+    crate::navigate::refuse_dvl_states(&survey, "estim smooth")?;
     let truth = survey.truth.take();
     let mut forward = Writer::new(None, survey.epoch, truth.clone())?;
     let run = match smooth_survey(&survey.inputs, &survey.settings, None, &mut forward) {

@@ -10,7 +10,7 @@ use estim_ins::{ImuSpec, SensorSpec};
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::{NavigatorError, Result};
+use super::{DvlStatesConfig, NavigatorError, Result};
 
 /// The whole vehicle configuration (every key optional; defaults documented per field).
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -28,6 +28,12 @@ pub struct NavigatorConfig {
     pub gate: GateConfig,
     /// Initial state and its uncertainty.
     pub initial: InitialConfig,
+    /// DVL error states estimated online (scale factor, misalignment, Gauss-Markov
+    /// velocity bias, lever arm, time offset; [`DvlStatesConfig`]). Unset (default):
+    /// the 15-state filter with the `[dvl]` mounting held fixed. A `[dvl_states]`
+    /// table runs the 26-state [`super::AugmentedNavigator`]; each group left out
+    /// takes its default (estimated), `estimate = false` holds it at the `[dvl]` value.
+    pub dvl_states: Option<DvlStatesConfig>,
 }
 
 /// IMU noise model: a preset, optionally with per-sensor densities replacing it.
@@ -305,12 +311,18 @@ pub struct NavigatorSettings {
     pub(crate) dvl: DvlVelocityModel,
     pub(crate) geometry: BeamGeometry,
     pub(crate) dvl_noise_scale: Option<NoiseScaleConfig>,
+    pub(crate) dvl_states: Option<DvlStatesConfig>,
 }
 
 impl NavigatorSettings {
     /// The configuration it was checked from.
     pub fn config(&self) -> &NavigatorConfig {
         &self.config
+    }
+
+    /// The DVL error states to estimate, if any (`[dvl_states]`).
+    pub fn dvl_states(&self) -> Option<&DvlStatesConfig> {
+        self.dvl_states.as_ref()
     }
 
     /// The IMU error spec of the sensor (preset or given).
@@ -507,6 +519,9 @@ impl NavigatorConfig {
         if let Some(s) = i.gyro_bias_std_radps {
             positive("initial.gyro_bias_std_radps", s)?;
         }
+        if let Some(states) = &self.dvl_states {
+            states.check()?;
+        }
         Ok(NavigatorSettings {
             config: self.clone(),
             sensor_spec: sensor,
@@ -515,6 +530,7 @@ impl NavigatorConfig {
             dvl,
             geometry,
             dvl_noise_scale,
+            dvl_states: self.dvl_states,
         })
     }
 }

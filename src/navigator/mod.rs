@@ -8,7 +8,8 @@
 //! - [`Navigator`]: feed IMU samples and measurements in time order, read
 //!   [`NavSolution`]s (state and 1-sigma per state group);
 //! - [`navigate`]: the batch run over time-merged inputs ([`SurveyInputs`]), with the
-//!   initial state from the configuration, the first fix and a coarse alignment.
+//!   initial state from the configuration, the first fix and a coarse alignment; on
+//!   the [`AugmentedNavigator`] when the configuration has `dvl_states`.
 //! - [`AugmentedNavigator`]: the same filter with optional DVL error states (scale
 //!   factor, mounting misalignment, Gauss-Markov velocity bias, lever arm, time
 //!   offset; [`DvlStatesConfig`]), a 26-state error vector;
