@@ -75,6 +75,32 @@ fn evaluation_inputs(dir: &Path, gt: &Path, dvl: &Path) {
     std::fs::write(dir.join("beams.csv"), beams).unwrap();
 }
 
+/// A temporary folder with the study's A-KIT 4 inputs (`imu.csv`, `beams.csv`,
+/// `vehicle.toml`) and the vehicle file's text, or `None` without the data.
+fn akit4_survey() -> Option<(tempfile::TempDir, String)> {
+    let (gt, dvl) = trajectory4()?;
+    let dir = tempfile::tempdir().unwrap();
+    evaluation_inputs(dir.path(), &gt, &dvl);
+    let vehicle = std::fs::read_to_string(dir.path().join("vehicle.toml")).unwrap();
+    Some((dir, vehicle))
+}
+
+/// `estim navigate` on the folder's `imu.csv` and `beams.csv` with the vehicle file
+/// `vehicle` and `extra` arguments.
+fn navigate_beams(dir: &Path, vehicle: &str, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "navigate",
+        "--imu",
+        "imu.csv",
+        "--beams",
+        "beams.csv",
+        "--vehicle",
+        vehicle,
+    ];
+    args.extend_from_slice(extra);
+    estim(&args, dir)
+}
+
 /// Every time cell of the first column shifted by `shift` whole seconds, on the text
 /// (the digits after the point are kept).
 fn shift_times(text: &str, shift: u64) -> String {
@@ -280,13 +306,10 @@ fn lost_lock_rows_are_skipped_and_counted() {
 /// refused with exit 2 naming the key.
 #[test]
 fn adaptive_dvl_noise_from_the_vehicle_file() {
-    let Some((gt, dvl)) = trajectory4() else {
+    let Some((dir, vehicle)) = akit4_survey() else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    evaluation_inputs(d, &gt, &dvl);
-    let vehicle = std::fs::read_to_string(d.join("vehicle.toml")).unwrap();
     let with_window =
         |n: &str| vehicle.replace("[dvl]\n", &format!("[dvl]\nadaptive_noise_window = {n}\n"));
     assert_ne!(
@@ -296,21 +319,7 @@ fn adaptive_dvl_noise_from_the_vehicle_file() {
     );
     std::fs::write(d.join("adaptive.toml"), with_window("100")).unwrap();
     std::fs::write(d.join("zero.toml"), with_window("0")).unwrap();
-    let run = |file: &str| {
-        estim(
-            &[
-                "navigate",
-                "--imu",
-                "imu.csv",
-                "--beams",
-                "beams.csv",
-                "--vehicle",
-                file,
-                "--json",
-            ],
-            d,
-        )
-    };
+    let run = |file: &str| navigate_beams(d, file, &["--json"]);
     let fixed = json(&ok(run("vehicle.toml"), "navigate, fixed R"));
     let adaptive = json(&ok(run("adaptive.toml"), "navigate, adaptive R"));
     let nis = |v: &Value| v["nis"]["dvl"]["mean"].as_f64().unwrap();
@@ -335,13 +344,10 @@ fn adaptive_dvl_noise_from_the_vehicle_file() {
 /// smoother and BeamsNet refuse the table, and a bad prior exits 2 naming its key.
 #[test]
 fn dvl_states_from_the_vehicle_file() {
-    let Some((gt, dvl)) = trajectory4() else {
+    let Some((dir, vehicle)) = akit4_survey() else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    evaluation_inputs(d, &gt, &dvl);
-    let vehicle = std::fs::read_to_string(d.join("vehicle.toml")).unwrap();
     let held = "[dvl_states]\n\
         scale_factor = { estimate = false, prior_std = 0.005 }\n\
         misalignment = { estimate = false, prior_std_rad = 0.01 }\n\
@@ -362,19 +368,7 @@ fn dvl_states_from_the_vehicle_file() {
         )
         .unwrap();
     }
-    let run = |file: &str, extra: &[&str]| {
-        let mut args = vec![
-            "navigate",
-            "--imu",
-            "imu.csv",
-            "--beams",
-            "beams.csv",
-            "--vehicle",
-            file,
-        ];
-        args.extend_from_slice(extra);
-        estim(&args, d)
-    };
+    let run = |file: &str, extra: &[&str]| navigate_beams(d, file, extra);
     let plain = json(&ok(run("vehicle.toml", &["--json"]), "navigate, 15 states"));
     let same = json(&ok(run("held.toml", &["--json"]), "navigate, states held"));
     assert!(plain["dvl_states"].is_null());
