@@ -28,6 +28,7 @@ const KEY_DOCS: &[(&str, &str, &str)] = &[
     ("mission", "dvl_period_s", "[s] DVL / BeamsNet update period"),
     ("imu", "preset", "[-] IMU error model: akit_observed, tactical_mems, navigation_grade_fog, consumer_mems"),
     ("imu", "scale_factor_errors", "[-] keep the preset's scale-factor errors in the simulated IMU (the 15-state filter does not estimate them)"),
+    ("imu", "akit_truth", "[-] the trajectory an A-KIT IMU is synthesized from: position_and_velocity (through the recorded positions and velocities) or velocity (through the velocities, positions integrated)"),
     ("imu.accelerometer", "white_noise_density", "[m/s/sqrt(s)] velocity random walk (overrides the preset)"),
     ("imu.accelerometer", "bias_instability", "[m/s^2] Gauss-Markov bias sigma"),
     ("imu.accelerometer", "bias_time_constant_s", "[s] Gauss-Markov correlation time"),
@@ -146,6 +147,32 @@ pub struct ImuSection {
     /// preset's 500 ppm the filter is inconsistent (measured average NEES 91 instead
     /// of 15 on the default simulated mission), so they are off unless asked for.
     pub scale_factor_errors: bool,
+    /// The trajectory an A-KIT IMU is synthesized from (and the truth it is scored
+    /// against): [`AkitTruth::PositionAndVelocity`] (default) or
+    /// [`AkitTruth::Velocity`].
+    pub akit_truth: AkitTruth,
+}
+
+/// How recorded ground truth (A-KIT) becomes the smooth trajectory the study's IMU is
+/// synthesized from ([`estim_ins::Trajectory`]).
+///
+/// A-KIT's recorded positions and velocities disagree (on trajectory 4, 6.6 cm per
+/// 1 s step RMS). A curve through both puts the disagreement into the synthesized
+/// specific force: spurious accelerations between the samples that a real IMU
+/// would not sense and the recorded DVL does not see. A curve through the velocities
+/// alone has no such accelerations; its positions are the integral of the recorded
+/// velocities and drift from the recorded positions by the data's own
+/// inconsistency.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AkitTruth {
+    /// Cubic Hermite through every recorded position and velocity
+    /// ([`estim_ins::Trajectory::new`]).
+    #[default]
+    PositionAndVelocity,
+    /// Natural cubic spline through the recorded velocities, position integrated
+    /// from the first sample ([`estim_ins::Trajectory::velocity_driven`]).
+    Velocity,
 }
 
 /// One sensor triad's error parameters (SI units).
@@ -291,6 +318,7 @@ impl Default for ImuSection {
             accelerometer: None,
             gyroscope: None,
             scale_factor_errors: false,
+            akit_truth: AkitTruth::default(),
         }
     }
 }

@@ -25,7 +25,7 @@ pub mod stats;
 mod tune;
 pub mod where_m;
 
-pub use config::{Config, PaperMBasis, MAX_SEED};
+pub use config::{AkitTruth, Config, PaperMBasis, MAX_SEED};
 pub use evaluate::{
     check_fit_trajectories, evaluate, fit_training, markdown as evaluation_markdown,
 };
