@@ -127,6 +127,7 @@ fn survey(args: &Args, imu: PathBuf, options: &TuneOptions) -> anyhow::Result<()
         truth: None,
     };
     let loaded = crate::navigate::load_survey(files)?;
+    crate::navigate::refuse_dvl_states(&loaded, "estim tune")?;
     let measurements = survey_measurements(&loaded.inputs, &loaded.settings)?;
     let model = TuneModel::from_settings(&loaded.settings);
     let start = model.start(loaded.config.dvl.noise_std_mps);
