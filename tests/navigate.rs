@@ -139,21 +139,7 @@ fn akit_evaluation_equals_reproduce_ls_also_in_the_unix_epoch() {
     evaluation_inputs(d, &gt, &dvl);
     let gt_s = gt.to_str().unwrap();
     let navigated = json(&ok(
-        estim(
-            &[
-                "navigate",
-                "--imu",
-                "imu.csv",
-                "--beams",
-                "beams.csv",
-                "--vehicle",
-                "vehicle.toml",
-                "--truth",
-                gt_s,
-                "--json",
-            ],
-            d,
-        ),
+        navigate_beams(d, "vehicle.toml", &["--truth", gt_s, "--json"]),
         "navigate",
     ));
     let reproduced = json(&ok(

@@ -1149,6 +1149,18 @@ mod tests {
     use estim_ins::ImuSpec;
     use nalgebra::UnitQuaternion;
 
+    /// The default simulated mission of `duration` seconds.
+    fn mission(duration: f64, seed: u64) -> estim_ins::SimulatedMission {
+        estim_ins::Mission::generate(
+            &estim_ins::MissionConfig::builder()
+                .duration(duration)
+                .build()
+                .unwrap(),
+            seed,
+        )
+        .unwrap()
+    }
+
     fn state(tau: f64) -> AugmentedState {
         let mut ins = InsState::new(
             0.0,
@@ -1257,14 +1269,7 @@ mod tests {
     /// t - tau is predicted from the state at t to first order (error O(tau^2)).
     #[test]
     fn time_offset_term_predicts_the_delayed_velocity() {
-        let mission = estim_ins::Mission::generate(
-            &estim_ins::MissionConfig::builder()
-                .duration(60.0)
-                .build()
-                .unwrap(),
-            5,
-        )
-        .unwrap();
+        let mission = mission(60.0, 5);
         let dvl = AugmentedDvlModel::new(Matrix3::identity()).unwrap();
         let k = 3000;
         let delay = 20; // IMU steps
@@ -1365,14 +1370,7 @@ mod tests {
     #[test]
     fn with_no_dvl_state_it_equals_the_15_state_navigator() {
         use crate::navigator::{Navigator, NavigatorConfig};
-        let mission = estim_ins::Mission::generate(
-            &estim_ins::MissionConfig::builder()
-                .duration(30.0)
-                .build()
-                .unwrap(),
-            11,
-        )
-        .unwrap();
+        let mission = mission(30.0, 11);
         let mut config = NavigatorConfig::default();
         config.dvl.lever_arm_m = [1.2, -0.1, 0.3];
         config.dvl.mounting_misalignment_rad = [0.01, -0.02, 0.03];
@@ -1448,14 +1446,7 @@ mod tests {
     #[test]
     fn estimated_dvl_states_converge_on_a_simulated_mission() {
         use crate::navigator::NavigatorConfig;
-        let mission = estim_ins::Mission::generate(
-            &estim_ins::MissionConfig::builder()
-                .duration(300.0)
-                .build()
-                .unwrap(),
-            3,
-        )
-        .unwrap();
+        let mission = mission(300.0, 3);
         let mut config = NavigatorConfig::default();
         config.dvl.lever_arm_m = [1.0, 0.0, 0.2];
         config.dvl.noise_std_mps = 0.01;
@@ -1577,14 +1568,7 @@ mod tests {
         use estim_core::noise::adaptive::NoiseScaleConfig;
         use rand::SeedableRng;
         use rand_distr::{Distribution, StandardNormal};
-        let mission = estim_ins::Mission::generate(
-            &estim_ins::MissionConfig::builder()
-                .duration(120.0)
-                .build()
-                .unwrap(),
-            5,
-        )
-        .unwrap();
+        let mission = mission(120.0, 5);
         let mut config = NavigatorConfig::default();
         config.dvl.noise_std_mps = 0.01;
         config.gate.probability = 0.0;

@@ -311,7 +311,6 @@ pub struct NavigatorSettings {
     pub(crate) dvl: DvlVelocityModel,
     pub(crate) geometry: BeamGeometry,
     pub(crate) dvl_noise_scale: Option<NoiseScaleConfig>,
-    pub(crate) dvl_states: Option<DvlStatesConfig>,
 }
 
 impl NavigatorSettings {
@@ -322,7 +321,7 @@ impl NavigatorSettings {
 
     /// The DVL error states to estimate, if any (`[dvl_states]`).
     pub fn dvl_states(&self) -> Option<&DvlStatesConfig> {
-        self.dvl_states.as_ref()
+        self.config.dvl_states.as_ref()
     }
 
     /// The IMU error spec of the sensor (preset or given).
@@ -530,7 +529,6 @@ impl NavigatorConfig {
             dvl,
             geometry,
             dvl_noise_scale,
-            dvl_states: self.dvl_states,
         })
     }
 }
