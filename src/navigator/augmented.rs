@@ -32,7 +32,7 @@
 //!
 //! ```text
 //! a_b = (f - b_a) + C_n^b g^n - ω × (C_n^b v^n)       body-frame acceleration
-//! u   = C_n^b v^n + ω × l - τ a_b                      velocity at the DVL, at t - τ
+//! u   = C_n^b v^n + ω × l - τ ā_b                      velocity at the DVL, at t - τ
 //! y   = (1 + k) C_b^d u + b
 //! ```
 //!
@@ -40,7 +40,18 @@
 //! [`AugmentedState::specific_force`]), ω the bias-corrected angular rate of the
 //! mechanization, g^n = \[0, 0, g(L, h)\] (Coriolis and transport rate, below 3e-4
 //! m/s^2 at AUV speeds, and the angular acceleration in d(ω × l)/dt are neglected in
-//! a_b). Jacobian, with G = (1 + k) C_b^d, C = C_n^b, v_b = C v^n:
+//! a_b). ā_b is a_b plus a constant: in [`AugmentedNavigator`], the mean of a_b over
+//! the IMU steps of the last |τ| seconds (nominal τ) minus a_b at the nominal, so that
+//! at the nominal C v^n - τ ā_b is the nominal's body velocity at t - τ. The IMU
+//! noise integrated into v^n over the window then cancels, and the noise of the
+//! regressor ā_b is independent of the INS velocity error at t - τ: for a delay (τ >
+//! 0) the time-offset state has no errors-in-variables bias (with the last sample's
+//! a_b it has: the raw specific force's noise is in both). For τ < 0 (the DVL measures
+//! after its stamp) the window lies before the measured time and the estimate is
+//! pulled towards zero, and near τ = 0 the window is one IMU step, whose noise a
+//! noisy IMU's filter takes for signal (`dvl_states_limits` in `batch.rs`). A model
+//! used on its own has no window (ā_b = a_b). Jacobian, with G = (1 + k) C_b^d,
+//! C = C_n^b, v_b = C v^n:
 //!
 //! ```text
 //! dy/dδp_D = G τ C e_D ∂g/∂h            (h_true = h - δp_D)
@@ -53,7 +64,7 @@
 //! dy/dδμ   = (1 + k) [(C_b^d u)×]
 //! dy/dδb   = I
 //! dy/dδl   = G [ω×]
-//! dy/dδτ   = -G a_b
+//! dy/dδτ   = -G ā_b
 //! ```
 //!
 //! Each block is checked against central differences of the prediction through
@@ -69,6 +80,7 @@ use estim_ins::{
 };
 use nalgebra::{Matrix3, Rotation3, SMatrix, SVector, Vector1, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
 
 use super::aiding::{DepthModel, PositionFixModel};
 use super::filter::ImuClock;
@@ -567,6 +579,9 @@ fn inject_dvl(dvl: &DvlParameters, error: &AugmentedVector) -> DvlParameters {
 pub struct AugmentedDvlModel {
     noise_covariance: Matrix3<f64>,
     rate_noise: f64,
+    /// Added to a_b: the mean a_b over the window minus a_b at the nominal (set by
+    /// [`AugmentedNavigator`] for each update; zero otherwise).
+    acceleration_offset: Vector3<f64>,
 }
 
 /// The quantities of one DVL prediction.
@@ -598,6 +613,7 @@ impl AugmentedDvlModel {
         Ok(Self {
             noise_covariance: r,
             rate_noise: 0.0,
+            acceleration_offset: Vector3::zeros(),
         })
     }
 
@@ -629,10 +645,20 @@ impl AugmentedDvlModel {
         Ok(Self {
             noise_covariance: self.noise_covariance * scale,
             rate_noise: self.rate_noise * scale.sqrt(),
+            acceleration_offset: self.acceleration_offset,
         })
     }
 
-    fn terms(state: &AugmentedState) -> DvlTerms {
+    /// a_b at `state` from its specific force alone (no window).
+    fn raw_acceleration(state: &AugmentedState) -> Vector3<f64> {
+        Self::terms_with(state, &Vector3::zeros()).acceleration
+    }
+
+    fn terms(&self, state: &AugmentedState) -> DvlTerms {
+        Self::terms_with(state, &self.acceleration_offset)
+    }
+
+    fn terms_with(state: &AugmentedState, acceleration_offset: &Vector3<f64>) -> DvlTerms {
         let ins = &state.ins;
         let dvl = &state.dvl;
         let nav_to_body = ins.attitude.inverse().to_rotation_matrix().into_inner();
@@ -642,7 +668,8 @@ impl AugmentedDvlModel {
         let gravity = earth::gravity_ned(ins.latitude, ins.height);
         let omega = ins.angular_rate;
         let acceleration = (state.specific_force - ins.acc_bias) + nav_to_body * gravity
-            - omega.cross(&body_velocity);
+            - omega.cross(&body_velocity)
+            + acceleration_offset;
         let u = body_velocity + omega.cross(&dvl.lever_arm) - acceleration * dvl.time_offset;
         DvlTerms {
             nav_to_body,
@@ -660,7 +687,7 @@ impl MeasurementModel<f64, AUGMENTED_STATES, 3> for AugmentedDvlModel {
     type State = AugmentedState;
 
     fn predict(&self, state: &AugmentedState) -> estim_core::Result<Vector3<f64>> {
-        let t = Self::terms(state);
+        let t = self.terms(state);
         let y = t.gain * t.u + state.dvl.bias;
         if y.iter().all(|x| x.is_finite()) {
             Ok(y)
@@ -675,7 +702,7 @@ impl MeasurementModel<f64, AUGMENTED_STATES, 3> for AugmentedDvlModel {
         &self,
         state: &AugmentedState,
     ) -> estim_core::Result<SMatrix<f64, 3, AUGMENTED_STATES>> {
-        let t = Self::terms(state);
+        let t = self.terms(state);
         let ins = &state.ins;
         let dvl = &state.dvl;
         let tau = dvl.time_offset;
@@ -757,6 +784,10 @@ macro_rules! lift {
 
 lift!(DepthModel, 1, Vector1<f64>);
 lift!(PositionFixModel, 2, Vector2<f64>);
+
+/// Seconds of IMU steps whose a_b the navigator keeps for the time-offset window (a
+/// window longer than this uses what is kept).
+pub const ACCELERATION_HISTORY_S: f64 = 10.0;
 
 /// The filter type the augmented navigator owns.
 pub type AugmentedFilter = ErrorStateKalmanFilter<f64, AugmentedErrorModel, AUGMENTED_STATES>;
@@ -844,6 +875,9 @@ pub struct AugmentedNavigator {
     dvl: AugmentedDvlModel,
     states: DvlStatesConfig,
     noise_scale: Option<NoiseScale>,
+    /// (end time, length, a_b after it) of the IMU steps of the last
+    /// [`ACCELERATION_HISTORY_S`] (kept when the time offset is estimated).
+    accelerations: VecDeque<(f64, f64, Vector3<f64>)>,
     depth: Lifted<DepthModel>,
     fix_lever_arm: Vector3<f64>,
     imu_clock: ImuClock,
@@ -910,6 +944,7 @@ impl AugmentedNavigator {
             dvl: AugmentedDvlModel::new(r)?,
             states: *states,
             noise_scale: settings.dvl_noise_scale.map(NoiseScale::new).transpose()?,
+            accelerations: VecDeque::new(),
             depth: Lifted(DepthModel::new(
                 Vector3::from(config.depth.lever_arm_m),
                 config.depth.noise_std_m,
@@ -1008,7 +1043,41 @@ impl AugmentedNavigator {
                 source,
             })?;
         self.imu_clock.advance(end);
+        if self.states.time_offset.estimate {
+            let a = AugmentedDvlModel::raw_acceleration(self.filter.nominal());
+            self.accelerations.push_back((end, dt, a));
+            while self
+                .accelerations
+                .front()
+                .is_some_and(|(t, _, _)| *t < end - ACCELERATION_HISTORY_S)
+            {
+                self.accelerations.pop_front();
+            }
+        }
         Ok(())
+    }
+
+    /// The mean a_b over the last `width` seconds before `time`: the kept steps' a_b
+    /// weighted by their overlap with the window; the last step's a_b for a window
+    /// of zero width; `None` before the first step.
+    fn window_acceleration(&self, time: f64, width: f64) -> Option<Vector3<f64>> {
+        let start = time - width;
+        let (mut sum, mut covered) = (Vector3::zeros(), 0.0);
+        for (end, dt, a) in self.accelerations.iter().rev() {
+            let overlap = end.min(time) - (end - dt).max(start);
+            if overlap > 0.0 {
+                sum += a * overlap;
+                covered += overlap;
+            }
+            if end - dt <= start {
+                break;
+            }
+        }
+        if covered > 0.0 {
+            Some(sum / covered)
+        } else {
+            self.accelerations.back().map(|(_, _, a)| *a)
+        }
     }
 
     /// Feed one IMU sample (the rules of [`super::Navigator::imu`]).
@@ -1084,9 +1153,17 @@ impl AugmentedNavigator {
         model: &AugmentedDvlModel,
     ) -> Result<UpdateReport<f64, AUGMENTED_STATES, 3>> {
         self.propagate_to(time)?;
+        let mut model = model.clone();
+        if self.states.time_offset.estimate {
+            let nominal = self.filter.nominal();
+            let width = nominal.dvl.time_offset.abs();
+            if let Some(mean) = self.window_acceleration(time, width) {
+                model.acceleration_offset = mean - AugmentedDvlModel::raw_acceleration(nominal);
+            }
+        }
         let report = self
             .filter
-            .update(model, velocity, &Zero)
+            .update(&model, velocity, &Zero)
             .map_err(|source| NavigatorError::Filter { time, source })?;
         self.dvl_counts.count(&report);
         Ok(report)
