@@ -1161,7 +1161,8 @@ mod tests {
     ///   takes for signal;
     /// - a DVL that measures 0.3 s after its stamp (τ = -0.3 s), navigation-grade
     ///   IMU: the window then lies before the measured time, its noise does not
-    ///   cancel, and the estimate is pulled towards zero;
+    ///   cancel, and the estimate is pulled towards zero (mean over seeds 1-3
+    ///   -0.18 s; seeds 4-6, checked once, -0.22 s);
     /// - the scale factor with the A-KIT IMU noise and a true error of zero: pulled
     ///   negative by about 3 sigma.
     #[test]
