@@ -390,31 +390,21 @@ fn dvl_states_from_the_vehicle_file() {
     }
     let text = String::from_utf8(ok(run("estimated.toml", &[]), "navigate, text")).unwrap();
     assert!(text.contains("DVL states:"), "{text}");
-    let smooth = estim(
-        &[
-            "smooth",
+    let other = |command: &str| {
+        let args = [
+            command,
             "--imu",
             "imu.csv",
             "--beams",
             "beams.csv",
             "--vehicle",
             "estimated.toml",
-        ],
-        d,
-    );
+        ];
+        estim(&args, d)
+    };
+    let smooth = other("smooth");
     let learned = run("estimated.toml", &["--learned"]);
-    let tune = estim(
-        &[
-            "tune",
-            "--imu",
-            "imu.csv",
-            "--beams",
-            "beams.csv",
-            "--vehicle",
-            "estimated.toml",
-        ],
-        d,
-    );
+    let tune = other("tune");
     let bad = run("bad.toml", &[]);
     for (what, out, key) in [
         ("smooth", smooth, "dvl_states"),
