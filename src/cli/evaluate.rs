@@ -44,7 +44,8 @@ pub struct Args {
     /// `[misalignment]` with `estimate`, `prior_std_rad`; `[lever_arm]` with
     /// `estimate`, `prior_std_m`; `[time_offset]` with `estimate`, `prior_std_s`;
     /// `[bias]` with `estimate`, `std_mps`, `time_constant_s`), replacing the fitted
-    /// priors.
+    /// priors. The misalignment and lever-arm sigmas are a number or three per axis
+    /// (0 holds that axis).
     #[arg(long, value_name = "FILE")]
     states: Option<PathBuf>,
     /// Add DVL noise growing with the angular rate, R + κ² |ω|² I, κ fitted on the

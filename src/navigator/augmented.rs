@@ -16,7 +16,10 @@
 //!
 //! A state that is not estimated ([`DvlStatesConfig`]) has zero prior variance and zero
 //! process noise: its rows and columns of P stay exactly zero, its gain is zero, its
-//! nominal value stays at the configured (calibrated) value. The filter's default
+//! nominal value stays at the configured (calibrated) value. The same holds for one
+//! axis of the misalignment or the lever arm whose prior sigma is 0 ([`AxisSigma`]);
+//! for the misalignment, the rotation vector's component along a held axis can still
+//! change at second order as the other axes' corrections compose. The filter's default
 //! square-root covariance update accepts such a singular P (a zero pivot with a zero
 //! column is a zero column, estim-core `CovarianceUpdate::SquareRoot`).
 //!
@@ -153,48 +156,99 @@ pub struct AugmentedState {
 }
 
 macro_rules! state_config {
-    ($(#[$doc:meta])* $name:ident, $field:ident, $unit:literal) => {
+    ($(#[$doc:meta])* $name:ident, $field:ident: $ty:ty, $unit:literal) => {
         $(#[$doc])*
         #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
         #[serde(deny_unknown_fields)]
         pub struct $name {
             /// Estimate this state (else it stays at its initial value, zero variance).
             pub estimate: bool,
-            #[doc = concat!("Prior 1-sigma per axis ", $unit, ".")]
-            pub $field: f64,
+            #[doc = concat!("Prior 1-sigma ", $unit, ".")]
+            pub $field: $ty,
         }
 
         impl $name {
             /// (estimated, prior 1-sigma).
-            pub fn prior(&self) -> (bool, f64) {
+            pub fn prior(&self) -> (bool, $ty) {
                 (self.estimate, self.$field)
             }
         }
     };
 }
 
+/// A prior 1-sigma for a three-axis state: one value for every axis (`0.01`) or one
+/// per axis (`[0.01, 0.0, 0.01]`). An axis whose sigma is 0 is held at its initial
+/// value while the others are estimated.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(untagged, expecting = "a number or an array of 3 numbers")]
+pub enum AxisSigma {
+    /// The same sigma on every axis.
+    All(f64),
+    /// One sigma per axis (x, y, z of the state's frame).
+    PerAxis([f64; 3]),
+}
+
+impl AxisSigma {
+    /// The sigma of each axis.
+    pub fn axes(&self) -> [f64; 3] {
+        match *self {
+            Self::All(sigma) => [sigma; 3],
+            Self::PerAxis(sigmas) => sigmas,
+        }
+    }
+
+    /// Check against the largest sigma `max`: one value in (0, max]; per axis, each
+    /// in [0, max] and at least one above 0.
+    fn check(&self, key: &str, max: f64) -> Result<()> {
+        let in_range = |s: f64| s.is_finite() && (0.0..=max).contains(&s);
+        match *self {
+            Self::All(s) if !(in_range(s) && s > 0.0) => Err(NavigatorError::Config(format!(
+                "dvl_states.{key}: {s} is not in (0, {max}]"
+            ))),
+            Self::PerAxis(axes) if !axes.iter().all(|&s| in_range(s)) => {
+                Err(NavigatorError::Config(format!(
+                    "dvl_states.{key}: {axes:?}: each axis must be in [0, {max}] (0 holds that axis)"
+                )))
+            }
+            Self::PerAxis(axes) if axes.iter().all(|&s| s == 0.0) => {
+                Err(NavigatorError::Config(format!(
+                    "dvl_states.{key}: every axis is 0; set estimate = false to hold the state"
+                )))
+            }
+            _ => Ok(()),
+        }
+    }
+}
+
+impl From<f64> for AxisSigma {
+    fn from(sigma: f64) -> Self {
+        Self::All(sigma)
+    }
+}
+
 state_config!(
     /// Scale-factor error settings (`prior_std` dimensionless).
     ScaleFactorState,
-    prior_std,
+    prior_std: f64,
     "(dimensionless)"
 );
 state_config!(
-    /// Mounting-misalignment settings (`prior_std_rad`).
+    /// Mounting-misalignment settings (`prior_std_rad`, DVL frame: x roll, y pitch,
+    /// z yaw of the DVL).
     MisalignmentState,
-    prior_std_rad,
-    "\\[rad\\]"
+    prior_std_rad: AxisSigma,
+    "per axis \\[rad\\]"
 );
 state_config!(
-    /// Lever-arm settings (`prior_std_m`).
+    /// Lever-arm settings (`prior_std_m`, body frame).
     LeverArmState,
-    prior_std_m,
-    "\\[m\\]"
+    prior_std_m: AxisSigma,
+    "per axis \\[m\\]"
 );
 state_config!(
     /// Time-offset settings (`prior_std_s`).
     TimeOffsetState,
-    prior_std_s,
+    prior_std_s: f64,
     "\\[s\\]"
 );
 
@@ -236,7 +290,7 @@ impl Default for DvlStatesConfig {
             },
             misalignment: MisalignmentState {
                 estimate: true,
-                prior_std_rad: 0.01,
+                prior_std_rad: AxisSigma::All(0.01),
             },
             bias: BiasConfig {
                 estimate: true,
@@ -245,7 +299,7 @@ impl Default for DvlStatesConfig {
             },
             lever_arm: LeverArmState {
                 estimate: true,
-                prior_std_m: 0.1,
+                prior_std_m: AxisSigma::All(0.1),
             },
             time_offset: TimeOffsetState {
                 estimate: true,
@@ -278,15 +332,20 @@ impl DvlStatesConfig {
     pub fn check(&self) -> Result<()> {
         let groups = [
             ("scale_factor.prior_std", self.scale_factor.prior(), 0.1),
-            ("misalignment.prior_std_rad", self.misalignment.prior(), 0.1),
-            ("lever_arm.prior_std_m", self.lever_arm.prior(), 10.0),
             ("time_offset.prior_std_s", self.time_offset.prior(), 5.0),
         ];
         for (key, (estimate, std), max) in groups {
-            if estimate && !(std.is_finite() && std > 0.0 && std <= max) {
-                return Err(NavigatorError::Config(format!(
-                    "dvl_states.{key}: {std} is not in (0, {max}]"
-                )));
+            if estimate {
+                AxisSigma::All(std).check(key, max)?;
+            }
+        }
+        let axis_groups = [
+            ("misalignment.prior_std_rad", self.misalignment.prior(), 0.1),
+            ("lever_arm.prior_std_m", self.lever_arm.prior(), 10.0),
+        ];
+        for (key, (estimate, sigma), max) in axis_groups {
+            if estimate {
+                sigma.check(key, max)?;
             }
         }
         let b = self.bias;
@@ -315,12 +374,23 @@ impl DvlStatesConfig {
         } else {
             0.0
         };
+        let axes = |(estimate, sigma): (bool, AxisSigma)| {
+            if estimate {
+                sigma.axes().map(|s| s * s)
+            } else {
+                [0.0; 3]
+            }
+        };
+        let (misalignment, lever_arm) = (
+            axes(self.misalignment.prior()),
+            axes(self.lever_arm.prior()),
+        );
         let mut out = SVector::<f64, DVL_STATES>::zeros();
         out[0] = v(self.scale_factor.prior());
         for i in 0..3 {
-            out[1 + i] = v(self.misalignment.prior());
+            out[1 + i] = misalignment[i];
             out[4 + i] = b;
-            out[7 + i] = v(self.lever_arm.prior());
+            out[7 + i] = lever_arm[i];
         }
         out[10] = v(self.time_offset.prior());
         out
@@ -1838,9 +1908,26 @@ mod tests {
         let e = c.check().unwrap_err().to_string();
         assert!(e.contains("dvl_states.time_offset.prior_std_s"), "{e}");
         let mut c = DvlStatesConfig::default();
-        c.lever_arm.prior_std_m = 11.0;
+        c.lever_arm.prior_std_m = AxisSigma::All(11.0);
         let e = c.check().unwrap_err().to_string();
         assert!(e.contains("dvl_states.lever_arm.prior_std_m"), "{e}");
+        // Per axis: 0 holds an axis, but not every axis, and no value out of range.
+        for bad in [
+            [0.0; 3],
+            [0.01, -0.01, 0.01],
+            [0.01, f64::NAN, 0.0],
+            [0.2, 0.0, 0.0],
+        ] {
+            let mut c = DvlStatesConfig::default();
+            c.misalignment.prior_std_rad = AxisSigma::PerAxis(bad);
+            let e = c.check().unwrap_err().to_string();
+            assert!(e.contains("dvl_states.misalignment.prior_std_rad"), "{e}");
+        }
+        let mut c = DvlStatesConfig::default();
+        c.misalignment.prior_std_rad = AxisSigma::All(0.0);
+        assert!(c.check().is_err());
+        c.misalignment.prior_std_rad = AxisSigma::PerAxis([0.01, 0.0, 0.02]);
+        assert!(c.check().is_ok());
         // Not estimated: its values are not used and not checked.
         let mut c = DvlStatesConfig::none();
         c.time_offset.prior_std_s = -1.0;
@@ -1851,6 +1938,92 @@ mod tests {
                 .unwrap_err()
                 .to_string();
             assert!(e.contains("std"), "{e}");
+            let e = toml::from_str::<DvlStatesConfig>(
+                "[misalignment]\nestimate = true\nprior_std_rad = [0.01, 0.0]\n",
+            )
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("prior_std_rad"), "{e}");
+            assert!(e.contains("a number or an array of 3 numbers"), "{e}");
         }
+    }
+
+    /// A per-axis prior: the variances are the squares of each axis's sigma, a held
+    /// axis's is 0, and a number applies to every axis.
+    #[test]
+    fn per_axis_priors_give_per_axis_variances() {
+        let mut c = DvlStatesConfig::none();
+        c.misalignment.estimate = true;
+        c.misalignment.prior_std_rad = AxisSigma::PerAxis([0.002, 0.0, 0.003]);
+        c.lever_arm.estimate = true;
+        c.lever_arm.prior_std_m = AxisSigma::All(0.5);
+        c.check().unwrap();
+        let v = c.prior_variances();
+        let expected = [0.0, 4e-6, 0.0, 9e-6, 0.0, 0.0, 0.0, 0.25, 0.25, 0.25, 0.0];
+        for (i, e) in expected.iter().enumerate() {
+            assert!((v[i] - e).abs() <= 1e-18, "state {i}: {} vs {e}", v[i]);
+        }
+        #[cfg(feature = "cli")]
+        {
+            let parsed: DvlStatesConfig = toml::from_str(
+                "[misalignment]\nestimate = true\nprior_std_rad = [0.002, 0, 0.003]\n\
+                 [lever_arm]\nestimate = true\nprior_std_m = 0.5\n\
+                 [scale_factor]\nestimate = false\nprior_std = 0.005\n\
+                 [bias]\nestimate = false\nstd_mps = 0.01\ntime_constant_s = 60\n\
+                 [time_offset]\nestimate = false\nprior_std_s = 0.5\n",
+            )
+            .unwrap();
+            assert_eq!(parsed, c);
+        }
+    }
+
+    /// A held axis stays held through a run: its rows of P stay exactly zero and a
+    /// held lever-arm axis keeps its configured value, while the estimated axes move.
+    #[test]
+    fn a_held_axis_stays_at_its_initial_value() {
+        use crate::navigator::NavigatorConfig;
+        let mission = mission(60.0, 5);
+        let mut config = NavigatorConfig::default();
+        config.dvl.lever_arm_m = [1.0, 0.0, 0.2];
+        config.dvl.noise_std_mps = 0.01;
+        let settings = config.check().unwrap();
+        let mut states = DvlStatesConfig::none();
+        states.misalignment.estimate = true;
+        states.misalignment.prior_std_rad = AxisSigma::PerAxis([0.01, 0.0, 0.01]);
+        states.lever_arm.estimate = true;
+        states.lever_arm.prior_std_m = AxisSigma::PerAxis([0.1, 0.1, 0.0]);
+        let x0 = mission.truth[0];
+        let p0 = ErrorMatrix::identity() * 1e-4;
+        let mut aug = AugmentedNavigator::new(&settings, &states, x0, p0, mission.imu_dt).unwrap();
+        // The DVL is mounted 5 mrad off in yaw and its lever arm is 0.3 m further aft
+        // than configured: the estimated axes have something to find.
+        let mut truth_config = config.clone();
+        truth_config.dvl.mounting_misalignment_rad = [0.0, 0.0, 0.005];
+        truth_config.dvl.lever_arm_m = [0.7, 0.0, 0.2];
+        let dvl = truth_config.check().unwrap().dvl_model().clone();
+        for k in 0..mission.imu.len() {
+            aug.imu(&mission.imu[k]).unwrap();
+            if (k + 1) % 20 == 0 {
+                let truth = &mission.truth[k + 1];
+                let v = dvl.predict(truth).unwrap();
+                aug.dvl_velocity(truth.time, &v).unwrap();
+            }
+        }
+        let p = aug.covariance();
+        for i in [DVL_MISALIGNMENT + 1, DVL_LEVER_ARM + 2] {
+            assert!(p.row(i).iter().all(|v| *v == 0.0), "row {i} of P not zero");
+            assert!(
+                p.column(i).iter().all(|v| *v == 0.0),
+                "column {i} of P not zero"
+            );
+        }
+        let dvl_state = aug.nominal().dvl;
+        assert_eq!(dvl_state.lever_arm[2], 0.2);
+        assert!(dvl_state.lever_arm[0] != 1.0, "lever arm x did not move");
+        let mu = dvl_state.mounting_misalignment();
+        assert!(mu[2] != 0.0, "yaw misalignment did not move");
+        // The estimated axes were updated: their variances fell below the priors.
+        assert!(p[(DVL_MISALIGNMENT + 2, DVL_MISALIGNMENT + 2)] < 0.01f64.powi(2));
+        assert!(p[(DVL_LEVER_ARM, DVL_LEVER_ARM)] < 0.1f64.powi(2));
     }
 }

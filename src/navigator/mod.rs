@@ -34,9 +34,10 @@ pub mod tune;
 pub use aiding::{DepthModel, PositionFixModel};
 pub use augmented::{
     AugmentedDvlModel, AugmentedErrorModel, AugmentedMatrix, AugmentedNavigator, AugmentedSolution,
-    AugmentedState, AugmentedVector, BiasConfig, DvlParameters, DvlStateSolution, DvlStatesConfig,
-    LeverArmState, Lifted, MisalignmentState, ScaleFactorState, TimeOffsetState, AUGMENTED_STATES,
-    DVL_BIAS, DVL_LEVER_ARM, DVL_MISALIGNMENT, DVL_SCALE, DVL_STATES, DVL_TIME_OFFSET,
+    AugmentedState, AugmentedVector, AxisSigma, BiasConfig, DvlParameters, DvlStateSolution,
+    DvlStatesConfig, LeverArmState, Lifted, MisalignmentState, ScaleFactorState, TimeOffsetState,
+    AUGMENTED_STATES, DVL_BIAS, DVL_LEVER_ARM, DVL_MISALIGNMENT, DVL_SCALE, DVL_STATES,
+    DVL_TIME_OFFSET,
 };
 pub use batch::{
     coarse_alignment, navigate, navigate_learned, navigate_with, Alignment, DepthSample, DvlInput,

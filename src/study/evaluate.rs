@@ -168,7 +168,7 @@ impl TrainingFit {
             },
             misalignment: MisalignmentState {
                 estimate: true,
-                prior_std_rad: self.misalignment_std_rad,
+                prior_std_rad: self.misalignment_std_rad.into(),
             },
             bias: BiasConfig {
                 estimate: self.bias_estimated,
@@ -177,7 +177,7 @@ impl TrainingFit {
             },
             lever_arm: LeverArmState {
                 estimate: true,
-                prior_std_m: self.lever_arm_std_m,
+                prior_std_m: self.lever_arm_std_m.into(),
             },
             time_offset: TimeOffsetState {
                 estimate: true,
