@@ -228,3 +228,98 @@ fn adaptive_noise_scale_is_checked_and_brings_the_nis_into_band_on_13() {
         assert!((1.5..=6.0).contains(&nis), "{row}");
     }
 }
+
+/// The 15-state comparison runs are `estim reproduce --data`'s runs (same seed, same
+/// variant: position RMSE equal to 1e-12), and each row's paired difference is the
+/// mean of (this filter - 15-state) over the seeds with the Student t interval,
+/// recomputed here (t_{0.975, 1} = 12.7062, a published constant).
+#[test]
+fn the_fifteen_state_comparison_is_reproduce_paired_by_seed() {
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    let root = root.to_string_lossy().into_owned();
+    let out = estim(&[
+        "evaluate",
+        "--data",
+        &root,
+        "--fit-trajectories",
+        "2,7",
+        "--trajectory",
+        "13",
+        "--seeds",
+        "2",
+        "--first-seed",
+        "31",
+        "--json",
+    ]);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    let e = &doc["evaluation"];
+    assert_eq!(e["fifteen_state_time_offset_s"].as_f64(), Some(-1.48));
+    let dir = tempfile::tempdir().expect("temp dir");
+    let runs = e["runs"].as_array().expect("runs");
+    assert_eq!(runs.len(), 4, "2 seeds x 2 variants");
+    for seed in [31u64, 32] {
+        let config = dir.path().join(format!("seed{seed}.toml"));
+        std::fs::write(&config, format!("seed = {seed}\n")).expect("write");
+        let out = estim(&[
+            "reproduce",
+            "--data",
+            &root,
+            "--trajectory",
+            "13",
+            "--config",
+            config.to_str().expect("utf-8 path"),
+            "--json",
+        ]);
+        assert_eq!(out.status.code(), Some(0));
+        let doc: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+        let filters = doc["trajectories"][0]["filters"]
+            .as_array()
+            .expect("filters");
+        for id in ["ls", "beamsnet_m_neglected"] {
+            let expected = filters.iter().find(|f| f["id"] == id).expect("filter")
+                ["position_error_m"]["rmse"]
+                .as_f64()
+                .expect("rmse");
+            let run = runs
+                .iter()
+                .find(|r| r["id"] == id && r["seed"].as_u64() == Some(seed))
+                .expect("run");
+            let got = run["fifteen_state_position_rmse_m"].as_f64().expect("rmse");
+            assert!(
+                (got - expected).abs() <= 1e-12,
+                "{id} seed {seed}: {got} vs {expected}"
+            );
+        }
+    }
+    for row in e["rows"].as_array().expect("rows") {
+        let d: Vec<f64> = runs
+            .iter()
+            .filter(|r| r["id"] == row["id"])
+            .map(|r| {
+                r["position_rmse_m"].as_f64().expect("rmse")
+                    - r["fifteen_state_position_rmse_m"].as_f64().expect("rmse")
+            })
+            .collect();
+        let mean = (d[0] + d[1]) / 2.0;
+        let half = 12.7062 * (d[0] - d[1]).abs() / 2f64.sqrt() / 2f64.sqrt();
+        let i = &row["position_rmse_difference_m"];
+        let near = |key: &str, v: f64| {
+            let got = i[key].as_f64().expect(key);
+            assert!(
+                (got - v).abs() <= 1e-4 * v.abs().max(1e-3),
+                "{key}: {got} vs {v}"
+            );
+        };
+        near("mean", mean);
+        near("lo", mean - half);
+        near("hi", mean + half);
+    }
+}

@@ -55,6 +55,13 @@
 //! run: time-averaged NEES of the 15 INS states against truth, time-averaged NIS
 //! (3 dof), position RMSE. A trajectory meets the NEES band when its seed-mean NEES
 //! is within [0.5, 2] x 15, the NIS band when its NIS is within [0.5, 2] x 3.
+//!
+//! Each cell also runs the 15-state filter of `estim reproduce --data` (the
+//! configuration as given: its `dvl.akit_time_offset_s`, R with the reference
+//! mismatch, no DVL states) for both variants on the same seed, hence the same
+//! synthesized IMU; per trajectory and variant the position RMSE difference is
+//! summarised as a mean paired difference with its 95 % Student t interval over the
+//! seeds ([`PairedInterval`]).
 
 use std::collections::HashSet;
 use std::path::Path;
@@ -72,11 +79,13 @@ use estim_ins::{ERROR_STATES, POS};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::paired::{recorded_sets, LEVEL};
 use super::stats::{error_summary, finite_mean};
 use super::{
     beamsnet_without_sensitivity, error_state, initial_covariance, initial_nominal,
-    least_squares_velocities, Config, PipelineError, Result, Scenario, AKIT_TEST_TRAJECTORIES,
-    BEAMSNET_NEGLECTED, LS,
+    least_squares_velocities, run_variant, summarise, Config, CrossSource, LearnedSource,
+    PairedInterval, PipelineError, Result, Scenario, AKIT_TEST_TRAJECTORIES, BEAMSNET_NEGLECTED,
+    LS,
 };
 
 /// The A-KIT training trajectories (all but 4 and 13).
@@ -486,6 +495,10 @@ pub struct EvaluationRun {
     pub scale_factor_error: [f64; 2],
     /// Final DVL noise scale λ (1 without `--adaptive-noise`).
     pub noise_scale: f64,
+    /// Position RMSE \[m\] of the 15-state filter of `estim reproduce --data` (no DVL
+    /// states, fixed R, the configured time offset) with the same variant and seed:
+    /// the same synthesized IMU. NaN when that run stopped.
+    pub fifteen_state_position_rmse_m: f64,
 }
 
 /// Per trajectory and variant, means over the seeds.
@@ -511,6 +524,11 @@ pub struct EvaluationRow {
     pub time_offset_s: f64,
     /// Mean final DVL noise scale λ.
     pub noise_scale: f64,
+    /// Mean position RMSE of the 15-state filter on the same seeds \[m\].
+    pub fifteen_state_position_rmse_m: f64,
+    /// Position RMSE minus the 15-state filter's, paired by seed: the mean and its
+    /// 95 % Student t interval over the seeds (the seeds redraw synthetic noise only).
+    pub position_rmse_difference_m: PairedInterval,
 }
 
 /// Per variant, how many trajectories meet the bands.
@@ -541,6 +559,9 @@ pub struct Evaluation {
     pub runs: Vec<EvaluationRun>,
     /// Runs that stopped, as text.
     pub failures: Vec<String>,
+    /// The DVL time offset of the 15-state comparison runs (`dvl.akit_time_offset_s`)
+    /// \[s\].
+    pub fifteen_state_time_offset_s: f64,
     /// Per trajectory and variant.
     pub rows: Vec<EvaluationRow>,
     /// Per variant.
@@ -612,9 +633,11 @@ pub fn evaluate(
             let ls_r = Matrix3::identity() * cfg.dvl.ls_noise_std.powi(2) + white;
             let net = learned(&scenario)?;
             let net_r = net.noise_covariance + white;
+            let baseline = fifteen_state_rmse(dir, n, config, seed, &learned)?;
             let jobs = [(LS, ls, ls_r), (BEAMSNET_NEGLECTED, net.velocities, net_r)];
             jobs.iter()
-                .map(|(id, velocities, r)| {
+                .zip(baseline)
+                .map(|((id, velocities, r), baseline)| {
                     let run = Run {
                         scenario: &scenario,
                         config: &cfg,
@@ -627,6 +650,7 @@ pub fn evaluate(
                             trajectory: n,
                             seed,
                             id: id.to_string(),
+                            fifteen_state_position_rmse_m: baseline,
                             ..m
                         })
                         .map_err(|e| format!("trajectory {n}, seed {seed}, {id}: {e}"))
@@ -655,7 +679,14 @@ pub fn evaluate(
             };
             let nees = mean(&|r| r.nees);
             let nis = mean(&|r| r.nis);
+            let differences: Vec<f64> = mine
+                .iter()
+                .map(|r| r.position_rmse_m - r.fifteen_state_position_rmse_m)
+                .filter(|d| d.is_finite())
+                .collect();
             rows.push(EvaluationRow {
+                fifteen_state_position_rmse_m: mean(&|r| r.fifteen_state_position_rmse_m),
+                position_rmse_difference_m: PairedInterval::of(&differences, LEVEL),
                 trajectory: t,
                 id: id.to_string(),
                 runs: mine.len(),
@@ -688,6 +719,7 @@ pub fn evaluate(
         seeds: seeds.to_vec(),
         runs,
         failures,
+        fifteen_state_time_offset_s: config.dvl.akit_time_offset_s,
         rows,
         counts,
     })
@@ -800,8 +832,35 @@ impl Run<'_> {
             time_offset_s: [s.time_offset_s, s.time_offset_sigma_s],
             scale_factor_error: [s.scale_factor_error, s.scale_factor_sigma],
             noise_scale: nav.dvl_noise_scale().unwrap_or(1.0),
+            fifteen_state_position_rmse_m: f64::NAN,
         }))
     }
+}
+
+/// Position RMSE of the 15-state filter of `estim reproduce --data` on trajectory
+/// `n` with `seed` (the configuration as given: its time offset, R with the reference
+/// mismatch, its gate), for [`EVALUATED_VARIANTS`] in order; NaN for a run that
+/// stopped on a numerical failure.
+fn fifteen_state_rmse(
+    dir: &Path,
+    n: u32,
+    config: &Config,
+    seed: u64,
+    learned: &LearnedSource,
+) -> Result<[f64; 2]> {
+    let config = Config {
+        seed,
+        ..config.clone()
+    };
+    let scenario = Scenario::akit(dir, n, &config, seed)?;
+    let [ls, net] = recorded_sets(&scenario, &config, learned)?;
+    let mut out = [f64::NAN; 2];
+    for (slot, (id, set)) in out.iter_mut().zip([(LS, ls), (BEAMSNET_NEGLECTED, net)]) {
+        if let Ok(run) = run_variant(id, &scenario, &config, &set, &CrossSource::Zero, seed)? {
+            *slot = summarise(&run)?.position_error_m.rmse;
+        }
+    }
+    Ok(out)
 }
 
 /// The evaluation as markdown: the fit, then per trajectory LS and BeamsNet, then the
@@ -862,7 +921,7 @@ pub fn markdown(e: &Evaluation) -> String {
         t.dedup();
         t
     };
-    for t in trajectories {
+    for &t in &trajectories {
         let cell = |id: &str| e.rows.iter().find(|r| r.trajectory == t && r.id == id);
         let text = |r: Option<&EvaluationRow>| match r {
             Some(r) if r.runs > 0 => format!(
@@ -899,6 +958,36 @@ pub fn markdown(e: &Evaluation) -> String {
             );
         }
         s.push('\n');
+    }
+    s.push('\n');
+    let _ = writeln!(
+        s,
+        "Position RMSE against the 15-state filter of `estim reproduce --data` (no DVL states, \
+         fixed R, time offset {:.2} s) on the same seeds, so on the same synthesized IMU: \
+         this filter minus that one, mean [95 % t interval over the seeds; the seeds redraw \
+         synthetic noise only].\n",
+        e.fifteen_state_time_offset_s
+    );
+    s.push_str(
+        "| trajectory | 15-state LS / BeamsNet [m] | LS: difference [m] | BeamsNet, M neglected: \
+         difference [m] |\n|---|---|---|---|\n",
+    );
+    for t in &trajectories {
+        let cell = |id: &str| e.rows.iter().find(|r| r.trajectory == *t && r.id == id);
+        let base =
+            |r: Option<&EvaluationRow>| r.map_or(f64::NAN, |r| r.fifteen_state_position_rmse_m);
+        let diff = |r: Option<&EvaluationRow>| match r {
+            Some(r) => super::paired::interval_text(&r.position_rmse_difference_m, 2),
+            None => "failed".into(),
+        };
+        let _ = writeln!(
+            s,
+            "| {t} | {:.2} / {:.2} | {} | {} |",
+            base(cell(LS)),
+            base(cell(BEAMSNET_NEGLECTED)),
+            diff(cell(LS)),
+            diff(cell(BEAMSNET_NEGLECTED)),
+        );
     }
     s.push('\n');
     for c in &e.counts {

@@ -258,6 +258,26 @@ pub fn variant_label(id: &str) -> String {
     }
 }
 
+/// The least-squares and BeamsNet measurements of a recorded scenario, each R with
+/// `dvl.akit_reference_mismatch_std_mps` added, as `estim reproduce --data` uses them.
+pub(crate) fn recorded_sets(
+    scenario: &Scenario,
+    config: &Config,
+    learned: &LearnedSource,
+) -> Result<[MeasurementSet; 2]> {
+    let mismatch = Matrix3::identity() * config.dvl.akit_reference_mismatch_std.powi(2);
+    let ls = MeasurementSet {
+        velocities: least_squares_velocities(scenario, config),
+        noise_covariance: Matrix3::identity() * config.dvl.ls_noise_std.powi(2) + mismatch,
+    };
+    let inputs = learned(scenario)?;
+    let net = MeasurementSet {
+        velocities: inputs.velocities,
+        noise_covariance: inputs.noise_covariance + mismatch,
+    };
+    Ok([ls, net])
+}
+
 /// The variants on one (trajectory, seed) cell, gate off.
 fn cell(
     config: &Config,
@@ -274,11 +294,6 @@ fn cell(
     let mut config = gated.clone();
     config.filter.gate_probability = 0.0;
     let scenario = Scenario::akit(data, trajectory, &config, seed)?;
-    let mismatch = Matrix3::identity() * config.dvl.akit_reference_mismatch_std.powi(2);
-    let ls = MeasurementSet {
-        velocities: least_squares_velocities(&scenario, &config),
-        noise_covariance: Matrix3::identity() * config.dvl.ls_noise_std.powi(2) + mismatch,
-    };
     let mut visited = [false; 12];
     for d in &scenario.dvl {
         if let Some(t) = scenario.truth.get(d.imu_index) {
@@ -291,11 +306,7 @@ fn cell(
         }
     }
     let sectors = visited.iter().filter(|v| **v).count();
-    let inputs = learned(&scenario)?;
-    let net = MeasurementSet {
-        velocities: inputs.velocities,
-        noise_covariance: inputs.noise_covariance + mismatch,
-    };
+    let [ls, net] = recorded_sets(&scenario, &config, learned)?;
     let mut jobs = [
         (LS, ls, CrossSource::Zero),
         (BEAMSNET_NEGLECTED, net.clone(), CrossSource::Zero),
@@ -511,21 +522,25 @@ pub fn beamsnet_without_sensitivity(config: &Config) -> Result<Box<LearnedSource
     }))
 }
 
+/// An interval as `mean [lo, hi]` with `digits` decimals and signs, or `mean (n = N)`
+/// when it has no bounds (fewer than two values).
+pub(crate) fn interval_text(i: &PairedInterval, digits: usize) -> String {
+    if i.lo.is_finite() {
+        format!(
+            "{:+.*} [{:+.*}, {:+.*}]",
+            digits, i.mean, digits, i.lo, digits, i.hi
+        )
+    } else {
+        format!("{:+.*} (n = {})", digits, i.mean, i.n)
+    }
+}
+
 /// The markdown tables of a study: the paired differences, then the per-trajectory
 /// seed means of each variant.
 pub fn markdown(study: &PairedStudy) -> String {
     use std::fmt::Write as _;
     let mut s = String::new();
-    let cell = |i: &PairedInterval, digits: usize| {
-        if i.lo.is_finite() {
-            format!(
-                "{:+.*} [{:+.*}, {:+.*}]",
-                digits, i.mean, digits, i.lo, digits, i.hi
-            )
-        } else {
-            format!("{:+.*} (n = {})", digits, i.mean, i.n)
-        }
-    };
+    let cell = interval_text;
     let n_t = study.trajectories.len();
     let n_s = study.seeds.len();
     let _ = writeln!(
