@@ -13,6 +13,26 @@ fn estim(args: &[&str]) -> Output {
         .expect("run estim")
 }
 
+/// `estim evaluate --data ROOT --fit-trajectories 2,7 ARGS --json` (fitted on two
+/// training trajectories to keep CI cheap): exit 0 and the JSON document.
+fn evaluate_json(root: &str, args: &[&str]) -> serde_json::Value {
+    let out = estim(
+        &[
+            &["evaluate", "--data", root, "--fit-trajectories", "2,7"][..],
+            args,
+            &["--json"],
+        ]
+        .concat(),
+    );
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("JSON")
+}
+
 #[test]
 fn test_trajectories_in_the_fit_set_are_refused_with_exit_2() {
     // Refused before any file is read: no data needed.
@@ -80,27 +100,8 @@ fn evaluation_on_the_test_trajectories_reports_every_run() {
         return;
     };
     let root = root.to_string_lossy().into_owned();
-    let args = [
-        "evaluate",
-        "--data",
-        &root,
-        "--fit-trajectories",
-        "2,7",
-        "--trajectory",
-        "4",
-        "--trajectory",
-        "13",
-        "--seeds",
-        "1",
-    ];
-    let out = estim(&[&args[..], &["--json"]].concat());
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    let args = ["--trajectory", "4", "--trajectory", "13", "--seeds", "1"];
+    let doc = evaluate_json(&root, &args);
     assert_eq!(doc["command"], "evaluate");
     let e = &doc["evaluation"];
     let fitted: Vec<u64> = e["fit"]["calibrations"]
@@ -141,7 +142,13 @@ fn evaluation_on_the_test_trajectories_reports_every_run() {
         let in_band = mine.iter().filter(|r| r["nees_in_band"] == true).count();
         assert_eq!(count["nees_in_band"].as_u64(), Some(in_band as u64));
     }
-    let text = estim(&args);
+    let text = estim(
+        &[
+            &["evaluate", "--data", &root, "--fit-trajectories", "2,7"][..],
+            &args,
+        ]
+        .concat(),
+    );
     assert_eq!(text.status.code(), Some(0));
     let text = String::from_utf8_lossy(&text.stdout);
     assert!(
@@ -197,27 +204,17 @@ fn adaptive_noise_scale_is_checked_and_brings_the_nis_into_band_on_13() {
         return;
     };
     let root = root.to_string_lossy().into_owned();
-    let out = estim(&[
-        "evaluate",
-        "--data",
+    let doc = evaluate_json(
         &root,
-        "--fit-trajectories",
-        "2,7",
-        "--trajectory",
-        "13",
-        "--seeds",
-        "1",
-        "--adaptive-noise",
-        "100",
-        "--json",
-    ]);
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+        &[
+            "--trajectory",
+            "13",
+            "--seeds",
+            "1",
+            "--adaptive-noise",
+            "100",
+        ],
     );
-    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
     let e = &doc["evaluation"];
     assert_eq!(e["adaptive_noise_window"].as_u64(), Some(100));
     for row in e["rows"].as_array().expect("rows") {
@@ -239,27 +236,10 @@ fn the_fifteen_state_comparison_is_reproduce_paired_by_seed() {
         return;
     };
     let root = root.to_string_lossy().into_owned();
-    let out = estim(&[
-        "evaluate",
-        "--data",
+    let doc = evaluate_json(
         &root,
-        "--fit-trajectories",
-        "2,7",
-        "--trajectory",
-        "13",
-        "--seeds",
-        "2",
-        "--first-seed",
-        "31",
-        "--json",
-    ]);
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+        &["--trajectory", "13", "--seeds", "2", "--first-seed", "31"],
     );
-    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
     let e = &doc["evaluation"];
     assert_eq!(e["fifteen_state_time_offset_s"].as_f64(), Some(-1.48));
     let dir = tempfile::tempdir().expect("temp dir");
