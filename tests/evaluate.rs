@@ -77,6 +77,18 @@ fn bad_state_files_are_refused_naming_the_key() {
             "[time_offset]\nestimate = true\nprior_std_s = 0\n",
             "dvl_states.time_offset.prior_std_s",
         ),
+        (
+            "[misalignment]\nestimate = true\nprior_std_rad = [0.01, -0.01, 0]\n",
+            "dvl_states.misalignment.prior_std_rad",
+        ),
+        (
+            "[lever_arm]\nestimate = true\nprior_std_m = [0, 0, 0]\n",
+            "dvl_states.lever_arm.prior_std_m",
+        ),
+        (
+            "[lever_arm]\nestimate = true\nprior_std_m = [0.1, 0.1]\n",
+            "states.toml: line 3: a number or an array of 3 numbers",
+        ),
     ] {
         let path = dir.path().join("states.toml");
         std::fs::write(&path, text).expect("write");
