@@ -1161,35 +1161,26 @@ mod tests {
     ///   takes for signal;
     /// - a DVL that measures 0.3 s after its stamp (τ = -0.3 s), navigation-grade
     ///   IMU: the window then lies before the measured time, its noise does not
-    ///   cancel, and the estimate is pulled towards zero (mean over seeds 1-3
-    ///   -0.18 s; seeds 4-6, checked once, -0.22 s);
+    ///   cancel, and the estimate is pulled towards zero. Single seeds scatter by
+    ///   about their sigma (0.075 s), so the test asserts the mean over seeds 1-18,
+    ///   within [-0.30, -0.20] s (it is -0.237 s; seeds 19-36 and 37-54, checked
+    ///   once, -0.225 and -0.279 s);
     /// - the scale factor with the A-KIT IMU noise and a true error of zero: pulled
     ///   negative by about 3 sigma.
     #[test]
     fn dvl_states_limits() {
-        let mut ahead_sum = 0.0;
         for seed in 1..=3 {
             let akit =
                 calibration_run("akit_observed", (0.0, 0.0, 0.3), [false, false, true], seed);
             let k = calibration_run("akit_observed", (0.0, 0.0, 0.0), [true, false, false], seed);
-            let ahead = calibration_run(
-                "navigation_grade_fog",
-                (0.0, 0.0, -0.3),
-                [false, false, true],
-                seed,
-            );
             println!(
                 "seed {seed}: delay 0.3 s estimated {:.3} +- {:.3} s (A-KIT); \
-                 k = 0 estimated {:.4} +- {:.4} (A-KIT); \
-                 delay -0.3 s estimated {:.3} +- {:.3} s (navigation grade)",
+                 k = 0 estimated {:.4} +- {:.4} (A-KIT)",
                 akit.time_offset_s,
                 akit.time_offset_sigma_s,
                 k.scale_factor_error,
                 k.scale_factor_sigma,
-                ahead.time_offset_s,
-                ahead.time_offset_sigma_s,
             );
-            ahead_sum += ahead.time_offset_s;
             assert!(akit.time_offset_s.abs() < 0.05, "seed {seed}: {akit:?}");
             assert!(akit.time_offset_sigma_s < 0.01, "seed {seed}: {akit:?}");
             assert!(
@@ -1197,7 +1188,29 @@ mod tests {
                 "seed {seed}: {k:?}"
             );
         }
-        assert!(ahead_sum / 3.0 > -0.25, "mean {}", ahead_sum / 3.0);
+        let ahead: Vec<DvlStateSolution> = (1..=18)
+            .map(|seed| {
+                calibration_run(
+                    "navigation_grade_fog",
+                    (0.0, 0.0, -0.3),
+                    [false, false, true],
+                    seed,
+                )
+            })
+            .collect();
+        let estimates: Vec<f64> = ahead.iter().map(|s| s.time_offset_s).collect();
+        let mean = estimates.iter().sum::<f64>() / estimates.len() as f64;
+        let (lo, hi) = estimates
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        println!(
+            "delay -0.3 s (navigation grade), seeds 1-18: mean {mean:.3} s, \
+             single seeds {lo:.3} to {hi:.3} s, sigma {:.3} s",
+            ahead[0].time_offset_sigma_s
+        );
+        assert!((-0.30..=-0.20).contains(&mean), "mean {mean}");
     }
 
     /// The smoother's entry point and BeamsNet refuse DVL error states, naming the key.
