@@ -98,6 +98,10 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::from(schema::EXIT_OK),
         // The reader of stdout went away (`estim reproduce | head`): end quietly.
         Err(e) if output::is_broken_pipe(&e) => ExitCode::from(schema::EXIT_BROKEN_PIPE),
+        Err(e) if e.downcast_ref::<schema::RunStopped>().is_some() => {
+            eprintln!("error: {e}");
+            ExitCode::from(schema::EXIT_FILTERS_FAILED)
+        }
         Err(e) if e.downcast_ref::<schema::FiltersFailed>().is_some() => {
             eprintln!("warning: {e}");
             ExitCode::from(schema::EXIT_FILTERS_FAILED)

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use estim::datasets::{load_depth, load_fixes, load_gt, load_times, DvlLog, ImuLog};
 use estim::dvl::read_pd0_file;
-use estim::ins::{ErrorMatrix, InsState, Trajectory, ERROR_STATES, POS};
+use estim::ins::{ErrorMatrix, InsState, Trajectory, ATT, ERROR_STATES, POS, VEL};
 use estim::navigator::{
     format_heading, navigate, navigate_learned, pd0_records, rdi_beam_geometry, DvlRecord,
     NavSolution, NavigationObserver, NavigationRun, NavigatorConfig, NavigatorError,
@@ -41,6 +41,9 @@ pub struct SurveyFiles {
     pub vehicle: Option<PathBuf>,
     /// Ground truth CSV.
     pub truth: Option<PathBuf>,
+    /// Start from the truth's state at the first IMU sample (position, velocity,
+    /// attitude), replacing `[initial]`'s.
+    pub init_from_truth: bool,
 }
 
 /// Arguments of `estim navigate`.
@@ -83,9 +86,15 @@ pub struct Args {
     /// Vehicle configuration TOML (lever arms, noise, time offsets, initial state).
     #[arg(long, value_name = "FILE")]
     vehicle: Option<PathBuf>,
-    /// Ground truth CSV: adds errors and NEES at the DVL epochs (evaluation).
+    /// Ground truth CSV: adds errors and NEES at the truth's own epochs (evaluation).
+    /// Its clock is aligned to the IMU's (`[truth]` in the vehicle file, else
+    /// estimated) and its point carried by `truth.lever_arm_m`.
     #[arg(long, value_name = "FILE")]
     truth: Option<PathBuf>,
+    /// With --truth: start from the truth's position, velocity and attitude at the
+    /// first IMU sample (after aligning its clock), instead of `[initial]`.
+    #[arg(long, requires = "truth")]
+    init_from_truth: bool,
     /// Also write a solution at this rate \[Hz\] (besides every DVL epoch).
     #[arg(long, value_name = "HZ")]
     rate: Option<f64>,
@@ -108,6 +117,7 @@ impl Args {
             fixes: self.fixes.clone(),
             vehicle: self.vehicle.clone(),
             truth: self.truth.clone(),
+            init_from_truth: self.init_from_truth,
         }
     }
 }
@@ -138,31 +148,110 @@ type TrueBiases = (
 #[derive(Clone)]
 pub struct Truth {
     trajectory: Trajectory,
+    /// The reference's point relative to the IMU, body frame \[m\].
+    lever_arm: estim::core::nalgebra::Vector3<f64>,
+    epochs: Vec<f64>,
+    span: [f64; 2],
     biases: Option<(Vec<f64>, Vec<TrueBiases>)>,
+    time_offset: Value,
     position_error: Vec<f64>,
+    horizontal_error: Vec<f64>,
     nees: Vec<f64>,
+    group_nees: [Vec<f64>; 3],
+    /// Per scored epoch: time, the 9 errors (position N, E, D \[m\], velocity
+    /// \[m/s\], misalignment \[deg\]) and their 9 1-sigmas.
+    rows: Vec<[f64; 19]>,
     not_positive_definite: usize,
+    outside: usize,
 }
 
 impl Truth {
-    fn at(&self, time: f64) -> anyhow::Result<InsState> {
-        let mut state = self.trajectory.evaluate(time)?.state;
+    /// The reference's own epochs on the navigator's clock.
+    pub fn epochs(&self) -> Vec<f64> {
+        self.epochs.clone()
+    }
+
+    /// Score a solution against the truth at `time` (counted apart when outside the
+    /// reference's span).
+    fn score(
+        &mut self,
+        time: f64,
+        state: &InsState,
+        covariance: &ErrorMatrix,
+    ) -> anyhow::Result<()> {
+        let Some(t) = self.at(time)? else {
+            self.outside += 1;
+            return Ok(());
+        };
+        let e = estim::navigator::error_state(&t, state);
+        self.position_error.push(e.fixed_rows::<3>(POS).norm());
+        self.horizontal_error.push(e.fixed_rows::<2>(POS).norm());
+        // NEES over the states the truth has: 15 with the simulation's true biases,
+        // else position, velocity and attitude.
+        let states = if self.biases.is_some() {
+            ERROR_STATES
+        } else {
+            9
+        };
+        match estim::navigator::nees_of_block(&e, covariance, 0, states) {
+            Some(v) => self.nees.push(v),
+            None => {
+                self.nees.push(f64::NAN);
+                self.not_positive_definite += 1;
+            }
+        }
+        let mut row = [0.0; 19];
+        row[0] = time;
+        for i in 0..9 {
+            let degrees = if i >= ATT {
+                180.0 / std::f64::consts::PI
+            } else {
+                1.0
+            };
+            row[1 + i] = e[i] * degrees;
+            row[10 + i] = covariance[(i, i)].max(0.0).sqrt() * degrees;
+        }
+        self.rows.push(row);
+        for (g, start) in [POS, VEL, ATT].into_iter().enumerate() {
+            let v = estim::navigator::nees_of_block(&e, covariance, start, 3);
+            self.group_nees[g].push(v.unwrap_or(f64::NAN));
+        }
+        Ok(())
+    }
+
+    /// The truth at `time`, `None` outside the reference's span.
+    fn at(&self, time: f64) -> anyhow::Result<Option<InsState>> {
+        if !(time >= self.span[0] && time <= self.span[1]) {
+            return Ok(None);
+        }
+        let kinematics = self.trajectory.evaluate(time)?;
+        let mut state = kinematics.state;
+        // The reference's velocity is its point's: the IMU's lacks omega x l.
+        state.velocity_ned -= state.attitude * kinematics.angular_rate.cross(&self.lever_arm);
         if let Some((times, biases)) = &self.biases {
             let i = times.partition_point(|&t| t < time).min(biases.len() - 1);
             state.acc_bias = biases[i].0;
             state.gyro_bias = biases[i].1;
         }
-        Ok(state)
+        Ok(Some(state))
     }
 }
 
 /// Writes the solution CSV as the run goes, keeps the track and evaluates truth.
 pub struct Writer {
     epoch_s: f64,
+    /// The solutions scored against the truth: the reference's own epochs
+    /// ([`SolutionKind::Epoch`]) or the DVL epochs.
+    scored: SolutionKind,
+    last: Option<NavSolution>,
+    rows: usize,
     csv: Option<std::io::BufWriter<std::fs::File>>,
     line: String,
     track: Vec<[f64; 2]>,
     truth: Option<Truth>,
+    /// With scoring at the reference's epochs, the same truth scored at the DVL
+    /// epochs (interpolated), as `estim reproduce` scores.
+    dvl_truth: Option<Truth>,
     plot_rows: Option<Vec<crate::navigate_plots::PlotRow>>,
 }
 
@@ -182,20 +271,36 @@ impl NavigationObserver for Writer {
         if matches!(kind, SolutionKind::Dvl | SolutionKind::End) {
             self.track.push([s.longitude_deg, s.latitude_deg]);
         }
-        if kind == SolutionKind::Dvl {
+        if kind == self.scored {
             if let Some(truth) = &mut self.truth {
-                let t = truth.at(s.time).map_err(|e| e.to_string())?;
-                let e = crate::study::error_state(&t, state);
-                truth.position_error.push(e.fixed_rows::<3>(POS).norm());
-                match estim::core::consistency::nees(&e, covariance) {
-                    Ok(v) => truth.nees.push(v),
-                    Err(_) => {
-                        truth.nees.push(f64::NAN);
-                        truth.not_positive_definite += 1;
-                    }
-                }
+                truth
+                    .score(s.time, state, covariance)
+                    .map_err(|e| e.to_string())?;
             }
         }
+        if kind == SolutionKind::Dvl {
+            if let Some(truth) = &mut self.dvl_truth {
+                truth
+                    .score(s.time, state, covariance)
+                    .map_err(|e| e.to_string())?;
+            }
+        }
+        if kind == SolutionKind::Epoch {
+            // A reference epoch: scored, not a row of the solution.
+            return Ok(());
+        }
+        self.write_row(kind, s)
+    }
+}
+
+impl Writer {
+    fn write_row(
+        &mut self,
+        kind: SolutionKind,
+        s: &NavSolution,
+    ) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
+        self.last = Some(*s);
+        self.rows += 1;
         if let Some(csv) = &mut self.csv {
             let l = &mut self.line;
             l.clear();
@@ -319,11 +424,16 @@ pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
         Some(p) => vehicle_config(p)?,
         None => NavigatorConfig::default(),
     };
-    let mut settings = config.check().map_err(|e| match &files.vehicle {
+    let in_vehicle = |e: NavigatorError| match &files.vehicle {
         Some(p) => anyhow::anyhow!("{}: {e}", p.display()),
         None => anyhow::anyhow!("{e}"),
-    })?;
-    let imu = ImuLog::load(&files.imu, None)?;
+    };
+    let mut settings = config.check().map_err(in_vehicle)?;
+    let mut imu = ImuLog::load(&files.imu, None)?;
+    config
+        .imu_frame()
+        .map_err(in_vehicle)?
+        .apply(&mut imu.samples);
     let epoch = imu.epoch_s;
     let mut pd0 = None;
     let dvl = match (&files.dvl, &files.beams, &files.pd0) {
@@ -360,7 +470,79 @@ pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
         None => Vec::new(),
     };
     let truth = match &files.truth {
-        Some(p) => {
+        Some(p) => Some(load_truth(p, epoch, &imu, &config)?),
+        None => None,
+    };
+    let mut config = config;
+    if files.init_from_truth {
+        let truth = truth.as_ref().context("--init-from-truth needs --truth")?;
+        // The run starts at the first of the truth's own epochs inside the IMU's span
+        // (the truth is exact there, interpolated between).
+        let imu_start = imu.samples.first().map_or(0.0, |s| s.time);
+        let first = truth
+            .epochs
+            .iter()
+            .copied()
+            .find(|&t| t >= imu_start)
+            .unwrap_or(imu_start);
+        let state = truth.at(first)?.with_context(|| {
+            format!(
+                "--init-from-truth: the first IMU sample (t = {:.3} s) is outside the truth's \
+                 span ({:.3}..{:.3} s)",
+                epoch + first,
+                epoch + truth.span[0],
+                epoch + truth.span[1]
+            )
+        })?;
+        let (roll, pitch, yaw) = state.roll_pitch_yaw();
+        let i = &mut config.initial;
+        i.time_s = Some(epoch + first);
+        i.latitude_deg = Some(state.latitude.to_degrees());
+        i.longitude_deg = Some(state.longitude.to_degrees());
+        i.depth_m = Some(-state.height);
+        i.velocity_ned_mps = state.velocity_ned.into();
+        i.attitude_deg = Some([roll, pitch, yaw].map(f64::to_degrees));
+    }
+    if config.initial.time_s.is_some() {
+        // `initial.time_s` is in the inputs' own time; the navigator's clock runs from
+        // the IMU file's epoch.
+        let mut relative = config.clone();
+        relative.initial.time_s = config.initial.time_s.map(|t| t - epoch);
+        let geometry = settings.beam_geometry().clone();
+        settings = relative
+            .check()
+            .map_err(|e| anyhow::anyhow!("initial.time_s: {e}"))?
+            .with_beam_geometry(geometry);
+    }
+    Ok(Survey {
+        files,
+        config,
+        settings,
+        inputs: SurveyInputs {
+            imu: imu.samples,
+            dvl,
+            depth,
+            fixes,
+            output_epochs: Vec::new(),
+        },
+        epoch,
+        truth,
+        pd0,
+    })
+}
+
+/// Read a truth CSV onto the navigator's clock: its times relative to `epoch`, scaled
+/// by `truth.clock_scale`, shifted by `truth.time_offset_s` (else by the offset
+/// estimated against the IMU's angular rate), and its positions carried from the
+/// reference's point to the IMU by `truth.lever_arm_m`.
+fn load_truth(
+    p: &Path,
+    epoch: f64,
+    imu: &ImuLog,
+    config: &NavigatorConfig,
+) -> anyhow::Result<Truth> {
+    {
+        {
             let gt = load_gt(p)?;
             // The GT times on the navigator's clock, read on their digits.
             let times = load_times(p, epoch)?;
@@ -371,45 +553,72 @@ pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
                 times.len(),
                 gt.len()
             );
-            let samples = gt
+            let c = &config.truth;
+            let t0 = times.first().copied().unwrap_or(0.0);
+            let lever = estim::core::nalgebra::Vector3::from(c.lever_arm_m);
+            let mut samples: Vec<estim::ins::TrajectorySample> = gt
                 .iter()
                 .zip(&times)
                 .map(|(g, &t)| {
                     let mut s = g.trajectory_sample();
-                    s.time = t;
+                    s.time = t0 + c.clock_scale * (t - t0);
+                    // The IMU is at the reference's point minus C_b^n l.
+                    let offset = s.attitude * lever;
+                    let (rn, re) = estim::ins::earth::radii_of_curvature(s.latitude);
+                    s.latitude -= offset.x / (rn + s.height);
+                    s.longitude -= offset.y / ((re + s.height) * s.latitude.cos());
+                    s.height += offset.z;
                     s
                 })
                 .collect();
+            let time_offset = match c.time_offset_s {
+                Some(tau) => json!({ "source": "vehicle", "offset_s": tau }),
+                None => {
+                    let est = estim::navigator::reference_time_offset(&imu.samples, &samples, 5.0)
+                        .with_context(|| {
+                            format!("{}: cannot align its clock to the IMU's", p.display())
+                        })?;
+                    json!({
+                        "source": "estimated",
+                        "offset_s": est.offset_s,
+                        "sigma_s": est.sigma_s,
+                        "residual_rad": est.residual_rad,
+                        "intervals": est.intervals,
+                    })
+                }
+            };
+            let tau = time_offset["offset_s"].as_f64().unwrap_or(0.0);
+            for s in &mut samples {
+                s.time -= tau;
+            }
+            let span = [
+                samples.first().map_or(0.0, |s| s.time),
+                samples.last().map_or(0.0, |s| s.time),
+            ];
+            let epochs = samples.iter().map(|s| s.time).collect();
             let trajectory =
                 Trajectory::new(samples).with_context(|| format!("{}", p.display()))?;
             let biases = imu
                 .true_biases
                 .clone()
                 .map(|b| (imu.samples.iter().map(|s| s.time).collect(), b));
-            Some(Truth {
+            Ok(Truth {
                 trajectory,
+                lever_arm: lever,
+                epochs,
+                span,
                 biases,
+                time_offset,
                 position_error: Vec::new(),
+                horizontal_error: Vec::new(),
                 nees: Vec::new(),
+                group_nees: [Vec::new(), Vec::new(), Vec::new()],
+                rows: Vec::new(),
                 not_positive_definite: 0,
+                outside: 0,
             })
         }
-        None => None,
-    };
-    Ok(Survey {
-        files,
-        config,
-        settings,
-        inputs: SurveyInputs {
-            imu: imu.samples,
-            dvl,
-            depth,
-            fixes,
-        },
-        epoch,
-        truth,
-        pd0,
-    })
+    }
 }
 
 impl Writer {
@@ -432,12 +641,30 @@ impl Writer {
         };
         Ok(Self {
             epoch_s,
+            scored: SolutionKind::Dvl,
+            last: None,
+            rows: 0,
             csv,
             line: String::new(),
             track: Vec::new(),
             truth,
+            dvl_truth: None,
             plot_rows: None,
         })
+    }
+
+    /// Score the truth at the reference's own epochs (the run's
+    /// [`SurveyInputs::output_epochs`] must be the truth's epochs).
+    #[must_use]
+    pub fn scored_at_reference_epochs(mut self) -> Self {
+        self.scored = SolutionKind::Epoch;
+        self.dvl_truth = self.truth.clone();
+        self
+    }
+
+    /// The evaluation at the DVL epochs, when the main one is at the reference's.
+    pub fn dvl_epoch_truth(&self) -> Option<&Truth> {
+        self.dvl_truth.as_ref()
     }
 
     /// Keep every solution for the plots.
@@ -468,6 +695,19 @@ impl Writer {
         if let Some(mut csv) = self.csv.take() {
             csv.flush()?;
         }
+        if let Some(truth) = &self.truth {
+            let mut text = String::from(
+                "time_s,error_north_m,error_east_m,error_down_m,error_v_north_mps,error_v_east_mps,error_v_down_mps,error_roll_axis_deg,error_pitch_axis_deg,error_heading_deg,sigma_north_m,sigma_east_m,sigma_down_m,sigma_v_north_mps,sigma_v_east_mps,sigma_v_down_mps,sigma_roll_axis_deg,sigma_pitch_axis_deg,sigma_heading_deg\n",
+            );
+            for row in &truth.rows {
+                let _ = write!(text, "{}", self.epoch_s + row[0]);
+                for v in &row[1..] {
+                    let _ = write!(text, ",{v:.6e}");
+                }
+                text.push('\n');
+            }
+            std::fs::write(dir.path("errors.csv"), text)?;
+        }
         let track = json!({
             "type": "FeatureCollection",
             "features": [{
@@ -491,14 +731,33 @@ pub fn evaluation_json(truth: Option<&Truth>) -> Value {
     let Some(t) = truth else { return Value::Null };
     let n = t.position_error.len().max(1) as f64;
     let rmse = (t.position_error.iter().map(|e| e * e).sum::<f64>() / n).sqrt();
-    let finite: Vec<f64> = t.nees.iter().copied().filter(|v| v.is_finite()).collect();
-    let nees = if finite.is_empty() {
-        Value::Null
-    } else {
-        json!(finite.iter().sum::<f64>() / finite.len() as f64)
+    let mean = |values: &[f64]| {
+        let finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+        if finite.is_empty() {
+            Value::Null
+        } else {
+            json!(finite.iter().sum::<f64>() / finite.len() as f64)
+        }
+    };
+    let nees = mean(&t.nees);
+    let rms = |values: &[f64]| {
+        if values.is_empty() {
+            Value::Null
+        } else {
+            json!((values.iter().map(|e| e * e).sum::<f64>() / values.len() as f64).sqrt())
+        }
     };
     json!({
+        "horizontal_position_rmse_m": rms(&t.horizontal_error),
+        "nees_per_group": {
+            "position": mean(&t.group_nees[0]),
+            "velocity": mean(&t.group_nees[1]),
+            "attitude": mean(&t.group_nees[2]),
+        },
         "epochs": t.position_error.len(),
+        "epochs_outside_truth": t.outside,
+        "truth_time_offset_s": t.time_offset["offset_s"],
+        "truth_time_offset": t.time_offset,
         "position_rmse_m": rmse,
         "final_position_error_m": t.position_error.last(),
         "nees_average": nees,
@@ -710,6 +969,101 @@ fn learned_json(run: &NavigationRun) -> Value {
     }
 }
 
+/// The `stop` block of a run that ended early: its status, time and reason.
+pub fn stop_json(epoch: f64, error: &NavigatorError) -> (&'static str, Value) {
+    match error {
+        NavigatorError::Diverged { time, reason } => (
+            "diverged",
+            json!({
+                "time_s": epoch + time,
+                "time_since_epoch_s": time,
+                "reason": reason.to_string(),
+                "check": reason,
+            }),
+        ),
+        NavigatorError::Filter { time, source } => (
+            "failed",
+            json!({
+                "time_s": epoch + time,
+                "time_since_epoch_s": time,
+                "reason": source.to_string(),
+            }),
+        ),
+        other => ("failed", json!({ "reason": other.to_string() })),
+    }
+}
+
+/// A run stopped by divergence or a numerical failure: the solution rows before the
+/// stop, the track and a summary marked `partial` are committed to `--out` (exit 3);
+/// nothing of the stopped run is reported as a solution.
+pub fn stopped(
+    command: &str,
+    survey: &Survey,
+    writer: &mut Writer,
+    staged: Option<StagedDir>,
+    error: &NavigatorError,
+    json_out: bool,
+) -> anyhow::Result<()> {
+    let (status, stop) = stop_json(survey.epoch, error);
+    let files = &survey.files;
+    let mut summary = schema::document(
+        command,
+        json!({
+            "imu": schema::path_json(Some(&files.imu)),
+            "dvl": schema::path_json(files.dvl.as_deref()),
+            "beams": schema::path_json(files.beams.as_deref()),
+            "pd0": schema::path_json(files.pd0.as_deref()),
+            "vehicle": schema::path_json(files.vehicle.as_deref()),
+            "truth": schema::path_json(files.truth.as_deref()),
+            "configuration": survey.config,
+        }),
+        0,
+        json!({
+            "epoch_s": survey.epoch,
+            "partial": true,
+            "stop": stop,
+            "solution_rows_before_stop": writer.rows,
+            "last_solution_before_stop": writer.last.map(|f| json!({
+                "time_s": survey.epoch + f.time,
+                "latitude_deg": f.latitude_deg,
+                "longitude_deg": f.longitude_deg,
+                "depth_m": f.depth_m,
+                "position_sigma_m": f.position_sigma_m,
+            })),
+            "evaluation_before_stop": evaluation_json(writer.truth()),
+        }),
+    );
+    summary["status"] = json!(status);
+    let kept = match staged {
+        Some(dir) => {
+            writer.finish(
+                &dir,
+                &format!("estim {command} track before the stop (partial)"),
+                &summary,
+            )?;
+            let path = dir.target().to_path_buf();
+            dir.commit()?;
+            format!(
+                "the {} solution rows before the stop are in {} (summary.json: \"partial\": true)",
+                writer.rows,
+                path.display()
+            )
+        }
+        None => "nothing was written (no --out)".to_string(),
+    };
+    if json_out {
+        crate::output::emit(&format!("{}\n", serde_json::to_string_pretty(&summary)?))?;
+    }
+    Err(schema::RunStopped {
+        message: format!(
+            "{command} {status} at t = {} s: {}; {kept}",
+            stop["time_s"],
+            stop["reason"].as_str().unwrap_or("")
+        ),
+    }
+    .into())
+}
+
 /// Run it.
 pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(rate) = args.rate {
@@ -720,8 +1074,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let staged = args.out.as_deref().map(StagedDir::new).transpose()?;
     let mut survey = load_survey(args.files())?;
-    let mut writer =
-        Writer::new(staged.as_ref(), survey.epoch, survey.truth.take())?.with_plot_rows(args.plots);
+    if let Some(truth) = &survey.truth {
+        survey.inputs.output_epochs = truth.epochs();
+    }
+    let mut writer = Writer::new(staged.as_ref(), survey.epoch, survey.truth.take())?
+        .with_plot_rows(args.plots)
+        .scored_at_reference_epochs();
     let network = if args.learned {
         refuse_dvl_states(&survey, "--learned (BeamsNet)")?;
         anyhow::ensure!(
@@ -744,22 +1102,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let run = match result {
         Ok(run) => run,
-        Err(NavigatorError::Filter { time, source }) => {
-            eprintln!(
-                "error: the filter stopped at t = {} s: {source}",
-                survey.epoch + time
-            );
-            return schema::status_result(1);
+        Err(e @ (NavigatorError::Filter { .. } | NavigatorError::Diverged { .. })) => {
+            return stopped("navigate", &survey, &mut writer, staged, &e, args.json);
         }
         Err(e) => return Err(e.into()),
     };
+    let mut evaluation = evaluation_json(writer.truth());
+    if let (Some(e), Some(dvl)) = (evaluation.as_object_mut(), writer.dvl_epoch_truth()) {
+        e.insert("scored_at".into(), json!("reference_epochs"));
+        e.insert("at_dvl_epochs".into(), evaluation_json(Some(dvl)));
+    }
     let summary = summary_json(
         "navigate",
         &survey,
         &run,
         &run.final_solution,
         args.rate,
-        evaluation_json(writer.truth()),
+        evaluation,
         learned_json(&run),
     );
     if let Some(dir) = staged {

@@ -176,6 +176,11 @@ impl StagedDir {
     }
 
     /// Path of a file inside the staging folder.
+    /// The folder the outputs are committed to.
+    pub fn target(&self) -> &Path {
+        &self.target
+    }
+
     pub fn path(&self, file: &str) -> PathBuf {
         self.staging.join(file)
     }

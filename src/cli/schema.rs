@@ -63,6 +63,15 @@ pub struct FiltersFailed {
 }
 
 /// `Ok(())`, or [`FiltersFailed`] when `count > 0`.
+/// A navigation run stopped before its end (diverged, or a numerical failure of the
+/// filter): exit 3, with what was solved before the stop written and marked partial.
+#[derive(Debug, thiserror::Error)]
+#[error("{message}")]
+pub struct RunStopped {
+    /// What stopped it, and what was kept.
+    pub message: String,
+}
+
 pub fn status_result(count: usize) -> anyhow::Result<()> {
     if count == 0 {
         Ok(())

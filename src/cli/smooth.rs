@@ -46,6 +46,9 @@ pub struct Args {
     /// solutions at the DVL epochs).
     #[arg(long, value_name = "FILE", requires = "imu")]
     truth: Option<PathBuf>,
+    /// Survey mode, with --truth: start from the truth's state at the first IMU sample.
+    #[arg(long, requires = "truth")]
+    init_from_truth: bool,
     /// Survey mode: also draw the smoothed track with 3-sigma ellipses, the 1-sigma
     /// per state group and the forward filter's DVL NIS (PNG and SVG into --out).
     #[arg(long, requires = "imu", requires = "out")]
@@ -85,6 +88,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             fixes: args.fixes.clone(),
             vehicle: args.vehicle.clone(),
             truth: args.truth.clone(),
+            init_from_truth: args.init_from_truth,
         };
         anyhow::ensure!(
             files.dvl.is_some() || files.beams.is_some() || files.pd0.is_some(),

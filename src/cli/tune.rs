@@ -125,6 +125,7 @@ fn survey(args: &Args, imu: PathBuf, options: &TuneOptions) -> anyhow::Result<()
         fixes: None,
         vehicle: args.vehicle.clone(),
         truth: None,
+        init_from_truth: false,
     };
     let loaded = crate::navigate::load_survey(files)?;
     crate::navigate::refuse_dvl_states(&loaded, "estim tune")?;

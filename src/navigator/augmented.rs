@@ -1077,6 +1077,33 @@ impl AugmentedNavigator {
         self.imu_clock.time()
     }
 
+    /// The INS state and its covariance block predicted from the clock to `time` with
+    /// the held IMU sample, the filter itself unchanged.
+    ///
+    /// # Errors
+    /// [`NavigatorError::Filter`] for a numerical failure of the prediction.
+    pub fn predicted(&self, time: f64) -> Result<(InsState, ErrorMatrix)> {
+        let nominal = self.filter.nominal();
+        let covariance = self.filter.covariance();
+        let dt = time - self.imu_clock.time();
+        let (state, p) = match self.imu_clock.held() {
+            Some(sample) if dt > 0.0 => super::reference::predict_copy(
+                self.filter.process(),
+                nominal,
+                covariance,
+                sample,
+                dt,
+            )
+            .map_err(|source| NavigatorError::Filter { time, source })?,
+            _ => (*nominal, *covariance),
+        };
+        Ok((
+            state.ins,
+            p.fixed_view::<ERROR_STATES, ERROR_STATES>(0, 0)
+                .into_owned(),
+        ))
+    }
+
     /// The solution now.
     pub fn solution(&self) -> AugmentedSolution {
         let x = self.filter.nominal();

@@ -70,6 +70,11 @@ pub struct SurveyInputs {
     pub depth: Vec<DepthSample>,
     /// Position fixes.
     pub fixes: Vec<PositionFix>,
+    /// Times at which to emit a [`SolutionKind::Epoch`] solution besides the others
+    /// (an evaluation's reference epochs), in time order: a copy of the estimate is
+    /// predicted to each exactly with the IMU sample in effect; the filter's own steps
+    /// are those of a run without them.
+    pub output_epochs: Vec<f64>,
 }
 
 /// Why a solution was emitted.
@@ -84,6 +89,8 @@ pub enum SolutionKind {
     Aiding,
     /// The smoother's last epoch: the propagation after the last update.
     End,
+    /// At one of [`SurveyInputs::output_epochs`].
+    Epoch,
 }
 
 impl SolutionKind {
@@ -94,6 +101,7 @@ impl SolutionKind {
             Self::Rate => "rate",
             Self::Aiding => "aiding",
             Self::End => "end",
+            Self::Epoch => "epoch",
         }
     }
 }
@@ -280,6 +288,8 @@ trait SurveyFilter {
         sensor: &Sensor<'_>,
     ) -> Result<Option<Applied>>;
     fn last_learned_velocity(&self) -> Option<Vector3<f64>>;
+    /// The INS state and covariance predicted to `time`, the filter unchanged.
+    fn predicted(&self, time: f64) -> Result<(InsState, ErrorMatrix)>;
 }
 
 impl<F: Observer<f64, InsState, ERROR_STATES>> SurveyFilter for Navigator<F> {
@@ -337,9 +347,15 @@ impl<F: Observer<f64, InsState, ERROR_STATES>> SurveyFilter for Navigator<F> {
     fn last_learned_velocity(&self) -> Option<Vector3<f64>> {
         Navigator::last_learned_velocity(self)
     }
+    fn predicted(&self, time: f64) -> Result<(InsState, ErrorMatrix)> {
+        Navigator::predicted(self, time)
+    }
 }
 
 impl SurveyFilter for AugmentedNavigator {
+    fn predicted(&self, time: f64) -> Result<(InsState, ErrorMatrix)> {
+        AugmentedNavigator::predicted(self, time)
+    }
     fn imu(&mut self, sample: &ImuSample) -> Result<()> {
         AugmentedNavigator::imu(self, sample)
     }
@@ -410,16 +426,36 @@ pub(super) fn imu_period(imu: &[ImuSample], settings: &NavigatorSettings) -> Res
     }
 }
 
+/// The index of the first IMU sample the run uses: the first one, or the first at or
+/// after `initial.time_s` (which must fall within one IMU gap limit of it).
+pub(super) fn first_imu_index(
+    inputs: &SurveyInputs,
+    settings: &NavigatorSettings,
+) -> Result<usize> {
+    if inputs.imu.is_empty() {
+        return Err(NavigatorError::Inputs("no IMU samples".into()));
+    }
+    let Some(t) = settings.config.initial.time_s else {
+        return Ok(0);
+    };
+    let k = inputs.imu.partition_point(|s| s.time < t);
+    match inputs.imu.get(k) {
+        Some(s) if s.time - t <= settings.config.health.max_imu_gap_s => Ok(k),
+        _ => Err(NavigatorError::Inputs(format!(
+            "initial.time_s: no IMU sample within health.max_imu_gap_s after t = {t} s"
+        ))),
+    }
+}
+
 /// The initial nominal state and covariance from the configuration and the data.
 pub(super) fn initial_state(
     inputs: &SurveyInputs,
     settings: &NavigatorSettings,
 ) -> Result<(InsState, ErrorMatrix, Alignment)> {
     let c = &settings.config.initial;
-    let first = inputs
-        .imu
-        .first()
-        .ok_or_else(|| NavigatorError::Inputs("no IMU samples".into()))?;
+    let skipped = first_imu_index(inputs, settings)?;
+    let first = &inputs.imu[skipped];
+    let start_time = c.time_s.unwrap_or(first.time);
     let (latitude, longitude, position) = match (c.latitude_deg, c.longitude_deg) {
         (Some(lat), Some(lon)) => (lat.to_radians(), lon.to_radians(), "configured"),
         _ => match inputs.fixes.first() {
@@ -447,8 +483,11 @@ pub(super) fn initial_state(
             InitialAttitude::Configured,
         ),
         None => {
-            let end = first.time + c.alignment_s;
-            let window: Vec<&ImuSample> = inputs.imu.iter().take_while(|s| s.time < end).collect();
+            let end = start_time + c.alignment_s;
+            let window: Vec<&ImuSample> = inputs.imu[skipped..]
+                .iter()
+                .take_while(|s| s.time < end)
+                .collect();
             let n = window.len().max(1);
             let mean = window
                 .iter()
@@ -464,14 +503,16 @@ pub(super) fn initial_state(
             )
         }
     };
-    let state = InsState::new(
-        first.time,
+    let mut state = InsState::new(
+        start_time,
         latitude,
         longitude,
         -depth,
         Vector3::from(c.velocity_ned_mps),
         attitude,
     );
+    state.acc_bias = Vector3::from(settings.config.imu.accelerometer_bias);
+    state.gyro_bias = Vector3::from(settings.config.imu.gyroscope_bias);
     let (a, g) = (
         settings.sensor_spec.accelerometer(),
         settings.sensor_spec.gyroscope(),
@@ -539,6 +580,7 @@ pub(crate) fn initial_covariance(
 
 #[derive(Debug, Clone, Copy)]
 enum Event {
+    Output,
     Dvl(DvlInput),
     Depth(f64),
     Fix(PositionFix),
@@ -579,6 +621,7 @@ struct Feeder<'a> {
     fed: usize,
     next_output: usize,
     solutions: usize,
+    health: super::HealthMonitor,
 }
 
 impl Feeder<'_> {
@@ -588,9 +631,11 @@ impl Feeder<'_> {
         kind: SolutionKind,
         observer: &mut dyn NavigationObserver,
     ) -> Result<()> {
+        let solution = nav.solution();
+        self.health.check_solution(&solution)?;
         self.solutions += 1;
         observer
-            .on_solution(kind, &nav.solution(), nav.ins(), &nav.ins_covariance())
+            .on_solution(kind, &solution, nav.ins(), &nav.ins_covariance())
             .map_err(NavigatorError::Observer)
     }
 
@@ -792,6 +837,7 @@ fn run_batch<N: SurveyFilter>(
     let imu = &inputs.imu;
     let period = imu_period(imu, settings)?;
     let (state, covariance, alignment) = initial_state(inputs, settings)?;
+    let start_time = state.time;
     let mut nav = make(state, covariance, period)?;
     let config = &settings.config;
     let mut outside = 0;
@@ -799,8 +845,8 @@ fn run_batch<N: SurveyFilter>(
     let mut events: Vec<(f64, Event)> = Vec::new();
     let mut push = |t: f64, event: Event, events: &mut Vec<(f64, Event)>| match snap(imu, period, t)
     {
-        Some(at) => events.push((at, event)),
-        None => outside += 1,
+        Some(at) if at > start_time => events.push((at, event)),
+        _ => outside += 1,
     };
     for d in &inputs.dvl {
         if d.input == DvlInput::NoLock {
@@ -827,6 +873,15 @@ fn run_batch<N: SurveyFilter>(
             &mut events,
         );
     }
+    let (first, end) = (
+        imu.first().map_or(0.0, |s| s.time),
+        imu.last().map_or(0.0, |s| s.time + period),
+    );
+    for &t in &inputs.output_epochs {
+        if t >= first.max(start_time) && t <= end {
+            events.push((t, Event::Output));
+        }
+    }
     // Stable: DVL before depth before fixes at one time, each in file order.
     events.sort_by(|a, b| a.0.total_cmp(&b.0));
     let start = imu.first().map_or(0.0, |s| s.time);
@@ -834,10 +889,12 @@ fn run_batch<N: SurveyFilter>(
         imu,
         start,
         step: output_rate_hz.map(|r| 1.0 / r),
-        fed: 0,
+        fed: first_imu_index(inputs, settings)?,
         next_output: 0,
         solutions: 0,
+        health: super::HealthMonitor::new(config.health.clone()),
     };
+    feeder.health.check_imu_times(imu.iter().map(|s| s.time))?;
     let mut dvl_nis = Vec::new();
     let mut dvl_nis_times = Vec::new();
     let mut learned = match sensor {
@@ -851,6 +908,16 @@ fn run_batch<N: SurveyFilter>(
     for (t, event) in events {
         feeder.feed_until(&mut nav, t, observer)?;
         match event {
+            Event::Output => {
+                // Predicted on a copy: the filter's own steps stay those of a run
+                // without output epochs.
+                let (state, covariance) = nav.predicted(t)?;
+                let solution = NavSolution::from_state(t, &state, &covariance);
+                feeder.health.check_solution(&solution)?;
+                observer
+                    .on_solution(SolutionKind::Epoch, &solution, &state, &covariance)
+                    .map_err(NavigatorError::Observer)?;
+            }
             Event::Dvl(input) => {
                 let report = match input {
                     DvlInput::Velocity(v) => Some(nav.dvl(t, &v)?),
@@ -897,6 +964,7 @@ fn run_batch<N: SurveyFilter>(
                     DvlInput::NoLock => None,
                 };
                 if let Some(r) = report {
+                    feeder.health.record_nis("dvl", t, r.nis, 3)?;
                     dvl_nis.push(r.nis);
                     dvl_nis_times.push(t);
                     if r.accepted {
@@ -905,8 +973,16 @@ fn run_batch<N: SurveyFilter>(
                 }
                 feeder.emit(&nav, SolutionKind::Dvl, observer)?;
             }
-            Event::Depth(d) => depth_nis.push(nav.depth(t, d)?.nis),
-            Event::Fix(f) => fix_nis.push(nav.fix(t, &f)?.nis),
+            Event::Depth(d) => {
+                let nis = nav.depth(t, d)?.nis;
+                feeder.health.record_nis("depth", t, nis, 1)?;
+                depth_nis.push(nis);
+            }
+            Event::Fix(f) => {
+                let nis = nav.fix(t, &f)?.nis;
+                feeder.health.record_nis("fixes", t, nis, 2)?;
+                fix_nis.push(nis);
+            }
         }
     }
     feeder.feed_until(&mut nav, f64::INFINITY, observer)?;

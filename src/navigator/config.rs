@@ -10,7 +10,7 @@ use estim_ins::{ImuSpec, SensorSpec};
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::{DvlStatesConfig, NavigatorError, Result};
+use super::{DvlStatesConfig, HealthConfig, NavigatorError, Result};
 
 /// The whole vehicle configuration (every key optional; defaults documented per field).
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -34,6 +34,43 @@ pub struct NavigatorConfig {
     /// table runs the 26-state [`super::AugmentedNavigator`]; each group left out
     /// takes its default (estimated), `estimate = false` holds it at the `[dvl]` value.
     pub dvl_states: Option<DvlStatesConfig>,
+    /// The reference (ground truth) used by an evaluation (`--truth`): its point and
+    /// clock. Never used by the navigator itself.
+    pub truth: TruthConfig,
+    /// Limits of the navigator's health checks ([`HealthConfig`]).
+    pub health: HealthConfig,
+}
+
+/// The reference (truth) track of an evaluation, as it was recorded.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TruthConfig {
+    /// Position of the reference's point relative to the IMU in the body frame \[m\]
+    /// (default zero): errors compare the truth with the solution carried to that point.
+    #[serde(deserialize_with = "super::fixed::three")]
+    pub lever_arm_m: [f64; 3],
+    /// Clock scale s of the reference's stamps: a row stamped t refers to navigator
+    /// time `t0 + s (t - t0) - time_offset_s`, t0 the first stamp (default 1).
+    pub clock_scale: f64,
+    /// Time offset of the reference's stamps \[s\]; unset (default): estimated by the
+    /// evaluation from the heading of the solution against the reference's
+    /// (`evaluation.truth_time_offset_s`).
+    pub time_offset_s: Option<f64>,
+    /// With a truth, start from its position, velocity and attitude at its first
+    /// epoch inside the IMU's span, replacing `[initial]`'s (as `--init-from-truth`;
+    /// default false).
+    pub initial_state: bool,
+}
+
+impl Default for TruthConfig {
+    fn default() -> Self {
+        Self {
+            lever_arm_m: [0.0; 3],
+            clock_scale: 1.0,
+            time_offset_s: None,
+            initial_state: false,
+        }
+    }
 }
 
 /// IMU noise model: a preset, optionally with per-sensor densities replacing it.
@@ -50,6 +87,32 @@ pub struct ImuConfig {
     /// Nominal IMU rate \[Hz\]: a time step within the timestamps' rounding of 1 / rate
     /// is taken as exactly 1 / rate. `None`: from the median interval of the IMU file.
     pub rate_hz: Option<f64>,
+    /// The IMU's axes as mounted: the signed IMU axis along body x, y and z (body x
+    /// forward, y right, z down), e.g. `["x", "-y", "z"]` for an IMU whose y axis
+    /// points left. Applied to the accelerometer and the gyroscope alike. Default
+    /// `["x", "y", "z"]`.
+    #[serde(default = "identity_axes")]
+    pub axes: [String; 3],
+    /// A further small mounting rotation from the (re-signed) IMU axes to the body
+    /// frame: roll, pitch, yaw \[deg\] (default zero).
+    #[serde(deserialize_with = "super::fixed::three")]
+    pub mounting_rpy_deg: [f64; 3],
+    /// Clock scale s of the IMU's time stamps: a sample stamped t was taken at
+    /// navigator time `s t - time_offset_s` (default 1).
+    pub clock_scale: f64,
+    /// Time offset tau of the IMU's stamps \[s\] (see `clock_scale`; default 0).
+    pub time_offset_s: f64,
+    /// Initial accelerometer bias in body axes \[m/s^2\] (the filter's starting
+    /// estimate, e.g. from `estim imu calibrate`; default zero).
+    #[serde(deserialize_with = "super::fixed::three")]
+    pub accelerometer_bias: [f64; 3],
+    /// Initial gyroscope bias in body axes \[rad/s\] (default zero).
+    #[serde(deserialize_with = "super::fixed::three")]
+    pub gyroscope_bias: [f64; 3],
+}
+
+fn identity_axes() -> [String; 3] {
+    ["x".into(), "y".into(), "z".into()]
 }
 
 impl Default for ImuConfig {
@@ -59,36 +122,47 @@ impl Default for ImuConfig {
             accelerometer: None,
             gyroscope: None,
             rate_hz: None,
+            axes: identity_axes(),
+            mounting_rpy_deg: [0.0; 3],
+            clock_scale: 1.0,
+            time_offset_s: 0.0,
+            accelerometer_bias: [0.0; 3],
+            gyroscope_bias: [0.0; 3],
         }
     }
 }
 
 /// One sensor triad's error parameters (SI units; the fields of
-/// [`estim_ins::SensorSpec`]).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// [`estim_ins::SensorSpec`]). Each key may be given alone: the others keep the
+/// preset's value.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct SensorConfig {
     /// White-noise density [m/s/sqrt(s) or rad/sqrt(s)].
-    pub white_noise_density: f64,
+    pub white_noise_density: Option<f64>,
     /// Gauss-Markov bias instability sigma [m/s^2 or rad/s].
-    pub bias_instability: f64,
+    pub bias_instability: Option<f64>,
     /// Gauss-Markov correlation time \[s\].
-    pub bias_time_constant_s: f64,
+    pub bias_time_constant_s: Option<f64>,
     /// Turn-on bias sigma [m/s^2 or rad/s].
-    pub turn_on_bias: f64,
+    pub turn_on_bias: Option<f64>,
     /// Scale-factor error sigma (dimensionless; the filter does not estimate it).
-    #[serde(default)]
-    pub scale_factor: f64,
+    pub scale_factor: Option<f64>,
 }
 
-impl From<SensorConfig> for SensorSpec {
-    fn from(s: SensorConfig) -> Self {
+impl SensorConfig {
+    /// The preset's spec with the keys given here replacing its values.
+    pub fn over(&self, preset: &SensorSpec) -> SensorSpec {
         SensorSpec {
-            white_noise_density: s.white_noise_density,
-            bias_instability: s.bias_instability,
-            bias_time_constant: s.bias_time_constant_s,
-            turn_on_bias: s.turn_on_bias,
-            scale_factor: s.scale_factor,
+            white_noise_density: self
+                .white_noise_density
+                .unwrap_or(preset.white_noise_density),
+            bias_instability: self.bias_instability.unwrap_or(preset.bias_instability),
+            bias_time_constant: self
+                .bias_time_constant_s
+                .unwrap_or(preset.bias_time_constant),
+            turn_on_bias: self.turn_on_bias.unwrap_or(preset.turn_on_bias),
+            scale_factor: self.scale_factor.unwrap_or(preset.scale_factor),
         }
     }
 }
@@ -98,9 +172,11 @@ impl From<SensorConfig> for SensorSpec {
 #[serde(default, deny_unknown_fields)]
 pub struct DvlConfig {
     /// Lever arm IMU -> DVL in the body frame \[m\] (default zero).
+    #[serde(deserialize_with = "super::fixed::three")]
     pub lever_arm_m: [f64; 3],
     /// Mounting misalignment, rotation vector DVL -> body \[rad\] (roll, pitch, yaw
     /// axes; default zero), as `estim dvl calibrate` estimates it.
+    #[serde(deserialize_with = "super::fixed::three")]
     pub mounting_misalignment_rad: [f64; 3],
     /// Scale factor 1 + s of the DVL velocity (default 1).
     pub scale_factor: f64,
@@ -141,6 +217,7 @@ impl Default for DvlConfig {
 #[serde(default, deny_unknown_fields)]
 pub struct DepthConfig {
     /// Lever arm IMU -> pressure sensor in the body frame \[m\].
+    #[serde(deserialize_with = "super::fixed::three")]
     pub lever_arm_m: [f64; 3],
     /// Noise std \[m\] (default 0.1).
     pub noise_std_m: f64,
@@ -163,6 +240,7 @@ impl Default for DepthConfig {
 #[serde(default, deny_unknown_fields)]
 pub struct FixConfig {
     /// Lever arm IMU -> antenna / transponder in the body frame \[m\].
+    #[serde(deserialize_with = "super::fixed::three")]
     pub lever_arm_m: [f64; 3],
     /// Time offset \[s\] (default 0).
     pub time_offset_s: f64,
@@ -193,6 +271,10 @@ impl Default for GateConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct InitialConfig {
+    /// Time of the initial state \[s\], in the inputs' own time (the IMU file's
+    /// clock; the library reads it on the navigator's clock, relative to the survey's
+    /// epoch); IMU samples before it are not used. `None`: the first IMU sample.
+    pub time_s: Option<f64>,
     /// Latitude \[deg\] (with `longitude_deg`); `None`: the first position fix.
     pub latitude_deg: Option<f64>,
     /// Longitude \[deg\].
@@ -200,9 +282,11 @@ pub struct InitialConfig {
     /// Depth \[m\] (positive down); `None`: the first depth sample, else 0.
     pub depth_m: Option<f64>,
     /// Velocity NED \[m/s\] (default zero).
+    #[serde(deserialize_with = "super::fixed::three")]
     pub velocity_ned_mps: [f64; 3],
     /// Roll, pitch, heading \[deg\]; `None`: coarse alignment (levelling from the mean
     /// specific force over the first `alignment_s`, heading = `heading_deg`).
+    #[serde(default, deserialize_with = "super::fixed::three_opt")]
     pub attitude_deg: Option<[f64; 3]>,
     /// Heading for the coarse alignment \[deg\] (default 0).
     pub heading_deg: f64,
@@ -226,6 +310,7 @@ pub struct InitialConfig {
 impl Default for InitialConfig {
     fn default() -> Self {
         Self {
+            time_s: None,
             latitude_deg: None,
             longitude_deg: None,
             depth_m: None,
@@ -418,7 +503,111 @@ fn positive(name: &str, value: f64) -> Result<()> {
     }
 }
 
+/// How the IMU's samples map onto the body frame and the navigator's clock
+/// (`[imu]` keys `axes`, `mounting_rpy_deg`, `clock_scale`, `time_offset_s`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImuFrame {
+    /// Rotation from the IMU's axes to the body frame (a signed permutation times the
+    /// mounting rotation).
+    pub rotation: Matrix3<f64>,
+    /// Clock scale s.
+    pub clock_scale: f64,
+    /// Time offset tau \[s\].
+    pub time_offset_s: f64,
+}
+
+impl ImuFrame {
+    /// True when the samples pass unchanged.
+    pub fn is_identity(&self) -> bool {
+        self.rotation == Matrix3::identity() && self.clock_scale == 1.0 && self.time_offset_s == 0.0
+    }
+
+    /// The navigator time of a stamp `t`, for a log whose first stamp is `t0`:
+    /// `t0 + s (t - t0) - tau`.
+    pub fn time(&self, t0: f64, t: f64) -> f64 {
+        t0 + self.clock_scale * (t - t0) - self.time_offset_s
+    }
+
+    /// Rotate every sample into the body frame and put its stamp on the navigator's
+    /// clock (relative to the first sample's stamp).
+    pub fn apply(&self, samples: &mut [estim_ins::ImuSample]) {
+        if self.is_identity() {
+            return;
+        }
+        let t0 = samples.first().map_or(0.0, |s| s.time);
+        for s in samples {
+            s.time = self.time(t0, s.time);
+            s.specific_force = self.rotation * s.specific_force;
+            s.angular_rate = self.rotation * s.angular_rate;
+        }
+    }
+}
+
+/// The body axis of one signed IMU axis name (`x`, `-y`, `+z`, ...).
+fn signed_axis(key: usize, name: &str) -> Result<Vector3<f64>> {
+    let trimmed = name.trim();
+    let (sign, axis) = match trimmed.strip_prefix('-') {
+        Some(rest) => (-1.0, rest),
+        None => (1.0, trimmed.strip_prefix('+').unwrap_or(trimmed)),
+    };
+    let index = match axis.to_ascii_lowercase().as_str() {
+        "x" => 0,
+        "y" => 1,
+        "z" => 2,
+        _ => {
+            return Err(NavigatorError::Config(format!(
+                "imu.axes[{key}]: `{name}` is not a signed axis (x, -x, y, -y, z, -z)"
+            )))
+        }
+    };
+    let mut v = Vector3::zeros();
+    v[index] = sign;
+    Ok(v)
+}
+
 impl NavigatorConfig {
+    /// The IMU's axes and clock as configured.
+    ///
+    /// # Errors
+    /// [`NavigatorError::Config`] naming the key: an axis name that is not a signed
+    /// axis, an axis used twice, a non-finite angle or offset, a clock scale that is
+    /// not within 10 % of 1.
+    pub fn imu_frame(&self) -> Result<ImuFrame> {
+        let imu = &self.imu;
+        let mut rows = [Vector3::zeros(); 3];
+        for (i, name) in imu.axes.iter().enumerate() {
+            rows[i] = signed_axis(i, name)?;
+        }
+        let permutation = Matrix3::from_rows(&[
+            rows[0].transpose(),
+            rows[1].transpose(),
+            rows[2].transpose(),
+        ]);
+        if (permutation.determinant().abs() - 1.0).abs() > 1e-12 {
+            return Err(NavigatorError::Config(format!(
+                "imu.axes: {:?} names an axis twice (each of x, y, z once, with a sign)",
+                imu.axes
+            )));
+        }
+        finite("imu.mounting_rpy_deg", &imu.mounting_rpy_deg)?;
+        finite("imu.time_offset_s", &[imu.time_offset_s])?;
+        finite("imu.accelerometer_bias", &imu.accelerometer_bias)?;
+        finite("imu.gyroscope_bias", &imu.gyroscope_bias)?;
+        if !(imu.clock_scale.is_finite() && (imu.clock_scale - 1.0).abs() <= 0.1) {
+            return Err(NavigatorError::Config(format!(
+                "imu.clock_scale: {} is not within 10 % of 1",
+                imu.clock_scale
+            )));
+        }
+        let [r, p, y] = imu.mounting_rpy_deg.map(f64::to_radians);
+        let mounting = nalgebra::Rotation3::from_euler_angles(r, p, y).into_inner();
+        Ok(ImuFrame {
+            rotation: mounting * permutation,
+            clock_scale: imu.clock_scale,
+            time_offset_s: imu.time_offset_s,
+        })
+    }
+
     /// Validate every value once and assemble the models.
     ///
     /// # Errors
@@ -431,12 +620,12 @@ impl NavigatorConfig {
                 .accelerometer(
                     self.imu
                         .accelerometer
-                        .map_or(*sensor.accelerometer(), SensorSpec::from),
+                        .map_or(*sensor.accelerometer(), |c| c.over(sensor.accelerometer())),
                 )
                 .gyroscope(
                     self.imu
                         .gyroscope
-                        .map_or(*sensor.gyroscope(), SensorSpec::from),
+                        .map_or(*sensor.gyroscope(), |c| c.over(sensor.gyroscope())),
                 )
                 .build()?;
         }
@@ -504,6 +693,7 @@ impl NavigatorConfig {
             }
         }
         finite("initial.depth_m", &[i.depth_m.unwrap_or(0.0)])?;
+        finite("initial.time_s", &[i.time_s.unwrap_or(0.0)])?;
         finite("initial.velocity_ned_mps", &i.velocity_ned_mps)?;
         finite("initial.attitude_deg", &i.attitude_deg.unwrap_or([0.0; 3]))?;
         finite("initial.heading_deg", &[i.heading_deg])?;
@@ -521,6 +711,12 @@ impl NavigatorConfig {
         if let Some(states) = &self.dvl_states {
             states.check()?;
         }
+        self.health.check()?;
+        self.imu_frame()?;
+        let t = &self.truth;
+        finite("truth.lever_arm_m", &t.lever_arm_m)?;
+        positive("truth.clock_scale", t.clock_scale)?;
+        finite("truth.time_offset_s", &[t.time_offset_s.unwrap_or(0.0)])?;
         Ok(NavigatorSettings {
             config: self.clone(),
             sensor_spec: sensor,

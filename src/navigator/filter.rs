@@ -405,6 +405,29 @@ impl<O> Navigator<O> {
         self.noise_scale.as_ref().map(NoiseScale::scale)
     }
 
+    /// The state and covariance predicted from the clock to `time` with the held IMU
+    /// sample, the filter itself unchanged (the clock, or no sample held yet, gives
+    /// the current ones).
+    ///
+    /// # Errors
+    /// [`NavigatorError::Filter`] for a numerical failure of the prediction.
+    pub fn predicted(&self, time: f64) -> Result<(InsState, ErrorMatrix)> {
+        let nominal = self.filter.nominal();
+        let covariance = self.filter.covariance();
+        let dt = time - self.imu_clock.time();
+        match self.imu_clock.held() {
+            Some(sample) if dt > 0.0 => super::reference::predict_copy(
+                self.filter.process(),
+                nominal,
+                covariance,
+                sample,
+                dt,
+            )
+            .map_err(|source| NavigatorError::Filter { time, source }),
+            _ => Ok((*nominal, *covariance)),
+        }
+    }
+
     /// The solution now.
     pub fn solution(&self) -> NavSolution {
         NavSolution::from_state(

@@ -27,7 +27,10 @@ mod augmented;
 mod batch;
 mod config;
 mod filter;
+mod fixed;
+mod health;
 mod pd0;
+mod reference;
 mod smooth;
 pub mod tune;
 
@@ -46,14 +49,18 @@ pub use batch::{
 };
 pub use config::{
     filter_config, filter_imu_spec, imu_preset, DepthConfig, DvlConfig, FixConfig, GateConfig,
-    ImuConfig, InitialConfig, NavigatorConfig, NavigatorSettings, SensorConfig,
-    FILTER_BIAS_TIME_CONSTANT, IMU_PRESETS,
+    ImuConfig, ImuFrame, InitialConfig, NavigatorConfig, NavigatorSettings, SensorConfig,
+    TruthConfig, FILTER_BIAS_TIME_CONSTANT, IMU_PRESETS,
 };
 pub use filter::{
     beams_from_nan, format_heading, wrap_heading_deg, DvlCross, InsFilter, NavSolution, Navigator,
     UpdateCounts, IMU_PERIOD_SNAP,
 };
+pub use health::{Divergence, HealthConfig, HealthMonitor};
 pub use pd0::{pd0_records, rdi_beam_geometry, Pd0Conversion};
+pub use reference::{
+    error_state, nees_of_block, reference_time_offset, ReferenceOffset, MIN_REFERENCE_INTERVALS,
+};
 pub use smooth::{smooth_survey, SmoothedSolution, SmoothingRun};
 
 /// Errors of the navigator.
@@ -98,6 +105,15 @@ pub enum NavigatorError {
     /// Inputs that cannot be navigated as a whole (the message says why).
     #[error("{0}")]
     Inputs(String),
+    /// The navigator stopped its own run: the solution at `time` broke a health limit
+    /// (`[health]` in the vehicle file), so it is not a navigation solution.
+    #[error("diverged at t = {time} s: {reason}")]
+    Diverged {
+        /// Time of the solution that broke the limit \[s\].
+        time: f64,
+        /// Which check, with the value that broke it.
+        reason: health::Divergence,
+    },
     /// A numerical failure of the filter (e.g. an innovation covariance that is not
     /// positive definite), with the time of the step that failed.
     #[error("t = {time} s: {source}")]

@@ -10,7 +10,7 @@ use estim_core::{
     Fixed, JointCovariance, MeasurementModel, NoObserver, Observer, ProcessModel,
     ScaledCorrelation, Zero,
 };
-use estim_ins::{inject, ImuSpec, InsState, ACC_BIAS, ATT, ERROR_STATES, GYRO_BIAS, POS, VEL};
+use estim_ins::{inject, ImuSpec, InsState, ATT, ERROR_STATES, POS, VEL};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -112,23 +112,10 @@ pub struct FilterRun {
     pub covariance_not_positive_definite: usize,
 }
 
-/// truth ⊖ nominal: the error state with true = nominal + error (estim-ins convention).
+/// The error state of `nominal` against `truth` (the library's
+/// [`estim::navigator::error_state`]).
 pub fn error_state(truth: &InsState, nominal: &InsState) -> SVector<f64, ERROR_STATES> {
-    let (rn, re) = estim_ins::earth::radii_of_curvature(nominal.latitude);
-    let mut e = SVector::<f64, ERROR_STATES>::zeros();
-    e[POS] = (truth.latitude - nominal.latitude) * (rn + nominal.height);
-    e[POS + 1] =
-        (truth.longitude - nominal.longitude) * (re + nominal.height) * nominal.latitude.cos();
-    e[POS + 2] = -(truth.height - nominal.height);
-    e.fixed_rows_mut::<3>(VEL)
-        .copy_from(&(truth.velocity_ned - nominal.velocity_ned));
-    e.fixed_rows_mut::<3>(ATT)
-        .copy_from(&(truth.attitude * nominal.attitude.inverse()).scaled_axis());
-    e.fixed_rows_mut::<3>(ACC_BIAS)
-        .copy_from(&(truth.acc_bias - nominal.acc_bias));
-    e.fixed_rows_mut::<3>(GYRO_BIAS)
-        .copy_from(&(truth.gyro_bias - nominal.gyro_bias));
-    e
+    estim::navigator::error_state(truth, nominal)
 }
 
 /// The IMU model the filter uses ([`estim::navigator::filter_imu_spec`]: each bias a

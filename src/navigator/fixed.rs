@@ -1,0 +1,85 @@
+//! Strict fixed-length arrays for the vehicle file: `[f64; 3]` keys refuse an array of
+//! any other length (serde's own array impl would read the first three numbers of a
+//! longer one and ignore the rest).
+
+use serde::de::Error as _;
+use serde::{Deserialize, Deserializer};
+
+/// Exactly three numbers.
+pub(crate) fn three<'de, D: Deserializer<'de>>(d: D) -> Result<[f64; 3], D::Error> {
+    let v = Vec::<f64>::deserialize(d)?;
+    <[f64; 3]>::try_from(v.as_slice())
+        .map_err(|_| D::Error::invalid_length(v.len(), &"an array of 3 numbers"))
+}
+
+/// Exactly three numbers, or the key left out.
+pub(crate) fn three_opt<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 3]>, D::Error> {
+    three(d).map(Some)
+}
+
+// The vehicle file's TOML reader is the CLI's (feature `cli`).
+#[cfg(all(test, feature = "cli"))]
+mod tests {
+    use crate::navigator::NavigatorConfig;
+
+    fn parse(text: &str) -> Result<NavigatorConfig, toml::de::Error> {
+        toml::from_str(text)
+    }
+
+    #[test]
+    fn a_three_number_key_refuses_other_lengths() {
+        assert!(parse("[dvl]\nlever_arm_m = [-1.87, -0.03, 0.2]\n").is_ok());
+        for bad in ["[-1.87, -0.03, 0.2, 99.0]", "[1.0, 2.0]", "[]"] {
+            let e = parse(&format!("[dvl]\nlever_arm_m = {bad}\n")).unwrap_err();
+            assert!(e.to_string().contains("3 numbers"), "{bad}: {e}");
+        }
+        assert!(parse("[initial]\nattitude_deg = [1.0, 2.0, 3.0, 4.0]\n").is_err());
+        assert!(parse("[imu]\ngyroscope_bias = [1e-5, 0.0]\n").is_err());
+        assert!(parse("[truth]\nlever_arm_m = [1.0, 2.0, 3.0, 4.0]\n").is_err());
+    }
+
+    #[test]
+    fn imu_axes_map_and_refusals() {
+        let config = parse("[imu]\naxes = [\"y\", \"-x\", \"-z\"]\n").unwrap();
+        let frame = config.imu_frame().unwrap();
+        let v = frame.rotation * nalgebra::Vector3::new(1.0, 2.0, 3.0);
+        assert_eq!(v, nalgebra::Vector3::new(2.0, -1.0, -3.0));
+        for bad in ["[\"x\", \"x\", \"z\"]", "[\"x\", \"up\", \"z\"]"] {
+            let config = parse(&format!("[imu]\naxes = {bad}\n")).unwrap();
+            assert!(config.check().is_err(), "{bad}");
+        }
+        let config = parse("[imu]\nclock_scale = 1.5\n").unwrap();
+        assert!(config.check().is_err());
+        // Each noise key alone replaces the preset's.
+        let config = parse("[imu.gyroscope]\nturn_on_bias = 3.5e-5\n").unwrap();
+        let settings = config.check().unwrap();
+        let preset = estim_ins::ImuSpec::akit_observed();
+        let g = settings.sensor_spec().gyroscope();
+        assert_eq!(g.turn_on_bias, 3.5e-5);
+        assert_eq!(
+            g.white_noise_density,
+            preset.gyroscope().white_noise_density
+        );
+    }
+
+    #[test]
+    fn the_frame_applies_axes_and_clock() {
+        let config = parse(
+            "[imu]\naxes = [\"x\", \"-y\", \"z\"]\nclock_scale = 1.0025\ntime_offset_s = 0.5\n",
+        )
+        .unwrap();
+        let frame = config.imu_frame().unwrap();
+        let v = nalgebra::Vector3::new(0.1, 0.2, -9.8);
+        let mut samples = vec![
+            estim_ins::ImuSample::new(10.0, v, v * 0.01),
+            estim_ins::ImuSample::new(20.0, v, v * 0.01),
+        ];
+        frame.apply(&mut samples);
+        assert_eq!(samples[0].time, 10.0 - 0.5);
+        assert!((samples[1].time - (10.0 + 1.0025 * 10.0 - 0.5)).abs() < 1e-12);
+        assert_eq!(
+            samples[1].specific_force,
+            nalgebra::Vector3::new(0.1, -0.2, -9.8)
+        );
+    }
+}

@@ -1,0 +1,236 @@
+//! `estim navigate` on the A-KIT vehicle's recorded IMU (training trajectories only:
+//! the IMU files of 4 and 13 are held out) with `vehicles/akit.toml`:
+//! - the raw files described as they are (y axes reversed, clock scaled) navigate
+//!   without divergence on every training trajectory, with the gate rejecting under
+//!   5 % of the DVL updates and a horizontal RMSE below 3.1 m (measured 0.81-3.01 m);
+//! - a rotated and re-timed copy of an IMU log, described by `[imu]` keys, gives the
+//!   same solution;
+//! - the raw files read as if their axes were the body's end `diverged` (exit 3).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+const TRAINING: [u32; 11] = [1, 2, 3, 5, 6, 7, 8, 9, 10, 11, 12];
+
+fn estim(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_estim"))
+        .args(args)
+        .output()
+        .expect("run estim")
+}
+
+fn vehicle() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("vehicles/akit.toml")
+}
+
+/// IMU, DVL and GT files of training trajectory `n`.
+fn files(root: &Path, n: u32) -> [PathBuf; 3] {
+    let dir = root.join(format!("a-kit/Trajectory{n}"));
+    [
+        dir.join(format!("IMU_trajectory{n}.csv")),
+        dir.join(format!("DVL_trajectory{n}.csv")),
+        dir.join(format!("GT_trajectory{n}.csv")),
+    ]
+}
+
+fn navigate(imu: &Path, dvl: &Path, gt: &Path, vehicle: &Path, out: Option<&Path>) -> Output {
+    let mut args = vec![
+        "navigate".to_string(),
+        "--imu".into(),
+        imu.display().to_string(),
+        "--dvl".into(),
+        dvl.display().to_string(),
+        "--vehicle".into(),
+        vehicle.display().to_string(),
+        "--truth".into(),
+        gt.display().to_string(),
+        "--json".into(),
+    ];
+    if let Some(out) = out {
+        args.extend(["--out".into(), out.display().to_string()]);
+    }
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    estim(&args)
+}
+
+fn json(out: &Output) -> Value {
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "JSON on stdout ({e}); stderr: {}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+    })
+}
+
+#[test]
+fn every_training_trajectory_navigates_on_its_recorded_imu() {
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    // The table of docs/results.md ("The A-KIT vehicle file"), printed with
+    // `-- --nocapture`.
+    println!(
+        "| trajectory | horizontal RMSE [m] | NEES (9 states) | NEES pos / vel / att | mean DVL NIS | DVL gated | truth offset [s] |"
+    );
+    println!("|---|---|---|---|---|---|---|");
+    for n in TRAINING {
+        let [imu, dvl, gt] = files(&root, n);
+        let out = navigate(&imu, &dvl, &gt, &vehicle(), None);
+        assert_eq!(
+            out.status.code(),
+            Some(0),
+            "trajectory {n}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let s = json(&out);
+        assert_eq!(s["status"], "ok", "trajectory {n}");
+        let e = &s["evaluation"];
+        assert_eq!(e["scored_at"], "reference_epochs");
+        // The reference's clock against the IMU's: one of the two groups the data
+        // README measured (about +0.45 s and -0.47 s).
+        let tau = e["truth_time_offset_s"].as_f64().unwrap();
+        assert!(
+            (tau - 0.45).abs() < 0.1 || (tau + 0.47).abs() < 0.1,
+            "trajectory {n}: truth offset {tau} s"
+        );
+        let gated = s["updates"]["dvl"]["gated"].as_u64().unwrap();
+        let accepted = s["updates"]["dvl"]["accepted"].as_u64().unwrap();
+        assert!(
+            (gated as f64) < 0.05 * (gated + accepted) as f64,
+            "trajectory {n}: {gated} of {} gated",
+            gated + accepted
+        );
+        let rmse = e["horizontal_position_rmse_m"].as_f64().unwrap();
+        assert!(rmse < 3.1, "trajectory {n}: horizontal RMSE {rmse} m");
+        let nees = e["nees_average"].as_f64().unwrap();
+        assert!(
+            nees.is_finite() && nees > 0.0,
+            "trajectory {n}: NEES {nees}"
+        );
+        let g = &e["nees_per_group"];
+        let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+        println!(
+            "| {n} | {rmse:.2} | {nees:.1} | {:.1} / {:.1} / {:.1} | {:.2} | {gated} of {} | {tau:+.3} |",
+            f(&g["position"]),
+            f(&g["velocity"]),
+            f(&g["attitude"]),
+            f(&s["nis"]["dvl"]["mean"]),
+            gated + accepted
+        );
+    }
+}
+
+/// The IMU file of `imu` with its axes and clock changed: file x = IMU y, file y = IMU
+/// x, file z = -IMU z, stamps (1.0025 t + 0.3) / 1.001.
+fn rotated_copy(imu: &Path, to: &Path) {
+    let text = std::fs::read_to_string(imu).unwrap();
+    let mut out = String::from("time,acc_x,acc_y,acc_z,gyro_x,gyro_y,gyro_z\n");
+    for line in text.lines().skip(1) {
+        let v: Vec<f64> = line.split(',').map(|c| c.parse().unwrap()).collect();
+        let t = (1.0025 * v[0] + 0.3) / 1.001;
+        let (a, w) = ([v[1], v[2], v[3]], [v[4], v[5], v[6]]);
+        out.push_str(&format!(
+            "{t:.15e},{:e},{:e},{:e},{:e},{:e},{:e}\n",
+            a[1], a[0], -a[2], w[1], w[0], -w[2]
+        ));
+    }
+    std::fs::write(to, out).unwrap();
+}
+
+#[test]
+fn a_rotated_and_retimed_copy_gives_the_same_solution() {
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let [imu, dvl, gt] = files(&root, 2);
+    let copy = dir.path().join("imu_rotated.csv");
+    rotated_copy(&imu, &copy);
+    // body = diag(1, -1, 1) raw, raw = R file with R = [[0,1,0],[1,0,0],[0,0,-1]]:
+    // body x = file y, body y = -file x, body z = -file z. The copy's clock runs
+    // 1/1.001 of the navigator's, from 0.3 / 1.001 s.
+    let base = std::fs::read_to_string(vehicle()).unwrap();
+    let described = base
+        .replace(
+            "axes = [\"x\", \"-y\", \"z\"]",
+            "axes = [\"y\", \"-x\", \"-z\"]",
+        )
+        .replace(
+            "clock_scale = 1.0025",
+            &format!("clock_scale = 1.001\ntime_offset_s = {:e}", 0.3 / 1.001),
+        );
+    assert_ne!(described, base);
+    let vehicle_copy = dir.path().join("rotated.toml");
+    std::fs::write(&vehicle_copy, described).unwrap();
+    let a = json(&navigate(
+        &imu,
+        &dvl,
+        &gt,
+        &vehicle(),
+        Some(&dir.path().join("a")),
+    ));
+    let b = json(&navigate(
+        &copy,
+        &dvl,
+        &gt,
+        &vehicle_copy,
+        Some(&dir.path().join("b")),
+    ));
+    assert_eq!(a["status"], "ok");
+    assert_eq!(b["status"], "ok");
+    assert_eq!(a["updates"], b["updates"]);
+    for key in ["latitude_deg", "longitude_deg", "depth_m", "heading_deg"] {
+        let (x, y) = (
+            a["final"][key].as_f64().unwrap(),
+            b["final"][key].as_f64().unwrap(),
+        );
+        assert!(
+            (x - y).abs() <= 1e-9 * x.abs().max(1.0),
+            "{key}: {x} vs {y}"
+        );
+    }
+    let (x, y) = (
+        a["evaluation"]["position_rmse_m"].as_f64().unwrap(),
+        b["evaluation"]["position_rmse_m"].as_f64().unwrap(),
+    );
+    assert!((x - y).abs() <= 1e-6 * x, "RMSE {x} vs {y}");
+}
+
+#[test]
+fn the_raw_files_read_as_body_axes_end_diverged() {
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    // The vehicle file without its [imu] description: axes and clock as recorded.
+    let base = std::fs::read_to_string(vehicle()).unwrap();
+    let raw = base
+        .replace("axes = [\"x\", \"-y\", \"z\"]", "")
+        .replace("clock_scale = 1.0025", "");
+    let raw_vehicle = dir.path().join("raw.toml");
+    std::fs::write(&raw_vehicle, raw).unwrap();
+    for n in TRAINING {
+        let [imu, dvl, gt] = files(&root, n);
+        let out_dir = dir.path().join(format!("out{n}"));
+        let out = navigate(&imu, &dvl, &gt, &raw_vehicle, Some(&out_dir));
+        assert_eq!(
+            out.status.code(),
+            Some(3),
+            "trajectory {n}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let s = json(&out);
+        assert_eq!(s["status"], "diverged", "trajectory {n}");
+        assert_eq!(s["partial"], true);
+        assert!(s["stop"]["reason"].as_str().is_some());
+        let summary: Value =
+            serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap())
+                .unwrap();
+        assert_eq!(summary["status"], "diverged");
+        assert!(out_dir.join("solution.csv").is_file());
+    }
+}
