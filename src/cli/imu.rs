@@ -170,11 +170,11 @@ fn table(args: &CalibrateArgs, log: &ImuLog, c: &ImuCalibration) -> String {
     let _ = writeln!(
         out,
         "# residual RMS per interval: accelerometer {} m/s^2, gyroscope {} rad/s; lag-1 \
-         autocorrelation {:.2} (sigmas x {:.2})",
+         autocorrelation {:.2} (sigmas up to {:.2} x those of white residuals)",
         v(&c.residual_rms_accelerometer),
         v(&c.residual_rms_gyroscope),
         c.residual_lag1_autocorrelation,
-        c.sigma_inflation.sqrt()
+        c.max_variance_ratio.sqrt()
     );
     let (s, tau) = (&c.clock_scale, &c.time_offset_s);
     let sigma = |e: &Estimate| format!("{:.1e}", e.standard_error);
@@ -247,7 +247,7 @@ fn json(args: &CalibrateArgs, log: &ImuLog, c: &ImuCalibration) -> anyhow::Resul
             "residual_rms_accelerometer_mps2": [r.x, r.y, r.z],
             "residual_rms_gyroscope_radps": [g.x, g.y, g.z],
             "residual_lag1_autocorrelation": c.residual_lag1_autocorrelation,
-            "sigma_inflation": c.sigma_inflation,
+            "max_variance_ratio": c.max_variance_ratio,
         }),
     );
     Ok(format!("{}\n", serde_json::to_string_pretty(&doc)?))

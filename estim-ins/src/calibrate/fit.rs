@@ -188,7 +188,7 @@ pub(super) struct Refined {
     covariance: ParameterMatrix,
     residual_rms: [Vector3<f64>; 2],
     autocorrelation: f64,
-    inflation: f64,
+    variance_ratio: f64,
     iterations: usize,
 }
 
@@ -243,7 +243,7 @@ fn normal_equations(
     p: &ParameterVector,
     r: &DVector<f64>,
     weights: &[f64; 6],
-) -> (ParameterMatrix, ParameterVector) {
+) -> NormalEquations {
     let steps = [
         clock.offset_step / clock.half_span.max(1.0),
         clock.offset_step,
@@ -260,9 +260,10 @@ fn normal_equations(
         })
         .collect();
     let mut jtj = ParameterMatrix::zeros();
-    let mut jtr = ParameterVector::zeros();
+    let mut scores = Vec::with_capacity(reference.len());
     for j in 0..reference.len() {
         let dt = reference.duration(j);
+        let mut score = ParameterVector::zeros();
         for c in 0..6 {
             let i = 6 * j + c;
             let mut row = ParameterVector::zeros();
@@ -270,10 +271,41 @@ fn normal_equations(
             row[1] = columns[1][i];
             row[2 + c] = -dt;
             jtj += row * row.transpose() * weights[c];
-            jtr += row * (r[i] * weights[c]);
+            score += row * (r[i] * weights[c]);
         }
+        scores.push(score);
     }
-    (jtj, jtr)
+    NormalEquations {
+        jtj,
+        jtr: scores.iter().sum(),
+        scores,
+    }
+}
+
+/// J'WJ, J'Wr and the per-interval scores g_j = J_j' W r_j (J'Wr = Σ_j g_j).
+struct NormalEquations {
+    jtj: ParameterMatrix,
+    jtr: ParameterVector,
+    scores: Vec<ParameterVector>,
+}
+
+/// Newey-West estimate of the covariance of the scores' sum, Σ_j g_j g_j' plus the
+/// lagged products up to lag L with Bartlett weights 1 - l/(L+1), L = floor(4 (M/100)^(2/9))
+/// (Newey & West, Econometrica 55(3), 1987, eq. 3; the lag rule of Newey & West, Rev.
+/// Econ. Stud. 61(4), 1994). Positive semidefinite by construction.
+fn score_covariance(scores: &[ParameterVector]) -> ParameterMatrix {
+    let m = scores.len();
+    let lags = (4.0 * (m as f64 / 100.0).powf(2.0 / 9.0)).floor() as usize;
+    let mut b: ParameterMatrix = scores.iter().map(|g| g * g.transpose()).sum();
+    for l in 1..=lags.min(m.saturating_sub(1)) {
+        let weight = 1.0 - l as f64 / (lags as f64 + 1.0);
+        let mut lagged = ParameterMatrix::zeros();
+        for j in l..m {
+            lagged += scores[j] * scores[j - l].transpose();
+        }
+        b += (lagged + lagged.transpose()) * weight;
+    }
+    b
 }
 
 /// Levenberg-Marquardt from `p` with fixed weights; returns the point and iterations.
@@ -292,7 +324,8 @@ fn levenberg_marquardt(
     let mut iterations = 0;
     while iterations < settings.max_iterations {
         iterations += 1;
-        let (jtj, jtr) = normal_equations(axes, prefix, reference, clock, &p, &r, weights);
+        let NormalEquations { jtj, jtr, .. } =
+            normal_equations(axes, prefix, reference, clock, &p, &r, weights);
         let mut improved = false;
         while lambda < 1e12 {
             let mut damped = jtj;
@@ -356,17 +389,20 @@ pub(super) fn refine(
     }
     let r = residuals(&axes, prefix, reference, clock, &p);
     let weights = channel_weights(&r);
-    let (jtj, _) = normal_equations(&axes, prefix, reference, clock, &p, &r, &weights);
-    let covariance = jtj
+    let normal = normal_equations(&axes, prefix, reference, clock, &p, &r, &weights);
+    let inverse = normal
+        .jtj
         .cholesky()
         .map(|c| c.inverse())
         .filter(|c| c.iter().all(|x| x.is_finite()))
         .ok_or(Error::CalibrationDegenerate {
             reason: "the normal matrix J'WJ is not positive definite",
         })?;
+    let covariance = inverse * score_covariance(&normal.scores) * inverse;
+    let variance_ratio = (0..IMU_CALIBRATION_PARAMETERS)
+        .map(|k| covariance[(k, k)] / inverse[(k, k)])
+        .fold(0.0, f64::max);
     let autocorrelation = lag1_autocorrelation(&r, &weights);
-    let rho = autocorrelation.clamp(0.0, 0.9);
-    let inflation = (1.0 + rho) / (1.0 - rho);
     let residual_rms = [0, 3].map(|offset| {
         Vector3::from_fn(|c, _| {
             let ms = (0..reference.len())
@@ -379,10 +415,10 @@ pub(super) fn refine(
     Ok(Refined {
         axes,
         parameters: p,
-        covariance: covariance * inflation,
+        covariance,
         residual_rms,
         autocorrelation,
-        inflation,
+        variance_ratio,
         iterations,
     })
 }
@@ -433,7 +469,7 @@ impl Refined {
             residual_rms_accelerometer: self.residual_rms[0],
             residual_rms_gyroscope: self.residual_rms[1],
             residual_lag1_autocorrelation: self.autocorrelation,
-            sigma_inflation: self.inflation,
+            max_variance_ratio: self.variance_ratio,
             cost: search.cost,
             runner_up: search.runner_up,
             cost_ratio: search

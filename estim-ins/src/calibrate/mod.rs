@@ -45,8 +45,8 @@ pub struct ImuCalibration {
     pub accelerometer_bias: [Estimate; 3],
     /// Gyroscope bias, body axes \[rad/s\].
     pub gyroscope_bias: [Estimate; 3],
-    /// Covariance of (s, τ, b_a, b_g), the standard errors' source (already inflated by
-    /// [`ImuCalibration::sigma_inflation`]).
+    /// Covariance of (s, τ, b_a, b_g), the standard errors' source (the Newey-West
+    /// sandwich of [`ImuCalibrator`]'s method, step 3).
     pub covariance: ParameterMatrix,
     /// RMS of the residual mean specific force per interval, body axes \[m/s^2\].
     pub residual_rms_accelerometer: Vector3<f64>,
@@ -54,8 +54,10 @@ pub struct ImuCalibration {
     pub residual_rms_gyroscope: Vector3<f64>,
     /// Pooled lag-1 autocorrelation of the weighted residuals (0 when white).
     pub residual_lag1_autocorrelation: f64,
-    /// Factor (>= 1) applied to the covariance for that autocorrelation.
-    pub sigma_inflation: f64,
+    /// Largest ratio, over the eight parameters, of the variance in `covariance` to the
+    /// white-residual variance (J'WJ)^-1: how much the residuals' autocorrelation widens
+    /// the sigmas (about 1 when they are white).
+    pub max_variance_ratio: f64,
     /// Grid cost of `axes`: unexplained fraction of the reference's variability, summed
     /// over the two sensors (0 = perfect, about 2 = nothing explained).
     pub cost: f64,
@@ -119,11 +121,15 @@ pub struct ImuCalibration {
 ///    each of the six channels weighted by the inverse of its residual variance,
 ///    re-estimated over three rounds; the (s, τ) columns of the Jacobian are central
 ///    differences spanning a few IMU samples (the integrals are piecewise linear in τ).
-/// 3. Covariance (J'WJ)^-1 with the weights of the last round (Seber & Wild, *Nonlinear
-///    Regression*, 1989, sec. 2.1), inflated by (1 + ρ)/(1 - ρ) for a positive pooled
-///    lag-1 autocorrelation ρ of the weighted residuals, the variance factor of a mean
-///    of an AR(1) series (Wilks, *Statistical Methods in the Atmospheric Sciences*, 3rd
-///    ed., 2011, sec. 5.2.4).
+/// 3. Covariance: the sandwich (J'WJ)^-1 B (J'WJ)^-1 with the weights of the last round,
+///    B the Newey-West estimate of the covariance of J'Wr from the per-interval scores
+///    J_j' W r_j (Bartlett weights to lag floor(4 (M/100)^(2/9)); Newey & West,
+///    Econometrica 55(3), 1987; the lag rule of Newey & West, Rev. Econ. Stud. 61(4),
+///    1994). For white residuals B ≈ J'WJ and it reduces to the usual (J'WJ)^-1 (Seber
+///    & Wild, *Nonlinear Regression*, 1989, sec. 2.1); for residuals correlated over a
+///    few intervals (a reference that is itself an INS solution) it widens the sigmas
+///    where that correlation matters. On A-KIT the clock scale's errors against the
+///    scale the time columns imply have an RMS of 0.8 sigma with it, 1.8 sigma without.
 ///
 /// # Example
 ///
