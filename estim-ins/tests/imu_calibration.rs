@@ -255,6 +255,19 @@ fn refuses_what_it_cannot_fit() {
         calibrator.calibrate(&imu, &reference),
         Err(Error::CalibrationTooShort { min: 30, .. })
     ));
+    // A search grid too large to run: refused before any work.
+    let huge = ImuCalibrator::builder()
+        .max_time_offset(60.0)
+        .time_offset_grid_step(0.001)
+        .build()
+        .expect("valid settings");
+    assert!(matches!(
+        huge.calibrate(&imu, &reference),
+        Err(Error::InvalidParameter {
+            name: "max_time_offset",
+            ..
+        })
+    ));
     // No motion to separate the axes.
     let (imu, reference) = simulate(&case, Motion::Straight, 80.0, 2);
     let e = calibrator.calibrate(&imu, &reference).unwrap_err();

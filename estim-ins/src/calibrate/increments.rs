@@ -3,7 +3,7 @@
 
 use nalgebra::Vector3;
 
-use super::{ImuCalibrator, MAX_SCALE_GRID};
+use super::{ImuCalibrator, MAX_GRID_POINTS, MAX_SCALE_GRID};
 use crate::error::{Error, Result};
 use crate::mechanization::ImuSample;
 use crate::simulator::{Trajectory, TrajectorySample};
@@ -133,6 +133,17 @@ impl ClockBox {
         }
         let e = settings.max_clock_scale_error;
         let m = settings.max_time_offset;
+        let points = (scale_values + 2.0) * (2.0 * m / settings.time_offset_grid_step + 2.0);
+        if points > MAX_GRID_POINTS as f64 {
+            return Err(Error::InvalidParameter {
+                name: "max_time_offset",
+                reason: format!(
+                    "the (clock scale, time offset) grid would hold {points:.0} points (at most \
+                     {MAX_GRID_POINTS}): narrow max_time_offset or max_clock_scale_error, or \
+                     coarsen time_offset_grid_step"
+                ),
+            });
+        }
         Ok(Self {
             scale: (1.0 - e, 1.0 + e),
             offset: (-m, m),
