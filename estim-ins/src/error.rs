@@ -24,6 +24,61 @@ pub enum Error {
         /// What is wrong, naming the sample index.
         reason: String,
     },
+    /// IMU sample times that do not increase, or leave a gap.
+    #[error("IMU sample {index}: {reason}")]
+    ImuTime {
+        /// The sample (0-based).
+        index: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// IMU calibration: too few reference intervals lie inside the IMU log for every
+    /// clock in the searched range.
+    #[error(
+        "IMU calibration: {intervals} reference intervals lie inside the IMU log for every \
+         searched clock, at least {min} needed"
+    )]
+    CalibrationTooShort {
+        /// Intervals usable.
+        intervals: usize,
+        /// Intervals needed.
+        min: usize,
+    },
+    /// IMU calibration: the reference neither turns nor accelerates.
+    #[error("IMU calibration: the reference shows no motion to fit the axes against")]
+    CalibrationNoMotion,
+    /// IMU calibration: no axis convention keeps the biases within their bounds.
+    #[error(
+        "IMU calibration: no axis convention keeps the biases within \
+         {max_accelerometer_bias} m/s^2 and {max_gyroscope_bias} rad/s"
+    )]
+    CalibrationNoAxes {
+        /// Bound on |accelerometer bias| per axis \[m/s^2\].
+        max_accelerometer_bias: f64,
+        /// Bound on |gyroscope bias| per axis \[rad/s\].
+        max_gyroscope_bias: f64,
+    },
+    /// IMU calibration: the best two axis conventions fit about equally well.
+    #[error(
+        "IMU calibration: axes {best} and {runner_up} fit about equally well (cost ratio \
+         {cost_ratio:.3} < {min_cost_ratio}): the motion does not separate the axes"
+    )]
+    CalibrationAmbiguousAxes {
+        /// The best convention.
+        best: crate::AxisMap,
+        /// The next best.
+        runner_up: crate::AxisMap,
+        /// Runner-up cost / best cost.
+        cost_ratio: f64,
+        /// The smallest ratio accepted.
+        min_cost_ratio: f64,
+    },
+    /// IMU calibration: the normal equations are singular.
+    #[error("IMU calibration: {reason}")]
+    CalibrationDegenerate {
+        /// What is singular.
+        reason: &'static str,
+    },
 }
 
 /// `Result` with this crate's [`Error`].

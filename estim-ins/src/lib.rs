@@ -5,7 +5,8 @@
 //! - [`InsErrorModel`]: the 15-state error model as an estim-core
 //!   [`ProcessModel`](estim_core::ProcessModel) + [`ErrorStateModel`](estim_core::ErrorStateModel);
 //! - [`ImuSpec`]: checked IMU error specifications and presets;
-//! - [`Trajectory`], [`ImuErrorGenerator`], [`Mission`]: IMU from a trajectory, synthetic AUV missions.
+//! - [`Trajectory`], [`ImuErrorGenerator`], [`Mission`]: IMU from a trajectory, synthetic AUV missions;
+//! - [`ImuCalibrator`]: an IMU's axis convention, clock and biases against a reference trajectory.
 //!
 //! Conventions are pinned in [`InsState`]'s docs: NED, body x forward y right z
 //! down, `true = nominal + error`, misalignment ψ in NED with C_true = (I + \[ψ×\]) C_nominal.
@@ -32,6 +33,7 @@
 #![deny(missing_docs)]
 #![deny(rustdoc::broken_intra_doc_links, rustdoc::private_intra_doc_links)]
 
+mod calibrate;
 pub mod earth;
 mod error;
 mod error_model;
@@ -42,6 +44,10 @@ mod mission;
 mod simulator;
 mod state;
 
+pub use calibrate::{
+    AxisMap, Estimate, ImuCalibration, ImuCalibrator, ImuCalibratorBuilder,
+    IMU_CALIBRATION_PARAMETERS,
+};
 pub use error::{Error, Result};
 pub use error_model::{inject, ErrorMatrix, InsErrorModel, NoiseInput};
 pub use imu_spec::{ImuSpec, ImuSpecBuilder, SensorSpec};

@@ -392,6 +392,12 @@ impl Trajectory {
         Ok(self.imu_sample_in(t, dt))
     }
 
+    /// [`Trajectory::imu_sample`] without the range checks, for a caller whose interval
+    /// is inside the trajectory up to rounding (e.g. between two of its sample times).
+    pub(crate) fn mean_outputs(&self, t: f64, dt: f64) -> ImuSample {
+        self.imu_sample_in(t, dt)
+    }
+
     fn imu_sample_in(&self, t: f64, dt: f64) -> ImuSample {
         // 3-point Gauss-Legendre nodes and weights on [0, 1].
         const NODES: [f64; 3] = [0.112_701_665_379_258_3, 0.5, 0.887_298_334_620_741_7];

@@ -9,6 +9,7 @@ mod compare;
 mod dataset;
 mod dvl;
 mod evaluate;
+mod imu;
 mod learned;
 mod learned_scenarios;
 mod montecarlo;
@@ -51,6 +52,8 @@ enum Command {
     Montecarlo(montecarlo::Args),
     /// DVL beams: least squares, calibration.
     Dvl(dvl::Args),
+    /// IMU: axis convention, clock and biases against a reference trajectory.
+    Imu(imu::Args),
     /// BeamsNet: evaluate LS vs BeamsNet.
     Beamsnet(beamsnet::Args),
     /// Write training datasets.
@@ -83,6 +86,7 @@ fn main() -> ExitCode {
         Command::Evaluate(args) => evaluate::run(args),
         Command::Montecarlo(args) => montecarlo::run(args),
         Command::Dvl(args) => dvl::run(args),
+        Command::Imu(args) => imu::run(args),
         Command::Beamsnet(args) => beamsnet::run(args),
         Command::Dataset(args) => dataset::run(args),
         Command::Report(args) => report::run(args),
