@@ -474,7 +474,7 @@ pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
         None => None,
     };
     let mut config = config;
-    if files.init_from_truth {
+    if files.init_from_truth || (config.truth.initial_state && truth.is_some()) {
         let truth = truth.as_ref().context("--init-from-truth needs --truth")?;
         // The run starts at the first of the truth's own epochs inside the IMU's span
         // (the truth is exact there, interpolated between).
