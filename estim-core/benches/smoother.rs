@@ -154,7 +154,8 @@ fn bench(c: &mut Criterion) {
             &format!("EKF (15,3) forward + online FixedLagSmoother lag 10 ({label} + 1 update)"),
             |b| {
                 b.iter(|| {
-                    let online = forward(&s, predicts, FixedLagSmoother::new(mode, 10));
+                    let online =
+                        forward(&s, predicts, FixedLagSmoother::new(mode, 10).expect("lag"));
                     black_box(online.finish().expect("finish").len())
                 })
             },

@@ -1,8 +1,5 @@
 //! Runner configuration: covariance form, innovation gate, joint-covariance policy.
 
-#[cfg(feature = "consistency")]
-use statrs::distribution::{ChiSquared, ContinuousCDF};
-
 use crate::{CovarianceUpdate, Error, Result};
 
 /// Innovation gate: reject a measurement whose normalised innovation squared (NIS)
@@ -98,11 +95,13 @@ impl Gate {
 /// The `probability` quantile of chi-square(`m`).
 #[cfg(feature = "consistency")]
 fn chi_square_quantile(m: usize, probability: f64) -> Result<f64> {
-    let chi2 = ChiSquared::new(m as f64).map_err(|e| Error::InvalidParameter {
-        name: "measurement size",
-        reason: format!("chi-square with {m} degrees of freedom: {e}"),
-    })?;
-    Ok(chi2.inverse_cdf(probability))
+    if m == 0 {
+        return Err(Error::InvalidParameter {
+            name: "measurement size",
+            reason: "chi-square with 0 degrees of freedom".into(),
+        });
+    }
+    crate::consistency::chi_square_quantile(m as f64, probability)
 }
 
 /// Without the `consistency` feature there is no chi-square quantile: refuse the gate.
@@ -125,7 +124,42 @@ fn chi_square_quantile(_m: usize, _probability: f64) -> Result<f64> {
 /// -[`crate::JointCovariance::tolerance`] iff the joint covariance is valid: for a valid one it is
 /// the smallest LDL' pivot of the correlation matrix (0 when singular, at most 1; an
 /// upper bound on its smallest eigenvalue), for an invalid one the smallest eigenvalue.
-/// `Skip` avoids even the factorisation and reports `None`. With M = 0 the joint is
+/// `Skip` avoids even the factorisation and reports `None`.
+///
+/// The default is `Reject`: an M that is not a covariance is refused before it touches
+/// the state, as is an M != 0 when Q_acc = 0 (a correlated update with no predict
+/// since the previous one; any nonzero covariance beside a zero variance is invalid).
+/// `Report` (use the update and only report the margin) and `Skip` are explicit
+/// opt-ins, for studies of what an invalid M does.
+///
+/// ```
+/// use estim_core::nalgebra::{Matrix1, Matrix1x2, Matrix2, Matrix2x1, Vector1, Vector2};
+/// use estim_core::{Error, FilterConfig, Fixed, JointCheck, KalmanFilter, StateAndCovariance};
+///
+/// let initial = StateAndCovariance::new(Vector2::zeros(), Matrix2::identity())?;
+/// let q = Matrix2::new(0.25, 0.5, 0.5, 1.0) * 0.01;
+/// let kf = |config: FilterConfig| {
+///     KalmanFilter::new(Matrix2::new(1.0, 1.0, 0.0, 1.0), q, Matrix1x2::new(1.0, 0.0),
+///         Matrix1::new(0.01), initial.clone()).map(|kf| kf.with_config(config))
+/// };
+/// // |corr(w_1, v)| = 0.5 / sqrt(0.25 * 0.01 * 100) > 1: not a covariance.
+/// let m = Fixed(Matrix2x1::new(0.5, 0.0) * 0.01);
+/// let mut refused = kf(FilterConfig::default())?;
+/// refused.predict()?;
+/// let before = refused.estimate().clone();
+/// let err = refused.update(&Vector1::new(0.1), &m).unwrap_err();
+/// assert!(matches!(err, Error::InvalidJointCovariance { .. }));
+/// assert_eq!(refused.estimate(), &before); // untouched by the refused update
+///
+/// let report_only = FilterConfig::builder().joint_check(JointCheck::Report).build()?;
+/// let mut used = kf(report_only)?;
+/// used.predict()?;
+/// let report = used.update(&Vector1::new(0.1), &m)?;
+/// assert!(report.joint_min_eigenvalue.unwrap() < 0.0); // used, and said so
+/// # Ok::<(), Error>(())
+/// ```
+///
+/// With M = 0 the joint is
 /// block diagonal and its LDL' is Q_acc's and R's apart; a runner keeps Q_acc's part
 /// from its last update and reuses it while Q_acc is unchanged (a time-invariant
 /// model with one predict per update factors its Q once), with the same result.
@@ -133,19 +167,24 @@ fn chi_square_quantile(_m: usize, _probability: f64) -> Result<f64> {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[non_exhaustive]
 pub enum JointCheck {
-    /// Do not compute it; the update report says `None` (not checked).
+    /// Do not compute it; the update report says `None` (not checked). Opt-in.
     Skip,
-    /// Compute the validity margin and put it in the update report (default).
-    #[default]
+    /// Compute the validity margin, put it in the update report, and use M even when
+    /// it is not a covariance. Opt-in (a study of an invalid M, e.g. the paper's rho
+    /// beyond its bound).
     Report,
     /// Compute it and fail with [`Error::InvalidJointCovariance`] when the joint
     /// covariance is not positive semidefinite (tolerance of
-    /// [`crate::JointCovariance::check`]); the state is left untouched.
+    /// [`crate::JointCovariance::check`]); the state is left untouched. The default.
+    /// A one-step update with M != 0 and `track_accumulated_noise(false)` cannot be
+    /// checked and fails with [`Error::NotTracked`].
+    #[default]
     Reject,
 }
 
 /// Checked configuration shared by the runners. Build with [`FilterConfig::builder`];
-/// [`FilterConfig::default`] is the square-root form, no gate, joint covariance reported.
+/// [`FilterConfig::default`] is the square-root form, no gate, an invalid joint
+/// covariance refused ([`JointCheck::Reject`]).
 ///
 /// With the `serde` feature it serializes as its settings (those of
 /// [`FilterConfigBuilder`]; missing keys take the defaults, unknown keys are refused)
@@ -308,7 +347,7 @@ impl FilterConfigBuilder {
         }
     }
 
-    /// Joint-covariance policy (report by default).
+    /// Joint-covariance policy ([`JointCheck::Reject`] by default).
     pub fn joint_check(self, joint_check: JointCheck) -> Self {
         Self {
             joint_check,
@@ -321,7 +360,7 @@ impl FilterConfigBuilder {
     /// [`crate::WindowedCrossCovariance`]: predict then does no accumulation work.
     /// Models that read Q_acc ([`crate::ScaledCorrelation`]) fail with
     /// [`Error::NotTracked`] without it, and the joint check of a one-step update
-    /// with M != 0 cannot be made (`Report`: `None`; `Reject`: that error).
+    /// with M != 0 cannot be made (`Reject`, the default: that error; `Report`: `None`).
     pub fn track_accumulated_noise(self, track_accumulated_noise: bool) -> Self {
         Self {
             track_accumulated_noise,

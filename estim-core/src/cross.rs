@@ -214,7 +214,9 @@ impl<T: Scalar, const N: usize, const M: usize> JointCovariance<T, N, M> {
     /// (allocates: a dynamic eigen decomposition).
     ///
     /// # Errors
-    /// [`Error::NonFinite`] if an entry is NaN or infinite.
+    /// [`Error::NonFinite`] if an entry is NaN or infinite; [`Error::Overflow`] if the
+    /// eigen decomposition of entries near the scalar's largest value overflows (use
+    /// [`JointCovariance::min_correlation_eigenvalue`], scale-free).
     pub fn min_eigenvalue(&self) -> Result<T> {
         joint_min_eigenvalue(
             &self.process_noise,
@@ -243,7 +245,9 @@ impl<T: Scalar, const N: usize, const M: usize> JointCovariance<T, N, M> {
     ///   pivot of C, clamped at 0, so in [0, 1]. An upper bound on the smallest
     ///   eigenvalue of C, 0 exactly when C is singular (to the tolerance); small means
     ///   M is near the edge of what a covariance allows.
-    /// - Otherwise: the smallest eigenvalue of C (allocates).
+    /// - Otherwise: the smallest eigenvalue of C (allocates), or -1 when a zero
+    ///   variance of Q or R has a nonzero covariance in M (its correlation is
+    ///   unbounded: invalid at any size of M, e.g. M != 0 with Q = 0).
     ///
     /// This is the number every [`crate::UpdateReport::joint_min_eigenvalue`] holds.
     ///
@@ -326,8 +330,17 @@ pub(crate) fn joint_min_eigenvalue<T: Scalar, const N: usize, const M: usize>(
         cross_covariance,
         measurement_noise,
     );
-    let j = (&j + j.transpose()) * lit::<T>(0.5);
-    Ok(j.symmetric_eigenvalues().min())
+    // Halves first: (a + b) / 2 of two entries near T::MAX would overflow.
+    let half = lit::<T>(0.5);
+    let j = &j * half + j.transpose() * half;
+    let smallest = j.symmetric_eigenvalues().min();
+    if smallest.is_finite() {
+        Ok(smallest)
+    } else {
+        Err(Error::Overflow {
+            what: "smallest eigenvalue of the joint covariance",
+        })
+    }
 }
 
 /// 1/sqrt(d), or 1 where d <= 0 (a zero variance: its row must then be zero).
@@ -390,7 +403,9 @@ pub(crate) fn joint_tolerance<T: Scalar>() -> T {
 ///   exactly when C is singular (to the tolerance); small means M is near the edge of
 ///   what a covariance allows.
 /// - Otherwise (a negative or inconclusive pivot): the smallest eigenvalue of C, from
-///   [`joint_min_correlation_eigenvalue`] (allocates).
+///   [`joint_min_correlation_eigenvalue`] (allocates); -1 when a zero variance of
+///   Q_acc or R has a nonzero entry of M in its row (column).
+///   ([`zero_variance_correlated`]: invalid whatever the size of M).
 ///
 /// # Errors
 /// [`Error::NonFinite`] if an entry is NaN or infinite.
@@ -478,6 +493,9 @@ pub(crate) fn joint_validity_margin_reusing<T: Scalar, const N: usize, const M: 
         };
         return Ok((margin, Some(noise)));
     }
+    if zero_variance_correlated(q, m, r) {
+        return Ok((-T::one(), None));
+    }
     let (a, dq) = correlation_upper(q);
     let (c, dr) = correlation_upper(r);
     let b = SMatrix::<T, N, M>::from_fn(|i, j| m[(i, j)] * dq[i] * dr[j]);
@@ -486,6 +504,21 @@ pub(crate) fn joint_validity_margin_reusing<T: Scalar, const N: usize, const M: 
         None => joint_min_correlation_eigenvalue(q, m, r)?,
     };
     Ok((margin, None))
+}
+
+/// Whether a variance of Q_acc or R is zero (or negative) while its row of M (column,
+/// for R) is not zero: no covariance has that, whatever the size of M (e.g. a
+/// correlated update with no predict since the previous one, Q_acc = 0). The
+/// correlation matrix leaves zero variances unscaled, so without this rule a small M
+/// beside a zero variance would pass within the tolerance.
+fn zero_variance_correlated<T: Scalar, const N: usize, const M: usize>(
+    q: &SMatrix<T, N, N>,
+    m: &SMatrix<T, N, M>,
+    r: &SMatrix<T, M, M>,
+) -> bool {
+    let zero = T::zero();
+    (0..N).any(|i| q[(i, i)] <= zero && (0..M).any(|j| m[(i, j)] != zero))
+        || (0..M).any(|j| r[(j, j)] <= zero && (0..N).any(|i| m[(i, j)] != zero))
 }
 
 /// Check that [[Q_acc, M], [M', R]] is positive semidefinite: [`joint_validity_margin`]

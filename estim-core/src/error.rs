@@ -10,6 +10,15 @@ pub enum Error {
         /// Which quantity held the non-finite value.
         what: &'static str,
     },
+    /// A number computed from finite inputs is not finite: it overflows the scalar type
+    /// (or meets 0 / 0 or infinity - infinity on the way), e.g. Q_d of a step dt = 1e300,
+    /// or a NEES of an error 1e200 under a covariance 1e-200. Every public function
+    /// that returns a number returns a finite one or an error.
+    #[error("{what} is not representable in the scalar type (overflow)")]
+    Overflow {
+        /// Which result.
+        what: &'static str,
+    },
     /// The innovation covariance S = H P H' + H M + M' H' + R could not be inverted
     /// (Cholesky failed): it is not positive definite.
     #[error("innovation covariance is not positive definite")]
@@ -31,7 +40,9 @@ pub enum Error {
     #[error("joint covariance [[Q_acc, M], [M', R]] is not positive semidefinite (smallest eigenvalue of its correlation matrix {min_eigenvalue:e})")]
     InvalidJointCovariance {
         /// Smallest eigenvalue of the joint correlation matrix
-        /// diag(J)^-1/2 J diag(J)^-1/2 (below -[`crate::JointCovariance::tolerance`], 9.3e-10 in f64).
+        /// diag(J)^-1/2 J diag(J)^-1/2 (below -[`crate::JointCovariance::tolerance`], 9.3e-10 in f64);
+        /// -1 when a zero variance of Q_acc or R has a nonzero entry of M (e.g. M != 0
+        /// with no predict since the previous update, Q_acc = 0).
         min_eigenvalue: f64,
     },
     /// A covariance matrix that must be positive (semi)definite is not.

@@ -73,8 +73,10 @@
 //! [[Q_acc, M], [M', R]] must be positive semidefinite for M to be a covariance at
 //! all: [`JointCovariance::check`] tests it (scale invariant, on the correlation
 //! matrix), [`JointCovariance::largest_valid_scale`] gives the largest valid multiple of a given M,
-//! and [`JointCheck`] decides what a runner does with it (skip, report in every
-//! [`UpdateReport`], or reject with [`Error::InvalidJointCovariance`]). For the
+//! and [`JointCheck`] decides what a runner does with it: reject it with
+//! [`Error::InvalidJointCovariance`] before touching the state (the default), or, as
+//! explicit opt-ins, use it and report the margin in every [`UpdateReport`], or skip
+//! the check. For the
 //! paper's [`ScaledCorrelation`] (M = rho sqrt(diag Q) sqrt(diag R)') with diagonal Q
 //! (q nonzero entries) and R (m entries), valid means rho^2 q m <= 1.
 //!
@@ -82,7 +84,9 @@
 //! quantity; an S that is not positive definite is
 //! [`Error::InnovationNotPositiveDefinite`]; an S that factorises but is numerically
 //! singular (reciprocal condition of its correlation matrix below 1000 eps) is
-//! [`Error::InnovationIllConditioned`]. A result is either finite or an error.
+//! [`Error::InnovationIllConditioned`]; finite inputs whose result leaves the scalar's
+//! range (Q_d of dt = 1e300, a NEES of 1e400) are [`Error::Overflow`]. A result is
+//! either finite or an error.
 //!
 //! [`CovarianceUpdate`] documents the four forms, why the square-root one is the
 //! default, and its fallback when [[P, M], [M', R]] has no square root.

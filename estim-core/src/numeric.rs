@@ -13,5 +13,7 @@
 //! # Ok::<(), estim_core::Error>(())
 //! ```
 
-pub use crate::gaussian::{check_finite, check_symmetric, symmetrize};
+pub use crate::gaussian::{
+    check_covariance, check_finite, check_positive_semidefinite, check_symmetric, symmetrize,
+};
 pub use crate::scalar::{lit, relative_tolerance, to_f64};

@@ -339,7 +339,7 @@ where
     let p = symmetric_sum(&p, process_noise);
     check_finite(mean.as_slice(), "predicted state")?;
     check_finite(p.as_slice(), "predicted covariance")?;
-    StateAndCovariance::new(mean, p)
+    StateAndCovariance::from_step(mean, p)
 }
 
 /// Everything a sigma-point update produced.
@@ -401,7 +401,7 @@ where
     let mut post = SMatrix::zeros();
     let state = stats.posterior(prior, &innovation, &inverse, &mut gain, &mut post)?;
     Ok(UnscentedOutcome {
-        posterior: StateAndCovariance::new(state, post)?,
+        posterior: StateAndCovariance::from_step(state, post)?,
         predicted_measurement: stats.predicted,
         innovation,
         innovation_covariance: stats.innovation_covariance,

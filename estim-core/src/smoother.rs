@@ -906,7 +906,8 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
         let len = self.epochs.len();
         let mut out = Vec::with_capacity(len);
         for k in 0..len {
-            let to = (k + lag).min(len - 1);
+            // Saturating: a lag beyond the recording is the whole rest of it.
+            let to = k.saturating_add(lag).min(len - 1);
             let mut window = self.backward(k, to)?;
             out.push(window.swap_remove(0));
         }
@@ -1051,13 +1052,15 @@ impl<T: Scalar, S: Clone, const N: usize> Observer<T, S, N> for ForwardRecorder<
 /// let initial = StateAndCovariance::new(Vector2::zeros(), Matrix2::identity())?;
 /// let mut kf = KalmanFilter::new(Matrix2::new(1.0, 1.0, 0.0, 1.0),
 ///     Matrix2::identity() * 0.01, Matrix1x2::new(1.0, 0.0), Matrix1::new(0.1), initial)?
-///     .with_observer(FixedLagSmoother::new(RecordAt::EveryStep, 2));
+///     .with_observer(FixedLagSmoother::new(RecordAt::EveryStep, 2)?);
 /// for k in 0..10 {
 ///     kf.step(Some(&Vector1::new(k as f64)), &Zero)?;
 /// }
 /// let lagged = kf.into_observer().finish()?;
 /// assert_eq!(lagged.len(), 10);
 /// assert_eq!(lagged[3].epoch, 3);
+/// // A lag beyond FixedLagSmoother::MAX_LAG is refused, not a panic.
+/// assert!(FixedLagSmoother::<f64, Vector2<f64>, 2>::new(RecordAt::EveryStep, usize::MAX).is_err());
 /// # Ok::<(), estim_core::Error>(())
 /// ```
 #[derive(Debug, Clone)]
@@ -1070,20 +1073,41 @@ pub struct FixedLagSmoother<T: Scalar, S, const N: usize> {
 }
 
 impl<T: Scalar, S: Clone, const N: usize> FixedLagSmoother<T, S, N> {
+    /// The largest lag: 2^24 epochs (46 hours of 100 Hz steps). The smoother holds up
+    /// to `lag + 2` epochs (each an N x N covariance and more); a longer lag is a
+    /// whole-recording smoothing ([`ForwardRecorder::smooth`]).
+    pub const MAX_LAG: usize = 1 << 24;
+
     /// A fixed-lag smoother with `lag` epochs, recording as `mode`.
-    pub fn new(mode: RecordAt, lag: usize) -> Self {
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] (`name: "lag"`) for a lag above
+    /// [`FixedLagSmoother::MAX_LAG`].
+    pub fn new(mode: RecordAt, lag: usize) -> Result<Self> {
         Self::from_recorder(ForwardRecorder::new(mode), lag)
     }
 
     /// From a recorder (e.g. [`ForwardRecorder::from_initial_parts`]); its capacity
     /// is set to `lag + 2` epochs.
-    pub fn from_recorder(recorder: ForwardRecorder<T, S, N>, lag: usize) -> Self {
-        Self {
+    ///
+    /// # Errors
+    /// As [`FixedLagSmoother::new`].
+    pub fn from_recorder(recorder: ForwardRecorder<T, S, N>, lag: usize) -> Result<Self> {
+        if lag > Self::MAX_LAG {
+            return Err(Error::InvalidParameter {
+                name: "lag",
+                reason: format!(
+                    "{lag} epochs is above FixedLagSmoother::MAX_LAG = {}",
+                    Self::MAX_LAG
+                ),
+            });
+        }
+        Ok(Self {
             recorder: recorder.with_capacity(lag + 2),
             lag,
             emitted: Vec::new(),
             next: 0,
-        }
+        })
     }
 
     /// The estimates emitted so far, oldest first.

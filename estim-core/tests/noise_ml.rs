@@ -217,6 +217,7 @@ fn recovers_known_noise_within_two_standard_errors() {
     let mut mean_se = [0.0; 4];
     for f in &fits {
         assert!(f.converged, "{}", f.termination);
+        assert_eq!(f.stop, estim_core::noise::ml::FitStop::Converged);
         let se = f.standard_errors.expect("information positive definite");
         for i in 0..4 {
             covered[i] += usize::from((f.theta[i] - TRUTH[i]).abs() <= 2.0 * se[i]);

@@ -584,7 +584,7 @@ fn run<const N: usize, const M: usize>(
     let initial = StateAndCovariance::new(x0, p0)?;
     let recorder = ForwardRecorder::from_initial(mode, &initial);
     let online =
-        FixedLagSmoother::from_recorder(ForwardRecorder::from_initial(mode, &initial), lag);
+        FixedLagSmoother::from_recorder(ForwardRecorder::from_initial(mode, &initial), lag)?;
     let observer = (recorder, online);
     let mut epoch_steps = vec![0];
     // The same forward pass for every runner (their update and predict methods
@@ -1020,8 +1020,14 @@ fn unsupported_recordings_are_typed_errors() {
     ekf.update(&model, &y, &m).unwrap();
     assert_eq!(ekf.observer().smooth().unwrap().len(), 2);
 
-    // A second, correlated update at the same epoch.
+    // A second, correlated update at the same epoch (Q_acc = 0: an invalid joint
+    // covariance, used only with the Report opt-in; the default refuses it).
+    let report = estim_core::FilterConfig::builder()
+        .joint_check(estim_core::JointCheck::Report)
+        .build()
+        .unwrap();
     let mut ekf = ExtendedKalmanFilter::new(TimeVarying, initial.clone())
+        .with_config(report.clone())
         .with_observer(ForwardRecorder::from_initial(RecordAt::Updates, &initial));
     ekf.predict(&input, 1.0).unwrap();
     ekf.update(&model, &y, &estim_core::Zero).unwrap();
@@ -1063,9 +1069,10 @@ fn unsupported_recordings_are_typed_errors() {
             assert_eq!(smoothed.map(|s| s.len()).ok(), Some(2));
         }
     }
-    // The online fixed-lag smoother reports it too.
+    // The online fixed-lag smoother reports it too (Report opt-in, as above).
     let mut ekf = ExtendedKalmanFilter::new(TimeVarying, initial.clone())
-        .with_observer(FixedLagSmoother::new(RecordAt::Updates, 1));
+        .with_config(report.clone())
+        .with_observer(FixedLagSmoother::new(RecordAt::Updates, 1).unwrap());
     ekf.predict(&input, 1.0).unwrap();
     ekf.update(&model, &y, &estim_core::Zero).unwrap();
     ekf.update(&model, &y, &m).unwrap();

@@ -4,7 +4,7 @@
 //! [`NavigatorSettings`], which cannot be invalid.
 
 use estim_core::noise::adaptive::NoiseScaleConfig;
-use estim_core::{FilterConfig, Gate, GateRecovery};
+use estim_core::{FilterConfig, Gate, GateRecovery, JointCheck};
 use estim_dvl::{BeamGeometry, DvlVelocityModel};
 use estim_ins::{ImuSpec, SensorSpec};
 use nalgebra::{Matrix3, Vector3};
@@ -732,6 +732,11 @@ impl NavigatorConfig {
 /// The filter configuration of a gate probability (0 = off) and a recovery rule
 /// (0 = none; no effect without a gate).
 ///
+/// The joint covariance of each update is reported, not refused
+/// ([`JointCheck::Report`], an explicit opt-in since estim-core refuses an invalid one
+/// by default): the navigator runs the paper's `ScaledCorrelation { rho: 0.42 }`, an
+/// invalid M, and counts its invalid updates rather than stopping.
+///
 /// # Errors
 /// The core's, for a probability outside (0, 1).
 pub fn filter_config(probability: f64, recovery_after: usize) -> Result<FilterConfig> {
@@ -748,5 +753,6 @@ pub fn filter_config(probability: f64, recovery_after: usize) -> Result<FilterCo
     Ok(FilterConfig::builder()
         .gate(gate)
         .gate_recovery(recovery)
+        .joint_check(JointCheck::Report)
         .build()?)
 }

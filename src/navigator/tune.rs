@@ -367,7 +367,13 @@ pub fn linearize(
         trajectory.initial,
         trajectory.covariance,
     )?
-    .with_config(FilterConfig::default());
+    // Reported, not refused (estim-core's default refuses an invalid M): the
+    // linearisation pass records the joint margin of each update as before.
+    .with_config(
+        FilterConfig::builder()
+            .joint_check(JointCheck::Report)
+            .build()?,
+    );
     let imu = trajectory.imu;
     let Some(first) = imu.first() else {
         return Err(NavigatorError::Config("tune: no IMU samples".into()));

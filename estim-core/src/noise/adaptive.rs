@@ -132,7 +132,8 @@ impl NoiseScale {
     ///
     /// # Errors
     /// [`Error::NonFinite`] for a non-finite input; [`Error::InvalidCovariance`]
-    /// when tr D <= 0. The estimate is unchanged on error.
+    /// when tr D <= 0; [`Error::Overflow`] when the sample (|nu|^2 - tr(S - D)) / tr D
+    /// of finite inputs overflows. The estimate is unchanged on error.
     pub fn update<const M: usize>(
         &mut self,
         innovation: &SVector<f64, M>,
@@ -163,6 +164,13 @@ impl NoiseScale {
             });
         }
         let sample = (innovation.norm_squared() - (total - sensor_part.trace())) / unit;
+        if !sample.is_finite() {
+            // Finite inputs whose squares or ratio overflow (an innovation of 1e200):
+            // refused before the estimate moves.
+            return Err(Error::Overflow {
+                what: "noise-scale sample (innovation squared over the sensor's part)",
+            });
+        }
         let w = (sensor_part.trace() / total).min(1.0).powi(2);
         self.count += 1;
         self.weight = self.weight * (1.0 - 1.0 / self.config.window as f64) + w;

@@ -115,7 +115,7 @@
 //!
 //! ```
 //! use estim_core::nalgebra::{dmatrix, dvector, DVector};
-//! use estim_core::noise::em::{em, log_likelihood, EmVariables, LinearGaussianModel};
+//! use estim_core::noise::em::{em, log_likelihood, EmStop, EmVariables, LinearGaussianModel};
 //!
 //! // A random walk observed with noise; start from wrong noise levels.
 //! let model = LinearGaussianModel::new(
@@ -130,6 +130,7 @@
 //!         .collect();
 //! let start = log_likelihood(&model, &ys)?;
 //! let fit = em(&model, &ys, EmVariables::NOISE_COVARIANCES, 20)?;
+//! assert_eq!(fit.stop, EmStop::Completed);
 //! assert_eq!(fit.log_likelihoods.len(), 21);
 //! assert_eq!(fit.log_likelihoods[0], start);
 //! assert!(fit.log_likelihoods.windows(2).all(|w| w[1] >= w[0] - 1e-12));
@@ -402,8 +403,32 @@ pub struct EmFit {
     pub model: LinearGaussianModel,
     /// The log-likelihood (nats) of the measurements under the model after k
     /// iterations, k = 0 ..= iterations: element 0 is the given model's, the last
-    /// is [`EmFit::model`]'s. Non-decreasing up to round-off.
+    /// is [`EmFit::model`]'s. Non-decreasing up to round-off. Shorter than
+    /// `iterations + 1` when the fit stopped early ([`EmFit::stop`]).
     pub log_likelihoods: Vec<f64>,
+    /// Why the iterations ended.
+    pub stop: EmStop,
+}
+
+/// Why [`em`] stopped iterating.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum EmStop {
+    /// Every requested iteration ran.
+    Completed,
+    /// Iteration `iteration` (1-based) produced no valid model: its smoother pass, its
+    /// M-step or the fitted model's filter pass failed the library's checks with
+    /// `error` (e.g. [`Error::InvalidCovariance`] for a fitted covariance that is not
+    /// positive semidefinite, [`Error::NonFinite`] for an M-step sum that overflows,
+    /// [`Error::InnovationNotPositiveDefinite`] for the fitted model's S). The fit
+    /// holds the model of the iteration before (the given model when `iteration` is
+    /// 1) and `iteration` log-likelihoods.
+    Refused {
+        /// The iteration that failed, 1-based.
+        iteration: usize,
+        /// The check that refused it.
+        error: Error,
+    },
 }
 
 /// The log-likelihood (nats) of `measurements` (epochs 0 .. T-1, `None` = missing)
@@ -428,13 +453,16 @@ pub fn log_likelihood(
 /// the closed-form M-step; one more filter pass gives the fitted model's
 /// log-likelihood. `iterations = 0` returns the model and its log-likelihood.
 ///
+/// An iteration whose result fails the library's checks (a fitted covariance not
+/// positive semidefinite to round-off, a smoother gain, an M-step sum or a fitted value
+/// that overflows, a fitted model whose S is not positive definite) stops the fit:
+/// the result holds the last valid model and says why in [`EmFit::stop`]
+/// ([`EmStop::Refused`], with the typed error).
+///
 /// # Errors
-/// Those of [`log_likelihood`]; [`Error::InvalidParameter`] when learning R, H or d
-/// with no measured epoch or Q, F or b with fewer than 2 epochs (nothing to
-/// average);
-/// [`Error::InvalidCovariance`] if a fitted covariance is not positive semidefinite
-/// to round-off; [`Error::NonFinite`] if a smoother gain, an M-step sum or a fitted
-/// value overflows.
+/// Those of [`log_likelihood`] for the given model; [`Error::InvalidParameter`] when
+/// learning R, H or d with no measured epoch or Q, F or b with fewer than 2 epochs
+/// (nothing to average).
 pub fn em(
     model: &LinearGaussianModel,
     measurements: &[Option<DVector<f64>>],
@@ -471,17 +499,31 @@ pub fn em(
         }
     }
     let mut model = model.clone();
-    let mut log_likelihoods = Vec::with_capacity(iterations + 1);
-    for _ in 0..iterations {
-        let forward = filter(&model, measurements)?;
-        log_likelihoods.push(forward.log_likelihood);
-        let smoothed = smooth(&model, &forward)?;
-        model = maximise(&model, measurements, &smoothed, vars)?;
+    // The given model's filter pass: its failure is the input's, an error.
+    let mut forward = filter(&model, measurements)?;
+    let mut log_likelihoods = Vec::with_capacity(iterations.saturating_add(1).min(1 << 16));
+    log_likelihoods.push(forward.log_likelihood);
+    let mut stop = EmStop::Completed;
+    for iteration in 1..=iterations {
+        let next = smooth(&model, &forward)
+            .and_then(|smoothed| maximise(&model, measurements, &smoothed, vars))
+            .and_then(|fitted| filter(&fitted, measurements).map(|pass| (fitted, pass)));
+        match next {
+            Ok((fitted, pass)) => {
+                log_likelihoods.push(pass.log_likelihood);
+                model = fitted;
+                forward = pass;
+            }
+            Err(error) => {
+                stop = EmStop::Refused { iteration, error };
+                break;
+            }
+        }
     }
-    log_likelihoods.push(filter(&model, measurements)?.log_likelihood);
     Ok(EmFit {
         model,
         log_likelihoods,
+        stop,
     })
 }
 

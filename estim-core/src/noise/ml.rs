@@ -316,8 +316,45 @@ pub struct MaximumLikelihood<const P: usize> {
     /// Whether the observed information is positive definite and half the Newton
     /// decrement is at most `FitOptions::decrement_tolerance` at the returned point.
     pub converged: bool,
-    /// argmin's termination status of the last L-BFGS run, as text.
+    /// argmin's termination status of the last L-BFGS run, as argmin prints it (for
+    /// the record; [`MaximumLikelihood::stop`] is the typed reason the fit ended).
     pub termination: String,
+    /// Why the fit ended, typed.
+    pub stop: FitStop,
+}
+
+/// Why [`maximize`] returned where it did.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum FitStop {
+    /// Every parameter is fixed: nothing was fitted.
+    NoFreeParameter,
+    /// Converged ([`MaximumLikelihood::converged`]): the observed information is
+    /// positive definite and half the Newton decrement is at most
+    /// [`FitOptions::decrement_tolerance`].
+    Converged,
+    /// The Newton phase ended (its [`FitOptions::newton_steps`] steps taken, or none
+    /// allowed) with half the decrement at the returned point above its tolerance.
+    NewtonStepLimit,
+    /// The Hessian of -ln p in the unconstrained coordinates is not positive definite
+    /// where Newton stopped (a saddle, a flat direction, an optimum on a bound): no
+    /// Newton step is defined.
+    HessianNotPositiveDefinite,
+    /// No damped Newton step (40 halvings) decreased -ln p, and every trial point was
+    /// evaluated: the optimum to round-off, or a likelihood too rough for Newton.
+    NoDecrease,
+    /// The last Newton step's trial points that did not decrease -ln p include points
+    /// the model refused: its evaluation failed with `error`, the last one (e.g.
+    /// [`Error::InvalidJointCovariance`] from a filter's joint check where theta
+    /// leaves the region in which M is a covariance, or
+    /// [`Error::InnovationNotPositiveDefinite`]).
+    Refused {
+        /// The model's error at the last refused trial point.
+        error: Error,
+    },
+    /// Half the Newton decrement reached its tolerance, but the observed information at
+    /// the returned point is not positive definite (no standard errors).
+    InformationNotPositiveDefinite,
 }
 
 /// ln p and its gradient d ln p / d theta at `theta` (exact, one
@@ -455,6 +492,7 @@ pub fn maximize<L: LogLikelihood<P>, const P: usize>(
     };
     let mut iterations = 0;
     let mut termination = String::from("no free parameter");
+    let mut newton_stop = FitStop::NoFreeParameter;
     if !free.is_empty() {
         // Global phase: L-BFGS, restarted from its best point with a fresh memory when
         // it stops (cost tolerance, failed line search) short of the gradient tolerance.
@@ -491,16 +529,21 @@ pub fn maximize<L: LogLikelihood<P>, const P: usize>(
         // Local phase: Newton steps with the exact Hessian (quadratic convergence), each
         // halved until -ln p decreases enough (Armijo); stops when the Newton decrement
         // is below tolerance or the Hessian is not positive definite.
+        newton_stop = FitStop::NewtonStepLimit;
         for _ in 0..options.newton_steps {
             match newton_step(&objective, &phi)? {
-                Some((next, decrement)) if decrement / 2.0 > options.decrement_tolerance => {
+                Ok((next, decrement)) if decrement / 2.0 > options.decrement_tolerance => {
                     phi = next;
                 }
-                Some((next, _)) => {
+                Ok((next, _)) => {
                     phi = next;
+                    newton_stop = FitStop::InformationNotPositiveDefinite;
                     break;
                 }
-                None => break,
+                Err(failure) => {
+                    newton_stop = failure;
+                    break;
+                }
             }
         }
     }
@@ -514,6 +557,13 @@ pub fn maximize<L: LogLikelihood<P>, const P: usize>(
     let decrement = covariance.as_ref().map(|c| grad.dot(&(c * grad)));
     let converged = free.is_empty()
         || decrement.is_some_and(|d| d.is_finite() && d / 2.0 <= options.decrement_tolerance);
+    let stop = match newton_stop {
+        FitStop::NoFreeParameter => FitStop::NoFreeParameter,
+        _ if converged => FitStop::Converged,
+        // A small decrement where Newton ended, but not at the returned point.
+        FitStop::InformationNotPositiveDefinite if covariance.is_some() => FitStop::NewtonStepLimit,
+        other => other,
+    };
     Ok(MaximumLikelihood {
         theta,
         log_likelihood,
@@ -524,19 +574,21 @@ pub fn maximize<L: LogLikelihood<P>, const P: usize>(
         iterations,
         converged,
         termination,
+        stop,
     })
 }
 
 /// One damped Newton step on -ln p in the unconstrained coordinates: the new point
-/// and the Newton decrement g' H^-1 g at the old one, or `None` when the Hessian is
-/// not positive definite or no step length decreases -ln p.
+/// and the Newton decrement g' H^-1 g at the old one, or why there is none.
 fn newton_step<L: LogLikelihood<P>, const P: usize>(
     objective: &Objective<'_, L, P>,
     phi: &[f64],
-) -> Result<Option<(Vec<f64>, f64)>> {
+) -> Result<std::result::Result<(Vec<f64>, f64), FitStop>> {
     Ok(match safeguarded_step(objective, phi, None)? {
-        Step::Taken(next, decrement) => Some((next, decrement)),
-        Step::Capped(..) | Step::Failed => None,
+        Step::Taken(next, decrement) => Ok((next, decrement)),
+        // Not produced without a cap.
+        Step::Capped(..) => Err(FitStop::NoDecrease),
+        Step::Failed(why) => Err(why),
     })
 }
 
@@ -555,7 +607,7 @@ fn approach<L: LogLikelihood<P>, const P: usize>(
                 *phi = next;
                 return Ok(true);
             }
-            Step::Failed => break,
+            Step::Failed(_) => break,
         }
         moved = true;
     }
@@ -568,8 +620,8 @@ enum Step {
     Taken(Vec<f64>, f64),
     /// The direction was longer than the cap and was shortened to it (point).
     Capped(Vec<f64>),
-    /// No step decreased -ln p (or the Newton direction was not defined).
-    Failed,
+    /// No step decreased -ln p, or the Newton direction was not defined: why.
+    Failed(FitStop),
 }
 
 /// One damped step on -ln p in the unconstrained coordinates. Without a cap: the
@@ -607,7 +659,7 @@ fn safeguarded_step<L: LogLikelihood<P>, const P: usize>(
     });
     let mut step = match (hess.clone().cholesky(), cap) {
         (Some(chol), _) => -chol.solve(&grad),
-        (None, None) => return Ok(Step::Failed),
+        (None, None) => return Ok(Step::Failed(FitStop::HessianNotPositiveDefinite)),
         (None, Some(_)) => nalgebra::DVector::from_fn(n, |r, _| {
             -grad[r] / hess[(r, r)].abs().max(f64::MIN_POSITIVE)
         }),
@@ -627,9 +679,10 @@ fn safeguarded_step<L: LogLikelihood<P>, const P: usize>(
     };
     let decrement = -grad.dot(&step);
     if !decrement.is_finite() || (capped && decrement <= 0.0) {
-        return Ok(Step::Failed);
+        return Ok(Step::Failed(FitStop::NoDecrease));
     }
     let mut t = 1.0;
+    let mut refused = None;
     for _ in 0..40 {
         let next: Vec<f64> = phi
             .iter()
@@ -639,6 +692,9 @@ fn safeguarded_step<L: LogLikelihood<P>, const P: usize>(
         let candidate = objective
             .model
             .log_likelihood(&theta_of(bounds, free, &next));
+        if let Err(error) = &candidate {
+            refused = Some(error.clone());
+        }
         if let Ok(l) = candidate {
             if capped && l.is_finite() && -l < -value {
                 return Ok(Step::Capped(next));
@@ -652,7 +708,10 @@ fn safeguarded_step<L: LogLikelihood<P>, const P: usize>(
         }
         t *= 0.5;
     }
-    Ok(Step::Failed)
+    Ok(Step::Failed(match refused {
+        Some(error) => FitStop::Refused { error },
+        None => FitStop::NoDecrease,
+    }))
 }
 
 fn model_or_optimizer_error(e: argmin::core::Error) -> Error {

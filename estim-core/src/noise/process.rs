@@ -44,7 +44,9 @@
 use nalgebra::{DMatrix, SMatrix, SVector};
 
 use crate::error::{Error, Result};
-use crate::numeric::{check_finite, check_symmetric, lit, relative_tolerance, symmetrize, to_f64};
+use crate::numeric::{check_covariance, check_finite, lit, symmetrize, to_f64};
+#[cfg(doc)]
+use crate::numeric::{check_symmetric, relative_tolerance};
 use crate::scalar::Scalar;
 
 /// The state order of a model made of several independent axes (e.g. 2-D constant
@@ -86,12 +88,17 @@ pub struct DiscreteModel<T: Scalar, const N: usize> {
 /// # Errors
 /// [`Error::InvalidParameter`] when N is not 2, 3 or 4 (`name: "N"`) or dt is not
 /// finite and positive (`name: "dt"`).
+/// [`Error::Overflow`] when a result entry is beyond the scalar's range (e.g.
+/// dt = 1e300: dt^2 and higher powers overflow).
 pub fn discrete_white_noise_gain<T: Scalar, const N: usize>(dt: T) -> Result<SVector<T, N>> {
     check_order::<N>(2, 4)?;
     check_dt(dt)?;
     // Entry i is dt^k / k!, k = N-1-i for N >= 3, k = N-i for N = 2.
     let top = if N == 2 { N } else { N - 1 };
-    Ok(SVector::from_fn(|i, _| power_over_factorial(dt, top - i)))
+    finite_result(
+        SVector::from_fn(|i, _| power_over_factorial(dt, top - i)),
+        "discrete white-noise gain",
+    )
 }
 
 /// Q_d = Gamma var Gamma' of the discrete (piecewise constant) white-noise model of an
@@ -114,13 +121,18 @@ pub fn discrete_white_noise_gain<T: Scalar, const N: usize>(dt: T) -> Result<SVe
 /// # Errors
 /// [`Error::InvalidParameter`] when N is not 2, 3 or 4, dt is not finite and
 /// positive, or `variance` is not finite and >= 0.
+/// [`Error::Overflow`] when a result entry is beyond the scalar's range (e.g.
+/// dt = 1e300: dt^2 and higher powers overflow).
 pub fn discrete_white_noise<T: Scalar, const N: usize>(
     dt: T,
     variance: T,
 ) -> Result<SMatrix<T, N, N>> {
     check_scale(variance, "variance")?;
     let gamma = discrete_white_noise_gain::<T, N>(dt)?;
-    Ok(gamma * gamma.transpose() * variance)
+    finite_result(
+        gamma * gamma.transpose() * variance,
+        "discrete white noise Q_d",
+    )
 }
 
 /// Q_d = int_0^dt e^{F s} L q L' e^{F' s} ds of an integrator chain of order N >= 1
@@ -137,6 +149,8 @@ pub fn discrete_white_noise<T: Scalar, const N: usize>(
 /// # Errors
 /// [`Error::InvalidParameter`] when N = 0, dt is not finite and positive, or
 /// `spectral_density` is not finite and >= 0.
+/// [`Error::Overflow`] when a result entry is beyond the scalar's range (e.g.
+/// dt = 1e300: dt^2 and higher powers overflow).
 pub fn continuous_white_noise<T: Scalar, const N: usize>(
     dt: T,
     spectral_density: T,
@@ -144,12 +158,13 @@ pub fn continuous_white_noise<T: Scalar, const N: usize>(
     check_order::<N>(1, usize::MAX)?;
     check_dt(dt)?;
     check_scale(spectral_density, "spectral_density")?;
-    Ok(SMatrix::from_fn(|i, j| {
+    let q = SMatrix::from_fn(|i, j| {
         let (a, b) = (N - 1 - i, N - 1 - j);
         // dt^a/a! dt^b/b! dt / (a+b+1): the integral of s^(a+b) / (a! b!).
         power_over_factorial(dt, a) * power_over_factorial(dt, b) * dt * spectral_density
             / lit::<T>((a + b + 1) as f64)
-    }))
+    });
+    finite_result(q, "continuous white noise Q_d")
 }
 
 /// The transition Phi = e^{F dt} of an integrator chain of order N >= 1 (F with ones
@@ -158,16 +173,32 @@ pub fn continuous_white_noise<T: Scalar, const N: usize>(
 ///
 /// # Errors
 /// [`Error::InvalidParameter`] when N = 0 or dt is not finite and positive.
+/// [`Error::Overflow`] when a result entry is beyond the scalar's range (e.g.
+/// dt = 1e300: dt^2 and higher powers overflow).
 pub fn integrator_chain_transition<T: Scalar, const N: usize>(dt: T) -> Result<SMatrix<T, N, N>> {
     check_order::<N>(1, usize::MAX)?;
     check_dt(dt)?;
-    Ok(SMatrix::from_fn(|i, j| {
+    let phi = SMatrix::from_fn(|i, j| {
         if j >= i {
             power_over_factorial(dt, j - i)
         } else {
             T::zero()
         }
-    }))
+    });
+    finite_result(phi, "integrator chain transition")
+}
+
+/// `value` if every entry is finite, else [`Error::Overflow`]: finite inputs (dt,
+/// variance) whose powers leave the scalar's range (dt = 1e300 gives dt^4 = inf).
+fn finite_result<T: Scalar, const R: usize, const C: usize>(
+    value: SMatrix<T, R, C>,
+    what: &'static str,
+) -> Result<SMatrix<T, R, C>> {
+    if crate::gaussian::all_finite(value.as_slice()) {
+        Ok(value)
+    } else {
+        Err(Error::Overflow { what })
+    }
 }
 
 /// The S x S matrix of S / N independent axes that each have the N x N matrix
@@ -260,7 +291,7 @@ pub fn independent_axes<T: Scalar, const N: usize, const S: usize>(
 /// - [`Error::InvalidCovariance`] when G Qc G' is not symmetric to round-off
 ///   ([`check_symmetric`]) or not positive semidefinite: the smallest eigenvalue of its
 ///   correlation matrix (unit diagonal) is below -[`relative_tolerance`] (9.3e-10 in
-///   f64), or a zero variance has a nonzero covariance.
+///   f64), or a variance is negative ([`check_covariance`]).
 pub fn van_loan<T: Scalar, const N: usize>(
     dynamics: &SMatrix<T, N, N>,
     noise_density: &SMatrix<T, N, N>,
@@ -375,42 +406,6 @@ fn check_scale<T: Scalar>(value: T, name: &'static str) -> Result<()> {
         Err(Error::InvalidParameter {
             name,
             reason: format!("{} is not finite and >= 0", to_f64(value)),
-        })
-    }
-}
-
-/// Finite, symmetric to round-off, and positive semidefinite to round-off: the
-/// smallest eigenvalue of the correlation matrix D^-1/2 A D^-1/2 (zero variances
-/// left unscaled, so a covariance beside a zero variance shows as a negative
-/// eigenvalue) is at least -[`relative_tolerance`] (scale invariant).
-fn check_covariance<T: Scalar, const K: usize>(
-    a: &SMatrix<T, K, K>,
-    what: &'static str,
-) -> Result<()> {
-    check_finite(a.as_slice(), what)?;
-    check_symmetric(a, what)?;
-    if K == 0 {
-        return Ok(());
-    }
-    let a = symmetrize(a);
-    let scale = a.diagonal().map(|d| {
-        if d > T::zero() {
-            T::one() / d.sqrt()
-        } else {
-            T::one()
-        }
-    });
-    let correlation = DMatrix::from_fn(K, K, |i, j| a[(i, j)] * scale[i] * scale[j]);
-    let smallest = correlation.symmetric_eigenvalues().min();
-    if smallest >= -relative_tolerance::<T>() {
-        Ok(())
-    } else {
-        Err(Error::InvalidCovariance {
-            what,
-            reason: format!(
-                "not positive semidefinite (smallest eigenvalue of its correlation matrix {:e})",
-                to_f64(smallest)
-            ),
         })
     }
 }

@@ -311,8 +311,10 @@ fn observer_error_leaves_the_committed_result() {
 /// Zero / Fixed still work.
 #[test]
 fn untracked_accumulation_is_refused_where_needed() {
+    // Report (an opt-in): an unchecked Fixed M is used; the default refuses it below.
     let config = FilterConfig::builder()
         .track_accumulated_noise(false)
+        .joint_check(JointCheck::Report)
         .build()
         .unwrap();
     let mut kf = cv_filter().with_config(config);
@@ -392,10 +394,17 @@ fn joint_check_reuses_the_noise_certificate_only_while_q_acc_is_unchanged() {
         let f = Matrix2::new(1.0, 1.0, 0.0, 1.0);
         let r = nalgebra::Matrix1::new(0.1);
         let initial = StateAndCovariance::new(Vector2::zeros(), Matrix2::identity()).unwrap();
+        // Report (an opt-in): case 1's Q is indefinite, which the default refuses.
+        let report = FilterConfig::builder()
+            .joint_check(JointCheck::Report)
+            .build()
+            .unwrap();
         let mut kf = (case == 0).then(|| {
-            KalmanFilter::new(f, q, nalgebra::Matrix1x2::new(1.0, 0.0), r, initial.clone()).unwrap()
+            KalmanFilter::new(f, q, nalgebra::Matrix1x2::new(1.0, 0.0), r, initial.clone())
+                .unwrap()
+                .with_config(report.clone())
         });
-        let mut ekf = ExtendedKalmanFilter::new(Linear(f, q), initial);
+        let mut ekf = ExtendedKalmanFilter::new(Linear(f, q), initial).with_config(report);
         let mut margins: Vec<f64> = Vec::new();
         for predicts in [1, 2, 1, 3, 1] {
             let mut q_acc = Matrix2::zeros();
@@ -425,7 +434,11 @@ fn joint_check_reuses_the_noise_certificate_only_while_q_acc_is_unchanged() {
 
 #[test]
 fn report_policy_exposes_negative_eigenvalue() {
-    let mut kf = cv_filter();
+    let report = FilterConfig::builder()
+        .joint_check(JointCheck::Report)
+        .build()
+        .unwrap();
+    let mut kf = cv_filter().with_config(report);
     kf.predict().unwrap();
     let report = kf
         .update(&Vector1::new(0.1), &Fixed(Matrix2x1::new(0.3, 0.3)))
