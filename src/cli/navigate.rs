@@ -10,7 +10,6 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use estim::datasets::{load_depth, load_fixes, load_gt, load_times, DvlLog, ImuLog};
-use estim::dvl::read_pd0_file;
 use estim::ins::{ErrorMatrix, InsState, Trajectory, ATT, ERROR_STATES, POS, VEL};
 use estim::navigator::{
     format_heading, navigate, navigate_learned, pd0_records, rdi_beam_geometry, DvlRecord,
@@ -124,8 +123,7 @@ impl Args {
 
 /// Read and check a vehicle TOML; errors name the file and line.
 pub fn vehicle_config(path: &Path) -> anyhow::Result<NavigatorConfig> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("{}: cannot read", path.display()))?;
+    let text = estim::datasets::read_text_file(path)?;
     toml::from_str::<NavigatorConfig>(&text).map_err(|e| {
         let line = e
             .span()
@@ -373,7 +371,11 @@ fn load_pd0(
     epoch: f64,
     settings: NavigatorSettings,
 ) -> anyhow::Result<(Vec<DvlRecord>, NavigatorSettings, Value)> {
-    let read = read_pd0_file(path).with_context(|| format!("{}", path.display()))?;
+    // Read with the limit of every input (`dvl pd0`'s): a sparse 2 GiB file or
+    // /dev/zero is refused, naming the file, instead of exhausting memory.
+    let bytes = estim::datasets::read_binary_file(path, estim::datasets::MAX_INPUT_BYTES)?;
+    let read = estim::dvl::read_pd0(&bytes);
+    drop(bytes);
     anyhow::ensure!(
         !read.ensembles.is_empty(),
         "{}: no good PD0 ensemble in {} bytes ({} spans skipped)",
@@ -514,17 +516,19 @@ pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
             .map_err(|e| anyhow::anyhow!("initial.time_s: {e}"))?
             .with_beam_geometry(geometry);
     }
+    let inputs = SurveyInputs {
+        imu: imu.samples,
+        dvl,
+        depth,
+        fixes,
+        output_epochs: Vec::new(),
+    };
+    crate::aiding_span::check_survey(&files, &config, &inputs, epoch)?;
     Ok(Survey {
         files,
         config,
         settings,
-        inputs: SurveyInputs {
-            imu: imu.samples,
-            dvl,
-            depth,
-            fixes,
-            output_epochs: Vec::new(),
-        },
+        inputs,
         epoch,
         truth,
         pd0,
@@ -729,8 +733,18 @@ impl Writer {
 /// epochs).
 pub fn evaluation_json(truth: Option<&Truth>) -> Value {
     let Some(t) = truth else { return Value::Null };
-    let n = t.position_error.len().max(1) as f64;
-    let rmse = (t.position_error.iter().map(|e| e * e).sum::<f64>() / n).sqrt();
+    // No epoch scored: every figure is null, with the reason (never an RMSE of 0).
+    let rmse = match t.position_error.len() {
+        0 => Value::Null,
+        n => json!((t.position_error.iter().map(|e| e * e).sum::<f64>() / n as f64).sqrt()),
+    };
+    let not_scored = t.position_error.is_empty().then(|| {
+        format!(
+            "no solution epoch was scored against the truth ({} outside its span); scored at \
+             the DVL epochs, a run without a DVL update has none",
+            t.outside
+        )
+    });
     let mean = |values: &[f64]| {
         let finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
         if finite.is_empty() {
@@ -763,6 +777,7 @@ pub fn evaluation_json(truth: Option<&Truth>) -> Value {
         "nees_average": nees,
         "nees_states": if t.biases.is_some() { ERROR_STATES } else { 9 },
         "covariance_not_positive_definite_epochs": t.not_positive_definite,
+        "not_scored_reason": not_scored,
     })
 }
 
@@ -940,7 +955,10 @@ pub fn summary_text(
             d.time_offset_sigma_s
         );
     }
-    if let Some(e) = summary.get("evaluation").filter(|v| !v.is_null()) {
+    let evaluation = summary.get("evaluation").filter(|v| !v.is_null());
+    if let Some(reason) = evaluation.and_then(|e| e["not_scored_reason"].as_str()) {
+        let _ = writeln!(text, "against truth: not scored: {reason}");
+    } else if let Some(e) = evaluation {
         let _ = writeln!(
             text,
             "against truth: position RMSE {} m, average NEES {} ({} states)",
