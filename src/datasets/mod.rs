@@ -251,6 +251,25 @@ pub enum DatasetError {
         /// Rows needed.
         min: usize,
     },
+    /// A column whose header states no unit holds values implausible in the unit
+    /// assumed (a gyroscope logged in deg/s read as rad/s).
+    #[error("{}:{line}: column `{column}` states no unit and reads {value:.3} {unit}, above the {limit} {unit} a vehicle sustains, for {seconds:.2} s from this line: is it logged in another unit? state it in the header (e.g. `{column} [deg/s]`, or `[rad/s]` to keep it)", path.display())]
+    UnitUnreadable {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line where the implausible stretch starts.
+        line: u64,
+        /// The header cell.
+        column: String,
+        /// The largest value of that column in the stretch, in `unit`.
+        value: f64,
+        /// The plausibility limit, in `unit`.
+        limit: f64,
+        /// The unit assumed.
+        unit: &'static str,
+        /// How long the values stay above the limit \[s\].
+        seconds: f64,
+    },
     /// The data folder or a trajectory's files are missing.
     #[error("{}: {what}", path.display())]
     Missing {
