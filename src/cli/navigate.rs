@@ -105,6 +105,25 @@ pub struct Args {
     json: bool,
 }
 
+impl SurveyFiles {
+    /// Every input path given (for [`StagedDir::keep_inputs`]).
+    pub fn paths(&self) -> impl Iterator<Item = &Path> {
+        [
+            &self.dvl,
+            &self.beams,
+            &self.pd0,
+            &self.depth,
+            &self.fixes,
+            &self.vehicle,
+            &self.truth,
+        ]
+        .into_iter()
+        .flatten()
+        .map(PathBuf::as_path)
+        .chain([self.imu.as_path()])
+    }
+}
+
 impl Args {
     fn files(&self) -> SurveyFiles {
         SurveyFiles {
@@ -244,6 +263,8 @@ pub struct Writer {
     last: Option<NavSolution>,
     rows: usize,
     csv: Option<std::io::BufWriter<std::fs::File>>,
+    /// Where `solution.csv` goes once committed (named in write errors).
+    csv_target: PathBuf,
     line: String,
     track: Vec<[f64; 2]>,
     truth: Option<Truth>,
@@ -330,7 +351,8 @@ impl Writer {
                 let _ = write!(l, ",{v:.4e}");
             }
             l.push('\n');
-            csv.write_all(l.as_bytes())?;
+            csv.write_all(l.as_bytes())
+                .map_err(|e| format!("{}: cannot write: {e}", self.csv_target.display()))?;
         }
         Ok(())
     }
@@ -632,13 +654,15 @@ impl Writer {
         epoch_s: f64,
         truth: Option<Truth>,
     ) -> anyhow::Result<Self> {
+        let csv_target = dir.map_or_else(PathBuf::new, |d| d.target().join("solution.csv"));
         let csv = match dir {
             Some(dir) => {
                 let path = dir.path("solution.csv");
                 let file = std::fs::File::create(&path)
-                    .with_context(|| format!("{}: cannot create", path.display()))?;
+                    .with_context(|| format!("{}: cannot create", csv_target.display()))?;
                 let mut w = std::io::BufWriter::new(file);
-                w.write_all(CSV_HEADER.as_bytes())?;
+                w.write_all(CSV_HEADER.as_bytes())
+                    .with_context(|| format!("{}: cannot write", csv_target.display()))?;
                 Some(w)
             }
             None => None,
@@ -649,6 +673,7 @@ impl Writer {
             last: None,
             rows: 0,
             csv,
+            csv_target,
             line: String::new(),
             track: Vec::new(),
             truth,
@@ -696,8 +721,14 @@ impl Writer {
         track_name: &str,
         summary: &Value,
     ) -> anyhow::Result<()> {
+        // Write errors name the file as it will be in --out (a full disk).
+        let write = |name: &str, text: &[u8]| {
+            std::fs::write(dir.path(name), text)
+                .with_context(|| format!("{}: cannot write", dir.target().join(name).display()))
+        };
         if let Some(mut csv) = self.csv.take() {
-            csv.flush()?;
+            csv.flush()
+                .with_context(|| format!("{}: cannot write", self.csv_target.display()))?;
         }
         if let Some(truth) = &self.truth {
             let mut text = String::from(
@@ -710,7 +741,7 @@ impl Writer {
                 }
                 text.push('\n');
             }
-            std::fs::write(dir.path("errors.csv"), text)?;
+            write("errors.csv", text.as_bytes())?;
         }
         let track = json!({
             "type": "FeatureCollection",
@@ -720,10 +751,10 @@ impl Writer {
                 "geometry": { "type": "LineString", "coordinates": self.track },
             }],
         });
-        std::fs::write(dir.path("track.geojson"), serde_json::to_string(&track)?)?;
-        std::fs::write(
-            dir.path("summary.json"),
-            serde_json::to_string_pretty(summary)?,
+        write("track.geojson", serde_json::to_string(&track)?.as_bytes())?;
+        write(
+            "summary.json",
+            serde_json::to_string_pretty(summary)?.as_bytes(),
         )?;
         Ok(())
     }
@@ -1090,7 +1121,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "--rate {rate}: not a positive rate"
         );
     }
-    let staged = args.out.as_deref().map(StagedDir::new).transpose()?;
+    let mut staged = args.out.as_deref().map(StagedDir::new).transpose()?;
+    if let Some(dir) = &mut staged {
+        dir.keep_inputs(args.files().paths());
+    }
     let mut survey = load_survey(args.files())?;
     if let Some(truth) = &survey.truth {
         survey.inputs.output_epochs = truth.epochs();
@@ -1130,7 +1164,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         e.insert("scored_at".into(), json!("reference_epochs"));
         e.insert("at_dvl_epochs".into(), evaluation_json(Some(dvl)));
     }
-    let summary = summary_json(
+    let mut summary = summary_json(
         "navigate",
         &survey,
         &run,
@@ -1141,7 +1175,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     if let Some(dir) = staged {
         if args.plots {
-            crate::navigate_plots::write_plots(
+            // Optional: a plot that cannot be drawn is warned about, not the run lost.
+            summary["plots"] = crate::navigate_plots::write_plots_or_warn(
                 &dir.path(""),
                 &crate::navigate_plots::PlotData {
                     command: "navigate",
@@ -1150,7 +1185,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     nis_times: &run.dvl_nis_times,
                     nis: &run.dvl_nis,
                 },
-            )?;
+            );
         }
         writer.finish(&dir, "estim navigate track (DVL epochs)", &summary)?;
         dir.commit()?;
