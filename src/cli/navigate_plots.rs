@@ -494,4 +494,22 @@ mod tests {
             assert!((q - 9.0).abs() < 1e-9, "{q}");
         }
     }
+
+    #[test]
+    fn nothing_to_draw_is_a_warning_with_no_plot_file() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let data = PlotData {
+            command: "navigate",
+            solution_label: "filter",
+            rows: &[],
+            nis_times: &[],
+            nis: &[],
+        };
+        let block = write_plots_or_warn(dir.path(), &data);
+        assert_eq!(block["written"], false);
+        assert!(block["reason"]
+            .as_str()
+            .is_some_and(|r| r.contains("no solution")));
+        assert_eq!(std::fs::read_dir(dir.path()).expect("list").count(), 0);
+    }
 }

@@ -503,6 +503,47 @@ mod tests {
     }
 
     #[test]
+    fn a_commit_that_cannot_complete_leaves_the_folder_as_it_was() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let target = dir.path().join("out");
+        let staged = StagedDir::new(&target).expect("writable");
+        std::fs::write(staged.path("report.json"), "1").expect("write");
+        staged.commit().expect("commit");
+        // A file where this run puts a folder: refused before anything moves.
+        std::fs::write(target.join("smoothing"), "mine").expect("write");
+        let staged = StagedDir::new(&target).expect("writable");
+        std::fs::write(staged.path("report.json"), "2").expect("write");
+        std::fs::create_dir(staged.path("smoothing")).expect("mkdir");
+        let e = staged.commit().expect_err("refused").to_string();
+        assert!(e.contains("smoothing"), "{e}");
+        assert_eq!(names(&target), [MANIFEST, "report.json", "smoothing"]);
+        assert_eq!(
+            std::fs::read_to_string(target.join("report.json"))
+                .ok()
+                .as_deref(),
+            Some("1")
+        );
+    }
+
+    #[test]
+    fn a_commit_never_replaces_or_removes_an_input() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let target = dir.path().join("out");
+        let staged = StagedDir::new(&target).expect("writable");
+        std::fs::write(staged.path("a.csv"), "1").expect("write");
+        std::fs::write(staged.path("b.csv"), "1").expect("write");
+        staged.commit().expect("commit");
+        for (input, writes) in [("a.csv", "a.csv"), ("b.csv", "c.csv")] {
+            let mut staged = StagedDir::new(&target).expect("writable");
+            staged.keep_inputs([target.join(input).as_path()]);
+            std::fs::write(staged.path(writes), "2").expect("write");
+            let e = staged.commit().expect_err("refused").to_string();
+            assert!(e.contains(input) && e.contains("input"), "{e}");
+            assert_eq!(names(&target), ["a.csv", "b.csv", MANIFEST]);
+        }
+    }
+
+    #[test]
     fn a_locked_folder_is_refused() {
         let dir = tempfile::tempdir().expect("tempdir");
         let first = StagedDir::new(dir.path()).expect("writable");

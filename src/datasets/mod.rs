@@ -28,7 +28,10 @@ pub use beams::{load_beams, parse_beams, BeamFile, BeamRow};
 pub use columns::ColumnMap;
 pub use dvl_log::{DvlLog, RDI_BAD_VELOCITY_MPS};
 pub use fixes::{load_depth, load_fixes, parse_depth, parse_fixes};
-pub use imu::{ImuLog, MAX_ABS_ANGULAR_RATE_RADPS, MAX_ABS_SPECIFIC_FORCE_MPS2};
+pub use imu::{
+    ImuLog, IMPLAUSIBLE_RATE_DURATION_S, MAX_ABS_ANGULAR_RATE_RADPS, MAX_ABS_SPECIFIC_FORCE_MPS2,
+    PLAUSIBLE_ANGULAR_RATE_RADPS,
+};
 pub use input::{read_binary_file, read_input, read_limited, read_text_file, MAX_INPUT_BYTES};
 pub use locate::{
     akit_dir, data_root, trajectories_in, trajectory_files, TrajectoryFiles, DATA_DIR_ENV,
