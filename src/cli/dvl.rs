@@ -178,14 +178,7 @@ fn pd0(args: &Pd0Args) -> anyhow::Result<String> {
     let name = args.input.display();
     // Binary input, read up to the input-size limit of every loader (an endless
     // stream such as /dev/zero stops there).
-    let limit = estim::datasets::MAX_INPUT_BYTES;
-    let file = std::fs::File::open(&args.input).with_context(|| format!("{name}: cannot read"))?;
-    let mut bytes = Vec::new();
-    std::io::Read::read_to_end(&mut std::io::Read::take(file, limit + 1), &mut bytes)
-        .with_context(|| format!("{name}: cannot read"))?;
-    if bytes.len() as u64 > limit {
-        anyhow::bail!("{name}: larger than {limit} bytes, the most an input file may hold");
-    }
+    let bytes = estim::datasets::read_binary_file(&args.input, estim::datasets::MAX_INPUT_BYTES)?;
     let read = estim_dvl::read_pd0(&bytes);
     for skip in &read.report.skipped {
         eprintln!("warning: {name}: {skip}");

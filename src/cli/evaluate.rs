@@ -80,8 +80,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .with_context(|| format!("--first-seed plus --seeds exceeds {MAX_SEED}"))?;
     let states = match &args.states {
         Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("{}: cannot read", path.display()))?;
+            let text = estim::datasets::read_text_file(path)?;
             // One line: the line number and the message, not toml's multi-line report.
             let states: DvlStatesConfig = toml::from_str(&text).map_err(|e| {
                 let line = e

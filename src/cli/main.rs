@@ -4,6 +4,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod aiding_span;
 mod beamsnet;
 mod compare;
 mod dataset;

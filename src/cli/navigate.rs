@@ -10,7 +10,6 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use estim::datasets::{load_depth, load_fixes, load_gt, load_times, DvlLog, ImuLog};
-use estim::dvl::read_pd0_file;
 use estim::ins::{ErrorMatrix, InsState, Trajectory, ATT, ERROR_STATES, POS, VEL};
 use estim::navigator::{
     format_heading, navigate, navigate_learned, pd0_records, rdi_beam_geometry, DvlRecord,
@@ -106,6 +105,25 @@ pub struct Args {
     json: bool,
 }
 
+impl SurveyFiles {
+    /// Every input path given (for [`StagedDir::keep_inputs`]).
+    pub fn paths(&self) -> impl Iterator<Item = &Path> {
+        [
+            &self.dvl,
+            &self.beams,
+            &self.pd0,
+            &self.depth,
+            &self.fixes,
+            &self.vehicle,
+            &self.truth,
+        ]
+        .into_iter()
+        .flatten()
+        .map(PathBuf::as_path)
+        .chain([self.imu.as_path()])
+    }
+}
+
 impl Args {
     fn files(&self) -> SurveyFiles {
         SurveyFiles {
@@ -124,8 +142,7 @@ impl Args {
 
 /// Read and check a vehicle TOML; errors name the file and line.
 pub fn vehicle_config(path: &Path) -> anyhow::Result<NavigatorConfig> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("{}: cannot read", path.display()))?;
+    let text = estim::datasets::read_text_file(path)?;
     toml::from_str::<NavigatorConfig>(&text).map_err(|e| {
         let line = e
             .span()
@@ -246,6 +263,8 @@ pub struct Writer {
     last: Option<NavSolution>,
     rows: usize,
     csv: Option<std::io::BufWriter<std::fs::File>>,
+    /// Where `solution.csv` goes once committed (named in write errors).
+    csv_target: PathBuf,
     line: String,
     track: Vec<[f64; 2]>,
     truth: Option<Truth>,
@@ -332,7 +351,8 @@ impl Writer {
                 let _ = write!(l, ",{v:.4e}");
             }
             l.push('\n');
-            csv.write_all(l.as_bytes())?;
+            csv.write_all(l.as_bytes())
+                .map_err(|e| format!("{}: cannot write: {e}", self.csv_target.display()))?;
         }
         Ok(())
     }
@@ -373,7 +393,11 @@ fn load_pd0(
     epoch: f64,
     settings: NavigatorSettings,
 ) -> anyhow::Result<(Vec<DvlRecord>, NavigatorSettings, Value)> {
-    let read = read_pd0_file(path).with_context(|| format!("{}", path.display()))?;
+    // Read with the limit of every input (`dvl pd0`'s): a sparse 2 GiB file or
+    // /dev/zero is refused, naming the file, instead of exhausting memory.
+    let bytes = estim::datasets::read_binary_file(path, estim::datasets::MAX_INPUT_BYTES)?;
+    let read = estim::dvl::read_pd0(&bytes);
+    drop(bytes);
     anyhow::ensure!(
         !read.ensembles.is_empty(),
         "{}: no good PD0 ensemble in {} bytes ({} spans skipped)",
@@ -514,17 +538,19 @@ pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
             .map_err(|e| anyhow::anyhow!("initial.time_s: {e}"))?
             .with_beam_geometry(geometry);
     }
+    let inputs = SurveyInputs {
+        imu: imu.samples,
+        dvl,
+        depth,
+        fixes,
+        output_epochs: Vec::new(),
+    };
+    crate::aiding_span::check_survey(&files, &config, &inputs, epoch)?;
     Ok(Survey {
         files,
         config,
         settings,
-        inputs: SurveyInputs {
-            imu: imu.samples,
-            dvl,
-            depth,
-            fixes,
-            output_epochs: Vec::new(),
-        },
+        inputs,
         epoch,
         truth,
         pd0,
@@ -628,13 +654,15 @@ impl Writer {
         epoch_s: f64,
         truth: Option<Truth>,
     ) -> anyhow::Result<Self> {
+        let csv_target = dir.map_or_else(PathBuf::new, |d| d.target().join("solution.csv"));
         let csv = match dir {
             Some(dir) => {
                 let path = dir.path("solution.csv");
                 let file = std::fs::File::create(&path)
-                    .with_context(|| format!("{}: cannot create", path.display()))?;
+                    .with_context(|| format!("{}: cannot create", csv_target.display()))?;
                 let mut w = std::io::BufWriter::new(file);
-                w.write_all(CSV_HEADER.as_bytes())?;
+                w.write_all(CSV_HEADER.as_bytes())
+                    .with_context(|| format!("{}: cannot write", csv_target.display()))?;
                 Some(w)
             }
             None => None,
@@ -645,6 +673,7 @@ impl Writer {
             last: None,
             rows: 0,
             csv,
+            csv_target,
             line: String::new(),
             track: Vec::new(),
             truth,
@@ -692,8 +721,14 @@ impl Writer {
         track_name: &str,
         summary: &Value,
     ) -> anyhow::Result<()> {
+        // Write errors name the file as it will be in --out (a full disk).
+        let write = |name: &str, text: &[u8]| {
+            std::fs::write(dir.path(name), text)
+                .with_context(|| format!("{}: cannot write", dir.target().join(name).display()))
+        };
         if let Some(mut csv) = self.csv.take() {
-            csv.flush()?;
+            csv.flush()
+                .with_context(|| format!("{}: cannot write", self.csv_target.display()))?;
         }
         if let Some(truth) = &self.truth {
             let mut text = String::from(
@@ -706,7 +741,7 @@ impl Writer {
                 }
                 text.push('\n');
             }
-            std::fs::write(dir.path("errors.csv"), text)?;
+            write("errors.csv", text.as_bytes())?;
         }
         let track = json!({
             "type": "FeatureCollection",
@@ -716,10 +751,10 @@ impl Writer {
                 "geometry": { "type": "LineString", "coordinates": self.track },
             }],
         });
-        std::fs::write(dir.path("track.geojson"), serde_json::to_string(&track)?)?;
-        std::fs::write(
-            dir.path("summary.json"),
-            serde_json::to_string_pretty(summary)?,
+        write("track.geojson", serde_json::to_string(&track)?.as_bytes())?;
+        write(
+            "summary.json",
+            serde_json::to_string_pretty(summary)?.as_bytes(),
         )?;
         Ok(())
     }
@@ -729,8 +764,18 @@ impl Writer {
 /// epochs).
 pub fn evaluation_json(truth: Option<&Truth>) -> Value {
     let Some(t) = truth else { return Value::Null };
-    let n = t.position_error.len().max(1) as f64;
-    let rmse = (t.position_error.iter().map(|e| e * e).sum::<f64>() / n).sqrt();
+    // No epoch scored: every figure is null, with the reason (never an RMSE of 0).
+    let rmse = match t.position_error.len() {
+        0 => Value::Null,
+        n => json!((t.position_error.iter().map(|e| e * e).sum::<f64>() / n as f64).sqrt()),
+    };
+    let not_scored = t.position_error.is_empty().then(|| {
+        format!(
+            "no solution epoch was scored against the truth ({} outside its span); scored at \
+             the DVL epochs, a run without a DVL update has none",
+            t.outside
+        )
+    });
     let mean = |values: &[f64]| {
         let finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
         if finite.is_empty() {
@@ -763,6 +808,7 @@ pub fn evaluation_json(truth: Option<&Truth>) -> Value {
         "nees_average": nees,
         "nees_states": if t.biases.is_some() { ERROR_STATES } else { 9 },
         "covariance_not_positive_definite_epochs": t.not_positive_definite,
+        "not_scored_reason": not_scored,
     })
 }
 
@@ -940,7 +986,10 @@ pub fn summary_text(
             d.time_offset_sigma_s
         );
     }
-    if let Some(e) = summary.get("evaluation").filter(|v| !v.is_null()) {
+    let evaluation = summary.get("evaluation").filter(|v| !v.is_null());
+    if let Some(reason) = evaluation.and_then(|e| e["not_scored_reason"].as_str()) {
+        let _ = writeln!(text, "against truth: not scored: {reason}");
+    } else if let Some(e) = evaluation {
         let _ = writeln!(
             text,
             "against truth: position RMSE {} m, average NEES {} ({} states)",
@@ -1072,7 +1121,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "--rate {rate}: not a positive rate"
         );
     }
-    let staged = args.out.as_deref().map(StagedDir::new).transpose()?;
+    let mut staged = args.out.as_deref().map(StagedDir::new).transpose()?;
+    if let Some(dir) = &mut staged {
+        dir.keep_inputs(args.files().paths());
+    }
     let mut survey = load_survey(args.files())?;
     if let Some(truth) = &survey.truth {
         survey.inputs.output_epochs = truth.epochs();
@@ -1112,7 +1164,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         e.insert("scored_at".into(), json!("reference_epochs"));
         e.insert("at_dvl_epochs".into(), evaluation_json(Some(dvl)));
     }
-    let summary = summary_json(
+    let mut summary = summary_json(
         "navigate",
         &survey,
         &run,
@@ -1123,7 +1175,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     if let Some(dir) = staged {
         if args.plots {
-            crate::navigate_plots::write_plots(
+            // Optional: a plot that cannot be drawn is warned about, not the run lost.
+            summary["plots"] = crate::navigate_plots::write_plots_or_warn(
                 &dir.path(""),
                 &crate::navigate_plots::PlotData {
                     command: "navigate",
@@ -1132,7 +1185,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     nis_times: &run.dvl_nis_times,
                     nis: &run.dvl_nis,
                 },
-            )?;
+            );
         }
         writer.finish(&dir, "estim navigate track (DVL epochs)", &summary)?;
         dir.commit()?;

@@ -105,22 +105,50 @@ pub fn write_plots(dir: &Path, data: &PlotData<'_>) -> Plot {
     ] {
         let png = dir.join(format!("{stem}.png"));
         let svg = dir.join(format!("{stem}.svg"));
+        let named = |path: &Path| {
+            let name = path
+                .file_name()
+                .unwrap_or_default()
+                .to_string_lossy()
+                .into_owned();
+            move |e: anyhow::Error| anyhow::anyhow!("{name}: {e:#}")
+        };
         draw(
             stem,
             BitMapBackend::new(&png, size).into_drawing_area(),
             data,
             &segments,
             t0,
-        )?;
+        )
+        .map_err(named(&png))?;
         draw(
             stem,
             SVGBackend::new(&svg, size).into_drawing_area(),
             data,
             &segments,
             t0,
-        )?;
+        )
+        .map_err(named(&svg))?;
     }
     Ok(())
+}
+
+/// [`write_plots`] for an optional output: a failure (nothing to draw, a drawing
+/// error) removes the plot files written so far, is warned about on stderr and
+/// returned as the summary's `plots` block, and the run's other outputs are kept.
+pub fn write_plots_or_warn(dir: &Path, data: &PlotData<'_>) -> serde_json::Value {
+    match write_plots(dir, data) {
+        Ok(()) => serde_json::json!({ "written": true, "files": PLOT_STEMS }),
+        Err(e) => {
+            for stem in PLOT_STEMS {
+                for ext in ["png", "svg"] {
+                    let _ = std::fs::remove_file(dir.join(format!("{stem}.{ext}")));
+                }
+            }
+            eprintln!("warning: --plots: {e:#}; no plot written, the other outputs are complete");
+            serde_json::json!({ "written": false, "reason": format!("{e:#}") })
+        }
+    }
 }
 
 fn draw<DB: DrawingBackend>(
@@ -465,5 +493,23 @@ mod tests {
             let q = (p[1][1] * dn * dn - 2.0 * p[0][1] * dn * de + p[0][0] * de * de) / det;
             assert!((q - 9.0).abs() < 1e-9, "{q}");
         }
+    }
+
+    #[test]
+    fn nothing_to_draw_is_a_warning_with_no_plot_file() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let data = PlotData {
+            command: "navigate",
+            solution_label: "filter",
+            rows: &[],
+            nis_times: &[],
+            nis: &[],
+        };
+        let block = write_plots_or_warn(dir.path(), &data);
+        assert_eq!(block["written"], false);
+        assert!(block["reason"]
+            .as_str()
+            .is_some_and(|r| r.contains("no solution")));
+        assert_eq!(std::fs::read_dir(dir.path()).expect("list").count(), 0);
     }
 }

@@ -114,6 +114,9 @@ pub struct StagedDir {
     /// or a folder the outputs are put into beside other files ([`StagedDir::for_files`]).
     owned: bool,
     committed: bool,
+    /// The run's input files and folders (canonical): the commit never replaces or
+    /// removes one.
+    inputs: Vec<PathBuf>,
 }
 
 impl StagedDir {
@@ -136,6 +139,7 @@ impl StagedDir {
             _lock: None,
             owned: true,
             committed: false,
+            inputs: Vec::new(),
         };
         // Registered first: a signal from here on removes what this run created.
         pending().push(Pending {
@@ -175,12 +179,37 @@ impl StagedDir {
         Ok(this)
     }
 
-    /// Path of a file inside the staging folder.
+    /// Name the run's inputs: [`StagedDir::commit`] refuses (naming both, before
+    /// moving anything) to replace or remove one of them, or a folder holding one
+    /// (e.g. `--out DIR` where `DIR/solution.csv` is the `--imu` file, or an input
+    /// written by an earlier run and listed in its manifest).
+    pub fn keep_inputs<'a>(&mut self, inputs: impl IntoIterator<Item = &'a Path>) {
+        self.inputs
+            .extend(inputs.into_iter().filter_map(|p| p.canonicalize().ok()));
+    }
+
+    /// Refuse to replace or remove `dest` when it is, or holds, an input.
+    fn check_not_input(&self, dest: &Path) -> anyhow::Result<()> {
+        let Ok(dest) = dest.canonicalize() else {
+            return Ok(());
+        };
+        if let Some(input) = self.inputs.iter().find(|i| i.starts_with(&dest)) {
+            anyhow::bail!(
+                "{}: this run's output would replace its input {}; nothing was written \
+                 (choose another --out folder, or move the input out of it)",
+                dest.display(),
+                input.display()
+            );
+        }
+        Ok(())
+    }
+
     /// The folder the outputs are committed to.
     pub fn target(&self) -> &Path {
         &self.target
     }
 
+    /// Path of a file inside the staging folder.
     pub fn path(&self, file: &str) -> PathBuf {
         self.staging.join(file)
     }
@@ -204,38 +233,96 @@ impl StagedDir {
         } else {
             Vec::new()
         };
-        for old in &previous {
-            if !names.iter().any(|n| n == old.as_os_str()) {
-                remove_entry(&self.target.join(old))?;
-            }
+        for name in names
+            .iter()
+            .map(|n| n.as_os_str())
+            .chain(previous.iter().map(|p| p.as_os_str()))
+        {
+            self.check_not_input(&self.target.join(name))?;
         }
-        for name in &names {
+        // What the commit replaces or removes is first moved aside into the staging
+        // folder, so that a failure at any step puts everything back: the outputs of
+        // a run are committed all together or not at all.
+        let mut moving: Vec<PathBuf> = names.iter().map(PathBuf::from).collect();
+        let mut aside: Vec<PathBuf> = previous
+            .iter()
+            .filter(|old| !names.iter().any(|n| n == old.as_os_str()))
+            .cloned()
+            .collect();
+        aside.extend(moving.iter().cloned());
+        if self.owned {
+            let mut manifest = String::from("# written by estim: the files of the last run\n");
+            for name in &names {
+                manifest.push_str(&name.to_string_lossy());
+                manifest.push('\n');
+            }
+            let staged_manifest = self.staging.join(MANIFEST);
+            std::fs::write(&staged_manifest, manifest).with_context(|| {
+                format!("{}: cannot write", self.target.join(MANIFEST).display())
+            })?;
+            moving.push(PathBuf::from(MANIFEST));
+            aside.push(PathBuf::from(MANIFEST));
+        }
+        // An existing entry of another kind (a file where this run writes a folder)
+        // is not estim's to replace.
+        for name in &moving {
             let dest = self.target.join(name);
-            // A folder of the same name (e.g. `smoothing/` of an earlier run) is
-            // replaced as a whole: rename cannot replace a non-empty folder.
-            if self.owned && dest.is_dir() {
-                std::fs::remove_dir_all(&dest)
-                    .with_context(|| format!("{}: cannot replace", dest.display()))?;
+            let (Ok(old), Ok(new)) = (
+                std::fs::symlink_metadata(&dest),
+                std::fs::symlink_metadata(self.staging.join(name)),
+            ) else {
+                continue;
+            };
+            if old.is_dir() != new.is_dir() {
+                anyhow::bail!(
+                    "{}: exists and is not a {}; nothing was written",
+                    dest.display(),
+                    if new.is_dir() { "folder" } else { "file" }
+                );
             }
-            std::fs::rename(self.staging.join(name), &dest)
-                .with_context(|| format!("{}: cannot move output into place", dest.display()))?;
         }
-        if !self.owned {
-            self.committed = true;
-            let _ = std::fs::remove_dir_all(&self.staging);
-            list.retain(|p| p.staging != self.staging);
-            return Ok(());
+        let backup = self.staging.join(".replaced");
+        std::fs::create_dir(&backup)
+            .with_context(|| format!("{}: output folder is not writable", self.target.display()))?;
+        let mut moved_aside: Vec<&PathBuf> = Vec::new();
+        let mut placed: Vec<&PathBuf> = Vec::new();
+        let mut result = Ok(());
+        for name in &aside {
+            let dest = self.target.join(name);
+            if std::fs::symlink_metadata(&dest).is_err() {
+                continue;
+            }
+            if let Err(e) = std::fs::rename(&dest, backup.join(name)) {
+                result = Err(anyhow::anyhow!("{}: cannot replace: {e}", dest.display()));
+                break;
+            }
+            moved_aside.push(name);
         }
-        let mut manifest = String::from("# written by estim: the files of the last run\n");
-        for name in &names {
-            manifest.push_str(&name.to_string_lossy());
-            manifest.push('\n');
+        if result.is_ok() {
+            for name in &moving {
+                let dest = self.target.join(name);
+                if let Err(e) = std::fs::rename(self.staging.join(name), &dest) {
+                    result = Err(anyhow::anyhow!(
+                        "{}: cannot move output into place: {e}",
+                        dest.display()
+                    ));
+                    break;
+                }
+                placed.push(name);
+            }
         }
-        let manifest_path = self.target.join(MANIFEST);
-        let staged_manifest = self.staging.join(MANIFEST);
-        std::fs::write(&staged_manifest, manifest)
-            .and_then(|()| std::fs::rename(&staged_manifest, &manifest_path))
-            .with_context(|| format!("{}: cannot write", manifest_path.display()))?;
+        if let Err(e) = result {
+            for name in placed.iter().rev() {
+                let _ = std::fs::rename(self.target.join(name), self.staging.join(name));
+            }
+            for name in moved_aside.iter().rev() {
+                let _ = std::fs::rename(backup.join(name), self.target.join(name));
+            }
+            return Err(e.context(format!(
+                "{}: nothing of this run was committed; the folder is as it was",
+                self.target.display()
+            )));
+        }
         self.committed = true;
         let _ = std::fs::remove_dir_all(&self.staging);
         list.retain(|p| p.staging != self.staging);
@@ -252,6 +339,28 @@ impl Drop for StagedDir {
             remove_created(&self.staging, &self.created);
         }
     }
+}
+
+/// Refuse a single output file that is one of the inputs (compared as files: the
+/// same path, a link or another spelling), naming both.
+pub fn refuse_input_as_output<'a>(
+    output: &Path,
+    inputs: impl IntoIterator<Item = &'a PathBuf>,
+) -> anyhow::Result<()> {
+    let Ok(out) = output.canonicalize() else {
+        // Not there yet: it cannot be an input.
+        return Ok(());
+    };
+    for input in inputs {
+        if input.canonicalize().is_ok_and(|i| i == out) {
+            anyhow::bail!(
+                "{}: the output would overwrite the input {}; nothing was written",
+                output.display(),
+                input.display()
+            );
+        }
+    }
+    Ok(())
 }
 
 /// An exclusive lock on the folder itself (no lock file to leave behind).
@@ -304,15 +413,6 @@ fn read_manifest(target: &Path) -> Vec<PathBuf> {
             )
         })
         .collect()
-}
-
-fn remove_entry(path: &Path) -> anyhow::Result<()> {
-    let result = match std::fs::symlink_metadata(path) {
-        Err(_) => return Ok(()),
-        Ok(m) if m.is_dir() => std::fs::remove_dir_all(path),
-        Ok(_) => std::fs::remove_file(path),
-    };
-    result.with_context(|| format!("{}: cannot remove the earlier run's file", path.display()))
 }
 
 /// Write `text` to stdout. A closed stdout (the reader went away, e.g. `| head`)
@@ -400,6 +500,47 @@ mod tests {
                 .as_deref(),
             Some("2")
         );
+    }
+
+    #[test]
+    fn a_commit_that_cannot_complete_leaves_the_folder_as_it_was() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let target = dir.path().join("out");
+        let staged = StagedDir::new(&target).expect("writable");
+        std::fs::write(staged.path("report.json"), "1").expect("write");
+        staged.commit().expect("commit");
+        // A file where this run puts a folder: refused before anything moves.
+        std::fs::write(target.join("smoothing"), "mine").expect("write");
+        let staged = StagedDir::new(&target).expect("writable");
+        std::fs::write(staged.path("report.json"), "2").expect("write");
+        std::fs::create_dir(staged.path("smoothing")).expect("mkdir");
+        let e = staged.commit().expect_err("refused").to_string();
+        assert!(e.contains("smoothing"), "{e}");
+        assert_eq!(names(&target), [MANIFEST, "report.json", "smoothing"]);
+        assert_eq!(
+            std::fs::read_to_string(target.join("report.json"))
+                .ok()
+                .as_deref(),
+            Some("1")
+        );
+    }
+
+    #[test]
+    fn a_commit_never_replaces_or_removes_an_input() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let target = dir.path().join("out");
+        let staged = StagedDir::new(&target).expect("writable");
+        std::fs::write(staged.path("a.csv"), "1").expect("write");
+        std::fs::write(staged.path("b.csv"), "1").expect("write");
+        staged.commit().expect("commit");
+        for (input, writes) in [("a.csv", "a.csv"), ("b.csv", "c.csv")] {
+            let mut staged = StagedDir::new(&target).expect("writable");
+            staged.keep_inputs([target.join(input).as_path()]);
+            std::fs::write(staged.path(writes), "2").expect("write");
+            let e = staged.commit().expect_err("refused").to_string();
+            assert!(e.contains(input) && e.contains("input"), "{e}");
+            assert_eq!(names(&target), ["a.csv", "b.csv", MANIFEST]);
+        }
     }
 
     #[test]

@@ -68,10 +68,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return crate::output::emit(&config.to_commented_toml());
     }
     // Checked before any work: an unwritable --out fails now, naming the folder.
-    let staged = match &args.out {
+    let mut staged = match &args.out {
         Some(dir) => Some(crate::output::StagedDir::new(dir)?),
         None => None,
     };
+    if let Some(dir) = &mut staged {
+        dir.keep_inputs(
+            [&args.config, &args.data, &args.gt, &args.dvl]
+                .into_iter()
+                .flatten()
+                .map(std::path::PathBuf::as_path),
+        );
+    }
     let (scenarios, trajectories): (Vec<Scenario>, Option<Vec<u32>>) =
         match (&args.data, &args.gt, &args.dvl) {
             (_, Some(gt), Some(dvl)) => (
@@ -326,14 +334,21 @@ fn write_outputs(
     use crate::study::stats::GROUPS;
     use std::io::Write;
 
-    std::fs::write(staged.path("report.json"), json).context("cannot write report.json")?;
+    let target = staged.target().to_path_buf();
+    std::fs::write(staged.path("report.json"), json)
+        .with_context(|| format!("{}: cannot write", target.join("report.json").display()))?;
     for r in reports {
         let stem = slug(r);
         // Time series, long format: one row per filter and epoch.
-        let path = staged.path(&format!("{stem}_timeseries.csv"));
+        let name = format!("{stem}_timeseries.csv");
+        let path = staged.path(&name);
+        // A write error (a full disk) names the file as it will be in --out.
+        let named = |e: std::io::Error| {
+            anyhow::anyhow!("{}: cannot write: {e}", target.join(&name).display())
+        };
         let mut w = std::io::BufWriter::new(
             std::fs::File::create(&path)
-                .with_context(|| format!("{}: cannot create", path.display()))?,
+                .with_context(|| format!("{}: cannot create", target.join(&name).display()))?,
         );
         let mut header = vec!["filter_id".to_string(), "time_s".to_string()];
         header.extend(
@@ -352,7 +367,7 @@ fn write_outputs(
             ]
             .map(String::from),
         );
-        writeln!(w, "{}", header.join(","))?;
+        writeln!(w, "{}", header.join(",")).map_err(named)?;
         for run in &r.runs {
             for k in 0..run.time.len() {
                 let d = &run.covariance_diagonal[k];
@@ -377,10 +392,11 @@ fn write_outputs(
                     run.nees[k],
                     run.north_east[k][0],
                     run.north_east[k][1]
-                )?;
+                )
+                .map_err(named)?;
             }
         }
-        w.flush()?;
+        w.flush().map_err(named)?;
         drop(w);
         let plot_err = |e: Box<dyn std::error::Error>| anyhow::anyhow!("plot: {e}");
         // Standard deviation over time per group (paper Figs. 3/4), in a unit whose

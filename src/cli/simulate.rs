@@ -74,6 +74,12 @@ fn config(path: &Option<PathBuf>) -> anyhow::Result<Config> {
 }
 
 fn imu(args: ImuArgs) -> anyhow::Result<()> {
+    if let Some(out) = &args.vehicle_out {
+        crate::output::refuse_input_as_output(
+            out,
+            [Some(&args.gt), args.config.as_ref()].into_iter().flatten(),
+        )?;
+    }
     let config = config(&args.config)?;
     let gt = load_gt_with(&args.gt, &config.columns)?;
     let (truth, imu, _, _, spec) =

@@ -106,10 +106,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(rho) => anyhow::bail!("--rho {rho}: a correlation must be finite and in [-1, 1]"),
     };
     // Checked before any work: an unwritable --out fails now, naming the folder.
-    let staged = match &args.out {
+    let mut staged = match &args.out {
         Some(dir) => Some(crate::output::StagedDir::new(dir)?),
         None => None,
     };
+    if let Some(dir) = &mut staged {
+        dir.keep_inputs(
+            [&args.config, &args.data]
+                .into_iter()
+                .flatten()
+                .map(PathBuf::as_path),
+        );
+    }
     let mut scenarios = vec![Scenario::simulated(&config, config.seed)?];
     if args.data.is_some() || !args.trajectories.is_empty() {
         let dir = data_root(args.data.as_deref()).context(
@@ -169,22 +177,24 @@ fn smooth_survey_files(
     use crate::navigate::{evaluation_json, load_survey, summary_json, summary_text, Writer};
     use estim::navigator::{smooth_survey, NavigationObserver, NavigatorError};
 
-    let staged = out.map(crate::output::StagedDir::new).transpose()?;
+    let mut staged = out.map(crate::output::StagedDir::new).transpose()?;
+    if let Some(dir) = &mut staged {
+        dir.keep_inputs(files.paths());
+    }
     let mut survey = load_survey(files)?;
     crate::navigate::refuse_dvl_states(&survey, "estim smooth")?;
     let truth = survey.truth.take();
     let mut forward = Writer::new(None, survey.epoch, truth.clone())?;
     let run = match smooth_survey(&survey.inputs, &survey.settings, None, &mut forward) {
         Ok(run) => run,
-        Err(NavigatorError::Filter { time, source }) => {
-            eprintln!(
-                "error: the filter stopped at t = {} s: {source}",
-                survey.epoch + time
-            );
-            return crate::schema::status_result(1);
+        Err(e @ (NavigatorError::Filter { .. } | NavigatorError::Diverged { .. })) => {
+            return forward_stopped(&survey, staged, &e, json);
         }
         Err(NavigatorError::Smoother(e)) => {
-            anyhow::bail!("{e} (for a survey: set gate.recovery_after = 0 in the vehicle file)")
+            anyhow::bail!(
+                "{e} (for a survey: set gate.recovery_after = 0 in the vehicle file); nothing \
+                 was smoothed, nothing written"
+            )
         }
         Err(e) => return Err(e.into()),
     };
@@ -214,7 +224,7 @@ fn smooth_survey_files(
             "forward_evaluation": evaluation_json(forward.truth()),
         },
     });
-    let summary = summary_json(
+    let mut summary = summary_json(
         "smooth",
         &survey,
         &run.forward,
@@ -225,7 +235,8 @@ fn smooth_survey_files(
     );
     if let Some(dir) = staged {
         if plots {
-            crate::navigate_plots::write_plots(
+            // Optional: a plot that cannot be drawn is warned about, not the run lost.
+            summary["plots"] = crate::navigate_plots::write_plots_or_warn(
                 &dir.path(""),
                 &crate::navigate_plots::PlotData {
                     command: "smooth",
@@ -234,7 +245,7 @@ fn smooth_survey_files(
                     nis_times: &run.forward.dvl_nis_times,
                     nis: &run.forward.dvl_nis,
                 },
-            )?;
+            );
         }
         writer.finish(&dir, "estim smooth track (smoothed, DVL epochs)", &summary)?;
         dir.commit()?;
@@ -243,6 +254,67 @@ fn smooth_survey_files(
         return crate::output::emit(&format!("{}\n", serde_json::to_string_pretty(&summary)?));
     }
     crate::output::emit(&summary_text("smoothed", &run.forward, &last, &summary))
+}
+
+/// The forward pass stopped (divergence or a numerical failure): nothing was
+/// smoothed, so no solution is kept. With `--out`, only `summary.json` is committed,
+/// marked `partial`, with the stop and `"smoothed_epochs": 0`; exit 3 says so.
+fn forward_stopped(
+    survey: &crate::navigate::Survey,
+    staged: Option<crate::output::StagedDir>,
+    error: &estim::navigator::NavigatorError,
+    json: bool,
+) -> anyhow::Result<()> {
+    let (status, stop) = crate::navigate::stop_json(survey.epoch, error);
+    let files = &survey.files;
+    let mut summary = crate::schema::document(
+        "smooth",
+        serde_json::json!({
+            "imu": crate::schema::path_json(Some(&files.imu)),
+            "dvl": crate::schema::path_json(files.dvl.as_deref()),
+            "beams": crate::schema::path_json(files.beams.as_deref()),
+            "pd0": crate::schema::path_json(files.pd0.as_deref()),
+            "vehicle": crate::schema::path_json(files.vehicle.as_deref()),
+            "truth": crate::schema::path_json(files.truth.as_deref()),
+            "configuration": survey.config,
+        }),
+        0,
+        serde_json::json!({
+            "epoch_s": survey.epoch,
+            "partial": true,
+            "stop": stop,
+            "smoothed_epochs": 0,
+            "kept": "nothing: the forward pass stopped before smoothing, no solution is written",
+        }),
+    );
+    summary["status"] = serde_json::json!(status);
+    let kept = match staged {
+        Some(dir) => {
+            let path = dir.target().join("summary.json");
+            std::fs::write(
+                dir.path("summary.json"),
+                serde_json::to_string_pretty(&summary)?,
+            )
+            .with_context(|| format!("{}: cannot write", path.display()))?;
+            dir.commit()?;
+            format!(
+                "nothing was smoothed and no solution is kept; {} records the stop",
+                path.display()
+            )
+        }
+        None => "nothing was smoothed and nothing written".to_string(),
+    };
+    if json {
+        crate::output::emit(&format!("{}\n", serde_json::to_string_pretty(&summary)?))?;
+    }
+    Err(crate::schema::RunStopped {
+        message: format!(
+            "smooth: the forward pass {status} at t = {} s: {}; {kept}",
+            stop["time_s"],
+            stop["reason"].as_str().unwrap_or("")
+        ),
+    }
+    .into())
 }
 
 /// Smooth every scenario (in parallel), M = 0 or the given cross-covariance.
@@ -317,10 +389,12 @@ pub fn write_files(dir: &Path, reports: &[SmoothReport]) -> anyhow::Result<()> {
         file("smoothing.json"),
         serde_json::to_string_pretty(reports)?,
     )
-    .context("cannot write smoothing.json")?;
+    .with_context(|| format!("{}: cannot write", file("smoothing.json").display()))?;
     for r in reports {
         let stem = slug(r);
         let path = file(&format!("{stem}_smoothing.csv"));
+        // A write error (a full disk) names the file.
+        let named = |e: std::io::Error| anyhow::anyhow!("{}: cannot write: {e}", path.display());
         let mut w = std::io::BufWriter::new(
             std::fs::File::create(&path)
                 .with_context(|| format!("{}: cannot create", path.display()))?,
@@ -328,7 +402,8 @@ pub fn write_files(dir: &Path, reports: &[SmoothReport]) -> anyhow::Result<()> {
         writeln!(
             w,
             "time_s,filtered_position_error_m,filtered_position_3sigma_m,smoothed_position_error_m,smoothed_position_3sigma_m,filtered_velocity_error_mps,smoothed_velocity_error_mps,filtered_attitude_error_deg,smoothed_attitude_error_deg,filtered_nees,smoothed_nees"
-        )?;
+        )
+        .map_err(named)?;
         let (f, s) = (&r.filtered, &r.smoothed);
         for k in 0..r.time.len() {
             writeln!(
@@ -345,9 +420,10 @@ pub fn write_files(dir: &Path, reports: &[SmoothReport]) -> anyhow::Result<()> {
                 s.attitude_error_deg[k],
                 f.nees[k],
                 s.nees[k]
-            )?;
+            )
+            .map_err(named)?;
         }
-        w.flush()?;
+        w.flush().map_err(named)?;
         drop(w);
         let chart = LineChart {
             title: &format!("{}: position error, filtered and smoothed", r.name),

@@ -450,7 +450,7 @@ fn reference_interval(times: &[f64]) -> Option<f64> {
 /// interval (the upper quartile of the file's intervals): a row duplicated 1e-10 s
 /// after its neighbour, or every row doubled at +1e-6 s, would otherwise be used as a
 /// second sample (twice the DVL updates; a GT velocity from 1e-10 s).
-fn check_intervals(path: &Path, rows: impl Iterator<Item = (u64, f64)>) -> Result<()> {
+pub(crate) fn check_intervals(path: &Path, rows: impl Iterator<Item = (u64, f64)>) -> Result<()> {
     let rows: Vec<(u64, f64)> = rows.collect();
     let times: Vec<f64> = rows.iter().map(|r| r.1).collect();
     let Some(reference) = reference_interval(&times) else {

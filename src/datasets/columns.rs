@@ -173,6 +173,9 @@ pub(crate) struct Resolved {
     pub index: usize,
     pub header: String,
     pub factor: f64,
+    /// Whether the header (or the column map) states the unit; else the default is
+    /// assumed.
+    pub unit_stated: bool,
 }
 
 /// A column map: canonical name with unit suffix -> header text, per file kind.
@@ -384,6 +387,7 @@ pub(crate) fn resolve(
                 index,
                 header: header[index].clone(),
                 factor: entry.factor,
+                unit_stated: true,
             });
             continue;
         }
@@ -407,6 +411,7 @@ pub(crate) fn resolve(
                 })
             }
             [(index, alias, unit)] => {
+                let unit_stated = unit.is_some();
                 let unit = unit.as_deref().unwrap_or(q.kind.default_unit());
                 let factor = q.kind.factor(unit).ok_or_else(|| DatasetError::Unit {
                     path: path.to_path_buf(),
@@ -419,6 +424,7 @@ pub(crate) fn resolve(
                     index: *index,
                     header: header[*index].trim().to_string(),
                     factor: sign * factor,
+                    unit_stated,
                 });
             }
             many => {

@@ -244,6 +244,15 @@ impl DvlLog {
         if self.epoch_s.is_nan() {
             self.epoch_s = 0.0;
         }
+        // Rows doubled a few ms apart would each be used as an update: refused, as the
+        // study's DVL reader refuses them.
+        super::akit::check_intervals(
+            path,
+            self.lines
+                .iter()
+                .copied()
+                .zip(self.records.iter().map(|r| r.time)),
+        )?;
         Ok(self)
     }
 }

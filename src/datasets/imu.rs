@@ -28,6 +28,13 @@ use super::{DatasetError, Result};
 pub const MAX_ABS_SPECIFIC_FORCE_MPS2: f64 = 1000.0;
 /// Largest |angular rate| accepted \[rad/s\].
 pub const MAX_ABS_ANGULAR_RATE_RADPS: f64 = 100.0;
+/// Largest |angular rate| \[rad/s\] (about 170 deg/s) a vehicle the navigator models
+/// sustains for [`IMPLAUSIBLE_RATE_DURATION_S`]: above it, in a file whose rate columns
+/// state no unit, the unit cannot be read (deg/s read as rad/s) and the file is
+/// refused ([`DatasetError::UnitUnreadable`]).
+pub const PLAUSIBLE_ANGULAR_RATE_RADPS: f64 = 3.0;
+/// How long \[s\] the rate must stay above [`PLAUSIBLE_ANGULAR_RATE_RADPS`] to refuse.
+pub const IMPLAUSIBLE_RATE_DURATION_S: f64 = 1.0;
 
 const fn q(key: &'static str, kind: Kind, aliases: &'static [Alias], max_abs: f64) -> Quantity {
     Quantity {
@@ -297,6 +304,9 @@ impl ImuLog {
         let mut lines = Vec::new();
         let mut truth: Vec<(Vector3<f64>, Vector3<f64>)> = Vec::new();
         let mut previous: Option<(f64, Vector3<f64>, Vector3<f64>)> = None;
+        // The rate (or angle increment) columns, when none states its unit.
+        let mut unitless_rates: Option<Vec<String>> = None;
+        let mut first_row = true;
         for_each_row(
             bytes,
             path,
@@ -320,6 +330,9 @@ impl ImuLog {
                 })
             },
             |c, row| {
+                if std::mem::take(&mut first_row) && c.rate.iter().all(|r| !r.unit_stated) {
+                    unitless_rates = Some(c.rate.iter().map(|r| r.header.clone()).collect());
+                }
                 let epoch = match epoch {
                     Some(e) => e,
                     None => *epoch.insert(row.whole_seconds(&c.time)?),
@@ -375,6 +388,9 @@ impl ImuLog {
                 min: 2,
             });
         }
+        if let Some(columns) = unitless_rates {
+            check_rate_unit(path, &samples, &lines, &columns)?;
+        }
         let true_biases = (truth.len() == samples.len()).then_some(truth);
         Ok(Self {
             epoch_s: epoch.unwrap_or(0.0),
@@ -383,6 +399,43 @@ impl ImuLog {
             true_biases,
         })
     }
+}
+
+/// Refuse rates above [`PLAUSIBLE_ANGULAR_RATE_RADPS`] for
+/// [`IMPLAUSIBLE_RATE_DURATION_S`] or longer (rate columns without a unit).
+fn check_rate_unit(
+    path: &Path,
+    samples: &[ImuSample],
+    lines: &[u64],
+    columns: &[String],
+) -> Result<()> {
+    let mut start: Option<usize> = None;
+    for (k, s) in samples.iter().enumerate() {
+        if s.angular_rate.amax() <= PLAUSIBLE_ANGULAR_RATE_RADPS {
+            start = None;
+            continue;
+        }
+        let first = *start.get_or_insert(k);
+        let seconds = s.time - samples[first].time;
+        if seconds >= IMPLAUSIBLE_RATE_DURATION_S {
+            // The column with the largest value over the stretch.
+            let (axis, value) = samples[first..=k]
+                .iter()
+                .flat_map(|s| s.angular_rate.iter().copied().enumerate())
+                .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+                .unwrap_or((0, s.angular_rate.x));
+            return Err(DatasetError::UnitUnreadable {
+                path: path.to_path_buf(),
+                line: lines.get(first).copied().unwrap_or(0),
+                column: columns.get(axis).cloned().unwrap_or_default(),
+                value,
+                limit: PLAUSIBLE_ANGULAR_RATE_RADPS,
+                unit: "rad/s",
+                seconds,
+            });
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -78,6 +78,52 @@ pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>> {
     read_input(std::io::BufReader::with_capacity(BLOCK, file), path)
 }
 
+/// Open and read a text file (a TOML or JSON setting) with [`read_input`]'s limit and
+/// checks.
+///
+/// # Errors
+/// As [`read_limited`].
+pub fn read_text_file(path: &Path) -> Result<String> {
+    let bytes = read_file(path)?;
+    String::from_utf8(bytes).map_err(|e| DatasetError::NotText {
+        path: path.to_path_buf(),
+        line: None,
+        what: format!("not UTF-8 text ({e})"),
+    })
+}
+
+/// Open and read a binary file (a PD0 recording) of at most `limit` bytes: a
+/// regular file larger than that is refused before reading, an endless stream
+/// (`/dev/zero`) once `limit` bytes were read.
+///
+/// # Errors
+/// [`DatasetError::Io`], [`DatasetError::TooLarge`].
+pub fn read_binary_file(path: &Path, limit: u64) -> Result<Vec<u8>> {
+    let io = |error| DatasetError::Io {
+        path: path.to_path_buf(),
+        error,
+    };
+    let file = std::fs::File::open(path).map_err(io)?;
+    let too_large = || DatasetError::TooLarge {
+        path: path.to_path_buf(),
+        limit,
+    };
+    if file
+        .metadata()
+        .is_ok_and(|m| m.is_file() && m.len() > limit)
+    {
+        return Err(too_large());
+    }
+    let mut bytes = Vec::new();
+    file.take(limit.saturating_add(1))
+        .read_to_end(&mut bytes)
+        .map_err(io)?;
+    if bytes.len() as u64 > limit {
+        return Err(too_large());
+    }
+    Ok(bytes)
+}
+
 /// What the bytes are, when they are not UTF-8 text with LF (or CRLF) line ends.
 /// `complete`: the whole file (CR-only line ends are only judged then).
 pub(crate) fn check_text(bytes: &[u8], path: &Path, complete: bool) -> Result<()> {

@@ -28,8 +28,11 @@ pub use beams::{load_beams, parse_beams, BeamFile, BeamRow};
 pub use columns::ColumnMap;
 pub use dvl_log::{DvlLog, RDI_BAD_VELOCITY_MPS};
 pub use fixes::{load_depth, load_fixes, parse_depth, parse_fixes};
-pub use imu::{ImuLog, MAX_ABS_ANGULAR_RATE_RADPS, MAX_ABS_SPECIFIC_FORCE_MPS2};
-pub use input::{read_input, read_limited, MAX_INPUT_BYTES};
+pub use imu::{
+    ImuLog, IMPLAUSIBLE_RATE_DURATION_S, MAX_ABS_ANGULAR_RATE_RADPS, MAX_ABS_SPECIFIC_FORCE_MPS2,
+    PLAUSIBLE_ANGULAR_RATE_RADPS,
+};
+pub use input::{read_binary_file, read_input, read_limited, read_text_file, MAX_INPUT_BYTES};
 pub use locate::{
     akit_dir, data_root, trajectories_in, trajectory_files, TrajectoryFiles, DATA_DIR_ENV,
 };
@@ -250,6 +253,25 @@ pub enum DatasetError {
         found: usize,
         /// Rows needed.
         min: usize,
+    },
+    /// A column whose header states no unit holds values implausible in the unit
+    /// assumed (a gyroscope logged in deg/s read as rad/s).
+    #[error("{}:{line}: column `{column}` states no unit and reads {value:.3} {unit}, above the {limit} {unit} a vehicle sustains, for {seconds:.2} s from this line: is it logged in another unit? state it in the header (e.g. `{column} [deg/s]`, or `[rad/s]` to keep it)", path.display())]
+    UnitUnreadable {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line where the implausible stretch starts.
+        line: u64,
+        /// The header cell.
+        column: String,
+        /// The largest value of that column in the stretch, in `unit`.
+        value: f64,
+        /// The plausibility limit, in `unit`.
+        limit: f64,
+        /// The unit assumed.
+        unit: &'static str,
+        /// How long the values stay above the limit \[s\].
+        seconds: f64,
     },
     /// The data folder or a trajectory's files are missing.
     #[error("{}: {what}", path.display())]

@@ -97,6 +97,17 @@ pub const MAX_SEED: u64 = 1 << 53;
 /// Largest |component| of `dvl.lever_arm_m` \[m\].
 pub const MAX_LEVER_ARM_M: f64 = 100.0;
 
+/// Exactly three numbers: serde's own `[f64; 3]` reads the first three of a longer
+/// array and ignores the rest (as `crate::navigator`'s vehicle file refuses them).
+fn three_numbers<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<[f64; 3], D::Error> {
+    use serde::de::Error as _;
+    let v = Vec::<f64>::deserialize(d)?;
+    <[f64; 3]>::try_from(v.as_slice())
+        .map_err(|_| D::Error::invalid_length(v.len(), &"an array of 3 numbers"))
+}
+
 /// The whole configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -199,6 +210,7 @@ pub struct SensorSection {
 pub struct DvlSection {
     /// Lever arm IMU -> DVL in the body frame \[m\]. Default: the mean of the
     /// calibration on A-KIT training trajectories (estim-dvl/README.md).
+    #[serde(deserialize_with = "three_numbers")]
     pub lever_arm_m: [f64; 3],
     /// A-KIT DVL time offset tau \[s\] (a sample stamped t measures the motion at t - tau).
     pub akit_time_offset_s: f64,
@@ -366,10 +378,7 @@ impl From<SensorSection> for SensorSpec {
 impl Config {
     /// Read and validate a TOML file.
     pub fn from_file(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| PipelineError::Config {
-            path: path.to_path_buf(),
-            message: format!("cannot read: {e}"),
-        })?;
+        let text = estim::datasets::read_text_file(path)?;
         Self::from_toml(&text, path)
     }
 
@@ -382,7 +391,17 @@ impl Config {
             PipelineError::Config {
                 path: path.to_path_buf(),
                 message: match line {
-                    Some(l) => format!("line {l}: {}", e.message()),
+                    // The key on that line, when it holds one (`lever_arm_m = [...]`).
+                    Some(l) => match text
+                        .lines()
+                        .nth(l - 1)
+                        .and_then(|t| t.split_once('='))
+                        .map(|(key, _)| key.trim())
+                        .filter(|key| !key.is_empty() && !key.starts_with('['))
+                    {
+                        Some(key) => format!("line {l}: {key}: {}", e.message()),
+                        None => format!("line {l}: {}", e.message()),
+                    },
                     None => e.message().to_string(),
                 },
             }

@@ -1,0 +1,634 @@
+//! Hostile input, round three (issue 46), the CLI classes: an aiding file outside
+//! the IMU span, malformed study settings, an evaluation with nothing scored, a unit
+//! that cannot be read, optional outputs that fail, unbounded inputs, outputs over
+//! inputs, write errors that name no path, --out committed all or nothing. Every
+//! case is deterministic and built from a tiny synthetic survey (no data needed).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use proptest::prelude::*;
+use serde_json::Value;
+
+fn estim(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_estim"))
+        .args(args)
+        .env_remove("ESTIM_DATA_DIR")
+        .output()
+        .expect("run estim")
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("UTF-8 path")
+}
+
+fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).expect("write");
+    p
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// Exit 2 with one stderr line holding every needle.
+#[track_caller]
+fn refused(out: &Output, needles: &[&str]) -> String {
+    let e = stderr(out);
+    assert_eq!(out.status.code(), Some(2), "{e}");
+    assert_eq!(e.lines().count(), 1, "not one line: {e}");
+    for n in needles {
+        assert!(e.contains(n), "{n:?} not in {e}");
+    }
+    e
+}
+
+/// A stationary vehicle: IMU at 10 Hz for `seconds`, gyroscope z given per time.
+fn imu(header_gz: &str, seconds: usize, gz: impl Fn(f64) -> f64) -> String {
+    let mut text = format!("time_s,acc_x_mps2,acc_y_mps2,acc_z_mps2,gx,gy,{header_gz}\n");
+    for k in 0..seconds * 10 {
+        let t = k as f64 * 0.1;
+        text.push_str(&format!("{t:.1},0,0,-9.81,0,0,{}\n", gz(t)));
+    }
+    text
+}
+
+fn dvl(times: impl Iterator<Item = f64>, lock: bool) -> String {
+    let mut text = String::from("time_s,v_x_mps,v_y_mps,v_z_mps\n");
+    for t in times {
+        if lock {
+            text.push_str(&format!("{t},0,0,0\n"));
+        } else {
+            text.push_str(&format!("{t},,,\n"));
+        }
+    }
+    text
+}
+
+const VEHICLE: &str = "[initial]\nlatitude_deg = 35.0\nlongitude_deg = 33.0\ndepth_m = 20.0\n\n[truth]\ntime_offset_s = 0.0\n";
+
+/// GT of the stationary vehicle, A-KIT layout, 1 Hz.
+fn gt(seconds: usize) -> String {
+    let mut text = String::from("Time [s],Longitude [rad],Latitude [rad],Altitude [m],V North [m/s],V East [m/s],V Down [m/s],Roll [rad],Pitch [rad],Yaw [rad]\n");
+    for k in 0..seconds {
+        text.push_str(&format!(
+            "{k},{},{},-20,0,0,0,0,0,0\n",
+            33f64.to_radians(),
+            35f64.to_radians()
+        ));
+    }
+    text
+}
+
+struct Survey {
+    dir: tempfile::TempDir,
+    imu: PathBuf,
+    dvl: PathBuf,
+    vehicle: PathBuf,
+}
+
+fn survey() -> Survey {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let imu = write(dir.path(), "imu.csv", &imu("gz", 60, |_| 0.0));
+    let dvl = write(dir.path(), "dvl.csv", &dvl((0..60).map(f64::from), true));
+    let vehicle = write(dir.path(), "vehicle.toml", VEHICLE);
+    Survey {
+        dir,
+        imu,
+        dvl,
+        vehicle,
+    }
+}
+
+fn names(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .map(|d| {
+            d.filter_map(|e| e.ok().map(|e| e.file_name().to_string_lossy().into_owned()))
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
+/// Class 2: a DVL, depth or fixes file none of whose records falls in the IMU span
+/// (Unix seconds beside relative ones, a mistyped offset) is refused, naming the
+/// file, both spans and the offset key; one record inside is enough to run.
+#[test]
+fn an_aiding_file_outside_the_imu_span_is_refused() {
+    let v = survey();
+    let d = v.dir.path();
+    let unix = write(
+        d,
+        "dvl_unix.csv",
+        &dvl((0..60).map(|k| 1.7e9 + f64::from(k)), true),
+    );
+    for cmd in ["navigate", "smooth"] {
+        let out = estim(&[
+            cmd,
+            "--imu",
+            s(&v.imu),
+            "--dvl",
+            s(&unix),
+            "--vehicle",
+            s(&v.vehicle),
+        ]);
+        refused(
+            &out,
+            &[
+                "dvl_unix.csv",
+                "imu.csv",
+                "dvl.time_offset_s",
+                "1700000000.000",
+            ],
+        );
+    }
+    let beams = write(
+        d,
+        "beams_unix.csv",
+        &format!(
+            "time_s,beam1,beam2,beam3,beam4\n{}",
+            (0..60)
+                .map(|k| format!("{},0,0,0,0\n", 1.7e9 + f64::from(k)))
+                .collect::<String>()
+        ),
+    );
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&v.imu),
+        "--beams",
+        s(&beams),
+        "--vehicle",
+        s(&v.vehicle),
+    ]);
+    refused(&out, &["beams_unix.csv", "dvl.time_offset_s"]);
+    let depth = write(d, "depth.csv", "time_s,depth_m\n0,20\n10,20\n20,20\n");
+    let fixes = write(
+        d,
+        "fixes.csv",
+        "time_s,latitude_deg,longitude_deg,sigma_m\n5,35.0,33.0,5\n",
+    );
+    // A mistyped offset pushes every depth (or fix) record out of the span.
+    for (key, flag, file) in [("depth", "--depth", &depth), ("fixes", "--fixes", &fixes)] {
+        let vehicle = write(
+            d,
+            "offset.toml",
+            &format!("{VEHICLE}\n[{key}]\ntime_offset_s = 3600.0\n"),
+        );
+        let out = estim(&[
+            "navigate",
+            "--imu",
+            s(&v.imu),
+            "--dvl",
+            s(&v.dvl),
+            flag,
+            s(file),
+            "--vehicle",
+            s(&vehicle),
+        ]);
+        let name = file
+            .file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or_default();
+        refused(&out, &[name, &format!("{key}.time_offset_s = 3600")]);
+        let out = estim(&[
+            "navigate",
+            "--imu",
+            s(&v.imu),
+            "--dvl",
+            s(&v.dvl),
+            flag,
+            s(file),
+            "--vehicle",
+            s(&v.vehicle),
+        ]);
+        assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    }
+    // Half the rows inside: runs, the others counted.
+    let half = write(d, "dvl_half.csv", &dvl((30..90).map(f64::from), true));
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&v.imu),
+        "--dvl",
+        s(&half),
+        "--vehicle",
+        s(&v.vehicle),
+        "--json",
+    ]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert!(
+        summary["outside_imu_span"].as_u64().unwrap_or(0) >= 29,
+        "{summary}"
+    );
+}
+
+/// Debatable, decided: DVL rows doubled 1 ms apart are refused by navigate as by
+/// reproduce (CSV velocity and beams), naming file and line.
+#[test]
+fn doubled_dvl_rows_are_refused_as_reproduce_refuses_them() {
+    let v = survey();
+    let d = v.dir.path();
+    let doubled = write(
+        d,
+        "dvl_doubled.csv",
+        &dvl(
+            (0..60).flat_map(|k| [f64::from(k), f64::from(k) + 0.001]),
+            true,
+        ),
+    );
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&v.imu),
+        "--dvl",
+        s(&doubled),
+        "--vehicle",
+        s(&v.vehicle),
+    ]);
+    refused(&out, &["dvl_doubled.csv:3:", "duplicated"]);
+    let beams = write(
+        d,
+        "beams_doubled.csv",
+        &format!(
+            "time_s,beam1,beam2,beam3,beam4\n{}",
+            (0..60)
+                .flat_map(|k| [f64::from(k), f64::from(k) + 0.001])
+                .map(|t| format!("{t},0,0,0,0\n"))
+                .collect::<String>()
+        ),
+    );
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&v.imu),
+        "--beams",
+        s(&beams),
+        "--vehicle",
+        s(&v.vehicle),
+    ]);
+    refused(&out, &["beams_doubled.csv:3:"]);
+}
+
+/// Class 4: with no DVL update at all, nothing scored at the DVL epochs is null with
+/// a reason (navigate's at_dvl_epochs, smooth's evaluation), never an RMSE of 0.
+#[test]
+fn an_evaluation_with_nothing_scored_is_null_with_a_reason() {
+    let v = survey();
+    let d = v.dir.path();
+    let no_lock = write(d, "dvl_nolock.csv", &dvl((0..60).map(f64::from), false));
+    let truth = write(d, "gt.csv", &gt(60));
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&v.imu),
+        "--dvl",
+        s(&no_lock),
+        "--vehicle",
+        s(&v.vehicle),
+        "--truth",
+        s(&truth),
+        "--json",
+    ]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+    let at_dvl = &summary["evaluation"]["at_dvl_epochs"];
+    assert_eq!(at_dvl["epochs"], 0, "{at_dvl}");
+    assert!(at_dvl["position_rmse_m"].is_null(), "{at_dvl}");
+    assert!(at_dvl["not_scored_reason"]
+        .as_str()
+        .is_some_and(|r| r.contains("no solution epoch")));
+    // Scored at the reference's own epochs: a real figure, no reason.
+    assert!(summary["evaluation"]["position_rmse_m"]
+        .as_f64()
+        .is_some_and(|r| r > 0.0));
+    let out = estim(&[
+        "smooth",
+        "--imu",
+        s(&v.imu),
+        "--dvl",
+        s(&no_lock),
+        "--vehicle",
+        s(&v.vehicle),
+        "--truth",
+        s(&truth),
+    ]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("against truth: not scored"), "{text}");
+    assert!(!text.contains("RMSE 0"), "{text}");
+}
+
+/// Class 3: `reproduce --config` refuses three-number keys of other lengths,
+/// naming the file, the line and the key.
+#[test]
+fn study_config_refuses_arrays_of_the_wrong_length() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for bad in ["[-1.87, -0.03, 0.2, 99.0]", "[1.0, 2.0]", "[]"] {
+        let config = write(
+            dir.path(),
+            "c.toml",
+            &format!("[dvl]\nlever_arm_m = {bad}\n"),
+        );
+        for cmd in [
+            &["reproduce", "--config"][..],
+            &["reproduce", "--print-config", "--config"],
+        ] {
+            let mut args = cmd.to_vec();
+            args.push(s(&config));
+            refused(
+                &estim(&args),
+                &["c.toml", "line 2", "lever_arm_m", "3 numbers"],
+            );
+        }
+    }
+}
+
+/// A unit that cannot be read: rate columns without a unit, above 3 rad/s for 1 s
+/// (deg/s read as rad/s), are refused naming file, line and column; a unit in the
+/// header declares it.
+#[test]
+fn a_gyroscope_in_degrees_without_a_unit_is_refused() {
+    let v = survey();
+    let d = v.dir.path();
+    // A turn logged in deg/s: 20 deg/s from t = 10 s.
+    let deg = |t: f64| if t >= 10.0 { 20.0 } else { 0.0 };
+    let unitless = write(d, "imu_deg.csv", &imu("gz", 60, deg));
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&unitless),
+        "--dvl",
+        s(&v.dvl),
+        "--vehicle",
+        s(&v.vehicle),
+    ]);
+    refused(
+        &out,
+        &["imu_deg.csv:102:", "`gz`", "states no unit", "deg/s"],
+    );
+    let declared = write(d, "imu_declared.csv", &imu("gz [deg/s]", 60, deg));
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&declared),
+        "--dvl",
+        s(&v.dvl),
+        "--vehicle",
+        s(&v.vehicle),
+    ]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Rates within 3 rad/s, or above it for less than 1 s, are read; above it for
+    /// 1 s or more (no unit stated), refused.
+    #[test]
+    fn rate_plausibility_is_a_duration_over_a_limit(
+        level in 0.0f64..6.0,
+        tenths in 1usize..30,
+    ) {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let start = 2.0;
+        let end = start + tenths as f64 * 0.1;
+        let text = imu("gz", 5, |t| if t >= start - 1e-9 && t < end - 1e-9 { level } else { 0.0 });
+        let bytes = text.as_bytes();
+        let path = dir.path().join("imu.csv");
+        let read = estim::datasets::ImuLog::parse(bytes, &path, None);
+        // Samples at or above the limit from `start`, one every 0.1 s: held for
+        // (tenths - 1) tenths from the first to the last.
+        let held = (tenths - 1) as f64 * 0.1;
+        let refuse = level > estim::datasets::PLAUSIBLE_ANGULAR_RATE_RADPS && held >= 1.0 - 1e-9;
+        prop_assert_eq!(read.is_err(), refuse, "{:?}", read.err().map(|e| e.to_string()));
+    }
+}
+
+/// Class 5: smooth's forward pass stopping (an IMU hole) keeps nothing smoothed and
+/// says so: exit 3, only summary.json committed, marked partial.
+#[test]
+fn smooth_stopped_by_divergence_says_nothing_was_kept() {
+    let v = survey();
+    let d = v.dir.path();
+    let mut text = String::from("time_s,acc_x_mps2,acc_y_mps2,acc_z_mps2,gx,gy,gz\n");
+    for k in (0..200).chain(800..1000) {
+        text.push_str(&format!("{:.1},0,0,-9.81,0,0,0\n", f64::from(k) * 0.1));
+    }
+    let holed = write(d, "imu_hole.csv", &text);
+    let long_dvl = write(d, "dvl100.csv", &dvl((0..100).map(f64::from), true));
+    let out_dir = d.join("out");
+    let out = estim(&[
+        "smooth",
+        "--imu",
+        s(&holed),
+        "--dvl",
+        s(&long_dvl),
+        "--vehicle",
+        s(&v.vehicle),
+        "--out",
+        s(&out_dir),
+    ]);
+    let e = stderr(&out);
+    assert_eq!(out.status.code(), Some(3), "{e}");
+    assert!(e.contains("nothing was smoothed"), "{e}");
+    assert_eq!(names(&out_dir), ["estim-files.txt", "summary.json"]);
+    let summary: Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).expect("read"))
+            .expect("json");
+    assert_eq!(summary["partial"], true);
+    assert_eq!(summary["smoothed_epochs"], 0);
+    assert_eq!(summary["status"], "diverged");
+}
+
+/// Class 6: a PD0 file above the input limit (sparse, 2 GiB) is refused before
+/// reading, naming the file, by navigate, smooth and dvl pd0; /dev/zero is refused
+/// at the limit for the vehicle file (text, NUL bytes) instead of read without end.
+#[test]
+fn oversized_and_endless_inputs_are_refused_naming_the_file() {
+    let v = survey();
+    let d = v.dir.path();
+    let big = d.join("big.pd0");
+    let file = std::fs::File::create(&big).expect("create");
+    file.set_len(2 << 30).expect("sparse file");
+    drop(file);
+    for args in [
+        &[
+            "navigate",
+            "--imu",
+            s(&v.imu),
+            "--pd0",
+            s(&big),
+            "--vehicle",
+            s(&v.vehicle),
+        ][..],
+        &[
+            "smooth",
+            "--imu",
+            s(&v.imu),
+            "--pd0",
+            s(&big),
+            "--vehicle",
+            s(&v.vehicle),
+        ],
+        &["dvl", "pd0", s(&big)],
+    ] {
+        refused(&estim(args), &["big.pd0", "larger than"]);
+    }
+    if Path::new("/dev/zero").exists() {
+        let out = estim(&[
+            "navigate",
+            "--imu",
+            s(&v.imu),
+            "--dvl",
+            s(&v.dvl),
+            "--vehicle",
+            "/dev/zero",
+        ]);
+        refused(&out, &["/dev/zero"]);
+        refused(
+            &estim(&["reproduce", "--config", "/dev/zero"]),
+            &["/dev/zero"],
+        );
+    }
+}
+
+/// Class 7: an output that would overwrite an input is refused naming both, and the
+/// input is intact: `simulate imu --vehicle-out` onto its --gt, `--out DIR` where an
+/// output (or an earlier run's file listed in the manifest) is an input.
+#[test]
+fn an_output_over_an_input_is_refused() {
+    let v = survey();
+    let d = v.dir.path();
+    let g = write(d, "g.csv", &gt(60));
+    let before = std::fs::read(&g).expect("read");
+    let out = estim(&["simulate", "imu", "--gt", s(&g), "--vehicle-out", s(&g)]);
+    refused(&out, &["g.csv", "overwrite the input"]);
+    assert_eq!(std::fs::read(&g).expect("read"), before);
+    // The IMU file is DIR/solution.csv.
+    let out_dir = d.join("o");
+    std::fs::create_dir(&out_dir).expect("mkdir");
+    let imu_in_out = out_dir.join("solution.csv");
+    std::fs::copy(&v.imu, &imu_in_out).expect("copy");
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&imu_in_out),
+        "--dvl",
+        s(&v.dvl),
+        "--vehicle",
+        s(&v.vehicle),
+        "--out",
+        s(&out_dir),
+    ]);
+    refused(&out, &["solution.csv", "would replace its input"]);
+    assert_eq!(
+        std::fs::read(&imu_in_out).expect("read"),
+        std::fs::read(&v.imu).expect("read")
+    );
+    assert_eq!(names(&out_dir), ["solution.csv"]);
+    // A file of an earlier run (in its manifest), given as an input, is not removed.
+    let earlier = d.join("e");
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&v.imu),
+        "--dvl",
+        s(&v.dvl),
+        "--vehicle",
+        s(&v.vehicle),
+        "--out",
+        s(&earlier),
+    ]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let vehicle_in_out = write(&earlier, "vehicle.toml", VEHICLE);
+    let listed = std::fs::read_to_string(earlier.join("estim-files.txt")).expect("manifest");
+    std::fs::write(
+        earlier.join("estim-files.txt"),
+        format!("{listed}vehicle.toml\n"),
+    )
+    .expect("write");
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&v.imu),
+        "--dvl",
+        s(&v.dvl),
+        "--vehicle",
+        s(&vehicle_in_out),
+        "--out",
+        s(&earlier),
+    ]);
+    refused(&out, &["vehicle.toml", "would replace its input"]);
+    assert!(vehicle_in_out.is_file());
+}
+
+/// Round-two leftover: `reproduce --smooth --out DIR` where `DIR/smoothing` cannot
+/// be put in place (a file of that name) commits nothing: the earlier files stay.
+#[test]
+fn an_output_folder_is_committed_all_or_nothing() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let config = write(dir.path(), "short.toml", "[mission]\nduration_s = 60.0\n");
+    let out_dir = dir.path().join("out");
+    std::fs::create_dir(&out_dir).expect("mkdir");
+    write(&out_dir, "report.json", "earlier\n");
+    write(&out_dir, "smoothing", "not a folder\n");
+    let out = estim(&[
+        "reproduce",
+        "--smooth",
+        "--config",
+        s(&config),
+        "--out",
+        s(&out_dir),
+    ]);
+    let e = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{e}");
+    assert!(e.contains("smoothing"), "{e}");
+    assert_eq!(names(&out_dir), ["report.json", "smoothing"]);
+    assert_eq!(
+        std::fs::read_to_string(out_dir.join("report.json")).expect("read"),
+        "earlier\n"
+    );
+}
+
+/// Class 8: a write error under --out names the file (a full disk, /dev/full as the
+/// staged solution is not portable; a read-only staging file stands in when not
+/// root).
+#[test]
+fn write_errors_name_their_path() {
+    let v = survey();
+    // Writing the summary over a folder of that name fails on every platform.
+    let out_dir = v.dir.path().join("w");
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&v.imu),
+        "--dvl",
+        s(&v.dvl),
+        "--vehicle",
+        s(&v.vehicle),
+        "--out",
+        s(&out_dir),
+    ]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    std::fs::remove_file(out_dir.join("summary.json")).expect("rm");
+    std::fs::create_dir(out_dir.join("summary.json")).expect("folder in the way");
+    std::fs::write(out_dir.join("summary.json/keep"), "x").expect("write");
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&v.imu),
+        "--dvl",
+        s(&v.dvl),
+        "--vehicle",
+        s(&v.vehicle),
+        "--out",
+        s(&out_dir),
+    ]);
+    let e = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{e}");
+    assert!(e.contains("summary.json"), "{e}");
+}
