@@ -1,5 +1,7 @@
-//! Depth and position-fix measurements of the 15-state INS error-state filter
-//! (estim-core [`MeasurementModel`]s on [`InsState`]), with the sensor's lever arm.
+//! Depth and position-fix measurements of the INS error-state filter (estim-core
+//! [`MeasurementModel`]s on any nominal state with an INS part, [`InsNominal`], over
+//! any error state whose first 15 states are estim-ins'), with the sensor's lever arm.
+//! Their Jacobian columns beyond the 15 INS states are zero.
 //!
 //! Conventions of estim-ins: true = nominal + error, position error δp in metres
 //! N, E, D (h_true = h - δp_D), misalignment ψ in NED with C_true = (I + [ψ×]) C.
@@ -9,6 +11,29 @@
 use estim_core::MeasurementModel;
 use estim_ins::{earth, InsState, ATT, ERROR_STATES, POS};
 use nalgebra::{Matrix1, Matrix2, SMatrix, Vector1, Vector2, Vector3};
+use std::marker::PhantomData;
+
+/// A nominal state with an INS part, whose error state has `N` states, the first 15
+/// the INS ones (estim-ins' layout). It ties the state to its error-state size, so
+/// that a model on it infers `N`.
+pub trait InsNominal<const N: usize> {
+    /// The INS nominal state.
+    fn ins(&self) -> &InsState;
+}
+
+impl InsNominal<ERROR_STATES> for InsState {
+    fn ins(&self) -> &InsState {
+        self
+    }
+}
+
+/// Refuses, at compile time, an error state smaller than the INS one.
+const fn check_states<const N: usize>() {
+    assert!(
+        N >= ERROR_STATES,
+        "the error state must hold the 15 INS states"
+    );
+}
 
 /// Depth of a pressure sensor at `lever_arm` (body frame) below the surface \[m\]:
 ///
@@ -17,33 +42,37 @@ use nalgebra::{Matrix1, Matrix2, SMatrix, Vector1, Vector2, Vector3};
 /// dy/dδp_D = 1,   dy/dψ = -[(C_b^n l)×] row D
 /// ```
 #[derive(Debug, Clone, PartialEq)]
-pub struct DepthModel {
+pub struct DepthModel<S = InsState> {
     lever_arm: Vector3<f64>,
     variance: f64,
+    state: PhantomData<fn(&S)>,
 }
 
-impl DepthModel {
+impl<S> DepthModel<S> {
     /// A depth sensor with `lever_arm` \[m\] and noise std `std_m` (> 0, checked by
     /// the navigator's configuration).
     pub fn new(lever_arm: Vector3<f64>, std_m: f64) -> Self {
         Self {
             lever_arm,
             variance: std_m * std_m,
+            state: PhantomData,
         }
     }
 }
 
-impl MeasurementModel<f64, ERROR_STATES, 1> for DepthModel {
-    type State = InsState;
+impl<S: InsNominal<N>, const N: usize> MeasurementModel<f64, N, 1> for DepthModel<S> {
+    type State = S;
 
-    fn predict(&self, state: &InsState) -> estim_core::Result<Vector1<f64>> {
+    fn predict(&self, state: &S) -> estim_core::Result<Vector1<f64>> {
+        let state = state.ins();
         let arm = state.attitude * self.lever_arm;
         Ok(Vector1::new(-state.height + arm[2]))
     }
 
-    fn jacobian(&self, state: &InsState) -> estim_core::Result<SMatrix<f64, 1, ERROR_STATES>> {
-        let arm = state.attitude * self.lever_arm;
-        let mut h = SMatrix::<f64, 1, ERROR_STATES>::zeros();
+    fn jacobian(&self, state: &S) -> estim_core::Result<SMatrix<f64, 1, N>> {
+        const { check_states::<N>() };
+        let arm = state.ins().attitude * self.lever_arm;
+        let mut h = SMatrix::<f64, 1, N>::zeros();
         h[POS + 2] = 1.0;
         let attitude = -arm.cross_matrix();
         for j in 0..3 {
@@ -52,7 +81,7 @@ impl MeasurementModel<f64, ERROR_STATES, 1> for DepthModel {
         Ok(h)
     }
 
-    fn noise_covariance(&self, _state: &InsState) -> estim_core::Result<Matrix1<f64>> {
+    fn noise_covariance(&self, _state: &S) -> estim_core::Result<Matrix1<f64>> {
         Ok(Matrix1::new(self.variance))
     }
 }
@@ -71,14 +100,15 @@ impl MeasurementModel<f64, ERROR_STATES, 1> for DepthModel {
 /// north and east, in metres (terms of second order in the lever arm over the Earth's
 /// radius neglected).
 #[derive(Debug, Clone, PartialEq)]
-pub struct PositionFixModel {
+pub struct PositionFixModel<S = InsState> {
     latitude: f64,
     longitude: f64,
     lever_arm: Vector3<f64>,
     variance: f64,
+    state: PhantomData<fn(&S)>,
 }
 
-impl PositionFixModel {
+impl<S> PositionFixModel<S> {
     /// A fix at `latitude`, `longitude` \[rad\] with horizontal 1-sigma `sigma_m`.
     pub fn new(latitude: f64, longitude: f64, sigma_m: f64, lever_arm: Vector3<f64>) -> Self {
         Self {
@@ -86,11 +116,12 @@ impl PositionFixModel {
             longitude,
             lever_arm,
             variance: sigma_m * sigma_m,
+            state: PhantomData,
         }
     }
 }
 
-impl PositionFixModel {
+impl<S> PositionFixModel<S> {
     /// Metres per radian at the fix (M_N, M_E) and the scales (s_N, s_E) at `state`.
     fn metrics(&self, state: &InsState) -> ([f64; 2], [f64; 2]) {
         let (rn_f, re_f) = earth::radii_of_curvature(self.latitude);
@@ -104,10 +135,11 @@ impl PositionFixModel {
     }
 }
 
-impl MeasurementModel<f64, ERROR_STATES, 2> for PositionFixModel {
-    type State = InsState;
+impl<S: InsNominal<N>, const N: usize> MeasurementModel<f64, N, 2> for PositionFixModel<S> {
+    type State = S;
 
-    fn predict(&self, state: &InsState) -> estim_core::Result<Vector2<f64>> {
+    fn predict(&self, state: &S) -> estim_core::Result<Vector2<f64>> {
+        let state = state.ins();
         let (fix, scale) = self.metrics(state);
         let arm = state.attitude * self.lever_arm;
         let y = Vector2::new(
@@ -123,11 +155,13 @@ impl MeasurementModel<f64, ERROR_STATES, 2> for PositionFixModel {
         }
     }
 
-    fn jacobian(&self, state: &InsState) -> estim_core::Result<SMatrix<f64, 2, ERROR_STATES>> {
+    fn jacobian(&self, state: &S) -> estim_core::Result<SMatrix<f64, 2, N>> {
+        const { check_states::<N>() };
+        let state = state.ins();
         let (_, scale) = self.metrics(state);
         let arm = state.attitude * self.lever_arm;
         let attitude = -arm.cross_matrix();
-        let mut h = SMatrix::<f64, 2, ERROR_STATES>::zeros();
+        let mut h = SMatrix::<f64, 2, N>::zeros();
         for i in 0..2 {
             h[(i, POS + i)] = scale[i];
             for j in 0..3 {
@@ -138,7 +172,7 @@ impl MeasurementModel<f64, ERROR_STATES, 2> for PositionFixModel {
         Ok(h)
     }
 
-    fn noise_covariance(&self, _state: &InsState) -> estim_core::Result<Matrix2<f64>> {
+    fn noise_covariance(&self, _state: &S) -> estim_core::Result<Matrix2<f64>> {
         Ok(Matrix2::from_diagonal_element(self.variance))
     }
 }

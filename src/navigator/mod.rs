@@ -25,43 +25,48 @@
 mod aiding;
 mod augmented;
 mod batch;
+mod clock;
 mod config;
 mod filter;
 mod fixed;
 mod health;
+mod initial;
+mod inputs;
 mod pd0;
 mod reference;
+mod run;
 mod smooth;
+mod solution;
 pub mod tune;
 
-pub use aiding::{DepthModel, PositionFixModel};
+pub use aiding::{DepthModel, InsNominal, PositionFixModel};
 pub use augmented::{
-    AugmentedDvlModel, AugmentedErrorModel, AugmentedMatrix, AugmentedNavigator, AugmentedSolution,
-    AugmentedState, AugmentedVector, AxisSigma, BiasConfig, DvlParameters, DvlStateSolution,
-    DvlStatesConfig, LeverArmState, Lifted, MisalignmentState, ScaleFactorState, TimeOffsetState,
-    AUGMENTED_STATES, DVL_BIAS, DVL_LEVER_ARM, DVL_MISALIGNMENT, DVL_SCALE, DVL_STATES,
-    DVL_TIME_OFFSET,
+    AccelerationWindow, AugmentedDvlModel, AugmentedErrorModel, AugmentedFilter, AugmentedMatrix,
+    AugmentedNavigator, AugmentedState, AugmentedVector, AxisSigma, BiasConfig, DvlParameters,
+    DvlStateSolution, DvlStatesConfig, LeverArmState, MisalignmentState, ScaleFactorState,
+    TimeOffsetState, ACCELERATION_HISTORY_S, AUGMENTED_STATES, DVL_BIAS, DVL_LEVER_ARM,
+    DVL_MISALIGNMENT, DVL_SCALE, DVL_STATES, DVL_TIME_OFFSET,
 };
-pub use batch::{
-    coarse_alignment, navigate, navigate_learned, navigate_with, Alignment, DepthSample, DvlInput,
-    DvlRecord, InitialAttitude, LearnedCounts, NavigationObserver, NavigationRun, PositionFix,
-    SolutionKind, SurveyInputs,
-};
+pub use batch::{navigate, navigate_learned, navigate_with, LearnedCounts, NavigationRun};
+pub use clock::IMU_PERIOD_SNAP;
 pub use config::{
     filter_config, filter_imu_spec, imu_preset, DepthConfig, DvlConfig, FixConfig, GateConfig,
     ImuConfig, ImuFrame, InitialConfig, NavigatorConfig, NavigatorSettings, SensorConfig,
     TruthConfig, FILTER_BIAS_TIME_CONSTANT, IMU_PRESETS,
 };
-pub use filter::{
-    beams_from_nan, format_heading, wrap_heading_deg, DvlCross, InsFilter, NavSolution, Navigator,
-    UpdateCounts, IMU_PERIOD_SNAP,
-};
+pub use filter::{beams_from_nan, DvlCross, InsFilter, NavigationModel, Navigator};
 pub use health::{Divergence, HealthConfig, HealthMonitor};
+pub use initial::{coarse_alignment, Alignment, InitialAttitude};
+pub use inputs::{
+    DepthSample, DvlInput, DvlRecord, NavigationObserver, PositionFix, SolutionKind, SurveyInputs,
+};
 pub use pd0::{pd0_records, rdi_beam_geometry, Pd0Conversion};
 pub use reference::{
     error_state, nees_of_block, reference_time_offset, ReferenceOffset, MIN_REFERENCE_INTERVALS,
 };
+pub use run::{run_epochs, EpochHook, Tail};
 pub use smooth::{smooth_survey, SmoothedSolution, SmoothingRun};
+pub use solution::{format_heading, wrap_heading_deg, NavSolution, UpdateCounts};
 
 /// Errors of the navigator.
 #[derive(Debug, thiserror::Error)]

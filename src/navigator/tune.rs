@@ -229,8 +229,8 @@ pub fn survey_measurements(
     settings: &NavigatorSettings,
 ) -> Result<SurveyMeasurements> {
     let imu = &inputs.imu;
-    let imu_period = super::batch::imu_period(imu, settings)?;
-    let (initial, covariance, _) = super::batch::initial_state(inputs, settings)?;
+    let imu_period = super::initial::imu_period(imu, settings)?;
+    let (initial, covariance, _) = super::initial::initial_state(inputs, settings)?;
     let offset = settings.config().dvl.time_offset_s;
     let mut dvl = Vec::with_capacity(inputs.dvl.len());
     let mut skipped = 0;

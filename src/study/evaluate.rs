@@ -810,7 +810,7 @@ impl Run<'_> {
                 return Ok(Err(stopped(e)?));
             }
             if let Some(y) = velocities.get(epoch).copied().flatten() {
-                match nav.dvl_velocity(target, &y) {
+                match nav.dvl_velocity(target, &y, &estim_core::Zero) {
                     Ok(report) => nis.push(report.nis),
                     Err(e) => return Ok(Err(stopped(e)?)),
                 }
@@ -819,7 +819,11 @@ impl Run<'_> {
             position.push(e.fixed_rows::<3>(POS).norm());
             nees_values.push(nees(&e, &nav.ins_covariance()).unwrap_or(f64::NAN));
         }
-        let s = nav.solution().dvl;
+        let Some(s) = nav.dvl_states() else {
+            return Err(PipelineError::Invalid(
+                "the augmented navigator reported no DVL states".into(),
+            ));
+        };
         Ok(Ok(EvaluationRun {
             trajectory: 0,
             seed,
