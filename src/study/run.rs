@@ -2,7 +2,8 @@
 //! velocity (least squares or a learned model), with a chosen cross-covariance.
 
 use estim::navigator::{
-    DvlConfig, DvlCross, GateConfig, Navigator, NavigatorConfig, NavigatorError, NavigatorSettings,
+    run_epochs, DvlConfig, DvlCross, EpochHook, GateConfig, Navigator, NavigatorConfig,
+    NavigatorError, NavigatorSettings, Tail,
 };
 use estim_core::consistency::nees;
 use estim_core::nalgebra::{Matrix3, SMatrix, SVector, Vector3};
@@ -10,7 +11,7 @@ use estim_core::{
     Fixed, JointCovariance, MeasurementModel, NoObserver, Observer, ProcessModel,
     ScaledCorrelation, Zero,
 };
-use estim_ins::{inject, ImuSpec, InsState, ATT, ERROR_STATES, POS, VEL};
+use estim_ins::{inject, ImuSpec, InsErrorModel, InsState, ATT, ERROR_STATES, POS, VEL};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -312,156 +313,237 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
         .ok_or_else(|| PipelineError::Invalid("empty scenario".into()))?;
     let p0 = initial_covariance(config, scenario);
     let nominal0 = initial_nominal(truth0, &p0, seed);
-    let r = measurements.noise_covariance;
-    let settings = navigator_settings(config, scenario, r)?;
+    let settings = navigator_settings(config, scenario, measurements.noise_covariance)?;
     let imu = &scenario.imu;
     let period = scenario.imu_dt;
-    let tolerance = IMU_PERIOD_SNAP * period;
     let mut nav = Navigator::new(&settings, nominal0, p0, period)
         .map_err(|e| PipelineError::Invalid(e.to_string()))?
         .with_observer(observer);
-    let n = scenario.dvl.len();
-    let mut run = FilterRun {
-        id: name.to_string(),
-        name: name.to_string(),
-        time: Vec::with_capacity(n),
-        covariance_diagonal: Vec::with_capacity(n),
-        axis_error: Vec::with_capacity(n),
-        position_error: Vec::with_capacity(n),
-        velocity_error: Vec::with_capacity(n),
-        attitude_error_deg: Vec::with_capacity(n),
-        nees: Vec::with_capacity(n),
-        nis: Vec::with_capacity(n),
-        accepted: 0,
-        rejected: 0,
-        update_accepted: Vec::with_capacity(n),
-        joint_min_eigenvalue: Vec::with_capacity(n),
-        largest_valid_rho: Vec::with_capacity(n),
-        largest_valid_rho_per_step: Vec::with_capacity(n),
-        largest_valid_rho_per_step_own: Vec::with_capacity(n),
-        paper_cross_term_over_r: Vec::with_capacity(n),
-        north_east: Vec::with_capacity(n),
-        covariance_not_positive_definite: 0,
-    };
-    let (rn0, re0) = estim_ins::earth::radii_of_curvature(truth0.latitude);
     let first_imu = imu
         .first()
         .ok_or_else(|| PipelineError::Invalid("the scenario has no IMU samples".into()))?;
-    // The IMU in effect covers up to the next sample, the last one over one period.
-    let imu_end = imu.last().map_or(first_imu.time, |s| s.time) + period;
-    let mut fed = 0;
-    for (epoch, dvl) in scenario.dvl.iter().enumerate() {
-        let truth = scenario.truth.get(dvl.imu_index).ok_or_else(|| {
-            PipelineError::Invalid(format!(
+    let mut hook = StudyHook {
+        scenario,
+        settings: &settings,
+        measurements,
+        noise_per_epoch,
+        cross,
+        truth0,
+        // The IMU in effect covers up to the next sample, the last one over one period.
+        imu_end: imu.last().map_or(first_imu.time, |s| s.time) + period,
+        tolerance: IMU_PERIOD_SNAP * period,
+        epoch: 0,
+        run: FilterRun::new(name, scenario.dvl.len()),
+    };
+    // An epoch whose truth index is beyond the scenario is refused by the hook before
+    // its time (NaN here) is used.
+    let epochs = scenario.dvl.iter().map(|dvl| {
+        let time = scenario
+            .truth
+            .get(dvl.imu_index)
+            .map_or(f64::NAN, |t| t.time);
+        (time, ())
+    });
+    run_epochs(&mut nav, imu, epochs, &mut hook, Tail::StopAtLastEpoch)?;
+    Ok(hook.run)
+}
+
+impl FilterRun {
+    /// An empty run with room for `n` epochs.
+    fn new(name: &str, n: usize) -> Self {
+        Self {
+            id: name.to_string(),
+            name: name.to_string(),
+            time: Vec::with_capacity(n),
+            covariance_diagonal: Vec::with_capacity(n),
+            axis_error: Vec::with_capacity(n),
+            position_error: Vec::with_capacity(n),
+            velocity_error: Vec::with_capacity(n),
+            attitude_error_deg: Vec::with_capacity(n),
+            nees: Vec::with_capacity(n),
+            nis: Vec::with_capacity(n),
+            accepted: 0,
+            rejected: 0,
+            update_accepted: Vec::with_capacity(n),
+            joint_min_eigenvalue: Vec::with_capacity(n),
+            largest_valid_rho: Vec::with_capacity(n),
+            largest_valid_rho_per_step: Vec::with_capacity(n),
+            largest_valid_rho_per_step_own: Vec::with_capacity(n),
+            paper_cross_term_over_r: Vec::with_capacity(n),
+            north_east: Vec::with_capacity(n),
+            covariance_not_positive_definite: 0,
+        }
+    }
+}
+
+/// The navigator of a study run (its estim-core observer borrowed).
+type StudyNavigator<'o, O> = Navigator<InsErrorModel, &'o mut O, ERROR_STATES>;
+
+/// The per-epoch hook of a study run: checks each DVL epoch, updates with the
+/// variant's R and M, and records the errors against truth.
+struct StudyHook<'a> {
+    scenario: &'a Scenario,
+    settings: &'a NavigatorSettings,
+    measurements: &'a MeasurementSet,
+    noise_per_epoch: Option<&'a [Option<Matrix3<f64>>]>,
+    cross: &'a CrossSource,
+    truth0: &'a InsState,
+    imu_end: f64,
+    tolerance: f64,
+    /// The epoch under way.
+    epoch: usize,
+    run: FilterRun,
+}
+
+impl<'o, O: Observer<f64, InsState, ERROR_STATES>> EpochHook<InsErrorModel, &'o mut O, ERROR_STATES>
+    for StudyHook<'_>
+{
+    type Measurement = ();
+    type Error = PipelineError;
+
+    fn before_epoch(&mut self, nav: &StudyNavigator<'o, O>, target: f64) -> Result<()> {
+        let epoch = self.epoch;
+        let dvl = &self.scenario.dvl[epoch];
+        if self.scenario.truth.get(dvl.imu_index).is_none() {
+            return Err(PipelineError::Invalid(format!(
                 "DVL epoch {epoch}: truth index {} beyond the scenario ({} samples)",
                 dvl.imu_index,
-                scenario.truth.len()
-            ))
-        })?;
-        let target = truth.time;
-        if target < nav.clock() - tolerance {
+                self.scenario.truth.len()
+            )));
+        }
+        if target < nav.clock() - self.tolerance {
             return Err(PipelineError::Invalid(format!(
                 "DVL epoch {epoch} at t = {target} s is before the previous one ({} s)",
                 nav.clock()
             )));
         }
-        if target - imu_end > tolerance {
+        if target - self.imu_end > self.tolerance {
             return Err(PipelineError::Invalid(format!(
-                "DVL epoch {epoch} at t = {target} s is after the end of the IMU ({imu_end} s)"
+                "DVL epoch {epoch} at t = {target} s is after the end of the IMU ({} s)",
+                self.imu_end
             )));
         }
-        // The IMU samples up to the epoch (a sample stamped at the epoch goes first),
-        // then the propagation to the epoch itself (the navigator's arithmetic).
-        let at_epoch = |e: NavigatorError| nav_error(epoch, truth0.time, e);
-        while let Some(sample) = imu.get(fed).filter(|s| s.time <= target) {
-            nav.imu(sample).map_err(at_epoch)?;
-            fed += 1;
+        Ok(())
+    }
+
+    fn on_epoch(&mut self, nav: &mut StudyNavigator<'o, O>, target: f64, _: ()) -> Result<()> {
+        let epoch = self.epoch;
+        match self.measurements.velocities.get(epoch).copied().flatten() {
+            Some(y) => self.update(nav, target, &y)?,
+            None => self.run.update_accepted.push(None),
         }
-        nav.propagate_to(target).map_err(at_epoch)?;
-        if let Some(y) = measurements.velocities.get(epoch).copied().flatten() {
-            let epoch_model;
-            let (model, r) = match noise_per_epoch.and_then(|v| v.get(epoch).copied().flatten()) {
-                Some(r_k) => {
-                    epoch_model = settings.dvl_model_with_noise(r_k)?;
-                    (&epoch_model, r_k)
-                }
-                None => (settings.dvl_model(), r),
-            };
-            let filter = nav.filter();
-            run.largest_valid_rho
-                .push(ScaledCorrelation::largest_valid_rho(
-                    filter.accumulated_process_noise(),
-                    &r,
-                )?);
-            // Q_k of the last step, at the nominal state after it (the attitude moves
-            // by one IMU period in between: negligible at the rounding of a heuristic).
-            let step_noise = match nav.last_step() {
-                Some((sample, dt)) => {
-                    filter
-                        .process()
-                        .process_noise(filter.nominal(), sample, dt)?
-                }
-                None => SMatrix::zeros(),
-            };
-            let step_unit = ScaledCorrelation::unit(&step_noise, &r);
-            run.largest_valid_rho_per_step.push(
-                JointCovariance::new(*filter.accumulated_process_noise(), step_unit, r)
-                    .largest_valid_scale()?,
-            );
-            run.largest_valid_rho_per_step_own
-                .push(if nav.last_step().is_some() {
-                    // A diagnostic: a failure here is a NaN, never a stopped run.
-                    JointCovariance::new(step_noise, step_unit, r)
-                        .largest_valid_scale()
-                        .unwrap_or(f64::NAN)
-                } else {
-                    f64::NAN
-                });
-            let h = model.jacobian(filter.nominal())?;
-            let over_r = |u: &CrossMatrix| -> [f64; 3] {
-                let hu = h * u;
-                std::array::from_fn(|j| 2.0 * hu[(j, j)] / r[(j, j)])
-            };
-            run.paper_cross_term_over_r.push([
-                over_r(&ScaledCorrelation::unit(
-                    filter.accumulated_process_noise(),
-                    &r,
-                )),
-                over_r(&step_unit),
-            ]);
-            let scaled;
-            let fixed;
-            let source: &DvlCross<'_> = match cross {
-                CrossSource::Zero => &Zero,
-                CrossSource::Scaled(rho) => {
-                    scaled = ScaledCorrelation { rho: *rho };
-                    &scaled
-                }
-                CrossSource::ScaledPerStep(rho) => {
-                    fixed = Fixed(step_unit * *rho);
-                    &fixed
-                }
-                CrossSource::PerEpoch(ms) => {
-                    fixed = Fixed(ms.get(epoch).copied().unwrap_or_else(CrossMatrix::zeros));
-                    &fixed
-                }
-            };
-            let report = nav
-                .dvl_velocity_with(target, &y, model, source)
-                .map_err(|e| nav_error(epoch, truth0.time, e))?;
-            run.nis.push(report.nis);
-            if let Some(eig) = report.joint_min_eigenvalue {
-                run.joint_min_eigenvalue.push(eig);
+        let truth = &self.scenario.truth[self.scenario.dvl[epoch].imu_index];
+        self.record(nav, truth);
+        self.epoch += 1;
+        Ok(())
+    }
+
+    fn stopped(&mut self, error: NavigatorError) -> PipelineError {
+        nav_error(self.epoch, self.truth0.time, error)
+    }
+}
+
+impl StudyHook<'_> {
+    /// The DVL update of the epoch under way, with its diagnostics.
+    fn update<O: Observer<f64, InsState, ERROR_STATES>>(
+        &mut self,
+        nav: &mut StudyNavigator<'_, O>,
+        target: f64,
+        y: &Vector3<f64>,
+    ) -> Result<()> {
+        let epoch = self.epoch;
+        let run = &mut self.run;
+        let epoch_model;
+        let per_epoch = self
+            .noise_per_epoch
+            .and_then(|v| v.get(epoch).copied().flatten());
+        let (model, r) = match per_epoch {
+            Some(r_k) => {
+                epoch_model = self.settings.dvl_model_with_noise(r_k)?;
+                (&epoch_model, r_k)
             }
-            if report.is_accepted() {
-                run.accepted += 1;
+            None => (
+                self.settings.dvl_model(),
+                self.measurements.noise_covariance,
+            ),
+        };
+        let filter = nav.filter();
+        run.largest_valid_rho
+            .push(ScaledCorrelation::largest_valid_rho(
+                filter.accumulated_process_noise(),
+                &r,
+            )?);
+        // Q_k of the last step, at the nominal state after it (the attitude moves
+        // by one IMU period in between: negligible at the rounding of a heuristic).
+        let step_noise = match nav.last_step() {
+            Some((sample, dt)) => filter
+                .process()
+                .process_noise(filter.nominal(), sample, dt)?,
+            None => SMatrix::zeros(),
+        };
+        let step_unit = ScaledCorrelation::unit(&step_noise, &r);
+        run.largest_valid_rho_per_step.push(
+            JointCovariance::new(*filter.accumulated_process_noise(), step_unit, r)
+                .largest_valid_scale()?,
+        );
+        run.largest_valid_rho_per_step_own
+            .push(if nav.last_step().is_some() {
+                // A diagnostic: a failure here is a NaN, never a stopped run.
+                JointCovariance::new(step_noise, step_unit, r)
+                    .largest_valid_scale()
+                    .unwrap_or(f64::NAN)
             } else {
-                run.rejected += 1;
+                f64::NAN
+            });
+        let h = model.jacobian(filter.nominal())?;
+        let over_r = |u: &CrossMatrix| -> [f64; 3] {
+            let hu = h * u;
+            std::array::from_fn(|j| 2.0 * hu[(j, j)] / r[(j, j)])
+        };
+        run.paper_cross_term_over_r.push([
+            over_r(&ScaledCorrelation::unit(
+                filter.accumulated_process_noise(),
+                &r,
+            )),
+            over_r(&step_unit),
+        ]);
+        let scaled;
+        let fixed;
+        let source: &DvlCross<'_> = match self.cross {
+            CrossSource::Zero => &Zero,
+            CrossSource::Scaled(rho) => {
+                scaled = ScaledCorrelation { rho: *rho };
+                &scaled
             }
-            run.update_accepted.push(Some(report.is_accepted()));
-        } else {
-            run.update_accepted.push(None);
+            CrossSource::ScaledPerStep(rho) => {
+                fixed = Fixed(step_unit * *rho);
+                &fixed
+            }
+            CrossSource::PerEpoch(ms) => {
+                fixed = Fixed(ms.get(epoch).copied().unwrap_or_else(CrossMatrix::zeros));
+                &fixed
+            }
+        };
+        let report = nav
+            .dvl_velocity_with(target, y, model, source)
+            .map_err(|e| nav_error(epoch, self.truth0.time, e))?;
+        run.nis.push(report.nis);
+        if let Some(eig) = report.joint_min_eigenvalue {
+            run.joint_min_eigenvalue.push(eig);
         }
+        if report.is_accepted() {
+            run.accepted += 1;
+        } else {
+            run.rejected += 1;
+        }
+        run.update_accepted.push(Some(report.is_accepted()));
+        Ok(())
+    }
+
+    /// The errors against `truth` after the epoch under way.
+    fn record<O>(&mut self, nav: &StudyNavigator<'_, O>, truth: &InsState) {
+        let (run, truth0) = (&mut self.run, self.truth0);
+        let (rn0, re0) = estim_ins::earth::radii_of_curvature(truth0.latitude);
         let nominal = nav.nominal();
         let p = nav.covariance();
         let e = error_state(truth, nominal);
@@ -487,7 +569,6 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
             (nominal.longitude - truth0.longitude) * (re0 + truth0.height) * truth0.latitude.cos(),
         ]);
     }
-    Ok(run)
 }
 
 /// A navigator error at a DVL epoch: a numerical failure of the filter is a finding
