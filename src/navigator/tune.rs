@@ -334,29 +334,6 @@ pub fn linearize(
         )));
     }
     let spec = model.filter_spec(theta)?;
-    // One error model per part of Q_d; their transitions are the same (same time
-    // constants), their noises the parts (PSDs 1 or 0).
-    let part = |qa: f64, qg: f64, bias: bool| -> Result<InsErrorModel> {
-        let mut acc = *spec.accelerometer();
-        let mut gyro = *spec.gyroscope();
-        acc.white_noise_density = qa;
-        gyro.white_noise_density = qg;
-        if !bias {
-            acc.bias_instability = 0.0;
-            gyro.bias_instability = 0.0;
-        }
-        Ok(InsErrorModel::new(
-            ImuSpec::builder()
-                .accelerometer(acc)
-                .gyroscope(gyro)
-                .build()?,
-        ))
-    };
-    let parts = [
-        part(1.0, 0.0, false)?,
-        part(0.0, 1.0, false)?,
-        part(0.0, 0.0, true)?,
-    ];
     let r = model.measurement_noise(theta);
     let dvl = model.dvl_with_noise(r)?;
     let cross = ScaledCorrelation {
@@ -379,40 +356,11 @@ pub fn linearize(
         return Err(NavigatorError::Config("tune: no IMU samples".into()));
     };
     let tolerance = IMU_PERIOD_SNAP * period;
-    let identity = ErrorMatrix::identity();
-    let (mut phi_acc, mut q_acc) = (identity, [ErrorMatrix::zeros(); 3]);
-    let (mut reset, mut correction) = (identity, SVector::<f64, ERROR_STATES>::zeros());
+    let mut recorder = Recorder::new(noise_parts(&spec)?, period);
     let mut epochs = Vec::with_capacity(trajectory.dvl.len());
     let mut largest_valid_rho = f64::INFINITY;
     let mut clock = first.time;
     let mut next = 0;
-    // Integrate `sample` over dt (the period when within the snap tolerance of it),
-    // recording Phi and the parts of Q_d.
-    let step = |filter: &mut ErrorStateKalmanFilter<f64, InsErrorModel, ERROR_STATES>,
-                sample: &ImuSample,
-                mut dt: f64,
-                phi_acc: &mut ErrorMatrix,
-                q_acc: &mut [ErrorMatrix; 3]|
-     -> Result<()> {
-        if (dt - period).abs() <= tolerance {
-            dt = period;
-        }
-        let before = *filter.nominal();
-        filter
-            .predict(sample, dt)
-            .map_err(|source| NavigatorError::Filter {
-                time: before.time,
-                source,
-            })?;
-        let mut phi = identity;
-        for (q, model) in q_acc.iter_mut().zip(&parts) {
-            let (p, qd) = model.transition_and_noise(&before, sample, dt);
-            *q = model.propagate_covariance(q, &p, &qd);
-            phi = p;
-        }
-        *phi_acc = parts[0].compose_transitions(&phi, phi_acc);
-        Ok(())
-    };
     for (j, sample) in imu.iter().enumerate() {
         let last = j + 1 == imu.len();
         let end = imu.get(j + 1).map_or(sample.time + period, |s| s.time);
@@ -436,36 +384,26 @@ pub fn linearize(
                 )));
             }
             if time - clock > tolerance {
-                step(&mut filter, sample, time - clock, &mut phi_acc, &mut q_acc)?;
+                recorder.step(&mut filter, sample, time - clock)?;
                 clock = time;
             }
             let fail = |source| NavigatorError::Filter { time, source };
-            let before = *filter.nominal();
-            let jacobian = dvl.jacobian(&before).map_err(fail)?;
             largest_valid_rho = largest_valid_rho.min(
                 ScaledCorrelation::largest_valid_rho(filter.accumulated_process_noise(), &r)
                     .map_err(fail)?,
             );
-            let report = filter.update(&dvl, &y, &cross).map_err(fail)?;
-            let transition = phi_acc * reset;
-            epochs.push(Epoch {
-                control: -(transition * correction),
-                transition,
-                noise: q_acc,
-                jacobian,
-                innovation: report.innovation,
-            });
-            correction = report.correction.unwrap_or_else(SVector::zeros);
-            reset = filter.process().reset_jacobian(&before, &correction);
-            phi_acc = identity;
-            q_acc = [ErrorMatrix::zeros(); 3];
+            epochs.push(
+                recorder
+                    .update(&mut filter, &dvl, &y, &cross)
+                    .map_err(fail)?,
+            );
             next += 1;
         }
         if last {
             break;
         }
         if end - clock > tolerance {
-            step(&mut filter, sample, end - clock, &mut phi_acc, &mut q_acc)?;
+            recorder.step(&mut filter, sample, end - clock)?;
             clock = end;
         }
     }
@@ -482,6 +420,114 @@ pub fn linearize(
         filter_log_likelihood: filter.log_likelihood(),
         largest_valid_rho,
     })
+}
+
+/// One error model per part of Q_d (white accelerometer noise, white gyroscope
+/// noise, bias drift) of the filter's `spec`: their transitions are the same (same
+/// time constants), their noises the parts (PSDs 1 or 0).
+fn noise_parts(spec: &ImuSpec) -> Result<[InsErrorModel; 3]> {
+    let part = |qa: f64, qg: f64, bias: bool| -> Result<InsErrorModel> {
+        let mut acc = *spec.accelerometer();
+        let mut gyro = *spec.gyroscope();
+        acc.white_noise_density = qa;
+        gyro.white_noise_density = qg;
+        if !bias {
+            acc.bias_instability = 0.0;
+            gyro.bias_instability = 0.0;
+        }
+        Ok(InsErrorModel::new(
+            ImuSpec::builder()
+                .accelerometer(acc)
+                .gyroscope(gyro)
+                .build()?,
+        ))
+    };
+    Ok([
+        part(1.0, 0.0, false)?,
+        part(0.0, 1.0, false)?,
+        part(0.0, 0.0, true)?,
+    ])
+}
+
+/// What [`linearize`] records between and at DVL epochs: Phi and the parts of Q_d
+/// accumulated since the last epoch, the last correction and its reset Jacobian.
+struct Recorder {
+    parts: [InsErrorModel; 3],
+    period: f64,
+    tolerance: f64,
+    phi_acc: ErrorMatrix,
+    q_acc: [ErrorMatrix; 3],
+    reset: ErrorMatrix,
+    correction: SVector<f64, ERROR_STATES>,
+}
+
+impl Recorder {
+    fn new(parts: [InsErrorModel; 3], period: f64) -> Self {
+        Self {
+            parts,
+            period,
+            tolerance: IMU_PERIOD_SNAP * period,
+            phi_acc: ErrorMatrix::identity(),
+            q_acc: [ErrorMatrix::zeros(); 3],
+            reset: ErrorMatrix::identity(),
+            correction: SVector::zeros(),
+        }
+    }
+
+    /// Integrate `sample` over dt (the period when within the snap tolerance of it),
+    /// recording Phi and the parts of Q_d.
+    fn step(
+        &mut self,
+        filter: &mut ErrorStateKalmanFilter<f64, InsErrorModel, ERROR_STATES>,
+        sample: &ImuSample,
+        mut dt: f64,
+    ) -> Result<()> {
+        if (dt - self.period).abs() <= self.tolerance {
+            dt = self.period;
+        }
+        let before = *filter.nominal();
+        filter
+            .predict(sample, dt)
+            .map_err(|source| NavigatorError::Filter {
+                time: before.time,
+                source,
+            })?;
+        let mut phi = ErrorMatrix::identity();
+        for (q, model) in self.q_acc.iter_mut().zip(&self.parts) {
+            let (p, qd) = model.transition_and_noise(&before, sample, dt);
+            *q = model.propagate_covariance(q, &p, &qd);
+            phi = p;
+        }
+        self.phi_acc = self.parts[0].compose_transitions(&phi, &self.phi_acc);
+        Ok(())
+    }
+
+    /// The DVL update `y` and its epoch of the linearized model; the accumulation
+    /// starts again.
+    fn update(
+        &mut self,
+        filter: &mut ErrorStateKalmanFilter<f64, InsErrorModel, ERROR_STATES>,
+        dvl: &DvlVelocityModel,
+        y: &Vector3<f64>,
+        cross: &ScaledCorrelation<f64>,
+    ) -> estim_core::Result<Epoch> {
+        let before = *filter.nominal();
+        let jacobian = dvl.jacobian(&before)?;
+        let report = filter.update(dvl, y, cross)?;
+        let transition = self.phi_acc * self.reset;
+        let epoch = Epoch {
+            control: -(transition * self.correction),
+            transition,
+            noise: self.q_acc,
+            jacobian,
+            innovation: report.innovation,
+        };
+        self.correction = report.correction.unwrap_or_else(SVector::zeros);
+        self.reset = filter.process().reset_jacobian(&before, &self.correction);
+        self.phi_acc = ErrorMatrix::identity();
+        self.q_acc = [ErrorMatrix::zeros(); 3];
+        Ok(epoch)
+    }
 }
 
 /// The log-likelihood of the linearized filters of one or more trajectories (their
