@@ -6,13 +6,21 @@
 //! - [`NavigatorConfig`]: the vehicle configuration (serde; unknown keys refused),
 //!   checked once by [`NavigatorConfig::check`] into [`NavigatorSettings`];
 //! - [`Navigator`]: feed IMU samples and measurements in time order, read
-//!   [`NavSolution`]s (state and 1-sigma per state group);
+//!   [`NavSolution`]s (state and 1-sigma per state group). One navigator, generic over
+//!   its error model ([`NavigationModel`]): `Navigator` is `Navigator<InsErrorModel,
+//!   NoObserver, 15>` (the 15 INS states, static sizes, no per-step allocation);
+//!   [`AugmentedNavigator`] is `Navigator<AugmentedErrorModel, O, 26>`, the same code
+//!   with optional DVL error states (scale factor, mounting misalignment, Gauss-Markov
+//!   velocity bias, lever arm, time offset; [`DvlStatesConfig`]), built by
+//!   [`AugmentedNavigator::with_states`], its DVL states read by
+//!   [`Navigator::dvl_states`];
+//! - [`run_epochs`]: the one loop that feeds an IMU stream and time-ordered measurement
+//!   epochs into a navigator, with a per-epoch hook ([`EpochHook`]: it applies each
+//!   epoch's measurements, sees every IMU sample, and can stop the run with its own
+//!   typed error); [`navigate`], the smoother and the study's runs are hooks on it;
 //! - [`navigate`]: the batch run over time-merged inputs ([`SurveyInputs`]), with the
 //!   initial state from the configuration, the first fix and a coarse alignment; on
-//!   the [`AugmentedNavigator`] when the configuration has `dvl_states`.
-//! - [`AugmentedNavigator`]: the same filter with optional DVL error states (scale
-//!   factor, mounting misalignment, Gauss-Markov velocity bias, lever arm, time
-//!   offset; [`DvlStatesConfig`]), a 26-state error vector;
+//!   the augmented error model when the configuration has `dvl_states`;
 //! - [`tune`]: maximum-likelihood noise parameters (IMU white-noise densities, DVL
 //!   beam noise and mismatch, the scale of the paper's M) with standard errors and a
 //!   likelihood-ratio test of M = 0, on A-KIT scenarios or a survey's inputs
