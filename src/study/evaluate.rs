@@ -597,23 +597,7 @@ pub fn evaluate(
     trajectories: &[u32],
     seeds: &[u64],
 ) -> Result<Evaluation> {
-    if trajectories.is_empty() || seeds.is_empty() {
-        return Err(PipelineError::Invalid(
-            "an evaluation needs at least one trajectory and one seed".into(),
-        ));
-    }
-    for (i, t) in trajectories.iter().enumerate() {
-        if trajectories[..i].contains(t) {
-            return Err(PipelineError::Invalid(format!(
-                "trajectory {t} given twice"
-            )));
-        }
-    }
-    for (i, s) in seeds.iter().enumerate() {
-        if seeds[..i].contains(s) {
-            return Err(PipelineError::Invalid(format!("seed {s} given twice")));
-        }
-    }
+    check_lists(trajectories, seeds)?;
     let states = states.unwrap_or_else(|| fit.states());
     states.check()?;
     if let Some(window) = adaptive_noise {
@@ -676,6 +660,60 @@ pub fn evaluate(
             Err(f) => failures.push(f),
         }
     }
+    let rows = evaluation_rows(trajectories, &runs, &fit);
+    let counts = EVALUATED_VARIANTS
+        .iter()
+        .map(|id| {
+            let mine: Vec<&EvaluationRow> = rows.iter().filter(|r| r.id == *id).collect();
+            EvaluationCount {
+                id: id.to_string(),
+                trajectories: mine.len(),
+                nees_in_band: mine.iter().filter(|r| r.nees_in_band).count(),
+                nis_in_band: mine.iter().filter(|r| r.nis_in_band).count(),
+            }
+        })
+        .collect();
+    Ok(Evaluation {
+        fit,
+        states,
+        adaptive_noise_window: adaptive_noise,
+        seeds: seeds.to_vec(),
+        runs,
+        failures,
+        fifteen_state_time_offset_s: config.dvl.akit_time_offset_s,
+        rows,
+        counts,
+    })
+}
+
+/// Refuse an empty or repeated trajectory or seed list.
+fn check_lists(trajectories: &[u32], seeds: &[u64]) -> Result<()> {
+    if trajectories.is_empty() || seeds.is_empty() {
+        return Err(PipelineError::Invalid(
+            "an evaluation needs at least one trajectory and one seed".into(),
+        ));
+    }
+    for (i, t) in trajectories.iter().enumerate() {
+        if trajectories[..i].contains(t) {
+            return Err(PipelineError::Invalid(format!(
+                "trajectory {t} given twice"
+            )));
+        }
+    }
+    for (i, s) in seeds.iter().enumerate() {
+        if seeds[..i].contains(s) {
+            return Err(PipelineError::Invalid(format!("seed {s} given twice")));
+        }
+    }
+    Ok(())
+}
+
+/// Per trajectory and variant, the means over the seeds' runs.
+fn evaluation_rows(
+    trajectories: &[u32],
+    runs: &[EvaluationRun],
+    fit: &TrainingFit,
+) -> Vec<EvaluationRow> {
     let mut rows = Vec::new();
     for &t in trajectories {
         for id in EVALUATED_VARIANTS {
@@ -709,27 +747,5 @@ pub fn evaluate(
             });
         }
     }
-    let counts = EVALUATED_VARIANTS
-        .iter()
-        .map(|id| {
-            let mine: Vec<&EvaluationRow> = rows.iter().filter(|r| r.id == *id).collect();
-            EvaluationCount {
-                id: id.to_string(),
-                trajectories: mine.len(),
-                nees_in_band: mine.iter().filter(|r| r.nees_in_band).count(),
-                nis_in_band: mine.iter().filter(|r| r.nis_in_band).count(),
-            }
-        })
-        .collect();
-    Ok(Evaluation {
-        fit,
-        states,
-        adaptive_noise_window: adaptive_noise,
-        seeds: seeds.to_vec(),
-        runs,
-        failures,
-        fifteen_state_time_offset_s: config.dvl.akit_time_offset_s,
-        rows,
-        counts,
-    })
+    rows
 }

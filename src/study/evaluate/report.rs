@@ -6,8 +6,32 @@ use super::*;
 /// counts.
 pub fn markdown(e: &Evaluation) -> String {
     use std::fmt::Write as _;
-    let f = &e.fit;
     let mut s = String::new();
+    fit_text(&mut s, &e.fit);
+    let trajectories: Vec<u32> = {
+        let mut t: Vec<u32> = e.rows.iter().map(|r| r.trajectory).collect();
+        t.dedup();
+        t
+    };
+    variants_table(&mut s, e, &trajectories);
+    comparison_table(&mut s, e, &trajectories);
+    for c in &e.counts {
+        let _ = writeln!(
+            s,
+            "{}: NEES within [0.5, 2] x 15 on {} of {} trajectories; NIS within [0.5, 2] x 3 on {} of {}.",
+            super::super::filter_label(&c.id, f64::NAN),
+            c.nees_in_band,
+            c.trajectories,
+            c.nis_in_band,
+            c.trajectories
+        );
+    }
+    s
+}
+
+/// The fit's paragraph.
+fn fit_text(s: &mut String, f: &TrainingFit) {
+    use std::fmt::Write as _;
     let _ = writeln!(
         s,
         "Fit on training trajectories {:?} (4 and 13 never used): lever arm [{:.3}, {:.3}, {:.3}] m, \
@@ -45,6 +69,11 @@ pub fn markdown(e: &Evaluation) -> String {
         f.rate_noise_mps_per_radps,
         f.residual_samples,
     );
+}
+
+/// Per trajectory, LS and BeamsNet with the augmented filter.
+fn variants_table(s: &mut String, e: &Evaluation, trajectories: &[u32]) {
+    use std::fmt::Write as _;
     let adaptive = e.adaptive_noise_window.is_some();
     s.push_str(
         "| trajectory | LS: NEES / NIS / position RMSE [m] | BeamsNet, M neglected: NEES / NIS / \
@@ -55,12 +84,7 @@ pub fn markdown(e: &Evaluation) -> String {
     } else {
         "\n|---|---|---|---|\n"
     });
-    let trajectories: Vec<u32> = {
-        let mut t: Vec<u32> = e.rows.iter().map(|r| r.trajectory).collect();
-        t.dedup();
-        t
-    };
-    for &t in &trajectories {
+    for &t in trajectories {
         let cell = |id: &str| e.rows.iter().find(|r| r.trajectory == t && r.id == id);
         let text = |r: Option<&EvaluationRow>| match r {
             Some(r) if r.runs > 0 => format!(
@@ -98,6 +122,11 @@ pub fn markdown(e: &Evaluation) -> String {
         }
         s.push('\n');
     }
+}
+
+/// Per trajectory, the paired difference to the 15-state filter.
+fn comparison_table(s: &mut String, e: &Evaluation, trajectories: &[u32]) {
+    use std::fmt::Write as _;
     s.push('\n');
     let _ = writeln!(
         s,
@@ -111,7 +140,7 @@ pub fn markdown(e: &Evaluation) -> String {
         "| trajectory | 15-state LS / BeamsNet [m] | LS: difference [m] | BeamsNet, M neglected: \
          difference [m] |\n|---|---|---|---|\n",
     );
-    for t in &trajectories {
+    for t in trajectories {
         let cell = |id: &str| e.rows.iter().find(|r| r.trajectory == *t && r.id == id);
         let base =
             |r: Option<&EvaluationRow>| r.map_or(f64::NAN, |r| r.fifteen_state_position_rmse_m);
@@ -129,16 +158,4 @@ pub fn markdown(e: &Evaluation) -> String {
         );
     }
     s.push('\n');
-    for c in &e.counts {
-        let _ = writeln!(
-            s,
-            "{}: NEES within [0.5, 2] x 15 on {} of {} trajectories; NIS within [0.5, 2] x 3 on {} of {}.",
-            super::super::filter_label(&c.id, f64::NAN),
-            c.nees_in_band,
-            c.trajectories,
-            c.nis_in_band,
-            c.trajectories
-        );
-    }
-    s
 }
