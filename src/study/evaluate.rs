@@ -266,6 +266,99 @@ fn spread3(values: &[[f64; 3]]) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// The calibration of training trajectory `n` (its rows shared with a test
+/// trajectory left out) and the largest standard errors of its scale factor,
+/// misalignment and lever arm.
+fn calibrate(
+    dir: &Path,
+    config: &Config,
+    n: u32,
+    calibrator: &Calibrator,
+    test_rows: &HashSet<[u64; 3]>,
+) -> Result<(TrajectoryCalibration, [f64; 3])> {
+    let files = trajectory_files(dir, n)?;
+    let gt = load_gt_with(&files.gt, &config.columns)?;
+    let dvl = load_dvl_with(&files.dvl, &config.columns)?;
+    let reference: Vec<TrajectorySample> = gt
+        .iter()
+        .map(|s| TrajectorySample {
+            time: s.time,
+            velocity_ned: Vector3::from(s.velocity_ned),
+            roll_pitch_yaw: Vector3::from(s.roll_pitch_yaw),
+        })
+        .collect();
+    let log: Vec<DvlMeasurement> = dvl
+        .iter()
+        .filter(|s| !test_rows.contains(&bits(&s.velocity_body)))
+        .map(|s| DvlMeasurement {
+            time: s.time,
+            velocity: Vector3::from(s.velocity_body),
+        })
+        .collect();
+    let c = calibrator
+        .calibrate(&reference, &log)
+        .map_err(|e| PipelineError::Invalid(format!("calibration of A-KIT trajectory {n}: {e}")))?;
+    let standard_errors = [
+        c.scale_factor_error.standard_error,
+        c.mounting_misalignment
+            .iter()
+            .map(|e| e.standard_error)
+            .fold(0.0, f64::max),
+        c.lever_arm
+            .iter()
+            .map(|e| e.standard_error)
+            .fold(0.0, f64::max),
+    ];
+    Ok((
+        TrajectoryCalibration {
+            trajectory: n,
+            samples: c.samples,
+            lever_arm_m: c.lever_arm_vector().into(),
+            scale_factor_error: c.scale_factor_error.value,
+            misalignment_rad: c.mounting_misalignment_vector().into(),
+            time_offset_s: c.time_offset.value,
+            residual_rms_mps: c.residual_rms.into(),
+        },
+        standard_errors,
+    ))
+}
+
+/// The residuals of a trajectory at its own calibration, with the angular rate, for
+/// the Gauss-Markov fit (`None` for an epoch shared with a test trajectory).
+fn calibration_residuals(
+    dir: &Path,
+    config: &Config,
+    c: &TrajectoryCalibration,
+    test_rows: &HashSet<[u64; 3]>,
+) -> Result<Vec<Option<RateResidual>>> {
+    let mut cfg = config.clone();
+    cfg.dvl.akit_time_offset_s = c.time_offset_s;
+    let scenario = Scenario::akit(dir, c.trajectory, &cfg, cfg.seed)?;
+    let mut out = Vec::with_capacity(scenario.dvl.len());
+    for epoch in &scenario.dvl {
+        if test_rows.contains(&bits(&epoch.reference_velocity.into())) {
+            out.push(None);
+            continue;
+        }
+        let truth = scenario.truth.get(epoch.imu_index).ok_or_else(|| {
+            PipelineError::Invalid(format!(
+                "A-KIT trajectory {}: DVL epoch beyond the truth",
+                c.trajectory
+            ))
+        })?;
+        let predicted = dvl_frame_velocity(
+            &(truth.attitude.inverse() * truth.velocity_ned),
+            &truth.angular_rate,
+            &Vector3::from(c.lever_arm_m),
+            c.scale_factor_error,
+            &Vector3::from(c.misalignment_rad),
+        );
+        let rr = epoch.reference_velocity - predicted;
+        out.push(Some((rr, truth.angular_rate.norm())));
+    }
+    Ok(out)
+}
+
 /// Fit the DVL model and its error states on `trajectories` (see the module docs).
 ///
 /// # Errors
@@ -297,53 +390,7 @@ pub fn fit_training(
         .map_err(|e| PipelineError::Invalid(e.to_string()))?;
     let calibrations: Vec<(TrajectoryCalibration, [f64; 3])> = trajectories
         .par_iter()
-        .map(|&n| {
-            let files = trajectory_files(dir, n)?;
-            let gt = load_gt_with(&files.gt, &config.columns)?;
-            let dvl = load_dvl_with(&files.dvl, &config.columns)?;
-            let reference: Vec<TrajectorySample> = gt
-                .iter()
-                .map(|s| TrajectorySample {
-                    time: s.time,
-                    velocity_ned: Vector3::from(s.velocity_ned),
-                    roll_pitch_yaw: Vector3::from(s.roll_pitch_yaw),
-                })
-                .collect();
-            let log: Vec<DvlMeasurement> = dvl
-                .iter()
-                .filter(|s| !test_rows.contains(&bits(&s.velocity_body)))
-                .map(|s| DvlMeasurement {
-                    time: s.time,
-                    velocity: Vector3::from(s.velocity_body),
-                })
-                .collect();
-            let c = calibrator.calibrate(&reference, &log).map_err(|e| {
-                PipelineError::Invalid(format!("calibration of A-KIT trajectory {n}: {e}"))
-            })?;
-            let standard_errors = [
-                c.scale_factor_error.standard_error,
-                c.mounting_misalignment
-                    .iter()
-                    .map(|e| e.standard_error)
-                    .fold(0.0, f64::max),
-                c.lever_arm
-                    .iter()
-                    .map(|e| e.standard_error)
-                    .fold(0.0, f64::max),
-            ];
-            Ok((
-                TrajectoryCalibration {
-                    trajectory: n,
-                    samples: c.samples,
-                    lever_arm_m: c.lever_arm_vector().into(),
-                    scale_factor_error: c.scale_factor_error.value,
-                    misalignment_rad: c.mounting_misalignment_vector().into(),
-                    time_offset_s: c.time_offset.value,
-                    residual_rms_mps: c.residual_rms.into(),
-                },
-                standard_errors,
-            ))
-        })
+        .map(|&n| calibrate(dir, config, n, &calibrator, &test_rows))
         .collect::<Result<_>>()?;
     let k = calibrations.len() as f64;
     let se = mean3(calibrations.iter().map(|(_, s)| *s));
@@ -366,34 +413,7 @@ pub fn fit_training(
     // The residuals at each trajectory's own calibration, for the Gauss-Markov fit.
     let residuals: Vec<Vec<Option<RateResidual>>> = cals
         .par_iter()
-        .map(|c| {
-            let mut cfg = config.clone();
-            cfg.dvl.akit_time_offset_s = c.time_offset_s;
-            let scenario = Scenario::akit(dir, c.trajectory, &cfg, cfg.seed)?;
-            let mut out = Vec::with_capacity(scenario.dvl.len());
-            for epoch in &scenario.dvl {
-                if test_rows.contains(&bits(&epoch.reference_velocity.into())) {
-                    out.push(None);
-                    continue;
-                }
-                let truth = scenario.truth.get(epoch.imu_index).ok_or_else(|| {
-                    PipelineError::Invalid(format!(
-                        "A-KIT trajectory {}: DVL epoch beyond the truth",
-                        c.trajectory
-                    ))
-                })?;
-                let predicted = dvl_frame_velocity(
-                    &(truth.attitude.inverse() * truth.velocity_ned),
-                    &truth.angular_rate,
-                    &Vector3::from(c.lever_arm_m),
-                    c.scale_factor_error,
-                    &Vector3::from(c.misalignment_rad),
-                );
-                let rr = epoch.reference_velocity - predicted;
-                out.push(Some((rr, truth.angular_rate.norm())));
-            }
-            Ok(out)
-        })
+        .map(|c| calibration_residuals(dir, config, c, &test_rows))
         .collect::<Result<_>>()?;
     // With the rate-dependent noise: the Gauss-Markov part from the calm epochs (both
     // ends of a pair below CALM_RATE_RADPS), the rate-dependent part from all epochs.
