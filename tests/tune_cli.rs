@@ -151,3 +151,114 @@ fn survey_files_give_the_fit_of_the_study_trajectory() {
         assert!(z.abs() < 0.05, "{}: {z} standard errors apart", y["name"]);
     }
 }
+
+/// Trajectory 7's recorded IMU and DVL as a survey, with the A-KIT vehicle file
+/// without its DVL states (tune fits the 15-state filter); `None` without data.
+fn recorded_survey(n: u32) -> Option<(tempfile::TempDir, [String; 4])> {
+    let root = common::data_root()?;
+    let files = estim::datasets::trajectory_files(&root, n).unwrap();
+    let folder = files.gt.parent().unwrap();
+    let imu = folder.join(format!("IMU_trajectory{n}.csv"));
+    let dir = tempfile::tempdir().unwrap();
+    let vehicle = dir.path().join("akit15.toml");
+    let text = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("vehicles/akit.toml"),
+    )
+    .unwrap();
+    let (head, tail) = text.split_once("[dvl_states]").unwrap();
+    let (_, rest) = tail.split_once("\n[").unwrap();
+    std::fs::write(&vehicle, format!("{head}\n[{rest}")).unwrap();
+    let paths = [imu, files.dvl, files.gt, vehicle].map(|p| p.to_string_lossy().into_owned());
+    Some((dir, paths))
+}
+
+#[test]
+fn a_degenerate_optimum_exits_3_and_a_held_parameter_lets_the_fit_converge() {
+    let Some((_dir, [imu, dvl, gt, vehicle])) = recorded_survey(7) else {
+        return;
+    };
+    let base = [
+        "tune",
+        "--imu",
+        &imu,
+        "--dvl",
+        &dvl,
+        "--truth",
+        &gt,
+        "--vehicle",
+        &vehicle,
+        "--json",
+    ];
+    // Free: the accelerometer density and the mismatch variance go to zero.
+    let out = estim(&base);
+    assert_eq!(
+        out.status.code(),
+        Some(3),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    assert_ne!(doc["status"], "ok");
+    assert_eq!(doc["fit_status"], "degenerate");
+    let reason = doc["fit_status_reason"].as_str().unwrap();
+    assert!(reason.contains("accelerometer_psd"), "{reason}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("degenerate optimum") && err.contains("--fix"),
+        "{err}"
+    );
+    // Held at data-sheet values: the rest converges inside its bounds, each free
+    // parameter with a standard error, each held one marked.
+    let mut args = base.to_vec();
+    args.extend([
+        "--fix",
+        "accelerometer_psd=9e-6",
+        "--fix",
+        "dvl_mismatch_variance=1e-5",
+        "--fix",
+        "m_scale=0",
+    ]);
+    let doc = tune_json(&args);
+    assert_eq!(
+        doc["fit_status"], "converged",
+        "{}",
+        doc["fit_status_reason"]
+    );
+    assert_eq!(doc["converged"], true);
+    for p in doc["parameters"].as_array().unwrap() {
+        let held = !p["fixed"].is_null();
+        assert_eq!(p["standard_error"].is_null(), held, "{p}");
+        if held {
+            assert_eq!(p["value"], p["fixed"], "{p}");
+        } else {
+            let (v, se) = (
+                p["value"].as_f64().unwrap(),
+                p["standard_error"].as_f64().unwrap(),
+            );
+            assert!(v > 0.0 && se > 0.0 && se < v, "{p}");
+        }
+    }
+}
+
+#[test]
+fn fix_names_a_parameter_and_a_valid_value() {
+    for (fix, says) in [
+        ("gyro=1e-9", "is not a parameter"),
+        ("gyroscope_psd=-1", "must be finite and >= 0"),
+        ("gyroscope_psd=nan", "must be finite"),
+        ("gyroscope_psd", "expected NAME=VALUE"),
+    ] {
+        let out = estim(&[
+            "tune",
+            "--imu",
+            "/nonexistent.csv",
+            "--dvl",
+            "/x.csv",
+            "--fix",
+            fix,
+        ]);
+        assert_eq!(out.status.code(), Some(2), "{fix}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(says), "{fix}: {err}");
+    }
+}

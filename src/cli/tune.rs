@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use estim::navigator::tune::{TuneOptions, PARAMETER_NAMES, PARAMETER_UNITS};
+use estim::navigator::tune::{TuneOptions, M_SCALE, PARAMETER_NAMES, PARAMETER_UNITS};
 
 use crate::study::{tune_akit, Config, TuneReport};
 
@@ -41,6 +41,14 @@ pub struct Args {
     /// beam geometry and noise, initial state; as `estim navigate --vehicle`).
     #[arg(long, value_name = "FILE", requires = "imu")]
     vehicle: Option<PathBuf>,
+    /// Survey mode: a reference track (as `estim navigate --truth`), used for the
+    /// initial state only (`--init-from-truth`, or `[truth] initial_state` in the
+    /// vehicle file); the fit itself sees only the IMU and the DVL.
+    #[arg(long, value_name = "FILE", requires = "imu")]
+    truth: Option<PathBuf>,
+    /// Survey mode: start from the truth's state (as `estim navigate --init-from-truth`).
+    #[arg(long, requires = "truth")]
+    init_from_truth: bool,
     /// TOML configuration (as for `estim reproduce`): the IMU error model the IMU is
     /// synthesized with, the DVL lever arm, time offset and beam protocol, the
     /// starting values.
@@ -55,15 +63,58 @@ pub struct Args {
     #[arg(long, value_name = "N", default_value_t = 2,
           value_parser = clap::value_parser!(u64).range(1..=10))]
     linearizations: u64,
+    /// Hold a parameter at a value instead of fitting it (repeatable), e.g.
+    /// `--fix accelerometer_psd=9e-6` (names and units as in the output's table).
+    #[arg(long, value_name = "NAME=VALUE", value_parser = parse_fix)]
+    fix: Vec<(usize, f64)>,
     /// Machine-readable JSON on stdout instead of the table.
     #[arg(long)]
     json: bool,
 }
 
+/// `NAME=VALUE` of `--fix`: the parameter's index and a finite value inside its
+/// range (variances >= 0, m_scale any finite value; the fit checks it against the
+/// largest valid M).
+fn parse_fix(text: &str) -> Result<(usize, f64), String> {
+    let (name, value) = text
+        .split_once('=')
+        .ok_or_else(|| format!("{text:?}: expected NAME=VALUE"))?;
+    let index = PARAMETER_NAMES
+        .iter()
+        .position(|n| *n == name.trim())
+        .ok_or_else(|| {
+            format!(
+                "{name:?} is not a parameter (one of {})",
+                PARAMETER_NAMES.join(", ")
+            )
+        })?;
+    let value: f64 = value
+        .trim()
+        .parse()
+        .map_err(|e| format!("{name}: {value:?} is not a number ({e})"))?;
+    let valid = value.is_finite() && (index == M_SCALE || value >= 0.0);
+    if !valid {
+        return Err(format!(
+            "{name}: {value} must be finite{}",
+            if index == M_SCALE { "" } else { " and >= 0" }
+        ));
+    }
+    Ok((index, value))
+}
+
 /// Run it.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    let mut fixed = [None; PARAMETER_NAMES.len()];
+    for &(i, value) in &args.fix {
+        anyhow::ensure!(
+            fixed[i].replace(value).is_none(),
+            "--fix {}: given twice",
+            PARAMETER_NAMES[i]
+        );
+    }
     let options = TuneOptions {
         linearizations: usize::try_from(args.linearizations)?,
+        fixed,
         ..TuneOptions::default()
     };
     if let Some(imu) = &args.imu {
@@ -107,7 +158,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
         table(&head, &report)
     };
-    crate::output::emit(&text)
+    finish(&text, &report)
 }
 
 /// Survey mode: the navigator's inputs and arithmetic, the likelihood of its DVL rows.
@@ -124,8 +175,8 @@ fn survey(args: &Args, imu: PathBuf, options: &TuneOptions) -> anyhow::Result<()
         depth: None,
         fixes: None,
         vehicle: args.vehicle.clone(),
-        truth: None,
-        init_from_truth: false,
+        truth: args.truth.clone(),
+        init_from_truth: args.init_from_truth,
     };
     let loaded = crate::navigate::load_survey(files)?;
     crate::navigate::refuse_dvl_states(&loaded, "estim tune")?;
@@ -163,7 +214,22 @@ fn survey(args: &Args, imu: PathBuf, options: &TuneOptions) -> anyhow::Result<()
         );
         table(&head, &report)
     };
-    crate::output::emit(&text)
+    finish(&text, &report)
+}
+
+/// Print the report; a fit that cannot be used as it stands (degenerate, not
+/// converged) exits 3 naming why, after its figures were printed.
+fn finish(text: &str, report: &TuneReport) -> anyhow::Result<()> {
+    crate::output::emit(text)?;
+    let status = &report.fit.status;
+    if status.is_usable() {
+        Ok(())
+    } else {
+        Err(crate::schema::RunStopped {
+            message: format!("tune: {status}; the figures above are not a usable fit"),
+        }
+        .into())
+    }
 }
 
 fn json(inputs: serde_json::Value, report: &TuneReport) -> anyhow::Result<String> {
@@ -179,6 +245,7 @@ fn json(inputs: serde_json::Value, report: &TuneReport) -> anyhow::Result<String
                 "value": fit.full.theta[i],
                 "standard_error": fit.standard_errors[i],
                 "on_bound": fit.on_bound[i],
+                "fixed": report.fit.fixed[i],
                 "start": report.start[i],
                 "synthesized": report.synthesized_psd.and_then(|p| p.get(i).copied()),
                 "value_with_m_zero": fit.restricted.theta[i],
@@ -190,8 +257,10 @@ fn json(inputs: serde_json::Value, report: &TuneReport) -> anyhow::Result<String
     let doc = document(
         "tune",
         inputs,
-        0,
+        usize::from(!fit.status.is_usable()),
         serde_json::json!({
+            "fit_status": fit.status.as_str(),
+            "fit_status_reason": fit.status.to_string(),
             "parameters": parameters,
             "log_likelihood": fit.full.log_likelihood,
             "log_likelihood_with_m_zero": fit.restricted.log_likelihood,
@@ -224,10 +293,11 @@ fn table(head: &str, report: &TuneReport) -> String {
         "\n| parameter | unit | estimate | standard error | start | synthesized |\n|---|---|---|---|---|---|"
     );
     for i in 0..PARAMETER_NAMES.len() {
-        let se = match (fit.standard_errors[i], fit.on_bound[i]) {
-            (Some(s), _) => format!("{s:.4e}"),
-            (None, true) => "on its bound".to_string(),
-            (None, false) => "n/a".to_string(),
+        let se = match (report.fit.fixed[i], fit.standard_errors[i], fit.on_bound[i]) {
+            (Some(_), _, _) => "held (--fix)".to_string(),
+            (None, Some(s), _) => format!("{s:.4e}"),
+            (None, None, true) => "on its bound".to_string(),
+            (None, None, false) => "n/a".to_string(),
         };
         let synthesized = report
             .synthesized_psd
@@ -246,9 +316,10 @@ fn table(head: &str, report: &TuneReport) -> String {
     }
     let _ = writeln!(
         out,
-        "\nln p = {:.3} (converged: {}); with M = 0: ln p = {:.3} (converged: {}).\n\
+        "\nFit: {}.\nln p = {:.3} (converged: {}); with M = 0: ln p = {:.3} (converged: {}).\n\
          Likelihood-ratio test of m_scale = 0: statistic {:.4}, 1 degree of freedom, p-value {:.4}.\n\
          m_scale is bounded by +-{:.4} (99 % of the largest valid value at the last linearization).",
+        fit.status,
         fit.full.log_likelihood,
         fit.full.converged,
         fit.restricted.log_likelihood,

@@ -43,8 +43,8 @@
 
 use estim_core::nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 use estim_core::noise::ml::{
-    likelihood_ratio_test, maximize, Bounds, FitOptions, LikelihoodRatioTest, LogLikelihood,
-    MaximumLikelihood,
+    gradient, likelihood_ratio_test, maximize, Bounds, FitOptions, FitStop, LikelihoodRatioTest,
+    LogLikelihood, MaximumLikelihood,
 };
 use estim_core::numeric::lit;
 use estim_core::{
@@ -608,6 +608,10 @@ pub struct TuneOptions {
     /// rho is bounded by this fraction of the largest valid |rho| at the last
     /// linearization point (default 0.99), so that the joint covariance stays valid.
     pub rho_margin: f64,
+    /// Parameters held at a value instead of fitted (`None`: fitted), in theta's
+    /// order ([`PARAMETER_NAMES`]); e.g. an IMU density from its data sheet where the
+    /// data cannot tell it (a degenerate optimum, [`TuneStatus::Degenerate`]).
+    pub fixed: [Option<f64>; TUNE_PARAMETERS],
 }
 
 impl Default for TuneOptions {
@@ -616,6 +620,94 @@ impl Default for TuneOptions {
             fit: FitOptions::default(),
             linearizations: 2,
             rho_margin: 0.99,
+            fixed: [None; TUNE_PARAMETERS],
+        }
+    }
+}
+
+/// Outward derivatives of ln p (times the parameter's scale) down to this value count
+/// as zero in the optimality check of a parameter on its bound
+/// ([`TuneStatus::ConvergedOnBound`]).
+pub const BOUND_GRADIENT_TOLERANCE: f64 = 1e-3;
+
+/// How a fit ended, for a user deciding whether to use it.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum TuneStatus {
+    /// Converged inside the bounds: the observed information over the free parameters
+    /// is positive definite and the Newton decrement below tolerance.
+    Converged,
+    /// Converged with these parameters on a bound that is not degenerate (|rho| at the
+    /// largest valid M, one of R's two variances at zero): with them held there, the others converged, and ln p does not
+    /// increase inward from the bound (the optimality conditions of a bounded
+    /// maximum, to [`BOUND_GRADIENT_TOLERANCE`]).
+    ConvergedOnBound {
+        /// The parameters on their bound.
+        parameters: Vec<&'static str>,
+    },
+    /// A degenerate optimum: an IMU white-noise density went to zero (below 1e-6 of
+    /// its start), or both of R's terms did. That noise is then absent from the
+    /// filter, which no filter can use, and the data cannot tell it from a small one:
+    /// hold them at a value ([`TuneOptions::fixed`]) and fit again. (One of R's two
+    /// terms alone at zero leaves R positive definite: a bounded optimum,
+    /// [`TuneStatus::ConvergedOnBound`].)
+    Degenerate {
+        /// The variances at zero.
+        parameters: Vec<&'static str>,
+    },
+    /// The fit did not converge, for this reason (the optimizer's typed stop of the
+    /// fit that decides: the full fit, or the refit with the parameters on a bound
+    /// held there).
+    NotConverged {
+        /// Why the optimizer stopped.
+        stop: FitStop,
+        /// Parameters on a bound (held there for the refit).
+        on_bound: Vec<&'static str>,
+    },
+}
+
+impl TuneStatus {
+    /// Whether the fit can be used as it stands (converged, inside or on a valid
+    /// bound).
+    pub fn is_usable(&self) -> bool {
+        matches!(self, Self::Converged | Self::ConvergedOnBound { .. })
+    }
+
+    /// A short machine-readable name: `converged`, `converged_on_bound`, `degenerate`
+    /// or `not_converged`.
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Self::Converged => "converged",
+            Self::ConvergedOnBound { .. } => "converged_on_bound",
+            Self::Degenerate { .. } => "degenerate",
+            Self::NotConverged { .. } => "not_converged",
+        }
+    }
+}
+
+impl std::fmt::Display for TuneStatus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Converged => write!(f, "converged"),
+            Self::ConvergedOnBound { parameters } => write!(
+                f,
+                "converged, with {} on its bound (a bounded maximum)",
+                parameters.join(", ")
+            ),
+            Self::Degenerate { parameters } => write!(
+                f,
+                "degenerate optimum: {} went to zero, which the data cannot tell from a \
+                 small value and which no filter can use; hold them at a value (--fix \
+                 NAME=VALUE) and fit again",
+                parameters.join(", ")
+            ),
+            Self::NotConverged { stop, on_bound } => {
+                write!(f, "not converged: {stop:?}")?;
+                if !on_bound.is_empty() {
+                    write!(f, " (with {} held on its bound)", on_bound.join(", "))?;
+                }
+                Ok(())
+            }
         }
     }
 }
@@ -629,10 +721,18 @@ pub struct TuneFit {
     /// starting value, or |rho| within 1e-4 relative of its bound).
     pub on_bound: [bool; TUNE_PARAMETERS],
     /// Standard errors of `full` from the observed information over the parameters
-    /// that are not on a bound (`None` for those on one, where the quadratic
+    /// that are neither on a bound nor held (`None` for those, where the quadratic
     /// approximation does not hold, and for all when that information is not positive
     /// definite). `full.standard_errors` is the same when no parameter is on a bound.
     pub standard_errors: [Option<f64>; TUNE_PARAMETERS],
+    /// How the fit ended ([`TuneStatus`]): use `full` only when
+    /// [`TuneStatus::is_usable`].
+    pub status: TuneStatus,
+    /// The parameters held at a value ([`TuneOptions::fixed`]).
+    pub fixed: [Option<f64>; TUNE_PARAMETERS],
+    /// The refit with the parameters on a bound held there (`None` when none is on
+    /// one); it decides [`TuneStatus::ConvergedOnBound`].
+    pub boundary: Option<MaximumLikelihood<TUNE_PARAMETERS>>,
     /// The fit with rho = 0 (M = 0), on the same linearization.
     pub restricted: MaximumLikelihood<TUNE_PARAMETERS>,
     /// The likelihood-ratio test of rho = 0 (1 degree of freedom).
@@ -687,15 +787,38 @@ pub fn tune(
         let mut lower = SVector::from([0.0, 0.0, 0.0, 0.0, -rho_bound]);
         let mut upper = SVector::from([f64::INFINITY; TUNE_PARAMETERS]);
         upper[M_SCALE] = rho_bound;
-        let bounds = Bounds::new(lower, upper)?;
         let mut begin = point;
         begin[M_SCALE] = begin[M_SCALE].clamp(-0.5 * rho_bound, 0.5 * rho_bound);
+        for (i, value) in options.fixed.iter().enumerate() {
+            if let Some(v) = *value {
+                (lower[i], upper[i], begin[i]) = (v, v, v);
+            }
+        }
+        let bounds = Bounds::new(lower, upper)?;
         let full = maximize(&likelihood, &begin, &bounds, &options.fit)?;
         if points.len() < options.linearizations {
             point = full.theta;
             points.push(point);
             continue;
         }
+        let on_bound: [bool; TUNE_PARAMETERS] = std::array::from_fn(|i| {
+            if options.fixed[i].is_some() {
+                false
+            } else if i == M_SCALE {
+                full.theta[i].abs() >= (1.0 - 1e-4) * rho_bound
+            } else {
+                full.theta[i] < 1e-6 * start[i]
+            }
+        });
+        let (status, boundary) = fit_status(
+            &likelihood,
+            &full,
+            &on_bound,
+            (lower, upper),
+            start,
+            rho_bound,
+            &options.fit,
+        )?;
         lower[M_SCALE] = 0.0;
         upper[M_SCALE] = 0.0;
         let restricted_bounds = Bounds::new(lower, upper)?;
@@ -703,18 +826,16 @@ pub fn tune(
         begin[M_SCALE] = 0.0;
         let restricted = maximize(&likelihood, &begin, &restricted_bounds, &options.fit)?;
         let test = likelihood_ratio_test(full.log_likelihood, restricted.log_likelihood, 1)?;
-        let on_bound: [bool; TUNE_PARAMETERS] = std::array::from_fn(|i| {
-            if i == M_SCALE {
-                full.theta[i].abs() >= (1.0 - 1e-4) * rho_bound
-            } else {
-                full.theta[i] < 1e-6 * start[i]
-            }
-        });
-        let standard_errors = interior_standard_errors(&full.information, &on_bound);
+        let held: [bool; TUNE_PARAMETERS] =
+            std::array::from_fn(|i| on_bound[i] || options.fixed[i].is_some());
+        let standard_errors = interior_standard_errors(&full.information, &held);
         return Ok(TuneFit {
             full,
             on_bound,
             standard_errors,
+            status,
+            fixed: options.fixed,
+            boundary,
             restricted,
             test,
             points,
@@ -722,6 +843,82 @@ pub fn tune(
             epochs: linearized.iter().map(Linearization::epochs).sum(),
         });
     }
+}
+
+/// The [`TuneStatus`] of `full`, with the refit that holds the parameters `on_bound`
+/// at their values (when any is).
+fn fit_status(
+    likelihood: &InsDvlLikelihood<'_>,
+    full: &MaximumLikelihood<TUNE_PARAMETERS>,
+    on_bound: &[bool; TUNE_PARAMETERS],
+    (mut lower, mut upper): (TuneParameters, TuneParameters),
+    start: &TuneParameters,
+    rho_bound: f64,
+    options: &FitOptions,
+) -> Result<(TuneStatus, Option<MaximumLikelihood<TUNE_PARAMETERS>>)> {
+    let named = |pick: &dyn Fn(usize) -> bool| -> Vec<&'static str> {
+        (0..TUNE_PARAMETERS)
+            .filter(|&i| on_bound[i] && pick(i))
+            .map(|i| PARAMETER_NAMES[i])
+            .collect()
+    };
+    if !on_bound.contains(&true) {
+        let status = if full.converged {
+            TuneStatus::Converged
+        } else {
+            TuneStatus::NotConverged {
+                stop: full.stop.clone(),
+                on_bound: Vec::new(),
+            }
+        };
+        return Ok((status, None));
+    }
+    for i in (0..TUNE_PARAMETERS).filter(|&i| on_bound[i]) {
+        (lower[i], upper[i]) = (full.theta[i], full.theta[i]);
+    }
+    let refit = maximize(
+        likelihood,
+        &full.theta,
+        &Bounds::new(lower, upper)?,
+        options,
+    )?;
+    // A zero IMU density leaves that sensor's white noise out of Q altogether; one of
+    // R's two terms at zero leaves R positive definite (a bounded optimum), both do not.
+    let r_gone = on_bound[2] && on_bound[3];
+    let degenerate = named(&|i| i < 2 || (i < M_SCALE && r_gone));
+    if !degenerate.is_empty() {
+        return Ok((
+            TuneStatus::Degenerate {
+                parameters: degenerate,
+            },
+            Some(refit),
+        ));
+    }
+    // A bounded maximum: ln p does not increase inward from each bound (its outward
+    // derivative, times the parameter's scale, is not below -tolerance).
+    let (_, slope) = gradient(likelihood, &refit.theta, &on_bound.map(|b| !b))?;
+    let optimal = (0..TUNE_PARAMETERS).filter(|&i| on_bound[i]).all(|i| {
+        let (outward, scale) = if i == M_SCALE {
+            (slope[i] * full.theta[i].signum(), rho_bound)
+        } else {
+            (-slope[i], start[i])
+        };
+        outward * scale >= -BOUND_GRADIENT_TOLERANCE
+    });
+    let on = named(&|_| true);
+    let status = if refit.converged && optimal {
+        TuneStatus::ConvergedOnBound { parameters: on }
+    } else {
+        TuneStatus::NotConverged {
+            stop: if optimal {
+                refit.stop.clone()
+            } else {
+                FitStop::NoDecrease
+            },
+            on_bound: on,
+        }
+    };
+    Ok((status, Some(refit)))
 }
 
 /// sqrt of the diagonal of the inverse of `information` over the parameters not on a
