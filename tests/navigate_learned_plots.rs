@@ -435,6 +435,8 @@ fn survey_smoothing_equals_the_study_smoother_on_akit_trajectory4() {
                 "vehicle.toml",
                 "--truth",
                 gt,
+                "--epochs",
+                "accepted",
                 "--json",
             ],
             d,

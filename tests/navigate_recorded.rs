@@ -247,3 +247,56 @@ fn the_raw_files_read_as_body_axes_end_diverged() {
         assert!(out_dir.join("solution.csv").is_file());
     }
 }
+
+/// The times of the rows of `kind` in a solution.csv.
+fn rows_of(dir: &Path, kind: &str) -> Vec<String> {
+    let text = std::fs::read_to_string(dir.join("solution.csv")).unwrap();
+    text.lines()
+        .skip(1)
+        .filter_map(|l| {
+            let mut cells = l.split(',');
+            let time = cells.next()?;
+            (cells.next()? == kind).then(|| time.to_string())
+        })
+        .collect()
+}
+
+/// `estim smooth` on a recorded IMU with the shipped vehicle file (DVL error states,
+/// gate recovery on) runs where the forward filter ran, and reports at the same DVL
+/// epochs as `navigate`, gated ones included (trajectory 11 has gated updates).
+#[test]
+fn the_smoother_reports_at_the_forward_filters_epochs() {
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    let [imu, dvl, gt] = files(&root, 11);
+    let dir = tempfile::tempdir().unwrap();
+    let (forward_dir, smooth_dir) = (dir.path().join("forward"), dir.path().join("smooth"));
+    let forward = json(&navigate(&imu, &dvl, &gt, &vehicle(), Some(&forward_dir)));
+    assert_eq!(forward["status"], "ok");
+    assert!(forward["updates"]["dvl"]["gated"].as_u64().unwrap() > 0);
+    let out = estim(&[
+        "smooth",
+        "--imu",
+        &imu.to_string_lossy(),
+        "--dvl",
+        &dvl.to_string_lossy(),
+        "--vehicle",
+        &vehicle().to_string_lossy(),
+        "--truth",
+        &gt.to_string_lossy(),
+        "--out",
+        &smooth_dir.to_string_lossy(),
+        "--json",
+    ]);
+    let smoothed = json(&out);
+    assert_eq!(out.status.code(), Some(0));
+    assert_eq!(smoothed["status"], "ok");
+    let epochs = rows_of(&forward_dir, "dvl");
+    assert_eq!(epochs.len(), 399);
+    assert_eq!(rows_of(&smooth_dir, "dvl"), epochs);
+    let rmse = smoothed["evaluation"]["horizontal_position_rmse_m"]
+        .as_f64()
+        .unwrap();
+    assert!(rmse.is_finite() && rmse < 3.5, "{rmse}");
+}

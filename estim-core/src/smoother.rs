@@ -64,8 +64,10 @@
 //! epoch, never a number:
 //!
 //! - an update the gate's recovery rule accepted with an inflated prior covariance
-//!   ([`crate::GateRecovery::Inflate`]): the forward pass then is not a Kalman filter
-//!   of the recorded model;
+//!   ([`crate::GateRecovery::Inflate`]) inside a correlated window over several
+//!   epochs (elsewhere such an update is smoothed exactly as the forward pass ran:
+//!   its step is the Kalman step of the model with an extra, independent process noise
+//!   (lambda - 1) P at that epoch, the smoothed values those of that model);
 //! - a one-step correlated update (M != 0 from a [`crate::CrossCovariance`]) that is
 //!   not the first accepted update of its epoch (the earlier update made its noise
 //!   correlated with e_k), or, with [`RecordAt::EveryStep`], that follows more than
@@ -164,6 +166,10 @@ pub enum RecordAt {
     /// (smoothed values at the update epochs and at the last predict).
     #[default]
     Updates,
+    /// As [`RecordAt::Updates`], and a measurement the gate rejected also ends its
+    /// epoch (smoothed values at every measurement epoch, accepted or not, as a
+    /// filter reports them).
+    Measurements,
 }
 
 /// The link from an epoch back to the previous one.
@@ -268,6 +274,18 @@ struct UpdateTerms<T: Scalar> {
 }
 
 impl<T: Scalar> UpdateTerms<T> {
+    /// The terms of an update the gate's recovery rule accepted with its prior
+    /// covariance P scaled by `lambda`: the filter's step is then the Kalman step of a
+    /// model with an extra, independent process noise (lambda - 1) P at this epoch, so
+    /// the innovation covariance the gain used is S + (lambda - 1) H P H' (the report
+    /// carries the S before the inflation; the link's cross-covariance with the
+    /// previous epoch is unchanged by an independent noise).
+    fn inflate<const N: usize>(&mut self, prior: &SMatrix<T, N, N>, lambda: T) {
+        let p = DMatrix::from_column_slice(N, N, prior.as_slice());
+        let extra = &self.jacobian * p * self.jacobian.transpose() * (lambda - T::one());
+        self.innovation_covariance += extra;
+    }
+
     fn new<S, const N: usize>(event: &UpdateEvent<'_, T, S, N>, gain: &[T]) -> Self {
         let m = event.measurement_size;
         Self {
@@ -445,8 +463,8 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
         transition: &SMatrix<T, N, N>,
     ) {
         self.predicts_since_update += 1;
-        let extend =
-            self.mode == RecordAt::Updates && self.epochs.back().is_some_and(|epoch| !epoch.closed);
+        let extend = self.mode != RecordAt::EveryStep
+            && self.epochs.back().is_some_and(|epoch| !epoch.closed);
         if extend {
             if let Some(last) = self.epochs.back_mut() {
                 // Compose the step: Cov(e_prev, Phi e + w) = C Phi'.
@@ -479,12 +497,6 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
 
     fn record_update(&mut self, event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
         let correlated = event.cross_covariance.iter().any(|v| !v.is_zero());
-        if event.covariance_inflation.is_some() {
-            self.mark_unsupported(
-                "update accepted by the gate's recovery rule with an inflated prior covariance \
-                 (not a Kalman step of the recorded model; GateRecovery::None to smooth)",
-            );
-        }
         let Some(last) = self.epochs.back() else {
             // An update before any predict: the epoch starts at its posterior.
             self.predicts_since_update = 0;
@@ -504,7 +516,7 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
         // another update of the epoch: smoothed with the augmented state.
         let augment = correlated
             && match (event.window_steps, self.mode) {
-                (Some(window), RecordAt::Updates) => {
+                (Some(window), RecordAt::Updates | RecordAt::Measurements) => {
                     window > self.predicts_since_update || last.accepted_updates > 0
                 }
                 (Some(window), RecordAt::EveryStep) => window > 1 || last.accepted_updates > 0,
@@ -530,7 +542,16 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
         let Some(gain) = event.gain else {
             return Ok(());
         };
-        let terms = UpdateTerms::new(event, gain);
+        let mut terms = UpdateTerms::new(event, gain);
+        if let Some(lambda) = event.covariance_inflation {
+            if augment {
+                self.mark_unsupported(
+                    "update accepted by the gate's recovery rule with an inflated prior \
+                     covariance inside a correlated window over several epochs",
+                );
+            }
+            terms.inflate(event.prior_covariance, lambda);
+        }
         if augment {
             match event.window {
                 Some(window) => {
@@ -837,18 +858,24 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
                     reason: "no link to this epoch was recorded",
                 });
             };
-            // G = C P_{k+1}^-1, i.e. G' = P_{k+1}^-1 C'.
-            let gain = next
-                .covariance
-                .cholesky()
-                .map(|c| c.solve(&link.cross.transpose()).transpose())
-                .ok_or_else(|| Error::InvalidCovariance {
-                    what: "filtered covariance (smoother gain)",
-                    reason: format!(
-                        "not positive definite at epoch {}",
-                        self.first_index + k + 1
-                    ),
-                })?;
+            // G = C P_{k+1}^-1, i.e. G' = P_{k+1}^-1 C'; a pseudo-inverse where P_{k+1}
+            // is only semidefinite (states held at their value: zero rows and columns,
+            // zero in C too).
+            let gain = match next.covariance.cholesky() {
+                Some(c) => Some(c.solve(&link.cross.transpose()).transpose()),
+                None => psd_solve(
+                    &DMatrix::from_column_slice(N, N, next.covariance.as_slice()),
+                    &DMatrix::from_column_slice(N, N, link.cross.transpose().as_slice()),
+                )
+                .map(|g| SMatrix::<T, N, N>::from_column_slice(g.transpose().as_slice())),
+            }
+            .ok_or_else(|| Error::InvalidCovariance {
+                what: "filtered covariance (smoother gain)",
+                reason: format!(
+                    "not positive semidefinite at epoch {}",
+                    self.first_index + k + 1
+                ),
+            })?;
             correction = link.shift + gain * correction;
             covariance = symmetrize(
                 &(link.previous_covariance
@@ -1033,8 +1060,14 @@ impl<T: Scalar, S: Clone, const N: usize> Observer<T, S, N> for ForwardRecorder<
     }
 
     fn on_rejected(&mut self, _event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
-        // Observed nothing; it still closes the filter's accumulation interval.
+        // Observed nothing; it still closes the filter's accumulation interval, and
+        // with RecordAt::Measurements its epoch.
         self.predicts_since_update = 0;
+        if self.mode == RecordAt::Measurements {
+            if let Some(last) = self.epochs.back_mut() {
+                last.closed = true;
+            }
+        }
         Ok(())
     }
 }

@@ -1036,9 +1036,9 @@ fn unsupported_recordings_are_typed_errors() {
         ekf.observer().smooth(),
         Err(Error::SmootherUnsupported { epoch: 1, .. })
     ));
-    // An update the gate's recovery rule accepted with an inflated prior: refused (at
-    // epoch 1, the first accepted update's); the same far measurements without the
-    // rule stay rejected and smooth.
+    // An update the gate's recovery rule accepted with an inflated prior smooths (the
+    // values are checked in gate_recovery_smooths_as_the_model_with_its_extra_noise);
+    // the same far measurements without the rule stay rejected and smooth.
     for recovery in [true, false] {
         let mut builder = FilterConfig::builder().gate(estim_core::Gate::NisThreshold(9.0));
         if recovery {
@@ -1059,15 +1059,9 @@ fn unsupported_recordings_are_typed_errors() {
         }
         assert_eq!(inflated, recovery);
         let smoothed = ekf.observer().smooth();
-        if recovery {
-            assert!(
-                matches!(smoothed, Err(Error::SmootherUnsupported { epoch: 1, .. })),
-                "{smoothed:?}"
-            );
-        } else {
-            // Rejected updates observed nothing: the initial epoch and the predicted one.
-            assert_eq!(smoothed.map(|s| s.len()).ok(), Some(2));
-        }
+        // Rejected updates observed nothing: the initial epoch and the predicted one;
+        // with the rule, the third update closes the epoch.
+        assert_eq!(smoothed.map(|s| s.len()).ok(), Some(2));
     }
     // The online fixed-lag smoother reports it too (Report opt-in, as above).
     let mut ekf = ExtendedKalmanFilter::new(TimeVarying, initial.clone())
@@ -1126,6 +1120,192 @@ fn textbook_rts_misses_correlated_noise() {
         assert!(
             correlated_error > 1e-3,
             "seed {seed}: textbook RTS with M off by only {correlated_error:e}"
+        );
+    }
+}
+
+/// An update the gate's recovery rule accepted with its prior scaled by lambda is the
+/// Kalman step of the model with an extra, independent process noise (lambda - 1) P at
+/// that step. The recorder's smoothing of the gated filter equals the textbook RTS
+/// recursion (coded here with dynamic matrices) on that model, run without a gate,
+/// on two seeds; rejected updates observe nothing in both.
+#[test]
+fn gate_recovery_smooths_as_the_model_with_its_extra_noise() {
+    use estim_core::{FilterConfig, Gate, GateRecovery, KalmanFilter, StateAndCovariance, Zero};
+    type M2 = SMatrix<f64, 2, 2>;
+    let f = M2::new(1.0, 0.5, 0.0, 1.0);
+    let q = M2::new(0.02, 0.01, 0.01, 0.04);
+    let h = SMatrix::<f64, 1, 2>::new(1.0, 0.0);
+    let r = SMatrix::<f64, 1, 1>::new(0.25);
+    let initial = StateAndCovariance::new(SVector::from([0.0, 1.0]), M2::identity()).unwrap();
+    for seed in [3_u64, 11] {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        // A position track with a 6 m jump of the sensor from step 15 on.
+        let zs: Vec<f64> = (0..40)
+            .map(|k| {
+                let jump = if k >= 15 { 6.0 } else { 0.0 };
+                0.5 * f64::from(k + 1) + jump + 0.5 * (rng.random::<f64>() - 0.5)
+            })
+            .collect();
+        let config = FilterConfig::builder()
+            .gate(Gate::NisThreshold(9.0))
+            .gate_recovery(GateRecovery::Inflate { after: 2 })
+            .build()
+            .unwrap();
+        let mut kf = KalmanFilter::new(f, q, h, r, initial.clone())
+            .unwrap()
+            .with_config(config)
+            .with_observer(ForwardRecorder::from_initial(RecordAt::EveryStep, &initial));
+        // Per step: None rejected, Some(lambda) accepted (1 without inflation).
+        let mut verdicts = Vec::new();
+        for z in &zs {
+            kf.predict().unwrap();
+            let report = kf.update(&SVector::from([*z]), &Zero).unwrap();
+            verdicts.push(
+                report
+                    .is_accepted()
+                    .then(|| report.covariance_inflation.unwrap_or(1.0)),
+            );
+        }
+        let inflated = verdicts
+            .iter()
+            .filter(|v| v.is_some_and(|l| l > 1.0))
+            .count();
+        let rejected = verdicts.iter().filter(|v| v.is_none()).count();
+        assert!(inflated >= 1 && rejected >= 2, "{verdicts:?}");
+        let smoothed = kf.observer().smooth().unwrap();
+        assert_eq!(smoothed.len(), zs.len() + 1);
+
+        // The reference model, filtered and smoothed by hand.
+        let (fd, qd, hd, rd) = (
+            DMatrix::from_column_slice(2, 2, f.as_slice()),
+            DMatrix::from_column_slice(2, 2, q.as_slice()),
+            DMatrix::from_column_slice(1, 2, h.as_slice()),
+            DMatrix::from_column_slice(1, 1, r.as_slice()),
+        );
+        let mut x = DVector::from_column_slice(initial.state().as_slice());
+        let mut p = DMatrix::from_column_slice(2, 2, initial.covariance().as_slice());
+        let (mut filtered, mut predicted) = (vec![(x.clone(), p.clone())], Vec::new());
+        for (z, verdict) in zs.iter().zip(&verdicts) {
+            let xp = &fd * &x;
+            let mut pp = &fd * &p * fd.transpose() + &qd;
+            if let Some(lambda) = verdict {
+                pp *= *lambda; // Q + (lambda - 1) P_pred added at this step
+            }
+            predicted.push((xp.clone(), pp.clone()));
+            (x, p) = match verdict {
+                None => (xp, pp),
+                Some(_) => {
+                    let s = &hd * &pp * hd.transpose() + &rd;
+                    let k = &pp * hd.transpose() * s.try_inverse().unwrap();
+                    let nu = DVector::from_element(1, *z) - &hd * &xp;
+                    let ikh = DMatrix::identity(2, 2) - &k * &hd;
+                    (
+                        &xp + &k * nu,
+                        &ikh * &pp * ikh.transpose() + &k * &rd * k.transpose(),
+                    )
+                }
+            };
+            filtered.push((x.clone(), p.clone()));
+        }
+        let mut rts = vec![filtered.last().unwrap().clone()];
+        for k in (0..zs.len()).rev() {
+            let (xf, pf) = &filtered[k];
+            let (xp, pp) = &predicted[k];
+            let (xs, ps) = rts.last().unwrap();
+            let g = pf * fd.transpose() * pp.clone().try_inverse().unwrap();
+            let step = (xf + &g * (xs - xp), pf + &g * (ps - pp) * g.transpose());
+            rts.push(step);
+        }
+        rts.reverse();
+        for (k, (epoch, (xs, ps))) in smoothed.iter().zip(&rts).enumerate() {
+            let dx = (DVector::from_column_slice(epoch.state().as_slice()) - xs).amax();
+            let dp = (DMatrix::from_column_slice(2, 2, epoch.covariance.as_slice()) - ps).amax();
+            assert!(
+                dx < 1e-10 && dp < 1e-10,
+                "seed {seed}, epoch {k}: {dx:e} {dp:e}"
+            );
+        }
+    }
+}
+
+/// RecordAt::Measurements ends an epoch at each rejected measurement too: the smoothed
+/// values at every epoch equal those recorded at every step (an independent recording
+/// of the same forward pass) at the same step, and the accepted epochs equal
+/// RecordAt::Updates's.
+#[test]
+fn measurements_mode_smooths_at_rejected_epochs_too() {
+    use estim_core::{FilterConfig, Gate, KalmanFilter, StateAndCovariance, Zero};
+    type M2 = SMatrix<f64, 2, 2>;
+    let f = M2::new(1.0, 0.5, 0.0, 1.0);
+    let q = M2::new(0.02, 0.01, 0.01, 0.04);
+    let h = SMatrix::<f64, 1, 2>::new(1.0, 0.0);
+    let r = SMatrix::<f64, 1, 1>::new(0.25);
+    let initial = StateAndCovariance::new(SVector::from([0.0, 1.0]), M2::identity()).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    // A measurement every second step; every fifth one an outlier the gate rejects.
+    let zs: Vec<Option<f64>> = (0..60)
+        .map(|k| {
+            let noise = 0.5 * (rng.random::<f64>() - 0.5);
+            (k % 2 == 1).then(|| {
+                let outlier = if k % 10 == 9 { 20.0 } else { 0.0 };
+                0.5 * f64::from(k + 1) + noise + outlier
+            })
+        })
+        .collect();
+    let config = FilterConfig::builder()
+        .gate(Gate::NisThreshold(9.0))
+        .build()
+        .unwrap();
+    let run = |mode| {
+        let mut kf = KalmanFilter::new(f, q, h, r, initial.clone())
+            .unwrap()
+            .with_config(config.clone())
+            .with_observer(ForwardRecorder::from_initial(mode, &initial));
+        let mut accepted = Vec::new();
+        for z in &zs {
+            kf.predict().unwrap();
+            if let Some(z) = z {
+                accepted.push(
+                    kf.update(&SVector::from([*z]), &Zero)
+                        .unwrap()
+                        .is_accepted(),
+                );
+            }
+        }
+        (kf.observer().smooth().unwrap(), accepted)
+    };
+    let (every, accepted) = run(RecordAt::EveryStep);
+    let (measured, _) = run(RecordAt::Measurements);
+    let (updates, _) = run(RecordAt::Updates);
+    let rejected = accepted.iter().filter(|a| !**a).count();
+    assert!(rejected >= 5, "{rejected}");
+    // The initial epoch and one per measurement (the last ends the run).
+    assert_eq!(measured.len(), 1 + accepted.len());
+    // Epoch k of the measurements' recording ends at step 2k (steps count from 1).
+    for (k, epoch) in measured.iter().enumerate() {
+        let step = &every[2 * k];
+        let dx = (epoch.state() - step.state()).amax();
+        let dp = (epoch.covariance - step.covariance).amax();
+        assert!(dx < 1e-10 && dp < 1e-10, "epoch {k}: {dx:e} {dp:e}");
+    }
+    // Recorded at updates: the initial epoch and the accepted ones are the same.
+    let kept: Vec<_> = std::iter::once(&measured[0])
+        .chain(
+            measured[1..]
+                .iter()
+                .zip(&accepted)
+                .filter(|(_, a)| **a)
+                .map(|(e, _)| e),
+        )
+        .collect();
+    assert!(updates.len() >= kept.len());
+    for (k, (u, m)) in updates.iter().zip(&kept).enumerate() {
+        let dx = (u.state() - m.state()).amax();
+        let dp = (u.covariance - m.covariance).amax();
+        assert!(
+            dx < 1e-10 && dp < 1e-10,
+            "accepted epoch {k}: {dx:e} {dp:e}"
         );
     }
 }

@@ -49,6 +49,12 @@ pub struct Args {
     /// Survey mode, with --truth: start from the truth's state at the first IMU sample.
     #[arg(long, requires = "truth")]
     init_from_truth: bool,
+    /// Survey mode: `all` smooths at every measurement epoch, accepted or gated (the
+    /// epochs `navigate` reports), `accepted` only at those with an accepted update
+    /// (the smoothed values there are the same).
+    #[arg(long, value_name = "WHICH", requires = "imu", default_value = "all",
+          value_parser = ["all", "accepted"])]
+    epochs: String,
     /// Survey mode: also draw the smoothed track with 3-sigma ellipses, the 1-sigma
     /// per state group and the forward filter's DVL NIS (PNG and SVG into --out).
     #[arg(long, requires = "imu", requires = "out")]
@@ -94,7 +100,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             files.dvl.is_some() || files.beams.is_some() || files.pd0.is_some(),
             "estim smooth --imu: give --dvl, --beams or --pd0"
         );
-        return smooth_survey_files(files, args.out.as_deref(), args.json, args.plots);
+        let epochs = if args.epochs == "accepted" {
+            estim::core::smoother::RecordAt::Updates
+        } else {
+            estim::core::smoother::RecordAt::Measurements
+        };
+        return smooth_survey_files(files, args.out.as_deref(), args.json, args.plots, epochs);
     }
     let config = match &args.config {
         Some(path) => Config::from_file(path)?,
@@ -173,28 +184,25 @@ fn smooth_survey_files(
     out: Option<&Path>,
     json: bool,
     plots: bool,
+    epochs: estim::core::smoother::RecordAt,
 ) -> anyhow::Result<()> {
     use crate::navigate::{evaluation_json, load_survey, summary_json, summary_text, Writer};
-    use estim::navigator::{smooth_survey, NavigationObserver, NavigatorError};
+    use estim::navigator::{smooth_survey_at, NavigationObserver, NavigatorError};
 
     let mut staged = out.map(crate::output::StagedDir::new).transpose()?;
     if let Some(dir) = &mut staged {
         dir.keep_inputs(files.paths());
     }
     let mut survey = load_survey(files)?;
-    crate::navigate::refuse_dvl_states(&survey, "estim smooth")?;
     let truth = survey.truth.take();
     let mut forward = Writer::new(None, survey.epoch, truth.clone())?;
-    let run = match smooth_survey(&survey.inputs, &survey.settings, None, &mut forward) {
+    let run = match smooth_survey_at(&survey.inputs, &survey.settings, None, &mut forward, epochs) {
         Ok(run) => run,
         Err(e @ (NavigatorError::Filter { .. } | NavigatorError::Diverged { .. })) => {
             return forward_stopped(&survey, staged, &e, json);
         }
         Err(NavigatorError::Smoother(e)) => {
-            anyhow::bail!(
-                "{e} (for a survey: set gate.recovery_after = 0 in the vehicle file); nothing \
-                 was smoothed, nothing written"
-            )
+            anyhow::bail!("{e}; nothing was smoothed, nothing written")
         }
         Err(e) => return Err(e.into()),
     };
@@ -212,7 +220,7 @@ fn smooth_survey_files(
     let extra = serde_json::json!({
         "dvl_sensor": "least_squares",
         "smoother": {
-            "method": "Rauch-Tung-Striebel over the update epochs (estim-core ForwardRecorder, RecordAt::Updates)",
+            "method": "Rauch-Tung-Striebel over the measurement epochs, accepted or gated (estim-core ForwardRecorder, RecordAt::Measurements)",
             "epochs": run.smoothed.len(),
             "forward_final": {
                 "time_s": survey.epoch + f.time,

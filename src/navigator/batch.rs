@@ -217,6 +217,37 @@ pub fn navigate_with<F: Observer<f64, InsState, ERROR_STATES>>(
     .map(|(run, nav)| (run, nav.into_filter().into_observer()))
 }
 
+/// [`navigate`] on the DVL error states of `states` with an estim-core observer on
+/// the filter (the smoother's recorder), returned with the run.
+///
+/// # Errors
+/// As [`navigate`].
+pub(super) fn navigate_augmented_with<
+    F: Observer<f64, super::AugmentedState, { super::AUGMENTED_STATES }>,
+>(
+    inputs: &SurveyInputs,
+    settings: &NavigatorSettings,
+    states: &super::DvlStatesConfig,
+    output_rate_hz: Option<f64>,
+    observer: &mut dyn NavigationObserver,
+    filter_observer: F,
+) -> Result<(NavigationRun, F)> {
+    run_batch(
+        inputs,
+        settings,
+        output_rate_hz,
+        observer,
+        None,
+        |state, covariance, period| {
+            Ok(
+                AugmentedNavigator::with_states(settings, states, state, covariance, period)?
+                    .with_observer(filter_observer),
+            )
+        },
+    )
+    .map(|(run, nav)| (run, nav.into_filter().into_observer()))
+}
+
 /// [`navigate`] with the embedded BeamsNet (`estim::models::beamsnet`) as the DVL
 /// sensor: each row with 4 beams is an update with the network's velocity on the
 /// [`estim_learned::BEAMSNET_WINDOW`] IMU samples the filter integrated before it and

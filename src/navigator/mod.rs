@@ -73,7 +73,7 @@ pub use reference::{
     error_state, nees_of_block, reference_time_offset, ReferenceOffset, MIN_REFERENCE_INTERVALS,
 };
 pub use run::{run_epochs, EpochHook, Tail};
-pub use smooth::{smooth_survey, SmoothedSolution, SmoothingRun};
+pub use smooth::{smooth_survey, smooth_survey_at, SmoothedSolution, SmoothingRun};
 pub use solution::{format_heading, wrap_heading_deg, NavSolution, UpdateCounts};
 
 /// Errors of the navigator.

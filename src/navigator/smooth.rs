@@ -1,15 +1,19 @@
 //! Fixed-interval smoothing of a survey: the navigator's forward pass recorded at its
-//! update epochs (estim-core's `ForwardRecorder`, `RecordAt::Updates`: the predicts
-//! between two updates are composed into one transition) and smoothed backwards (the
+//! measurement epochs (estim-core's `ForwardRecorder`, `RecordAt::Measurements`: the
+//! predicts between two measurements are composed into one transition) and smoothed backwards (the
 //! Rauch-Tung-Striebel recursion of estim-core's smoother, exact with correlated noise;
 //! the navigator's updates here have M = 0).
 
+use estim_core::nalgebra::SMatrix;
 use estim_core::smoother::{ForwardRecorder, RecordAt};
 use estim_ins::{ErrorMatrix, InsErrorModel, InsState, ERROR_STATES};
 
+use super::aiding::InsNominal;
+use super::batch::navigate_augmented_with;
 use super::{
-    navigate_with, NavSolution, NavigationObserver, NavigationRun, NavigatorError,
-    NavigatorSettings, Result, SolutionKind, SurveyInputs,
+    navigate_with, AugmentedErrorModel, AugmentedState, DvlStateSolution, NavSolution,
+    NavigationModel, NavigationObserver, NavigationRun, NavigatorError, NavigatorSettings, Result,
+    SolutionKind, SurveyInputs, AUGMENTED_STATES,
 };
 
 /// One smoothed epoch.
@@ -23,8 +27,11 @@ pub struct SmoothedSolution {
     pub solution: NavSolution,
     /// The smoothed state: the smoothed error injected into the recorded nominal.
     pub state: InsState,
-    /// The smoothed error covariance (about the recorded nominal).
+    /// The smoothed error covariance of the INS states (about the recorded nominal).
     pub covariance: ErrorMatrix,
+    /// The smoothed DVL error states with their 1-sigma, when the run estimates them
+    /// (`dvl_states` in the configuration).
+    pub dvl_states: Option<DvlStateSolution>,
 }
 
 /// What [`smooth_survey`] did: the forward run and the smoothed epochs, oldest first.
@@ -37,36 +44,91 @@ pub struct SmoothingRun {
 }
 
 /// Navigate a survey forward as [`super::navigate`] does (the forward solutions go to
-/// `observer`), then smooth it: one smoothed solution per epoch that ended with an
-/// accepted update, and one for the last propagation.
+/// `observer`; on the DVL error states when the configuration has `dvl_states`), then
+/// smooth it: one smoothed solution per measurement epoch, accepted or gated (the
+/// epochs the forward pass reports; estim-core's `RecordAt::Measurements`), and one
+/// for the last propagation. An update the gate's recovery rule accepted with an
+/// inflated covariance is smoothed as the forward pass ran it (estim-core's smoother:
+/// the model with an extra process noise at that epoch).
 ///
 /// # Errors
 /// As [`super::navigate`]; [`NavigatorError::Smoother`] when the recording cannot be
-/// smoothed exactly (an update accepted by the gate's recovery rule with an inflated
-/// covariance is not a Kalman step: set `gate.recovery_after = 0`), or a filtered
-/// covariance is not positive definite.
+/// smoothed exactly, or a filtered covariance is not positive definite.
 pub fn smooth_survey(
     inputs: &SurveyInputs,
     settings: &NavigatorSettings,
     output_rate_hz: Option<f64>,
     observer: &mut dyn NavigationObserver,
 ) -> Result<SmoothingRun> {
-    let recorder = ForwardRecorder::<f64, InsState, ERROR_STATES>::new(RecordAt::Updates);
-    let (forward, recorder) = navigate_with(inputs, settings, output_rate_hz, observer, recorder)?;
+    smooth_survey_at(
+        inputs,
+        settings,
+        output_rate_hz,
+        observer,
+        RecordAt::Measurements,
+    )
+}
+
+/// [`smooth_survey`] with the epochs chosen: `RecordAt::Measurements` (every
+/// measurement epoch, as the forward pass reports them), `RecordAt::Updates` (the
+/// epochs with an accepted update only; the values there are the same) or
+/// `RecordAt::EveryStep` (every IMU step: memory grows with N^2 per step).
+///
+/// # Errors
+/// As [`smooth_survey`].
+pub fn smooth_survey_at(
+    inputs: &SurveyInputs,
+    settings: &NavigatorSettings,
+    output_rate_hz: Option<f64>,
+    observer: &mut dyn NavigationObserver,
+    epochs: RecordAt,
+) -> Result<SmoothingRun> {
+    let Some(states) = settings.dvl_states().copied() else {
+        let recorder = ForwardRecorder::<f64, InsState, ERROR_STATES>::new(epochs);
+        let (forward, recorder) =
+            navigate_with(inputs, settings, output_rate_hz, observer, recorder)?;
+        let process = InsErrorModel::new(settings.filter_spec);
+        return smoothed(forward, &recorder, &process);
+    };
+    let recorder = ForwardRecorder::<f64, AugmentedState, AUGMENTED_STATES>::new(epochs);
+    let (forward, recorder) = navigate_augmented_with(
+        inputs,
+        settings,
+        &states,
+        output_rate_hz,
+        observer,
+        recorder,
+    )?;
+    let process = AugmentedErrorModel::new(InsErrorModel::new(settings.filter_spec), &states)?;
+    smoothed(forward, &recorder, &process)
+}
+
+/// The smoothed epochs of `recorder` (the forward pass `forward` on `process`).
+fn smoothed<E: NavigationModel<N>, const N: usize>(
+    forward: NavigationRun,
+    recorder: &ForwardRecorder<f64, E::State, N>,
+    process: &E,
+) -> Result<SmoothingRun>
+where
+    E::State: Clone,
+{
     let epochs = recorder.smooth().map_err(NavigatorError::Smoother)?;
-    let process = InsErrorModel::new(settings.filter_spec);
     let last = epochs.len().saturating_sub(1);
     let mut smoothed = Vec::with_capacity(epochs.len());
     for (k, epoch) in epochs.iter().enumerate() {
-        let state = epoch.injected(&process).map_err(NavigatorError::Smoother)?;
-        // The DVL update this epoch ended with, if any (its time as the navigator
-        // stamped it; the nominal's own time is the same sum of steps up to rounding).
+        let nominal = epoch.injected(process).map_err(NavigatorError::Smoother)?;
+        let state = *nominal.ins();
+        let covariance: &SMatrix<f64, N, N> = &epoch.covariance;
+        let ins_covariance = E::ins_covariance(covariance);
+        // The DVL epoch this epoch ended with, if any, accepted or gated (its time as
+        // the navigator stamped it; the nominal's own time is the same sum of steps up
+        // to rounding).
         let tolerance = 1e-6 * forward.imu_period_s;
         let dvl = forward
-            .dvl_update_times
+            .dvl_nis_times
             .get(
                 forward
-                    .dvl_update_times
+                    .dvl_nis_times
                     .partition_point(|&t| t < state.time - tolerance),
             )
             .copied()
@@ -79,9 +141,10 @@ pub fn smooth_survey(
         };
         smoothed.push(SmoothedSolution {
             kind,
-            solution: NavSolution::from_state(time, &state, &epoch.covariance),
+            solution: NavSolution::from_state(time, &state, &ins_covariance),
             state,
-            covariance: epoch.covariance,
+            covariance: ins_covariance,
+            dvl_states: E::dvl_states(&nominal, covariance),
         });
     }
     Ok(SmoothingRun { forward, smoothed })
