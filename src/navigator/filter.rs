@@ -132,7 +132,7 @@ impl NavigationModel<ERROR_STATES> for InsErrorModel {
 /// - [`Navigator::imu`] integrates the sample in effect from the clock to the new
 ///   sample's time (a gap is bridged by holding the last sample), then holds the new
 ///   one; dt is the nominal period when it differs from it by less than
-///   [`IMU_PERIOD_SNAP`] relative.
+///   [`IMU_PERIOD_SNAP`](crate::navigator::IMU_PERIOD_SNAP) relative.
 /// - A measurement at time t first integrates the held sample up to t (cutting its
 ///   interval), then updates. An IMU sample stamped exactly t goes before it.
 ///

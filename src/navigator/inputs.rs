@@ -105,7 +105,7 @@ pub trait NavigationObserver {
     /// One solution; `state` and `covariance` are the filter's at that time.
     ///
     /// # Errors
-    /// Whatever the observer reports; the run stops with [`NavigatorError::Observer`].
+    /// Whatever the observer reports; the run stops with [`NavigatorError::Observer`](crate::navigator::NavigatorError::Observer).
     fn on_solution(
         &mut self,
         kind: SolutionKind,

@@ -87,7 +87,7 @@ impl DvlParameters {
 /// same gate, same code) on the 26-state [`AugmentedErrorModel`], with the DVL update
 /// [`AugmentedDvlModel`] and the depth and fix models on the augmented state.
 /// With every DVL state off ([`DvlStatesConfig::none`]) it estimates what
-/// [`super::Navigator`] does (tested to 1e-12).
+/// [`Navigator`](crate::navigator::Navigator) does (tested to 1e-12).
 ///
 /// With `dvl.adaptive_noise_window` in the settings, the DVL noise level is adapted
 /// online ([`estim_core::noise::adaptive::NoiseScale`]): one scale λ multiplies the DVL model's noise
