@@ -137,6 +137,15 @@
 //! estimates and the log-likelihood); [`KalmanFilter`] also takes a control input and
 //! per-step F, Q, H and R.
 //!
+//! ## Sizes known at run time
+//!
+//! Module [`dynamic`]: [`DynKalmanFilter`] is the linear filter with the same
+//! correlated update and joint check on `DMatrix<f64>`, allocating at construction
+//! only (no allocation per step, nothing large on the stack), with a whole series
+//! filtered and smoothed in one call ([`DynKalmanFilter::filter_and_smooth`]). The
+//! macros [`dmatrix!`] and [`dvector!`] write its matrices without a direct nalgebra
+//! dependency. The Python package (`python/`) is built on it.
+//!
 //! ## Hand-tuned paths and `ESTIM_FORCE_PORTABLE`
 //!
 //! Three hot loops have a hand-tuned build beside the portable one, chosen at run
@@ -213,6 +222,7 @@
 mod config;
 pub mod consistency;
 mod cross;
+pub mod dynamic;
 mod error;
 mod gaussian;
 mod linalg;
@@ -254,6 +264,7 @@ pub mod window;
 
 pub use config::{FilterConfig, FilterConfigBuilder, Gate, GateRecovery, JointCheck};
 pub use cross::{Fixed, JointCovariance, ScaledCorrelation, Zero};
+pub use dynamic::{DynKalmanFilter, MeasurementSeries};
 pub use error::{Error, Result};
 pub use gaussian::StateAndCovariance;
 pub use observer::{NisRecorder, NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
