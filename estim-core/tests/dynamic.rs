@@ -519,3 +519,47 @@ fn macros_build_row_major_literals() {
     let v = estim_core::dvector![1, 2.5];
     assert_eq!(v, DVector::from_vec(vec![1.0, 2.5]));
 }
+
+/// The free functions against their static counterparts: the joint validity margin
+/// (valid and invalid M, from the random problems and scaled up) and NEES.
+#[test]
+fn joint_margin_and_nees_equal_the_static_ones() {
+    use estim_core::dynamic::{joint_validity_margin, normalised_squared_error};
+    use estim_core::JointCovariance;
+    let mut invalid = 0;
+    for seed in 1..=5 {
+        let p = problem(4, 2, 1, 0, seed);
+        for scale in [0.0, 0.5, 1.0, 3.0, 10.0] {
+            let m = &p.m * scale;
+            let ours = joint_validity_margin(&p.q, &m, &p.r).unwrap();
+            let theirs = JointCovariance::new(s::<4, 4>(&p.q), s::<4, 2>(&m), s::<2, 2>(&p.r))
+                .validity_margin()
+                .unwrap();
+            assert!(
+                (ours - theirs).abs() <= 1e-12,
+                "seed {seed} scale {scale}: {ours} vs {theirs}"
+            );
+            invalid += usize::from(ours < 0.0);
+        }
+        let e = DVector::from_fn(4, |i, _| (i as f64 + seed as f64).sin());
+        let ours = normalised_squared_error(&e, &p.p0).unwrap();
+        let theirs = estim_core::consistency::nees(
+            &SVector::<f64, 4>::from_column_slice(e.as_slice()),
+            &s::<4, 4>(&p.p0),
+        )
+        .unwrap();
+        assert!(
+            (ours - theirs).abs() <= 1e-12 * theirs,
+            "{ours} vs {theirs}"
+        );
+    }
+    assert!(invalid >= 5, "{invalid}"); // both outcomes exercised
+    assert!(matches!(
+        joint_validity_margin(
+            &DMatrix::zeros(2, 2),
+            &DMatrix::zeros(3, 1),
+            &DMatrix::zeros(1, 1)
+        ),
+        Err(Error::Dimension { .. })
+    ));
+}

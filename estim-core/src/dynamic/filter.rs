@@ -16,8 +16,11 @@ use crate::{Error, JointCheck, Result};
 macro_rules! check_shape {
     ($what:literal, $a:expr, $rows:expr, $cols:expr $(,)?) => {{
         let a: &DMatrix<f64> = $a;
-        check_size(concat!($what, " (rows)"), $rows, a.nrows())
-            .and_then(|()| check_size(concat!($what, " (columns)"), $cols, a.ncols()))
+        $crate::dynamic::linalg::check_size(concat!($what, " (rows)"), $rows, a.nrows()).and_then(
+            |()| {
+                $crate::dynamic::linalg::check_size(concat!($what, " (columns)"), $cols, a.ncols())
+            },
+        )
     }};
 }
 pub(crate) use check_shape;

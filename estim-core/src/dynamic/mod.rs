@@ -39,6 +39,8 @@ mod filter;
 mod linalg;
 mod macros;
 mod product;
+mod tools;
 
 pub use batch::{FilteredAndSmoothed, FilteredSeries, MeasurementSeries, Trajectory};
 pub use filter::{DynKalmanFilter, DynUpdateReport};
+pub use tools::{joint_validity_margin, normalised_squared_error};
