@@ -205,6 +205,37 @@ fn block_portable<const MR: usize>(
     acc
 }
 
+/// Below this many multiply-adds (a 16-cube) the blocking costs more than it saves:
+/// plain column (axpy) loops instead.
+const SMALL: usize = 4096;
+
+/// C <- alpha A B + beta C as column axpys: column j of C gets column p of A times
+/// alpha B_pj, no index and no bounds check in the loops.
+#[inline(always)]
+fn small(c: &mut [f64], m: usize, alpha: f64, ad: &[f64], bd: &[f64], k: usize, beta: f64) {
+    if m == 0 {
+        return;
+    }
+    if k == 0 {
+        c.iter_mut()
+            .for_each(|v| *v = if beta == 0.0 { 0.0 } else { beta * *v });
+        return;
+    }
+    for (cj, bj) in c.chunks_exact_mut(m).zip(bd.chunks_exact(k)) {
+        if beta == 0.0 {
+            cj.fill(0.0);
+        } else if beta != 1.0 {
+            cj.iter_mut().for_each(|v| *v *= beta);
+        }
+        for (ap, &x) in ad.chunks_exact(m).zip(bj) {
+            let s = alpha * x;
+            for (v, a) in cj.iter_mut().zip(ap) {
+                *v += a * s;
+            }
+        }
+    }
+}
+
 /// The blocked loops (module docs): full MR x 4 blocks through `full` (the build's
 /// kernel), the last partial block of rows or columns through plain loops that pad
 /// with zeros and store only the valid entries.
@@ -222,6 +253,10 @@ fn body<const MR: usize>(
 ) {
     let k = a.cols;
     let (ad, bd) = (a.data, b.data);
+    if m * n * k <= SMALL {
+        small(c, m, alpha, ad, bd, k, beta);
+        return;
+    }
     let mut i0 = 0;
     while i0 < m {
         let rows = (m - i0).min(MR);
@@ -303,7 +338,8 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     /// Every build equals a naive triple loop (to round-off: the fused build rounds
-    /// once per multiply-add) at sizes around the block edges, with beta 0 and not.
+    /// once per multiply-add) at sizes around the block edges, on both sides of the
+    /// small-size switch and with an empty shared dimension, with beta 0 and not.
     #[test]
     fn every_build_equals_the_naive_product() {
         let mut rng = ChaCha8Rng::seed_from_u64(8);

@@ -1,0 +1,111 @@
+"""Speed of estim against filterpy, measured in one run (set OPENBLAS_NUM_THREADS=1
+for single-threaded BLAS, as the figures in docs/python.md were):
+
+1. per predict + update on a 6-state, 3-measurement filter: filterpy's KalmanFilter
+   against estim.filterpy.KalmanFilter (the same script, one import changed);
+2. a whole series at N = 200 states, M = 20 measurements: filterpy's batch_filter
+   against estim.kalman_filter (same outputs: filtered means and covariances), and
+   filter + RTS (filterpy batch_filter + rts_smoother against estim.kalman_smoother).
+
+Usage: OPENBLAS_NUM_THREADS=1 python python/bench/bench_filterpy.py [--steps 10000]
+(--steps is the length of the N = 200 series; filterpy's batch_filter keeps two
+(steps, N, N) arrays: 10,000 steps take 6.4 GB, the smoother run twice that.)
+"""
+
+import argparse
+import os
+import time
+
+import numpy as np
+from filterpy.kalman import KalmanFilter as FilterpyKF
+
+import estim
+from estim.filterpy import KalmanFilter as EstimKF
+
+
+def best_of(repeats, run):
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        run()
+        times.append(time.perf_counter() - t)
+    return min(times)
+
+
+def model(n, m, seed=0):
+    rng = np.random.default_rng(seed)
+    F = np.eye(n) * 0.97 + rng.uniform(-0.01, 0.01, (n, n))
+    G = rng.uniform(-0.1, 0.1, (n, n))
+    Q = G @ G.T + 1e-3 * np.eye(n)
+    H = rng.uniform(-1, 1, (m, n))
+    R = np.eye(m) * 0.5
+    return F, Q, H, R
+
+
+def per_step(steps=20000):
+    F, Q, H, R = model(6, 3)
+    zs = [np.random.default_rng(1).normal(size=(3, 1)) for _ in range(steps)]
+
+    def make(cls):
+        kf = cls(6, 3)
+        kf.F, kf.Q, kf.H, kf.R = F.copy(), Q.copy(), H.copy(), R.copy()
+        return kf
+
+    def run(cls):
+        kf = make(cls)
+
+        def loop():
+            for z in zs:
+                kf.predict()
+                kf.update(z)
+
+        return loop
+
+    t_fp = best_of(3, run(FilterpyKF)) / steps
+    t_es = best_of(3, run(EstimKF)) / steps
+    print(f"per predict+update, 6 states / 3 measurements: filterpy {t_fp * 1e6:.1f} us, "
+          f"estim.filterpy {t_es * 1e6:.1f} us, ratio {t_fp / t_es:.1f}x")
+    return t_fp / t_es
+
+
+def batch(steps, smooth):
+    n, m = 200, 20
+    F, Q, H, R = model(n, m, 2)
+    rng = np.random.default_rng(3)
+    zs = rng.normal(size=(steps, m))
+    x0, P0 = np.zeros(n), np.eye(n)
+
+    def run_filterpy():
+        kf = FilterpyKF(n, m)
+        kf.F, kf.Q, kf.H, kf.R, kf.x, kf.P = F, Q, H, R, x0.copy(), P0.copy()
+        means, covs, _, _ = kf.batch_filter(list(zs))
+        if smooth:
+            kf.rts_smoother(means, covs)
+
+    def run_estim():
+        if smooth:
+            estim.kalman_smoother(F, Q, H, R, x0, P0, zs)
+        else:
+            estim.kalman_filter(F, Q, H, R, x0, P0, zs)
+
+    t_fp = best_of(1, run_filterpy)
+    t_es = best_of(1, run_estim)
+    what = "filter + RTS" if smooth else "filter"
+    print(f"{what}, N = {n}, M = {m}, {steps} steps: filterpy {t_fp:.2f} s, "
+          f"estim {t_es:.2f} s, ratio {t_fp / t_es:.2f}x")
+
+
+def main():
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--steps", type=int, default=10000)
+    parser.add_argument("--smooth-steps", type=int, default=2000)
+    args = parser.parse_args()
+    print(f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', '(unset)')}, "
+          f"numpy {np.__version__}")
+    per_step()
+    batch(args.steps, smooth=False)
+    batch(args.smooth_steps, smooth=True)
+
+
+if __name__ == "__main__":
+    main()
