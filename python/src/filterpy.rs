@@ -90,7 +90,7 @@ fn changed_matrix(
                 return Ok(None);
             }
         }
-        Ok(Some(DMatrix::from_fn(rows, cols, |i, j| entry(i, j))))
+        Ok(Some(DMatrix::from_fn(rows, cols, entry)))
     })
 }
 
