@@ -151,11 +151,12 @@ pub(crate) struct UpdateReport {
 impl UpdateReport {
     fn __repr__(&self) -> String {
         format!(
-            "UpdateReport(accepted={}, nis={:.6}, log_likelihood={:.6}, joint_min_eigenvalue={:?})",
+            "UpdateReport(accepted={}, nis={:.6}, log_likelihood={:.6}, joint_min_eigenvalue={})",
             if self.accepted { "True" } else { "False" },
             self.nis,
             self.log_likelihood,
             self.joint_min_eigenvalue
+                .map_or_else(|| "None".to_string(), |v| format!("{v:.6}"))
         )
     }
 }

@@ -1,4 +1,4 @@
-"""The README's Python example runs as written, and its result is what it says: the
+"""The README's Python example (and docs/python.md's) runs as written, and its result is what it says: the
 smoothed and the filtered estimates of one call, a NaN row skipped; the filtered
 ones equal filterpy's batch filter on the same model."""
 
@@ -8,7 +8,8 @@ import re
 import numpy as np
 import pytest
 
-README = pathlib.Path(__file__).resolve().parents[2] / "README.md"
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+README = ROOT / "README.md"
 
 
 def readme_example():
@@ -33,3 +34,14 @@ def test_readme_example_runs_and_means_what_it_says():
     kf.x, kf.P = np.zeros(2), np.eye(2)
     means, _, _, _ = kf.batch_filter([None if np.isnan(z[0]) else z for z in scope["zs"]])
     np.testing.assert_allclose(out.x_filtered, means, rtol=1e-9, atol=1e-12)
+
+
+def test_docs_python_md_examples_run():
+    """docs/python.md's Python blocks run in order (the filterpy one included)."""
+    text = (ROOT / "docs" / "python.md").read_text()
+    scope = {}
+    for block in re.findall(r"```python\n(.*?)```", text, flags=re.S):
+        exec(compile(block, "docs/python.md", "exec"), scope)
+    assert scope["report"].accepted
+    assert scope["xs"].shape == (3, 2, 1)  # filterpy's column states
+    assert "joint_min_eigenvalue=1.0" in repr(scope["report"])
