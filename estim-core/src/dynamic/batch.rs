@@ -5,7 +5,7 @@
 use nalgebra::{Cholesky, DMatrix, DMatrixView, DVector, DVectorView};
 
 use super::filter::{check_shape, DynKalmanFilter};
-use super::linalg::{check_size, symmetrize_in_place};
+use super::linalg::{check_size, lower_inverse_into, symmetrize_in_place};
 use super::product::{gemm, Operand};
 use crate::{Error, Result};
 
@@ -305,6 +305,9 @@ impl DynKalmanFilter {
         let mut gain = DMatrix::<f64>::zeros(n, n);
         let mut ch_t = DMatrix::<f64>::zeros(m, n);
         let mut factor = DMatrix::<f64>::zeros(n, n);
+        let mut inverse_factor = DMatrix::<f64>::zeros(n, n);
+        let mut inverse_factor_t = DMatrix::<f64>::zeros(n, n);
+        let mut scratch = DMatrix::<f64>::zeros(n, n);
         let mut difference = DMatrix::<f64>::zeros(n, n);
         let mut product = DMatrix::<f64>::zeros(n, n);
         let mut ch = DMatrix::<f64>::zeros(n, m);
@@ -347,16 +350,24 @@ impl DynKalmanFilter {
                 gemm(&mut previous_cov, -1.0, &a, &ch_t, 1.0);
                 gemm(&mut cross_cov, -1.0, &ch, kt, 1.0);
             }
-            // G' = P_{k+1}^-1 C' (P_{k+1} the filtered covariance after step k + 1).
+            // G' = P_{k+1}^-1 C' = W' (W C'), P_{k+1} = L L' (the filtered covariance
+            // after step k + 1), W = L^-1: two blocked products instead of two
+            // triangular solves with n right-hand sides.
             factor.copy_from(&filtered.estimates.covariance(k));
+            let not_positive_definite = || Error::InvalidCovariance {
+                what: "filtered covariance (smoother gain)",
+                reason: format!("not positive definite after step {}", k + 1),
+            };
             let chol = Cholesky::new(std::mem::replace(&mut factor, DMatrix::zeros(0, 0)))
-                .ok_or_else(|| Error::InvalidCovariance {
-                    what: "filtered covariance (smoother gain)",
-                    reason: format!("not positive definite after step {}", k + 1),
-                })?;
-            cross_cov.transpose_to(&mut gain_t);
-            chol.solve_mut(&mut gain_t);
+                .ok_or_else(not_positive_definite)?;
             factor = chol.unpack_dirty();
+            if !lower_inverse_into(&factor, &mut inverse_factor) {
+                return Err(not_positive_definite());
+            }
+            inverse_factor.transpose_to(&mut inverse_factor_t);
+            cross_cov.transpose_to(&mut gain_t);
+            gemm(&mut scratch, 1.0, &inverse_factor, &gain_t, 0.0);
+            gemm(&mut gain_t, 1.0, &inverse_factor_t, &scratch, 0.0);
             // e^s_k = shift + G e^s_{k+1}.
             next_correction.copy_from(&shift);
             next_correction.gemv_tr(1.0, &gain_t, &correction, 1.0);
