@@ -563,3 +563,63 @@ fn joint_margin_and_nees_equal_the_static_ones() {
         Err(Error::Dimension { .. })
     ));
 }
+
+/// pykalman's convention (epoch 0 measured at the initial state) run on the dynamic
+/// filter: update at x_0, then predict + update. Its log-likelihood equals
+/// `noise::em::log_likelihood` (the EM module's own filter) on the given model and
+/// on the model EM fitted (Q and R learned over 5 iterations, which must raise the
+/// likelihood), missing epochs included.
+#[test]
+fn log_likelihood_equals_the_em_modules_before_and_after_a_fit() {
+    use estim_core::noise::em::{em, log_likelihood, EmVariables, LinearGaussianModel};
+    let p = problem(3, 2, 60, 5, 12);
+    let dynamic_log_likelihood = |model: &LinearGaussianModel| {
+        let mut kf = DynKalmanFilter::new(
+            model.transition_matrix().clone(),
+            model.transition_covariance().clone(),
+            model.observation_matrix().clone(),
+            model.observation_covariance().clone(),
+            model.initial_state_mean().clone(),
+            model.initial_state_covariance().clone(),
+        )
+        .unwrap();
+        for (k, y) in p.ys.iter().enumerate() {
+            if k > 0 {
+                kf.predict().unwrap();
+            }
+            if let Some(y) = y {
+                kf.update(y).unwrap();
+            }
+        }
+        kf.log_likelihood()
+    };
+    let model = LinearGaussianModel::new(
+        p.f.clone(),
+        p.h.clone(),
+        DMatrix::identity(3, 3) * 0.3, // deliberately off, for EM to improve
+        DMatrix::identity(2, 2) * 2.0,
+        p.x0.clone(),
+        p.p0.clone(),
+    )
+    .unwrap();
+    let given = log_likelihood(&model, &p.ys).unwrap();
+    let ours = dynamic_log_likelihood(&model);
+    assert!(
+        (ours - given).abs() <= 1e-12 * given.abs(),
+        "{ours} vs {given}"
+    );
+    let fit = em(
+        &model,
+        &p.ys,
+        EmVariables::TRANSITION_COVARIANCE | EmVariables::OBSERVATION_COVARIANCE,
+        5,
+    )
+    .unwrap();
+    let fitted = *fit.log_likelihoods.last().unwrap();
+    assert!(fitted > given + 1.0, "{fitted} vs {given}");
+    let ours = dynamic_log_likelihood(&fit.model);
+    assert!(
+        (ours - fitted).abs() <= 1e-12 * fitted.abs(),
+        "{ours} vs {fitted}"
+    );
+}
