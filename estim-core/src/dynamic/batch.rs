@@ -5,8 +5,8 @@
 use nalgebra::{Cholesky, DMatrix, DMatrixView, DVector, DVectorView};
 
 use super::filter::{check_shape, DynKalmanFilter};
-use super::linalg::{check_size, lower_inverse_into, symmetrize_in_place};
-use super::product::{gemm, Operand};
+use super::linalg::{check_size, lower_inverse_into, mirror_upper};
+use super::product::{gemm, gemm_upper, Operand};
 use crate::{Error, Result};
 
 /// A series of measurements, one row of m values per step, in one slice (step-major:
@@ -347,7 +347,7 @@ impl DynKalmanFilter {
                 ch.transpose_to(&mut ch_t);
                 gemm(&mut a, 1.0, &ch, inverse, 0.0);
                 shift.gemv(1.0, &a, &innovation, 0.0);
-                gemm(&mut previous_cov, -1.0, &a, &ch_t, 1.0);
+                gemm_upper(&mut previous_cov, -1.0, &a, &ch_t, 1.0);
                 gemm(&mut cross_cov, -1.0, &ch, kt, 1.0);
             }
             // G' = P_{k+1}^-1 C' = W' (W C'), P_{k+1} = L L' (the filtered covariance
@@ -378,8 +378,9 @@ impl DynKalmanFilter {
             gain_t.transpose_to(&mut gain);
             gemm(&mut product, 1.0, &gain, &difference, 0.0);
             smoothed_cov.copy_from(&previous_cov);
-            gemm(&mut smoothed_cov, 1.0, &product, &gain_t, 1.0);
-            symmetrize_in_place(&mut smoothed_cov);
+            // Symmetric: the upper triangle of each term, mirrored.
+            gemm_upper(&mut smoothed_cov, 1.0, &product, &gain_t, 1.0);
+            mirror_upper(&mut smoothed_cov);
             if !(correction.iter().all(|v| v.is_finite())
                 && smoothed_cov.iter().all(|v| v.is_finite()))
             {

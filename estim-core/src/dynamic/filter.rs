@@ -5,10 +5,10 @@ use nalgebra::{DMatrix, DVector};
 
 use super::linalg::{
     block_certificate, check_covariance, check_finite, check_innovation_conditioning, check_size,
-    joint_validity_margin, relative_tolerance, spd_inverse_log_det_into, symmetrize_in_place,
-    JointScratch,
+    joint_validity_margin, mirror_upper, relative_tolerance, spd_inverse_log_det_into,
+    symmetrize_in_place, JointScratch,
 };
-use super::product::gemm;
+use super::product::{gemm, gemm_upper};
 use crate::{Error, JointCheck, Result};
 
 /// Fail with [`Error::Dimension`] unless the matrix is rows x cols, naming which
@@ -495,8 +495,9 @@ impl DynKalmanFilter {
         }
         gemm(&mut ws.nn, 1.0, &self.transition, &self.covariance, 0.0);
         ws.nn_next.copy_from(&self.process_noise);
-        gemm(&mut ws.nn_next, 1.0, &ws.nn, &self.transition_t, 1.0);
-        symmetrize_in_place(&mut ws.nn_next);
+        // F P F' + Q is symmetric: its upper triangle, mirrored.
+        gemm_upper(&mut ws.nn_next, 1.0, &ws.nn, &self.transition_t, 1.0);
+        mirror_upper(&mut ws.nn_next);
         if !(ws.state.iter().all(|v| v.is_finite()) && ws.nn_next.iter().all(|v| v.is_finite())) {
             return Err(Error::NonFinite {
                 what: "predicted state or covariance (overflow)",
@@ -516,8 +517,8 @@ impl DynKalmanFilter {
                 0.0,
             );
             ws.nn_next.copy_from(&self.process_noise);
-            gemm(&mut ws.nn_next, 1.0, &ws.nn, &self.transition_t, 1.0);
-            symmetrize_in_place(&mut ws.nn_next);
+            gemm_upper(&mut ws.nn_next, 1.0, &ws.nn, &self.transition_t, 1.0);
+            mirror_upper(&mut ws.nn_next);
             std::mem::swap(&mut self.accumulated_noise, &mut ws.nn_next);
             self.model_unchanged = false;
         }
@@ -664,9 +665,12 @@ impl DynKalmanFilter {
         ws.nn_next.copy_from(&self.covariance);
         ws.gain_t.transpose_to(&mut ws.gain);
         ws.a_t.transpose_to(&mut ws.a);
-        gemm(&mut ws.nn_next, 1.0, &ws.gain, &ws.residual, 1.0);
-        gemm(&mut ws.nn_next, -1.0, &ws.a, &ws.gain_t, 1.0);
+        // P's triangles averaged (as the static Joseph form reads P), then the two
+        // terms on the upper triangle only, mirrored: exactly symmetric.
         symmetrize_in_place(&mut ws.nn_next);
+        gemm_upper(&mut ws.nn_next, 1.0, &ws.gain, &ws.residual, 1.0);
+        gemm_upper(&mut ws.nn_next, -1.0, &ws.a, &ws.gain_t, 1.0);
+        mirror_upper(&mut ws.nn_next);
         if !(ws.state.iter().all(|v| v.is_finite()) && ws.nn_next.iter().all(|v| v.is_finite())) {
             return Err(Error::NonFinite {
                 what: "posterior state or covariance (overflow)",

@@ -62,6 +62,17 @@ pub(crate) fn symmetrize_in_place(a: &mut DMatrix<f64>) {
     }
 }
 
+/// Copy the upper triangle of `a` onto its lower one (the result of products that
+/// computed only the upper triangle of a symmetric matrix).
+pub(crate) fn mirror_upper(a: &mut DMatrix<f64>) {
+    let n = a.nrows();
+    for j in 0..n {
+        for i in 0..j {
+            a[(j, i)] = a[(i, j)];
+        }
+    }
+}
+
 /// S^-1 and ln det S of a symmetric positive definite `s` through its Cholesky factor
 /// (Golub & Van Loan, 4th ed., alg. 4.2.1), written into `inverse`, with `factor` as
 /// scratch (both m x m, preallocated). `None` when a pivot is not positive (S not

@@ -53,7 +53,27 @@ pub(crate) fn gemm<'a, 'b>(
     b: impl Into<Operand<'b>>,
     beta: f64,
 ) {
-    let (a, b) = (a.into(), b.into());
+    product(c, alpha, a.into(), b.into(), beta, false);
+}
+
+/// [`gemm`] where only the upper triangle of C is wanted (a symmetric result, or a
+/// term of one, mirrored by the caller): the blocks wholly below the diagonal are
+/// skipped (about half the work of a square product), so entries below the diagonal
+/// are left unspecified.
+///
+/// # Panics
+/// As [`gemm`].
+pub(crate) fn gemm_upper<'a, 'b>(
+    c: &mut DMatrix<f64>,
+    alpha: f64,
+    a: impl Into<Operand<'a>>,
+    b: impl Into<Operand<'b>>,
+    beta: f64,
+) {
+    product(c, alpha, a.into(), b.into(), beta, true);
+}
+
+fn product(c: &mut DMatrix<f64>, alpha: f64, a: Operand, b: Operand, beta: f64, upper: bool) {
     assert!(
         a.cols == b.rows && c.nrows() == a.rows && c.ncols() == b.cols,
         "gemm shapes: ({}x{}) ({}x{}) into ({}x{})",
@@ -70,24 +90,31 @@ pub(crate) fn gemm<'a, 'b>(
     {
         if crate::linalg::dispatch::avx512f() {
             // SAFETY: the dispatch checked that the CPU has AVX-512F.
-            unsafe { gemm_avx512(c, m, n, alpha, a, b, beta) };
+            unsafe { gemm_avx512(c, (m, n, upper), alpha, a, b, beta) };
             return;
         }
         if crate::linalg::dispatch::avx2() {
             // SAFETY: the dispatch checked that the CPU has AVX2.
-            unsafe { gemm_avx2(c, m, n, alpha, a, b, beta) };
+            unsafe { gemm_avx2(c, (m, n, upper), alpha, a, b, beta) };
             return;
         }
     }
-    body::<8>(c, m, n, alpha, a, b, beta, |ad, i0, bcols| {
+    body::<8>(c, (m, n, upper), alpha, a, b, beta, |ad, i0, bcols| {
         block_portable::<8>(ad, m, i0, bcols)
     });
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-fn gemm_avx512(c: &mut [f64], m: usize, n: usize, alpha: f64, a: Operand, b: Operand, beta: f64) {
-    body::<16>(c, m, n, alpha, a, b, beta, |ad, i0, bcols| {
+fn gemm_avx512(
+    c: &mut [f64],
+    (m, n, upper): (usize, usize, bool),
+    alpha: f64,
+    a: Operand,
+    b: Operand,
+    beta: f64,
+) {
+    body::<16>(c, (m, n, upper), alpha, a, b, beta, |ad, i0, bcols| {
         // A closure inherits its function's target features: safe to call here.
         block_avx512(ad, m, i0, bcols)
     });
@@ -95,8 +122,15 @@ fn gemm_avx512(c: &mut [f64], m: usize, n: usize, alpha: f64, a: Operand, b: Ope
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn gemm_avx2(c: &mut [f64], m: usize, n: usize, alpha: f64, a: Operand, b: Operand, beta: f64) {
-    body::<8>(c, m, n, alpha, a, b, beta, |ad, i0, bcols| {
+fn gemm_avx2(
+    c: &mut [f64],
+    (m, n, upper): (usize, usize, bool),
+    alpha: f64,
+    a: Operand,
+    b: Operand,
+    beta: f64,
+) {
+    body::<8>(c, (m, n, upper), alpha, a, b, beta, |ad, i0, bcols| {
         // A closure inherits its function's target features: safe to call here.
         block_avx2(ad, m, i0, bcols)
     });
@@ -243,8 +277,7 @@ fn small(c: &mut [f64], m: usize, alpha: f64, ad: &[f64], bd: &[f64], k: usize, 
 #[inline(always)]
 fn body<const MR: usize>(
     c: &mut [f64],
-    m: usize,
-    n: usize,
+    (m, n, upper): (usize, usize, bool),
     alpha: f64,
     a: Operand,
     b: Operand,
@@ -262,6 +295,10 @@ fn body<const MR: usize>(
         let rows = (m - i0).min(MR);
         let mut j0 = 0;
         while j0 < n {
+            if upper && j0 + 3 < i0 {
+                j0 += 4; // wholly below the diagonal
+                continue;
+            }
             let cols = (n - j0).min(4);
             // B's 4 columns (a missing column repeats the last one: computed, never
             // stored).
@@ -336,6 +373,30 @@ mod tests {
     use crate::linalg::dispatch::{with_features, Features};
     use rand::{RngExt, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    /// The upper-triangle product equals the full one on and above the diagonal, for
+    /// every build, at sizes past the small-size switch with partial blocks.
+    #[test]
+    fn upper_product_equals_the_full_one_above_the_diagonal() {
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        for (m, k) in [(20, 30), (37, 37), (64, 5)] {
+            let a = DMatrix::from_fn(m, k, |_, _| rng.random_range(-1.0..1.0));
+            let b = DMatrix::from_fn(k, m, |_, _| rng.random_range(-1.0..1.0));
+            let c0 = DMatrix::from_fn(m, m, |_, _| rng.random_range(-1.0..1.0));
+            for features in [Features::PORTABLE, crate::linalg::dispatch::cpu()] {
+                let (mut full, mut upper) = (c0.clone(), c0.clone());
+                with_features(features, || {
+                    gemm(&mut full, -0.5, &a, &b, 1.0);
+                    gemm_upper(&mut upper, -0.5, &a, &b, 1.0);
+                });
+                for j in 0..m {
+                    for i in 0..=j {
+                        assert_eq!(upper[(i, j)], full[(i, j)], "({m},{k}) {features:?}");
+                    }
+                }
+            }
+        }
+    }
 
     /// Every build equals a naive triple loop (to round-off: the fused build rounds
     /// once per multiply-add) at sizes around the block edges, on both sides of the
