@@ -536,9 +536,8 @@ impl FilterpyKalmanFilter {
         if let Some((ll, nis)) = last.map_err(estim_err)? {
             self.record_update(ll, nis);
         }
-        self.x_prior
-            .copy_from_slice(&means_p[means_p.len().saturating_sub(n)..]);
         if steps > 0 {
+            self.x_prior.copy_from_slice(&means_p[(steps - 1) * n..]);
             self.p_prior.copy_from_slice(&covs_p[(steps - 1) * n * n..]);
         }
         self.publish_estimate(py);
