@@ -281,7 +281,21 @@ pub use traits::{
 pub use update::CovarianceUpdate;
 pub use window::WindowedCrossCovariance;
 
-pub use nalgebra;
+/// nalgebra, re-exported whole (`estim_core::nalgebra::...` is nalgebra's API), except
+/// that `dmatrix!` and `dvector!` are estim-core's f64 macros ([`dmatrix!`],
+/// [`dvector!`]): nalgebra's own expand to paths through a crate named `nalgebra`, so
+/// they do not compile in a crate that depends on estim-core alone; these do.
+///
+/// ```
+/// use estim_core::nalgebra::{dmatrix, dvector, DMatrix};
+///
+/// let f: DMatrix<f64> = dmatrix![1.0, 1.0; 0.0, 1.0];
+/// assert_eq!(f * dvector![0.0, 2.0], dvector![2.0, 2.0]);
+/// ```
+pub mod nalgebra {
+    pub use crate::{dmatrix, dvector};
+    pub use ::nalgebra::*;
+}
 
 /// The README's Rust code blocks, compiled and run as doc-tests (`cargo test` runs
 /// them; nothing of it is part of the API).

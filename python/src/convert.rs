@@ -39,7 +39,7 @@ pub(crate) fn matrix(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<DMatrix<f64
     let view = ro.as_array();
     match view.ndim() {
         // estim-core's macro: this crate has no nalgebra dependency of its own.
-        0 => Ok(estim_core::dmatrix![view[[]]]),
+        0 => Ok(estim_core::nalgebra::dmatrix![view[[]]]),
         2 => {
             let (r, c) = (view.shape()[0], view.shape()[1]);
             Ok(DMatrix::from_fn(r, c, |i, j| view[[i, j]]))

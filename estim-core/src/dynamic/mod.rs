@@ -30,9 +30,11 @@
 //! log-likelihood of a linear-Gaussian model with run-time sizes are in
 //! [`crate::noise::em`] (`log_likelihood`, `em`).
 //!
-//! `estim_core::dmatrix!` and `estim_core::dvector!` build the matrices without a
-//! direct nalgebra dependency (nalgebra's own macros expand to paths through a crate
-//! named `nalgebra`, which a user of `estim_core::nalgebra` alone does not have).
+//! `estim_core::dmatrix!` and `estim_core::dvector!` (also reached as
+//! `estim_core::nalgebra::{dmatrix, dvector}`) build the matrices without a direct
+//! nalgebra dependency: nalgebra's own macros expand to paths through a crate named
+//! `nalgebra`, which a user of `estim_core::nalgebra` alone does not have. The Python
+//! bindings (`python/`, no nalgebra dependency of their own) compile with them.
 
 mod batch;
 mod filter;
