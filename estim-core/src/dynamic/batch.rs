@@ -6,7 +6,7 @@ use nalgebra::{Cholesky, DMatrix, DMatrixView, DVector, DVectorView};
 
 use super::filter::{check_shape, DynKalmanFilter};
 use super::linalg::{check_size, lower_inverse_into, mirror_upper};
-use super::product::{gemm, gemm_upper, Operand};
+use super::product::{gemm, gemm_triangular, gemm_upper, Operand, Triangle};
 use crate::{Error, Result};
 
 /// A series of measurements, one row of m values per step, in one slice (step-major:
@@ -366,8 +366,22 @@ impl DynKalmanFilter {
             }
             inverse_factor.transpose_to(&mut inverse_factor_t);
             cross_cov.transpose_to(&mut gain_t);
-            gemm(&mut scratch, 1.0, &inverse_factor, &gain_t, 0.0);
-            gemm(&mut gain_t, 1.0, &inverse_factor_t, &scratch, 0.0);
+            gemm_triangular(
+                &mut scratch,
+                1.0,
+                &inverse_factor,
+                Triangle::Lower,
+                &gain_t,
+                0.0,
+            );
+            gemm_triangular(
+                &mut gain_t,
+                1.0,
+                &inverse_factor_t,
+                Triangle::Upper,
+                &scratch,
+                0.0,
+            );
             // e^s_k = shift + G e^s_{k+1}.
             next_correction.copy_from(&shift);
             next_correction.gemv_tr(1.0, &gain_t, &correction, 1.0);

@@ -53,7 +53,7 @@ pub(crate) fn gemm<'a, 'b>(
     b: impl Into<Operand<'b>>,
     beta: f64,
 ) {
-    product(c, alpha, a.into(), b.into(), beta, false);
+    product(c, alpha, (a.into(), Triangle::Full), b.into(), beta, false);
 }
 
 /// [`gemm`] where only the upper triangle of C is wanted (a symmetric result, or a
@@ -70,10 +70,45 @@ pub(crate) fn gemm_upper<'a, 'b>(
     b: impl Into<Operand<'b>>,
     beta: f64,
 ) {
-    product(c, alpha, a.into(), b.into(), beta, true);
+    product(c, alpha, (a.into(), Triangle::Full), b.into(), beta, true);
 }
 
-fn product(c: &mut DMatrix<f64>, alpha: f64, a: Operand, b: Operand, beta: f64, upper: bool) {
+/// The structure of A in [`gemm_triangular`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Triangle {
+    /// Any A.
+    Full,
+    /// A_ip = 0 for p > i.
+    Lower,
+    /// A_ip = 0 for p < i.
+    Upper,
+}
+
+/// [`gemm`] with a triangular A: each block of rows walks only the part of the shared
+/// dimension where A is not zero (half the work of a square product). A's entries on
+/// the zero side are not read.
+///
+/// # Panics
+/// As [`gemm`].
+pub(crate) fn gemm_triangular<'a, 'b>(
+    c: &mut DMatrix<f64>,
+    alpha: f64,
+    a: impl Into<Operand<'a>>,
+    shape: Triangle,
+    b: impl Into<Operand<'b>>,
+    beta: f64,
+) {
+    product(c, alpha, (a.into(), shape), b.into(), beta, false);
+}
+
+fn product(
+    c: &mut DMatrix<f64>,
+    alpha: f64,
+    (a, shape): (Operand, Triangle),
+    b: Operand,
+    beta: f64,
+    upper: bool,
+) {
     assert!(
         a.cols == b.rows && c.nrows() == a.rows && c.ncols() == b.cols,
         "gemm shapes: ({}x{}) ({}x{}) into ({}x{})",
@@ -90,50 +125,72 @@ fn product(c: &mut DMatrix<f64>, alpha: f64, a: Operand, b: Operand, beta: f64, 
     {
         if crate::linalg::dispatch::avx512f() {
             // SAFETY: the dispatch checked that the CPU has AVX-512F.
-            unsafe { gemm_avx512(c, (m, n, upper), alpha, a, b, beta) };
+            unsafe { gemm_avx512(c, (m, n, upper, shape), alpha, a, b, beta) };
             return;
         }
         if crate::linalg::dispatch::avx2() {
             // SAFETY: the dispatch checked that the CPU has AVX2.
-            unsafe { gemm_avx2(c, (m, n, upper), alpha, a, b, beta) };
+            unsafe { gemm_avx2(c, (m, n, upper, shape), alpha, a, b, beta) };
             return;
         }
     }
-    body::<8>(c, (m, n, upper), alpha, a, b, beta, |ad, i0, bcols| {
-        block_portable::<8>(ad, m, i0, bcols)
-    });
+    body::<8>(
+        c,
+        (m, n, upper, shape),
+        alpha,
+        a,
+        b,
+        beta,
+        |ad, i0, bcols| block_portable::<8>(ad, m, i0, bcols),
+    );
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 fn gemm_avx512(
     c: &mut [f64],
-    (m, n, upper): (usize, usize, bool),
+    (m, n, upper, shape): (usize, usize, bool, Triangle),
     alpha: f64,
     a: Operand,
     b: Operand,
     beta: f64,
 ) {
-    body::<16>(c, (m, n, upper), alpha, a, b, beta, |ad, i0, bcols| {
-        // A closure inherits its function's target features: safe to call here.
-        block_avx512(ad, m, i0, bcols)
-    });
+    body::<16>(
+        c,
+        (m, n, upper, shape),
+        alpha,
+        a,
+        b,
+        beta,
+        |ad, i0, bcols| {
+            // A closure inherits its function's target features: safe to call here.
+            block_avx512(ad, m, i0, bcols)
+        },
+    );
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn gemm_avx2(
     c: &mut [f64],
-    (m, n, upper): (usize, usize, bool),
+    (m, n, upper, shape): (usize, usize, bool, Triangle),
     alpha: f64,
     a: Operand,
     b: Operand,
     beta: f64,
 ) {
-    body::<8>(c, (m, n, upper), alpha, a, b, beta, |ad, i0, bcols| {
-        // A closure inherits its function's target features: safe to call here.
-        block_avx2(ad, m, i0, bcols)
-    });
+    body::<8>(
+        c,
+        (m, n, upper, shape),
+        alpha,
+        a,
+        b,
+        beta,
+        |ad, i0, bcols| {
+            // A closure inherits its function's target features: safe to call here.
+            block_avx2(ad, m, i0, bcols)
+        },
+    );
 }
 
 /// A full 16 x 4 block of A B: two 8-lane columns of A times 4 broadcast entries of
@@ -277,7 +334,7 @@ fn small(c: &mut [f64], m: usize, alpha: f64, ad: &[f64], bd: &[f64], k: usize, 
 #[inline(always)]
 fn body<const MR: usize>(
     c: &mut [f64],
-    (m, n, upper): (usize, usize, bool),
+    (m, n, upper, shape): (usize, usize, bool, Triangle),
     alpha: f64,
     a: Operand,
     b: Operand,
@@ -300,17 +357,24 @@ fn body<const MR: usize>(
                 continue;
             }
             let cols = (n - j0).min(4);
-            // B's 4 columns (a missing column repeats the last one: computed, never
-            // stored).
+            // The shared dimension's range where A's rows i0.. are not zero.
+            let (p0, p1) = match shape {
+                Triangle::Full => (0, k),
+                Triangle::Lower => (0, (i0 + rows).min(k)),
+                Triangle::Upper => (i0.min(k), k),
+            };
+            let ad = &ad[p0 * m..];
+            // B's 4 columns over that range (a missing column repeats the last one:
+            // computed, never stored).
             let bcols: [&[f64]; 4] = std::array::from_fn(|jj| {
                 let start = (j0 + jj.min(cols - 1)) * k;
-                &bd[start..start + k]
+                &bd[start + p0..start + p1]
             });
             let acc = if rows == MR {
                 full(ad, i0, bcols)
             } else {
                 let mut acc = [[0.0f64; MR]; 4];
-                for p in 0..k {
+                for p in 0..p1 - p0 {
                     let column = &ad[p * m + i0..p * m + i0 + rows];
                     for (jj, block) in acc.iter_mut().enumerate() {
                         let x = bcols[jj][p];
@@ -393,6 +457,34 @@ mod tests {
                     for i in 0..=j {
                         assert_eq!(upper[(i, j)], full[(i, j)], "({m},{k}) {features:?}");
                     }
+                }
+            }
+        }
+    }
+
+    /// The triangular products equal the full ones exactly (the skipped terms are
+    /// exact zeros), every build, lower and upper A, partial blocks.
+    #[test]
+    fn triangular_products_equal_the_full_ones() {
+        let mut rng = ChaCha8Rng::seed_from_u64(10);
+        for (m, n) in [(20, 20), (37, 11), (64, 64)] {
+            let b = DMatrix::from_fn(m, n, |_, _| rng.random_range(-1.0..1.0));
+            let lower = DMatrix::from_fn(m, m, |i, p| {
+                if p <= i {
+                    rng.random_range(-1.0..1.0)
+                } else {
+                    0.0
+                }
+            });
+            let upper = lower.transpose();
+            for features in [Features::PORTABLE, crate::linalg::dispatch::cpu()] {
+                for (a, shape) in [(&lower, Triangle::Lower), (&upper, Triangle::Upper)] {
+                    let (mut full, mut tri) = (DMatrix::zeros(m, n), DMatrix::zeros(m, n));
+                    with_features(features, || {
+                        gemm(&mut full, 1.0, a, &b, 0.0);
+                        gemm_triangular(&mut tri, 1.0, a, shape, &b, 0.0);
+                    });
+                    assert_eq!(tri, full, "({m},{n}) {shape:?} {features:?}");
                 }
             }
         }
