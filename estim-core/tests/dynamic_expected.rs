@@ -19,14 +19,17 @@ fn path() -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../python/tests/data/static_runner.json")
 }
 
+/// F, Q, H, R and M of the fixed problem.
+struct Model {
+    f: DMatrix<f64>,
+    q: DMatrix<f64>,
+    h: DMatrix<f64>,
+    r: DMatrix<f64>,
+    cross: DMatrix<f64>,
+}
+
 /// A fixed, well-conditioned problem (no random generator: the numbers are the spec).
-fn problem() -> (
-    DMatrix<f64>,
-    DMatrix<f64>,
-    DMatrix<f64>,
-    DMatrix<f64>,
-    DMatrix<f64>,
-) {
+fn problem() -> Model {
     let f = DMatrix::from_fn(N, N, |i, j| match j as isize - i as isize {
         0 => 0.97,
         1 => 0.1,
@@ -45,7 +48,7 @@ fn problem() -> (
     let cross = joint.view((0, N), (N, M)).into_owned();
     let r = joint.view((N, N), (M, M)).into_owned();
     let h = DMatrix::from_fn(M, N, |i, j| ((i * N + j) as f64 * 0.7).sin());
-    (f, q, h, r, cross)
+    Model { f, q, h, r, cross }
 }
 
 fn s<const R: usize, const C: usize>(a: &DMatrix<f64>) -> SMatrix<f64, R, C> {
@@ -59,7 +62,7 @@ fn rows(m: &DMatrix<f64>) -> Value {
 }
 
 fn case(correlated: bool) -> Value {
-    let (f, q, h, r, cross) = problem();
+    let Model { f, q, h, r, cross } = problem();
     let x0 = SVector::<f64, N>::from_fn(|i, _| 0.5 - 0.25 * i as f64);
     let p0 = SMatrix::<f64, N, N>::identity() * 2.0;
     let ys: Vec<Option<SVector<f64, M>>> = (0..25)
