@@ -3,12 +3,13 @@ for single-threaded BLAS, as the figures in docs/python.md were):
 
 1. per predict + update on a 6-state, 3-measurement filter: filterpy's KalmanFilter
    against estim.filterpy.KalmanFilter (the same script, one import changed);
-2. a whole series at N = 200 states, M = 20 measurements: filterpy's batch_filter
-   against estim.kalman_filter (same outputs: filtered means and covariances), and
-   filter + RTS (filterpy batch_filter + rts_smoother against estim.kalman_smoother).
+2. a whole series at N = 50 states, M = 10 measurements and at N = 200, M = 20:
+   filterpy's batch_filter against estim.kalman_filter (same outputs: filtered means
+   and covariances), and filter + RTS (filterpy batch_filter + rts_smoother against
+   estim.kalman_smoother).
 
 Usage: OPENBLAS_NUM_THREADS=1 python python/bench/bench_filterpy.py [--steps 10000]
-(--steps is the length of the N = 200 series; filterpy's batch_filter keeps two
+(--steps is the length of the filtered series, --smooth-steps of the smoothed ones; filterpy's batch_filter keeps two
 (steps, N, N) arrays: 10,000 steps take 6.4 GB, the smoother run twice that.)
 """
 
@@ -71,8 +72,7 @@ def per_step(steps=20000):
     return c_fp / c_es
 
 
-def batch(steps, smooth):
-    n, m = 200, 20
+def batch(steps, smooth, n=200, m=20):
     F, Q, H, R = model(n, m, 2)
     rng = np.random.default_rng(3)
     zs = rng.normal(size=(steps, m))
@@ -106,6 +106,8 @@ def main():
     print(f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', '(unset)')}, "
           f"numpy {np.__version__}")
     per_step()
+    batch(args.steps, smooth=False, n=50, m=10)
+    batch(args.smooth_steps, smooth=True, n=50, m=10)
     batch(args.steps, smooth=False)
     batch(args.smooth_steps, smooth=True)
 
