@@ -137,6 +137,15 @@
 //! estimates and the log-likelihood); [`KalmanFilter`] also takes a control input and
 //! per-step F, Q, H and R.
 //!
+//! ## Sizes known at run time
+//!
+//! Module [`dynamic`]: [`DynKalmanFilter`] is the linear filter with the same
+//! correlated update and joint check on `DMatrix<f64>`, allocating at construction
+//! only (no allocation per step, nothing large on the stack), with a whole series
+//! filtered and smoothed in one call ([`DynKalmanFilter::filter_and_smooth`]). The
+//! macros [`dmatrix!`] and [`dvector!`] write its matrices without a direct nalgebra
+//! dependency. The Python package (`python/`) is built on it.
+//!
 //! ## Hand-tuned paths and `ESTIM_FORCE_PORTABLE`
 //!
 //! Three hot loops have a hand-tuned build beside the portable one, chosen at run
@@ -213,6 +222,7 @@
 mod config;
 pub mod consistency;
 mod cross;
+pub mod dynamic;
 mod error;
 mod gaussian;
 mod linalg;
@@ -254,6 +264,7 @@ pub mod window;
 
 pub use config::{FilterConfig, FilterConfigBuilder, Gate, GateRecovery, JointCheck};
 pub use cross::{Fixed, JointCovariance, ScaledCorrelation, Zero};
+pub use dynamic::{DynKalmanFilter, MeasurementSeries};
 pub use error::{Error, Result};
 pub use gaussian::StateAndCovariance;
 pub use observer::{NisRecorder, NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
@@ -270,7 +281,21 @@ pub use traits::{
 pub use update::CovarianceUpdate;
 pub use window::WindowedCrossCovariance;
 
-pub use nalgebra;
+/// nalgebra, re-exported whole (`estim_core::nalgebra::...` is nalgebra's API), except
+/// that `dmatrix!` and `dvector!` are estim-core's f64 macros ([`dmatrix!`],
+/// [`dvector!`]): nalgebra's own expand to paths through a crate named `nalgebra`, so
+/// they do not compile in a crate that depends on estim-core alone; these do.
+///
+/// ```
+/// use estim_core::nalgebra::{dmatrix, dvector, DMatrix};
+///
+/// let f: DMatrix<f64> = dmatrix![1.0, 1.0; 0.0, 1.0];
+/// assert_eq!(f * dvector![0.0, 2.0], dvector![2.0, 2.0]);
+/// ```
+pub mod nalgebra {
+    pub use crate::{dmatrix, dvector};
+    pub use ::nalgebra::*;
+}
 
 /// The README's Rust code blocks, compiled and run as doc-tests (`cargo test` runs
 /// them; nothing of it is part of the API).

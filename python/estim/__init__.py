@@ -1,0 +1,52 @@
+"""estim: Kalman filtering with correlated process and measurement noise.
+
+A Rust core (the ``estim-core`` crate) with sizes taken from the arrays:
+
+- :class:`KalmanFilter` -- ``KalmanFilter(F, Q, H, R, x0, P0)`` with ``predict()`` and
+  ``update(z, M=None)`` returning an :class:`UpdateReport` (accepted, innovation, S,
+  K, nis, log_likelihood, joint_min_eigenvalue);
+- :func:`kalman_filter` and :func:`kalman_smoother` over a whole series (``zs`` of
+  shape (T, m), NaN rows or ``mask=False`` for missing measurements), returning NumPy
+  arrays; the smoother returns the filtered and the smoothed estimates of one pass;
+- :func:`joint_check` -- is ``[[Q, M], [M', R]]`` a covariance at all?
+- :func:`nees`, :func:`nis` -- consistency statistics;
+- :mod:`estim.filterpy` -- ``from estim.filterpy import KalmanFilter``: filterpy's
+  ``KalmanFilter`` API on the same core.
+
+Errors are :class:`EstimError` (a ``ValueError``) naming the quantity at fault.
+
+With a cross-covariance ``M = Cov(w_{k-1}, v_k)`` the update is (Simon, *Optimal State
+Estimation*, 2006, sec. 7.1)::
+
+    S = H P H' + H M + M' H' + R,   K = (P H' + M) S^-1
+
+and the joint covariance ``[[Q_acc, M], [M', R]]`` is checked before it is used
+(``joint_check='reject'`` by default; ``'report'`` uses it and reports the margin).
+"""
+
+from ._estim import (
+    EstimError,
+    FilterResult,
+    KalmanFilter,
+    SmootherResult,
+    UpdateReport,
+    joint_check,
+    kalman_filter,
+    kalman_smoother,
+    nees,
+    nis,
+)
+
+__all__ = [
+    "EstimError",
+    "FilterResult",
+    "KalmanFilter",
+    "SmootherResult",
+    "UpdateReport",
+    "joint_check",
+    "kalman_filter",
+    "kalman_smoother",
+    "nees",
+    "nis",
+]
+__version__ = "0.1.0"

@@ -1,0 +1,179 @@
+"""Type stubs of the extension module estim._estim (re-exported by estim)."""
+
+from typing import Any, Optional, Sequence, Tuple, Union, overload
+
+import numpy as np
+import numpy.typing as npt
+
+ArrayLike = npt.ArrayLike
+FloatArray = npt.NDArray[np.float64]
+
+class EstimError(ValueError):
+    """An input estim refused or a numerical failure, naming the quantity."""
+
+class UpdateReport:
+    """Everything one update attempt of KalmanFilter produced."""
+
+    @property
+    def accepted(self) -> bool: ...
+    @property
+    def innovation(self) -> FloatArray: ...
+    @property
+    def S(self) -> FloatArray: ...
+    @property
+    def K(self) -> Optional[FloatArray]: ...
+    @property
+    def nis(self) -> float: ...
+    @property
+    def log_likelihood(self) -> float: ...
+    @property
+    def joint_min_eigenvalue(self) -> Optional[float]: ...
+
+class FilterResult:
+    """A filtered series: x (T, n), P (T, n, n), nis (T,), accepted, log_likelihood."""
+
+    @property
+    def x(self) -> FloatArray: ...
+    @property
+    def P(self) -> FloatArray: ...
+    @property
+    def nis(self) -> FloatArray: ...
+    @property
+    def accepted(self) -> list[bool]: ...
+    @property
+    def log_likelihood(self) -> float: ...
+
+class SmootherResult:
+    """Smoothed (x, P, x0, P0) and filtered (x_filtered, P_filtered) estimates of one pass."""
+
+    @property
+    def x(self) -> FloatArray: ...
+    @property
+    def P(self) -> FloatArray: ...
+    @property
+    def x_filtered(self) -> FloatArray: ...
+    @property
+    def P_filtered(self) -> FloatArray: ...
+    @property
+    def x0(self) -> FloatArray: ...
+    @property
+    def P0(self) -> FloatArray: ...
+    @property
+    def nis(self) -> FloatArray: ...
+    @property
+    def log_likelihood(self) -> float: ...
+
+class KalmanFilter:
+    """Linear Kalman filter with sizes from the arrays and the correlated update."""
+
+    def __init__(
+        self,
+        F: ArrayLike,
+        Q: ArrayLike,
+        H: ArrayLike,
+        R: ArrayLike,
+        x0: ArrayLike,
+        P0: ArrayLike,
+        B: Optional[ArrayLike] = None,
+        joint_check: str = "reject",
+        nis_gate: Optional[float] = None,
+    ) -> None: ...
+    def predict(self, u: Optional[ArrayLike] = None) -> None: ...
+    def update(self, z: ArrayLike, M: Optional[ArrayLike] = None) -> UpdateReport: ...
+    def filter(
+        self, zs: ArrayLike, M: Optional[ArrayLike] = None, mask: Optional[Sequence[bool]] = None
+    ) -> FilterResult: ...
+    def smooth(
+        self, zs: ArrayLike, M: Optional[ArrayLike] = None, mask: Optional[Sequence[bool]] = None
+    ) -> SmootherResult: ...
+    @property
+    def x(self) -> FloatArray: ...
+    @property
+    def P(self) -> FloatArray: ...
+    @property
+    def log_likelihood(self) -> float: ...
+
+def kalman_filter(
+    F: ArrayLike,
+    Q: ArrayLike,
+    H: ArrayLike,
+    R: ArrayLike,
+    x0: ArrayLike,
+    P0: ArrayLike,
+    zs: ArrayLike,
+    M: Optional[ArrayLike] = None,
+    mask: Optional[Sequence[bool]] = None,
+    joint_check: str = "reject",
+) -> FilterResult: ...
+def kalman_smoother(
+    F: ArrayLike,
+    Q: ArrayLike,
+    H: ArrayLike,
+    R: ArrayLike,
+    x0: ArrayLike,
+    P0: ArrayLike,
+    zs: ArrayLike,
+    M: Optional[ArrayLike] = None,
+    mask: Optional[Sequence[bool]] = None,
+    joint_check: str = "reject",
+) -> SmootherResult: ...
+def joint_check(Q: ArrayLike, M: ArrayLike, R: ArrayLike) -> float: ...
+def nees(x_true: ArrayLike, x_est: ArrayLike, P: ArrayLike) -> Union[float, FloatArray]: ...
+def nis(innovation: ArrayLike, S: ArrayLike) -> Union[float, FloatArray]: ...
+
+class FilterpyKalmanFilter:
+    """The Rust base of estim.filterpy.KalmanFilter."""
+
+    dim_x: int
+    dim_z: int
+    dim_u: int
+    x: Any
+    P: Any
+    F: Any
+    Q: Any
+    H: Any
+    R: Any
+    M: Any
+    B: Any
+    z: Any
+    alpha: float
+    def __init__(self, dim_x: int, dim_z: int, dim_u: int = 0) -> None: ...
+    def predict(
+        self,
+        u: Optional[ArrayLike] = None,
+        B: Optional[ArrayLike] = None,
+        F: Optional[ArrayLike] = None,
+        Q: Optional[ArrayLike] = None,
+    ) -> None: ...
+    def update(
+        self, z: Optional[ArrayLike], R: Optional[ArrayLike] = None, H: Optional[ArrayLike] = None
+    ) -> None: ...
+    def update_correlated(
+        self, z: Optional[ArrayLike], R: Optional[ArrayLike] = None, H: Optional[ArrayLike] = None
+    ) -> None: ...
+    def _batch_filter(self, zs: ArrayLike) -> Tuple[FloatArray, FloatArray, FloatArray, FloatArray]: ...
+    def _rts_smoother(
+        self, Xs: ArrayLike, Ps: ArrayLike
+    ) -> Tuple[FloatArray, FloatArray, FloatArray, FloatArray]: ...
+    @property
+    def y(self) -> FloatArray: ...
+    @property
+    def S(self) -> FloatArray: ...
+    @property
+    def SI(self) -> FloatArray: ...
+    @property
+    def K(self) -> FloatArray: ...
+    @property
+    def x_prior(self) -> FloatArray: ...
+    @property
+    def P_prior(self) -> FloatArray: ...
+    @property
+    def x_post(self) -> FloatArray: ...
+    @property
+    def P_post(self) -> FloatArray: ...
+    @property
+    def log_likelihood(self) -> float: ...
+    @property
+    def likelihood(self) -> float: ...
+    @property
+    def mahalanobis(self) -> float: ...
