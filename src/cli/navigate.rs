@@ -236,6 +236,22 @@ impl Truth {
         Ok(())
     }
 
+    /// The reference's track for the plots: latitude, longitude \[deg\] (carried to the
+    /// IMU's point) at its own epochs within `[from, to]` (the navigator's clock).
+    pub fn track_deg(&self, from: f64, to: f64) -> Vec<[f64; 2]> {
+        self.epochs
+            .iter()
+            .filter(|&&t| t >= from && t <= to)
+            .filter_map(|&t| self.trajectory.evaluate(t).ok())
+            .map(|k| {
+                [
+                    k.state.latitude.to_degrees(),
+                    k.state.longitude.to_degrees(),
+                ]
+            })
+            .collect()
+    }
+
     /// The truth at `time`, `None` outside the reference's span.
     fn at(&self, time: f64) -> anyhow::Result<Option<InsState>> {
         if !(time >= self.span[0] && time <= self.span[1]) {
@@ -703,9 +719,33 @@ impl Writer {
         self
     }
 
-    /// The solutions kept for the plots.
-    pub fn plot_rows(&self) -> &[crate::navigate_plots::PlotRow] {
-        self.plot_rows.as_deref().unwrap_or(&[])
+    /// Write the plots of the kept solutions (and the truth's track over their span)
+    /// into `dir`: the summary's `plots` block, or `None` when no plot was asked for.
+    pub fn write_plots(
+        &self,
+        dir: &StagedDir,
+        command: &str,
+        solution_label: &str,
+        nis: (&[f64], &[f64]),
+        stopped: Option<&str>,
+    ) -> Option<Value> {
+        let rows = self.plot_rows.as_deref()?;
+        let truth = match (self.truth.as_ref(), rows.first(), rows.last()) {
+            (Some(t), Some(a), Some(b)) => t.track_deg(a.time, b.time),
+            _ => Vec::new(),
+        };
+        Some(crate::navigate_plots::write_plots_or_warn(
+            &dir.path(""),
+            &crate::navigate_plots::PlotData {
+                command,
+                solution_label,
+                rows,
+                nis_times: nis.0,
+                nis: nis.1,
+                truth: &truth,
+                stopped,
+            },
+        ))
     }
 
     /// The evaluation against truth, if any.
@@ -877,23 +917,25 @@ pub fn summary_json(
     if let (Some(b), Value::Object(e)) = (body.as_object_mut(), extra) {
         b.extend(e);
     }
-    schema::document(
-        command,
-        json!({
-            "imu": schema::path_json(Some(&files.imu)),
-            "dvl": schema::path_json(files.dvl.as_deref()),
-            "beams": schema::path_json(files.beams.as_deref()),
-            "pd0": schema::path_json(files.pd0.as_deref()),
-            "depth": schema::path_json(files.depth.as_deref()),
-            "fixes": schema::path_json(files.fixes.as_deref()),
-            "vehicle": schema::path_json(files.vehicle.as_deref()),
-            "truth": schema::path_json(files.truth.as_deref()),
-            "rate_hz": rate,
-            "configuration": survey.config,
-        }),
-        0,
-        body,
-    )
+    schema::document(command, inputs_json(survey, rate), 0, body)
+}
+
+/// The summary's `inputs` block of a survey run (`navigate`, `smooth`; a completed or
+/// a stopped run): every input path, the rate and the configuration in effect.
+pub fn inputs_json(survey: &Survey, rate: Option<f64>) -> Value {
+    let files = &survey.files;
+    json!({
+        "imu": schema::path_json(Some(&files.imu)),
+        "dvl": schema::path_json(files.dvl.as_deref()),
+        "beams": schema::path_json(files.beams.as_deref()),
+        "pd0": schema::path_json(files.pd0.as_deref()),
+        "depth": schema::path_json(files.depth.as_deref()),
+        "fixes": schema::path_json(files.fixes.as_deref()),
+        "vehicle": schema::path_json(files.vehicle.as_deref()),
+        "truth": schema::path_json(files.truth.as_deref()),
+        "rate_hz": rate,
+        "configuration": survey.config,
+    })
 }
 
 /// The final DVL error states of a run with `[dvl_states]` (null without): each
@@ -1051,21 +1093,13 @@ pub fn stopped(
     writer: &mut Writer,
     staged: Option<StagedDir>,
     error: &NavigatorError,
+    rate: Option<f64>,
     json_out: bool,
 ) -> anyhow::Result<()> {
     let (status, stop) = stop_json(survey.epoch, error);
-    let files = &survey.files;
     let mut summary = schema::document(
         command,
-        json!({
-            "imu": schema::path_json(Some(&files.imu)),
-            "dvl": schema::path_json(files.dvl.as_deref()),
-            "beams": schema::path_json(files.beams.as_deref()),
-            "pd0": schema::path_json(files.pd0.as_deref()),
-            "vehicle": schema::path_json(files.vehicle.as_deref()),
-            "truth": schema::path_json(files.truth.as_deref()),
-            "configuration": survey.config,
-        }),
+        inputs_json(survey, rate),
         0,
         json!({
             "epoch_s": survey.epoch,
@@ -1085,6 +1119,17 @@ pub fn stopped(
     summary["status"] = json!(status);
     let kept = match staged {
         Some(dir) => {
+            // The plots of the solutions before the stop (their axes bounded by the
+            // valid part, see navigate_plots); the NIS were not kept.
+            let note = format!(
+                "{status} at t = {:.1} s",
+                stop["time_since_epoch_s"].as_f64().unwrap_or(f64::NAN)
+            );
+            if let Some(plots) =
+                writer.write_plots(&dir, command, "filter", (&[], &[]), Some(&note))
+            {
+                summary["plots"] = plots;
+            }
             writer.finish(
                 &dir,
                 &format!("estim {command} track before the stop (partial)"),
@@ -1155,7 +1200,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let run = match result {
         Ok(run) => run,
         Err(e @ (NavigatorError::Filter { .. } | NavigatorError::Diverged { .. })) => {
-            return stopped("navigate", &survey, &mut writer, staged, &e, args.json);
+            return stopped(
+                "navigate",
+                &survey,
+                &mut writer,
+                staged,
+                &e,
+                args.rate,
+                args.json,
+            );
         }
         Err(e) => return Err(e.into()),
     };
@@ -1174,18 +1227,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         learned_json(&run),
     );
     if let Some(dir) = staged {
-        if args.plots {
-            // Optional: a plot that cannot be drawn is warned about, not the run lost.
-            summary["plots"] = crate::navigate_plots::write_plots_or_warn(
-                &dir.path(""),
-                &crate::navigate_plots::PlotData {
-                    command: "navigate",
-                    solution_label: "filter",
-                    rows: writer.plot_rows(),
-                    nis_times: &run.dvl_nis_times,
-                    nis: &run.dvl_nis,
-                },
-            );
+        // Optional: a plot that cannot be drawn is warned about, not the run lost.
+        let nis = (&run.dvl_nis_times[..], &run.dvl_nis[..]);
+        if let Some(plots) = writer.write_plots(&dir, "navigate", "filter", nis, None) {
+            summary["plots"] = plots;
         }
         writer.finish(&dir, "estim navigate track (DVL epochs)", &summary)?;
         dir.commit()?;

@@ -188,7 +188,7 @@ fn smooth_survey_files(
     let run = match smooth_survey(&survey.inputs, &survey.settings, None, &mut forward) {
         Ok(run) => run,
         Err(e @ (NavigatorError::Filter { .. } | NavigatorError::Diverged { .. })) => {
-            return forward_stopped(&survey, staged, &e, json);
+            return forward_stopped(&survey, staged, &e, plots, json);
         }
         Err(NavigatorError::Smoother(e)) => {
             anyhow::bail!(
@@ -234,18 +234,10 @@ fn smooth_survey_files(
         extra,
     );
     if let Some(dir) = staged {
-        if plots {
-            // Optional: a plot that cannot be drawn is warned about, not the run lost.
-            summary["plots"] = crate::navigate_plots::write_plots_or_warn(
-                &dir.path(""),
-                &crate::navigate_plots::PlotData {
-                    command: "smooth",
-                    solution_label: "smoothed",
-                    rows: writer.plot_rows(),
-                    nis_times: &run.forward.dvl_nis_times,
-                    nis: &run.forward.dvl_nis,
-                },
-            );
+        // Optional: a plot that cannot be drawn is warned about, not the run lost.
+        let nis = (&run.forward.dvl_nis_times[..], &run.forward.dvl_nis[..]);
+        if let Some(plots) = writer.write_plots(&dir, "smooth", "smoothed", nis, None) {
+            summary["plots"] = plots;
         }
         writer.finish(&dir, "estim smooth track (smoothed, DVL epochs)", &summary)?;
         dir.commit()?;
@@ -258,26 +250,19 @@ fn smooth_survey_files(
 
 /// The forward pass stopped (divergence or a numerical failure): nothing was
 /// smoothed, so no solution is kept. With `--out`, only `summary.json` is committed,
-/// marked `partial`, with the stop and `"smoothed_epochs": 0`; exit 3 says so.
+/// marked `partial`, with the stop and `"smoothed_epochs": 0`; exit 3 says so. With
+/// `--plots`, no plot is drawn and the summary's `plots` block says why.
 fn forward_stopped(
     survey: &crate::navigate::Survey,
     staged: Option<crate::output::StagedDir>,
     error: &estim::navigator::NavigatorError,
+    plots: bool,
     json: bool,
 ) -> anyhow::Result<()> {
     let (status, stop) = crate::navigate::stop_json(survey.epoch, error);
-    let files = &survey.files;
     let mut summary = crate::schema::document(
         "smooth",
-        serde_json::json!({
-            "imu": crate::schema::path_json(Some(&files.imu)),
-            "dvl": crate::schema::path_json(files.dvl.as_deref()),
-            "beams": crate::schema::path_json(files.beams.as_deref()),
-            "pd0": crate::schema::path_json(files.pd0.as_deref()),
-            "vehicle": crate::schema::path_json(files.vehicle.as_deref()),
-            "truth": crate::schema::path_json(files.truth.as_deref()),
-            "configuration": survey.config,
-        }),
+        crate::navigate::inputs_json(survey, None),
         0,
         serde_json::json!({
             "epoch_s": survey.epoch,
@@ -288,6 +273,12 @@ fn forward_stopped(
         }),
     );
     summary["status"] = serde_json::json!(status);
+    if plots {
+        summary["plots"] = serde_json::json!({
+            "written": false,
+            "reason": "the forward pass stopped: nothing was smoothed, nothing to draw",
+        });
+    }
     let kept = match staged {
         Some(dir) => {
             let path = dir.target().join("summary.json");
