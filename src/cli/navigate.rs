@@ -9,7 +9,9 @@ use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use estim::datasets::{load_depth, load_fixes, load_gt, load_times, DvlLog, ImuLog};
+use estim::datasets::{
+    load_depth_with, load_fixes_with, load_gt_with, load_times_with, ColumnMap, DvlLog, ImuLog,
+};
 use estim::ins::{ErrorMatrix, InsState, Trajectory, ATT, ERROR_STATES, POS, VEL};
 use estim::navigator::{
     format_heading, navigate, navigate_learned, pd0_records, rdi_beam_geometry, DvlRecord,
@@ -85,6 +87,10 @@ pub struct Args {
     /// Vehicle configuration TOML (lever arms, noise, time offsets, initial state).
     #[arg(long, value_name = "FILE")]
     vehicle: Option<PathBuf>,
+    /// TOML with a `[columns]` table (the input files' column names and units); its
+    /// entries override the vehicle file's `[columns]`, quantity by quantity.
+    #[arg(long, value_name = "FILE")]
+    columns: Option<PathBuf>,
     /// Ground truth CSV: adds errors and NEES at the truth's own epochs (evaluation).
     /// Its clock is aligned to the IMU's (`[truth]` in the vehicle file, else
     /// estimated) and its point carried by `truth.lever_arm_m`.
@@ -458,18 +464,58 @@ fn load_pd0(
     Ok((records, settings.with_beam_geometry(geometry), summary))
 }
 
+/// A `--columns` file: a `[columns]` table and nothing else.
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ColumnsFile {
+    columns: ColumnMap,
+}
+
+/// Read a `--columns` file; errors name the file, the line or the key.
+pub fn columns_file(path: &Path) -> anyhow::Result<ColumnMap> {
+    let text = estim::datasets::read_text_file(path)?;
+    let file = toml::from_str::<ColumnsFile>(&text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
+        match line {
+            Some(l) => anyhow::anyhow!("{}:{l}: {}", path.display(), e.message()),
+            None => anyhow::anyhow!("{}: {}", path.display(), e.message()),
+        }
+    })?;
+    file.columns
+        .check()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    Ok(file.columns)
+}
+
 /// Read and check every input of a survey (errors name the file and line).
 pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
-    let config = match &files.vehicle {
+    load_survey_with(files, None)
+}
+
+/// [`load_survey`] with a `--columns` file whose `[columns]` entries override the
+/// vehicle file's.
+pub fn load_survey_with(files: SurveyFiles, columns: Option<&Path>) -> anyhow::Result<Survey> {
+    let mut config = match &files.vehicle {
         Some(p) => vehicle_config(p)?,
         None => NavigatorConfig::default(),
     };
+    if let Some(path) = columns {
+        let over = columns_file(path)?;
+        config.columns = config.columns.overridden_by(&over).map_err(|e| {
+            let vehicle = files.vehicle.as_deref().unwrap_or(Path::new("vehicle"));
+            anyhow::anyhow!("{}: {e}", vehicle.display())
+        })?;
+    }
+    let config = config;
     let in_vehicle = |e: NavigatorError| match &files.vehicle {
         Some(p) => anyhow::anyhow!("{}: {e}", p.display()),
         None => anyhow::anyhow!("{e}"),
     };
     let mut settings = config.check().map_err(in_vehicle)?;
-    let mut imu = ImuLog::load(&files.imu, None)?;
+    let map = &config.columns;
+    let mut imu = ImuLog::load_with(&files.imu, None, map)?;
     config
         .imu_frame()
         .map_err(in_vehicle)?
@@ -477,8 +523,8 @@ pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
     let epoch = imu.epoch_s;
     let mut pd0 = None;
     let dvl = match (&files.dvl, &files.beams, &files.pd0) {
-        (Some(p), _, _) => DvlLog::load_velocity(p, Some(epoch))?.records,
-        (None, Some(p), _) => DvlLog::load_beams(p, Some(epoch))?.records,
+        (Some(p), _, _) => DvlLog::load_velocity_with(p, Some(epoch), map)?.records,
+        (None, Some(p), _) => DvlLog::load_beams_with(p, Some(epoch), map)?.records,
         (None, None, Some(p)) => {
             let (records, with_geometry, summary) = load_pd0(p, epoch, settings)?;
             settings = with_geometry;
@@ -502,11 +548,11 @@ pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
         (None, None, None) => anyhow::bail!("give --dvl, --beams or --pd0"),
     };
     let depth = match &files.depth {
-        Some(p) => load_depth(p, Some(epoch))?.0,
+        Some(p) => load_depth_with(p, Some(epoch), map)?.0,
         None => Vec::new(),
     };
     let fixes = match &files.fixes {
-        Some(p) => load_fixes(p, Some(epoch))?.0,
+        Some(p) => load_fixes_with(p, Some(epoch), map)?.0,
         None => Vec::new(),
     };
     let truth = match &files.truth {
@@ -585,9 +631,9 @@ fn load_truth(
 ) -> anyhow::Result<Truth> {
     {
         {
-            let gt = load_gt(p)?;
+            let gt = load_gt_with(p, &config.columns)?;
             // The GT times on the navigator's clock, read on their digits.
-            let times = load_times(p, epoch)?;
+            let times = load_times_with(p, epoch, &config.columns)?;
             anyhow::ensure!(
                 times.len() == gt.len(),
                 "{}: {} time cells for {} rows",
@@ -1168,9 +1214,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let mut staged = args.out.as_deref().map(StagedDir::new).transpose()?;
     if let Some(dir) = &mut staged {
-        dir.keep_inputs(args.files().paths());
+        dir.keep_inputs(args.files().paths().chain(args.columns.as_deref()));
     }
-    let mut survey = load_survey(args.files())?;
+    let mut survey = load_survey_with(args.files(), args.columns.as_deref())?;
     if let Some(truth) = &survey.truth {
         survey.inputs.output_epochs = truth.epochs();
     }

@@ -42,6 +42,9 @@ pub struct Args {
     /// Survey mode: vehicle configuration TOML.
     #[arg(long, value_name = "FILE", requires = "imu")]
     vehicle: Option<PathBuf>,
+    /// Survey mode: TOML with a `[columns]` table overriding the vehicle file's.
+    #[arg(long, value_name = "FILE", requires = "imu")]
+    columns: Option<PathBuf>,
     /// Survey mode: ground truth CSV (errors and NEES of the filtered and smoothed
     /// solutions at the DVL epochs).
     #[arg(long, value_name = "FILE", requires = "imu")]
@@ -94,7 +97,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             files.dvl.is_some() || files.beams.is_some() || files.pd0.is_some(),
             "estim smooth --imu: give --dvl, --beams or --pd0"
         );
-        return smooth_survey_files(files, args.out.as_deref(), args.json, args.plots);
+        return smooth_survey_files(
+            files,
+            args.columns.as_deref(),
+            args.out.as_deref(),
+            args.json,
+            args.plots,
+        );
     }
     let config = match &args.config {
         Some(path) => Config::from_file(path)?,
@@ -170,18 +179,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 /// `estim navigate` writes its own (the summary adds the forward pass's figures).
 fn smooth_survey_files(
     files: crate::navigate::SurveyFiles,
+    columns: Option<&Path>,
     out: Option<&Path>,
     json: bool,
     plots: bool,
 ) -> anyhow::Result<()> {
-    use crate::navigate::{evaluation_json, load_survey, summary_json, summary_text, Writer};
+    use crate::navigate::{evaluation_json, load_survey_with, summary_json, summary_text, Writer};
     use estim::navigator::{smooth_survey, NavigationObserver, NavigatorError};
 
     let mut staged = out.map(crate::output::StagedDir::new).transpose()?;
     if let Some(dir) = &mut staged {
-        dir.keep_inputs(files.paths());
+        dir.keep_inputs(files.paths().chain(columns));
     }
-    let mut survey = load_survey(files)?;
+    let mut survey = load_survey_with(files, columns)?;
     crate::navigate::refuse_dvl_states(&survey, "estim smooth")?;
     let truth = survey.truth.take();
     let mut forward = Writer::new(None, survey.epoch, truth.clone())?;

@@ -3,10 +3,11 @@
 //! checked where they stand, and times read relative to an epoch without losing the
 //! digits of a Unix time.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use super::akit::{csv_error, truncated_line, MAX_ABS_TIME_S};
-use super::columns::{resolve, same, Kind, Quantity, Resolved};
+use super::columns::{check_section, maps, resolve_some, same, Kind, Quantity, Resolved};
 use super::input::Lines;
 use super::{DatasetError, Result};
 
@@ -24,35 +25,46 @@ pub(crate) const TIME: Quantity = Quantity {
     max_abs: MAX_ABS_TIME_S,
 };
 
+/// One section of a column map as a reader applies it (`[columns.imu]` of a vehicle
+/// file), with every quantity its file may have (to check the section's keys); an
+/// empty map finds every column by name.
+#[derive(Clone, Copy)]
+pub(crate) struct MapSection<'a> {
+    pub map: &'a BTreeMap<String, String>,
+    pub section: &'a str,
+    pub quantities: &'a [Quantity],
+}
+
 /// The header of a table and the resolution of its columns.
 pub(crate) struct Header<'a> {
     pub path: &'a Path,
     pub cells: Vec<String>,
+    pub map: MapSection<'a>,
 }
 
 impl Header<'_> {
     /// Resolve quantities that must all be present.
     pub fn require(&self, quantities: &[Quantity]) -> Result<Vec<Resolved>> {
-        resolve(
+        resolve_some(
             self.path,
             &self.cells,
             quantities,
-            &Default::default(),
-            "columns",
+            self.map.map,
+            self.map.section,
         )
     }
 
     /// Resolve a quantity that may be absent.
     pub fn optional(&self, quantity: Quantity) -> Result<Option<Resolved>> {
-        match resolve(
+        match resolve_some(
             self.path,
             &self.cells,
             &[quantity],
-            &Default::default(),
-            "columns",
+            self.map.map,
+            self.map.section,
         ) {
             Ok(mut r) => Ok(r.pop()),
-            Err(DatasetError::MissingColumn { .. }) => Ok(None),
+            Err(DatasetError::MissingColumn { .. }) if !maps(self.map.map, &quantity) => Ok(None),
             Err(e) => Err(e),
         }
     }
@@ -193,6 +205,7 @@ fn relative_decimal(text: &str, factor: f64, epoch_s: f64) -> Option<f64> {
 pub(crate) fn for_each_row<C>(
     bytes: &[u8],
     path: &Path,
+    map: MapSection<'_>,
     columns: impl FnOnce(&Header<'_>) -> Result<C>,
     mut row: impl FnMut(&C, &Row<'_>) -> Result<()>,
 ) -> Result<()> {
@@ -224,9 +237,11 @@ pub(crate) fn for_each_row<C>(
             min: 1,
         });
     }
+    check_section(path, map.map, map.quantities, map.section)?;
     let header = Header {
         path,
         cells: record.iter().map(str::to_string).collect(),
+        map,
     };
     let resolved = columns(&header)?;
     let width = header.cells.len();
@@ -270,11 +285,27 @@ pub(crate) fn for_each_row<C>(
 /// # Errors
 /// [`DatasetError::Io`]; a missing time column; a bad cell (file and line).
 pub fn load_times(path: &Path, epoch_s: f64) -> Result<Vec<f64>> {
+    load_times_with(path, epoch_s, &super::ColumnMap::default())
+}
+
+/// [`load_times`] of a ground-truth file with a column map (its `gt` section's
+/// `time_s` / `time_ms`).
+///
+/// # Errors
+/// As [`load_times`], and [`DatasetError::ColumnMap`].
+pub fn load_times_with(path: &Path, epoch_s: f64, map: &super::ColumnMap) -> Result<Vec<f64>> {
     let bytes = super::input::read_file(path)?;
     let mut out = Vec::new();
+    let quantities = super::akit::GT_QUANTITIES;
+    let section = MapSection {
+        map: &map.gt,
+        section: "columns.gt",
+        quantities,
+    };
     for_each_row(
         &bytes,
         path,
+        section,
         |h| Ok(h.require(&[TIME])?.remove(0)),
         |time, row| {
             out.push(row.time(time, epoch_s)?);
