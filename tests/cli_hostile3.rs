@@ -281,12 +281,17 @@ fn an_evaluation_with_nothing_scored_is_null_with_a_reason() {
     let d = v.dir.path();
     let no_lock = write(d, "dvl_nolock.csv", &dvl((0..60).map(f64::from), false));
     let truth = write(d, "gt.csv", &gt(60));
+    // A depth sensor still aids the INS, so the lockless DVL is a warning (see
+    // a_dvl_file_without_any_lock_is_refused_or_warned_about).
+    let depth = write(d, "depth.csv", &depth_file(60));
     let out = estim(&[
         "navigate",
         "--imu",
         s(&v.imu),
         "--dvl",
         s(&no_lock),
+        "--depth",
+        s(&depth),
         "--vehicle",
         s(&v.vehicle),
         "--truth",
@@ -311,6 +316,8 @@ fn an_evaluation_with_nothing_scored_is_null_with_a_reason() {
         s(&v.imu),
         "--dvl",
         s(&no_lock),
+        "--depth",
+        s(&depth),
         "--vehicle",
         s(&v.vehicle),
         "--truth",
@@ -320,6 +327,108 @@ fn an_evaluation_with_nothing_scored_is_null_with_a_reason() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("against truth: not scored"), "{text}");
     assert!(!text.contains("RMSE 0"), "{text}");
+}
+
+/// A depth file of the stationary vehicle (20 m), 1 Hz.
+fn depth_file(seconds: usize) -> String {
+    let mut text = String::from("time_s,depth_m\n");
+    for k in 0..seconds {
+        text.push_str(&format!("{k},20\n"));
+    }
+    text
+}
+
+/// Class 2 (a whole aiding file dropped silently): a DVL file none of whose rows has
+/// bottom lock (empty cells, NaN, the RDI marker, a validity flag, beams: fewer than
+/// 3) is refused when nothing else aids the INS, naming the file; with a depth or
+/// fix file it runs with a warning on stderr and in the summary's `warnings`.
+#[test]
+fn a_dvl_file_without_any_lock_is_refused_or_warned_about() {
+    let v = survey();
+    let d = v.dir.path();
+    let nan = (0..60).fold(String::from("time_s,vx,vy,vz\n"), |t, k| {
+        t + &format!("{k},nan,NaN,nan\n")
+    });
+    let marker = (0..60).fold(String::from("time_s,vx,vy,vz\n"), |t, k| {
+        t + &format!("{k},-32.768,-32.768,-32.768\n")
+    });
+    let flagged = (0..60).fold(String::from("time_s,vx,vy,vz,valid\n"), |t, k| {
+        t + &format!("{k},0.1,0,0,0\n")
+    });
+    let beams = (0..60).fold(String::from("time_s,b1,b2,b3,b4\n"), |t, k| {
+        t + &format!("{k},0.1,0.1,,\n")
+    });
+    let cases = [
+        ("empty.csv", dvl((0..60).map(f64::from), false), "--dvl"),
+        ("nan.csv", nan, "--dvl"),
+        ("marker.csv", marker, "--dvl"),
+        ("flagged.csv", flagged, "--dvl"),
+        ("beams.csv", beams, "--beams"),
+    ];
+    let depth = write(d, "depth.csv", &depth_file(60));
+    for (name, text, flag) in cases {
+        let file = write(d, name, &text);
+        let base = [
+            "navigate",
+            "--imu",
+            s(&v.imu),
+            flag,
+            s(&file),
+            "--vehicle",
+            s(&v.vehicle),
+        ];
+        let out = estim(&base);
+        refused(
+            &out,
+            &[
+                name,
+                "none of its 60 rows has bottom lock",
+                "nothing would aid",
+            ],
+        );
+        assert!(out.stdout.is_empty());
+        let mut args = base.to_vec();
+        args.extend(["--depth", s(&depth), "--json"]);
+        let out = estim(&args);
+        assert_eq!(out.status.code(), Some(0), "{name}: {}", stderr(&out));
+        let e = stderr(&out);
+        assert!(
+            e.contains("warning:") && e.contains(name) && e.contains("aided by depth only"),
+            "{name}: {e}"
+        );
+        let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+        let warnings = summary["warnings"].as_array().expect("warnings");
+        assert_eq!(warnings.len(), 1, "{summary}");
+        assert_eq!(warnings[0]["code"], "dvl_no_lock");
+        assert!(warnings[0]["file"]
+            .as_str()
+            .is_some_and(|f| f.ends_with(name)));
+        assert_eq!(summary["updates"]["dvl"]["accepted"], 0);
+        assert!(
+            summary["updates"]["depth"]["accepted"]
+                .as_u64()
+                .unwrap_or(0)
+                > 0
+        );
+    }
+    // One locked row is enough: no warning.
+    let mut text = dvl((0..59).map(f64::from), false);
+    text.push_str("59,0,0,0\n");
+    let one = write(d, "one.csv", &text);
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&v.imu),
+        "--dvl",
+        s(&one),
+        "--vehicle",
+        s(&v.vehicle),
+        "--json",
+    ]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    assert!(!stderr(&out).contains("warning"), "{}", stderr(&out));
+    let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert_eq!(summary["warnings"], serde_json::json!([]));
 }
 
 /// Class 3: `reproduce --config` refuses three-number keys of other lengths,

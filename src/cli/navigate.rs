@@ -406,6 +406,9 @@ pub struct Survey {
     pub truth: Option<Truth>,
     /// What the PD0 reader and conversion did, with `--pd0`.
     pub pd0: Option<Value>,
+    /// Warnings about the inputs (each `code`, `file`, `message`), also printed on
+    /// stderr: the summary's `warnings`.
+    pub warnings: Vec<Value>,
 }
 
 /// Read a PD0 file into DVL rows; skipped spans are warned about on stderr with
@@ -608,6 +611,7 @@ pub fn load_survey_with(files: SurveyFiles, columns: Option<&Path>) -> anyhow::R
         output_epochs: Vec::new(),
     };
     crate::aiding_span::check_survey(&files, &config, &inputs, epoch)?;
+    let warnings = check_dvl_lock(&files, &inputs)?;
     Ok(Survey {
         files,
         config,
@@ -616,7 +620,56 @@ pub fn load_survey_with(files: SurveyFiles, columns: Option<&Path>) -> anyhow::R
         epoch,
         truth,
         pd0,
+        warnings,
     })
+}
+
+/// A DVL file none of whose rows has bottom lock (every velocity empty, NaN, the
+/// -32.768 marker or flagged invalid; beams: fewer than 3) is refused when nothing
+/// else aids the INS (no depth, no fix: the run would be free inertial, not the run
+/// asked for), and is otherwise a warning, printed on stderr and returned for the
+/// summary's `warnings`.
+fn check_dvl_lock(files: &SurveyFiles, inputs: &SurveyInputs) -> anyhow::Result<Vec<Value>> {
+    use estim::navigator::DvlInput;
+    let usable = |input: &DvlInput| match input {
+        DvlInput::Velocity(_) | DvlInput::EarthVelocity(_) => true,
+        DvlInput::Beams(b) => b.iter().flatten().count() >= 3,
+        DvlInput::NoLock => false,
+    };
+    if inputs.dvl.iter().any(|r| usable(&r.input)) {
+        return Ok(Vec::new());
+    }
+    let path = [&files.dvl, &files.beams, &files.pd0]
+        .into_iter()
+        .flatten()
+        .next()
+        .map_or_else(|| "the DVL input".to_string(), |p| p.display().to_string());
+    let what = format!(
+        "{path}: none of its {} rows has bottom lock (an empty, NaN or -32.768 velocity, a \
+         validity flag saying no, or fewer than 3 beams)",
+        inputs.dvl.len()
+    );
+    let aided_by: Vec<&str> = [
+        (!inputs.depth.is_empty()).then_some("depth"),
+        (!inputs.fixes.is_empty()).then_some("fixes"),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    anyhow::ensure!(
+        !aided_by.is_empty(),
+        "{what}: nothing would aid the INS (no --depth, no --fixes); refused"
+    );
+    let message = format!(
+        "{what}; the run is aided by {} only",
+        aided_by.join(" and ")
+    );
+    eprintln!("warning: {message}");
+    Ok(vec![json!({
+        "code": "dvl_no_lock",
+        "file": path,
+        "message": message,
+    })])
 }
 
 /// Read a truth CSV onto the navigator's clock: its times relative to `epoch`, scaled
@@ -948,6 +1001,7 @@ pub fn summary_json(
             "fixes": stats(&run.fix_nis),
         },
         "pd0": survey.pd0,
+        "warnings": survey.warnings,
         "solutions": run.solutions,
         "final": {
             "time_s": epoch + f.time,
@@ -1160,6 +1214,7 @@ pub fn stopped(
                 "position_sigma_m": f.position_sigma_m,
             })),
             "evaluation_before_stop": evaluation_json(writer.truth()),
+            "warnings": survey.warnings,
         }),
     );
     summary["status"] = json!(status);
