@@ -18,7 +18,7 @@ use nalgebra::Vector3;
 
 use super::akit::{DVL_QUANTITIES, MAX_ABS_SPEED_MPS};
 use super::columns::{same, Kind, Quantity, Resolved};
-use super::input::read_file;
+use super::input::open_text;
 use super::table::{for_each_row, MapSection, Row, TIME};
 use super::{DatasetError, Result};
 use crate::navigator::{DvlInput, DvlRecord};
@@ -133,7 +133,12 @@ impl DvlLog {
     /// # Errors
     /// [`DatasetError::Io`], then those of [`DvlLog::parse_velocity`].
     pub fn load_velocity(path: &Path, epoch_s: Option<f64>) -> Result<Self> {
-        Self::parse_velocity(&read_file(path)?, path, epoch_s)
+        Self::parse_velocity_with(
+            open_text(path)?,
+            path,
+            epoch_s,
+            &super::ColumnMap::default(),
+        )
     }
 
     /// Read a DVL beams log.
@@ -141,7 +146,12 @@ impl DvlLog {
     /// # Errors
     /// [`DatasetError::Io`], then those of [`DvlLog::parse_beams`].
     pub fn load_beams(path: &Path, epoch_s: Option<f64>) -> Result<Self> {
-        Self::parse_beams(&read_file(path)?, path, epoch_s)
+        Self::parse_beams_with(
+            open_text(path)?,
+            path,
+            epoch_s,
+            &super::ColumnMap::default(),
+        )
     }
 
     /// [`DvlLog::load_velocity`] with a column map (its `dvl` section).
@@ -153,7 +163,7 @@ impl DvlLog {
         epoch_s: Option<f64>,
         map: &super::ColumnMap,
     ) -> Result<Self> {
-        Self::parse_velocity_with(&read_file(path)?, path, epoch_s, map)
+        Self::parse_velocity_with(open_text(path)?, path, epoch_s, map)
     }
 
     /// [`DvlLog::load_beams`] with a column map (its `beams` section).
@@ -165,7 +175,7 @@ impl DvlLog {
         epoch_s: Option<f64>,
         map: &super::ColumnMap,
     ) -> Result<Self> {
-        Self::parse_beams_with(&read_file(path)?, path, epoch_s, map)
+        Self::parse_beams_with(open_text(path)?, path, epoch_s, map)
     }
 
     /// Parse a DVL velocity log; errors name the file and line. A lost lock is a
@@ -183,7 +193,7 @@ impl DvlLog {
     /// # Errors
     /// As [`DvlLog::parse_velocity`], and [`DatasetError::ColumnMap`] naming a bad key.
     pub fn parse_velocity_with(
-        bytes: &[u8],
+        input: impl std::io::Read,
         path: &Path,
         epoch_s: Option<f64>,
         map: &super::ColumnMap,
@@ -200,7 +210,7 @@ impl DvlLog {
         };
         let mut log = Self::empty(epoch_s);
         for_each_row(
-            bytes,
+            input,
             path,
             section,
             |h| {
@@ -250,7 +260,7 @@ impl DvlLog {
     /// # Errors
     /// As [`DvlLog::parse_beams`], and [`DatasetError::ColumnMap`] naming a bad key.
     pub fn parse_beams_with(
-        bytes: &[u8],
+        input: impl std::io::Read,
         path: &Path,
         epoch_s: Option<f64>,
         map: &super::ColumnMap,
@@ -263,7 +273,7 @@ impl DvlLog {
         };
         let mut log = Self::empty(epoch_s);
         for_each_row(
-            bytes,
+            input,
             path,
             section,
             |h| Ok((h.require(&[TIME])?.remove(0), h.require(&BEAMS)?)),

@@ -9,7 +9,7 @@ use std::path::Path;
 
 use super::akit::{MAX_ABS_ALTITUDE_M, MAX_ABS_LATITUDE_RAD, MAX_ABS_LONGITUDE_RAD};
 use super::columns::{same, Kind, Quantity};
-use super::input::read_file;
+use super::input::open_text;
 use super::table::{for_each_row, MapSection, TIME};
 use super::ColumnMap;
 use super::{DatasetError, Result};
@@ -78,7 +78,7 @@ fn epoch_of(
 /// [`DatasetError::Io`]; missing columns, bad cells, times that do not increase, no
 /// rows (file and line).
 pub fn load_depth(path: &Path, epoch_s: Option<f64>) -> Result<(Vec<DepthSample>, f64)> {
-    parse_depth(&read_file(path)?, path, epoch_s)
+    parse_depth_with(open_text(path)?, path, epoch_s, &ColumnMap::default())
 }
 
 /// [`load_depth`] with a column map (its `depth` section).
@@ -90,7 +90,7 @@ pub fn load_depth_with(
     epoch_s: Option<f64>,
     map: &ColumnMap,
 ) -> Result<(Vec<DepthSample>, f64)> {
-    parse_depth_with(&read_file(path)?, path, epoch_s, map)
+    parse_depth_with(open_text(path)?, path, epoch_s, map)
 }
 
 /// Parse a depth file (see [`load_depth`]).
@@ -110,7 +110,7 @@ pub fn parse_depth(
 /// # Errors
 /// As [`load_depth_with`].
 pub fn parse_depth_with(
-    bytes: &[u8],
+    input: impl std::io::Read,
     path: &Path,
     epoch_s: Option<f64>,
     map: &ColumnMap,
@@ -124,7 +124,7 @@ pub fn parse_depth_with(
     let mut epoch = epoch_s;
     let mut out: Vec<DepthSample> = Vec::new();
     for_each_row(
-        bytes,
+        input,
         path,
         section,
         |h| {
@@ -155,7 +155,7 @@ pub fn parse_depth_with(
 /// # Errors
 /// As [`load_depth`]; a sigma that is not positive.
 pub fn load_fixes(path: &Path, epoch_s: Option<f64>) -> Result<(Vec<PositionFix>, f64)> {
-    parse_fixes(&read_file(path)?, path, epoch_s)
+    parse_fixes_with(open_text(path)?, path, epoch_s, &ColumnMap::default())
 }
 
 /// [`load_fixes`] with a column map (its `fixes` section).
@@ -167,7 +167,7 @@ pub fn load_fixes_with(
     epoch_s: Option<f64>,
     map: &ColumnMap,
 ) -> Result<(Vec<PositionFix>, f64)> {
-    parse_fixes_with(&read_file(path)?, path, epoch_s, map)
+    parse_fixes_with(open_text(path)?, path, epoch_s, map)
 }
 
 /// Parse a position-fix file.
@@ -187,7 +187,7 @@ pub fn parse_fixes(
 /// # Errors
 /// As [`load_fixes_with`].
 pub fn parse_fixes_with(
-    bytes: &[u8],
+    input: impl std::io::Read,
     path: &Path,
     epoch_s: Option<f64>,
     map: &ColumnMap,
@@ -201,7 +201,7 @@ pub fn parse_fixes_with(
     let mut epoch = epoch_s;
     let mut out: Vec<PositionFix> = Vec::new();
     for_each_row(
-        bytes,
+        input,
         path,
         section,
         |h| Ok((h.require(&[TIME])?.remove(0), h.require(&FIX)?)),

@@ -20,7 +20,7 @@ use estim_ins::ImuSample;
 use nalgebra::Vector3;
 
 use super::columns::{same, Alias, Kind, Quantity, Resolved};
-use super::input::read_file;
+use super::input::open_text;
 use super::table::{for_each_row, MapSection, TIME};
 use super::{DatasetError, Result};
 
@@ -302,7 +302,12 @@ impl ImuLog {
     /// # Errors
     /// [`DatasetError::Io`], then those of [`ImuLog::parse`].
     pub fn load(path: &Path, epoch_s: Option<f64>) -> Result<Self> {
-        Self::parse(&read_file(path)?, path, epoch_s)
+        Self::parse_with(
+            open_text(path)?,
+            path,
+            epoch_s,
+            &super::ColumnMap::default(),
+        )
     }
 
     /// [`ImuLog::load`] with a column map (its `imu` section).
@@ -310,7 +315,7 @@ impl ImuLog {
     /// # Errors
     /// As [`ImuLog::load`], and [`DatasetError::ColumnMap`] naming a bad key.
     pub fn load_with(path: &Path, epoch_s: Option<f64>, map: &super::ColumnMap) -> Result<Self> {
-        Self::parse_with(&read_file(path)?, path, epoch_s, map)
+        Self::parse_with(open_text(path)?, path, epoch_s, map)
     }
 
     /// Parse an IMU file; `path` names it in errors (with the 1-based line).
@@ -327,7 +332,7 @@ impl ImuLog {
     /// # Errors
     /// As [`ImuLog::parse`], and [`DatasetError::ColumnMap`] naming a bad key.
     pub fn parse_with(
-        bytes: &[u8],
+        input: impl std::io::Read,
         path: &Path,
         epoch_s: Option<f64>,
         map: &super::ColumnMap,
@@ -347,7 +352,7 @@ impl ImuLog {
         let mut unitless_rates: Option<Vec<String>> = None;
         let mut first_row = true;
         for_each_row(
-            bytes,
+            input,
             path,
             section,
             |h| {
