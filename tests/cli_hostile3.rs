@@ -741,3 +741,72 @@ fn write_errors_name_their_path() {
     assert_eq!(out.status.code(), Some(2), "{e}");
     assert!(e.contains("summary.json"), "{e}");
 }
+
+/// Class 1: a first fix 100 km off (no initial position, so the run starts there)
+/// with every later fix gated: stopped by the fixes' NIS window (exit 3, status
+/// `diverged`, the check naming the sensor), never an "ok" run 100 km off.
+#[test]
+fn a_first_fix_far_off_ends_diverged_not_ok() {
+    let v = survey();
+    let d = v.dir.path();
+    let (lat, lon) = (35.0_f64, 33.0_f64);
+    let mut fixes = format!(
+        "time,lat [deg],lon [deg],sigma\n1,{:.7},{lon:.7},2\n",
+        lat + 100e3 / 111e3
+    );
+    for t in [10, 20, 30, 40, 50] {
+        fixes.push_str(&format!("{t},{lat:.7},{lon:.7},2\n"));
+    }
+    let fixes = write(d, "fixes.csv", &fixes);
+    let vehicle = write(d, "start.toml", "[initial]\ndepth_m = 20.0\n");
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&v.imu),
+        "--dvl",
+        s(&v.dvl),
+        "--fixes",
+        s(&fixes),
+        "--vehicle",
+        s(&vehicle),
+        "--json",
+    ]);
+    assert_eq!(out.status.code(), Some(3), "{}", stderr(&out));
+    let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert_eq!(summary["status"], "diverged", "{summary}");
+    assert_eq!(summary["partial"], true);
+    assert_eq!(summary["stop"]["check"]["check"], "nis", "{summary}");
+    assert_eq!(summary["stop"]["check"]["sensor"], "fixes", "{summary}");
+}
+
+/// Class 5: a `--truth` file shorter than the survey (30 s of 60) does not abort
+/// the run: exit 0, the truth's 30 epochs scored, the solution complete.
+#[test]
+fn a_truth_shorter_than_the_survey_keeps_the_run() {
+    let v = survey();
+    let d = v.dir.path();
+    let truth = write(d, "gt30.csv", &gt(30));
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&v.imu),
+        "--dvl",
+        s(&v.dvl),
+        "--vehicle",
+        s(&v.vehicle),
+        "--truth",
+        s(&truth),
+        "--json",
+    ]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+    let e = &summary["evaluation"];
+    assert_eq!(e["epochs"], 30, "{e}");
+    assert!(
+        e["position_rmse_m"].as_f64().is_some_and(f64::is_finite),
+        "{e}"
+    );
+    // The solution runs to the IMU's end, past the truth.
+    let end = summary["final"]["time_s"].as_f64().expect("final time");
+    assert!(end > 59.0, "{end}");
+}
