@@ -2,7 +2,8 @@
 //! DVL, depth, fixes and truth files have renamed and reordered columns gives the
 //! same solution as the standard files, byte for byte (same cells, so the same
 //! numbers), and a gyroscope logged in deg/s, declared by its map key, gives the same
-//! solution to rounding. Unknown keys and sections are refused naming them. On A-KIT
+//! solution to rounding. Unknown keys and sections are refused naming them, and a
+//! survey section in the study's configuration (which reads GT and DVL only). On A-KIT
 //! trajectory 2's recorded IMU (first 60 s) with `vehicles/akit.toml`; skipped without
 //! the data, failed with `ESTIM_REQUIRE_DATA=1`.
 
@@ -399,6 +400,16 @@ fn unknown_column_keys_and_sections_are_refused_naming_them() {
         );
         assert!(stderr(&o).contains("c.toml"), "{}", stderr(&o));
     }
+    // The study's configuration reads GT and DVL files only: a survey section there
+    // would be ignored, so it is refused naming it.
+    std::fs::write(d.join("study.toml"), "[columns.imu]\ntime_s = \"SEC\"\n").expect("write");
+    let o = estim(&["reproduce", "--config", "study.toml", "--json"], d);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("study.toml") && stderr(&o).contains("columns.imu: not used here"),
+        "{}",
+        stderr(&o)
+    );
     // A --columns file holds only [columns].
     std::fs::write(d.join("c.toml"), "[dvl]\ntime_offset_s = 1.0\n").expect("write");
     let o = estim(

@@ -254,6 +254,26 @@ impl ColumnMap {
         Ok(())
     }
 
+    /// [`ColumnMap::check`], and refuse a mapped section that is not among `used`
+    /// (e.g. `[columns.imu]` in the study's configuration, whose IMU is synthesized):
+    /// a map that would be ignored is an error naming it.
+    ///
+    /// # Errors
+    /// As [`ColumnMap::check`]; `columns.<section>: not used here` for the others.
+    pub fn check_used(&self, used: &[&str]) -> std::result::Result<(), String> {
+        self.check()?;
+        for (map, _, section) in sections(self) {
+            let name = section.trim_start_matches("columns.");
+            if !map.is_empty() && !used.contains(&name) {
+                return Err(format!(
+                    "{section}: not used here (this file reads only [columns.{}])",
+                    used.join("], [columns.")
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// True when no column is mapped.
     pub fn is_empty(&self) -> bool {
         self.gt.is_empty()
