@@ -810,3 +810,43 @@ fn a_truth_shorter_than_the_survey_keeps_the_run() {
     let end = summary["final"]["time_s"].as_f64().expect("final time");
     assert!(end > 59.0, "{end}");
 }
+
+/// Class 1: a 60 s hole in the IMU file (on main: exit 0 at a depth of -341,798 m)
+/// stops `navigate` (exit 3, `diverged`, the IMU-gap check at the hole's start, 19.9
+/// s). The IMU's times are checked before the run, so `--out` holds a partial
+/// summary and a `solution.csv` with its header only, as the summary says.
+#[test]
+fn navigate_stops_at_an_imu_hole() {
+    let v = survey();
+    let d = v.dir.path();
+    let mut text = String::from("time_s,acc_x_mps2,acc_y_mps2,acc_z_mps2,gx,gy,gz\n");
+    for k in (0..200).chain(800..1000) {
+        text.push_str(&format!("{:.1},0,0,-9.81,0,0,0\n", f64::from(k) * 0.1));
+    }
+    let holed = write(d, "imu_hole.csv", &text);
+    let long_dvl = write(d, "dvl100.csv", &dvl((0..100).map(f64::from), true));
+    let out_dir = d.join("out");
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&holed),
+        "--dvl",
+        s(&long_dvl),
+        "--vehicle",
+        s(&v.vehicle),
+        "--out",
+        s(&out_dir),
+        "--json",
+    ]);
+    assert_eq!(out.status.code(), Some(3), "{}", stderr(&out));
+    let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert_eq!(summary["status"], "diverged", "{summary}");
+    assert_eq!(summary["partial"], true);
+    assert_eq!(summary["stop"]["check"]["check"], "imu_gap", "{summary}");
+    let at = summary["stop"]["time_s"].as_f64().expect("stop time");
+    assert!((at - 19.9).abs() < 1e-9, "{at}");
+    assert_eq!(summary["solution_rows_before_stop"], 0);
+    let rows = std::fs::read_to_string(out_dir.join("solution.csv")).expect("solution.csv");
+    assert_eq!(rows.lines().count(), 1, "header only: {rows}");
+    assert!(stderr(&out).contains("the 0 solution rows before the stop"));
+}
