@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use estim::datasets::{
-    load_depth_with, load_fixes_with, load_gt_with, load_times_with, ColumnMap, DvlLog, ImuLog,
+    load_depth_with, load_fixes_with, load_gt_with, load_times_with, DvlLog, ImuLog,
 };
 use estim::ins::{ErrorMatrix, InsState, Trajectory, ATT, ERROR_STATES, POS, VEL};
 use estim::navigator::{
@@ -467,31 +467,6 @@ fn load_pd0(
     Ok((records, settings.with_beam_geometry(geometry), summary))
 }
 
-/// A `--columns` file: a `[columns]` table and nothing else.
-#[derive(serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ColumnsFile {
-    columns: ColumnMap,
-}
-
-/// Read a `--columns` file; errors name the file, the line or the key.
-pub fn columns_file(path: &Path) -> anyhow::Result<ColumnMap> {
-    let text = estim::datasets::read_text_file(path)?;
-    let file = toml::from_str::<ColumnsFile>(&text).map_err(|e| {
-        let line = e
-            .span()
-            .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
-        match line {
-            Some(l) => anyhow::anyhow!("{}:{l}: {}", path.display(), e.message()),
-            None => anyhow::anyhow!("{}: {}", path.display(), e.message()),
-        }
-    })?;
-    file.columns
-        .check()
-        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    Ok(file.columns)
-}
-
 /// Read and check every input of a survey (errors name the file and line).
 pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
     load_survey_with(files, None)
@@ -505,7 +480,7 @@ pub fn load_survey_with(files: SurveyFiles, columns: Option<&Path>) -> anyhow::R
         None => NavigatorConfig::default(),
     };
     if let Some(path) = columns {
-        let over = columns_file(path)?;
+        let over = crate::survey_checks::columns_file(path)?;
         config.columns = config.columns.overridden_by(&over).map_err(|e| {
             let vehicle = files.vehicle.as_deref().unwrap_or(Path::new("vehicle"));
             anyhow::anyhow!("{}: {e}", vehicle.display())
@@ -611,7 +586,7 @@ pub fn load_survey_with(files: SurveyFiles, columns: Option<&Path>) -> anyhow::R
         output_epochs: Vec::new(),
     };
     crate::aiding_span::check_survey(&files, &config, &inputs, epoch)?;
-    let warnings = check_dvl_lock(&files, &inputs)?;
+    let warnings = crate::survey_checks::check_dvl_lock(&files, &inputs)?;
     Ok(Survey {
         files,
         config,
@@ -622,54 +597,6 @@ pub fn load_survey_with(files: SurveyFiles, columns: Option<&Path>) -> anyhow::R
         pd0,
         warnings,
     })
-}
-
-/// A DVL file none of whose rows has bottom lock (every velocity empty, NaN, the
-/// -32.768 marker or flagged invalid; beams: fewer than 3) is refused when nothing
-/// else aids the INS (no depth, no fix: the run would be free inertial, not the run
-/// asked for), and is otherwise a warning, printed on stderr and returned for the
-/// summary's `warnings`.
-fn check_dvl_lock(files: &SurveyFiles, inputs: &SurveyInputs) -> anyhow::Result<Vec<Value>> {
-    use estim::navigator::DvlInput;
-    let usable = |input: &DvlInput| match input {
-        DvlInput::Velocity(_) | DvlInput::EarthVelocity(_) => true,
-        DvlInput::Beams(b) => b.iter().flatten().count() >= 3,
-        DvlInput::NoLock => false,
-    };
-    if inputs.dvl.iter().any(|r| usable(&r.input)) {
-        return Ok(Vec::new());
-    }
-    let path = [&files.dvl, &files.beams, &files.pd0]
-        .into_iter()
-        .flatten()
-        .next()
-        .map_or_else(|| "the DVL input".to_string(), |p| p.display().to_string());
-    let what = format!(
-        "{path}: none of its {} rows has bottom lock (an empty, NaN or -32.768 velocity, a \
-         validity flag saying no, or fewer than 3 beams)",
-        inputs.dvl.len()
-    );
-    let aided_by: Vec<&str> = [
-        (!inputs.depth.is_empty()).then_some("depth"),
-        (!inputs.fixes.is_empty()).then_some("fixes"),
-    ]
-    .into_iter()
-    .flatten()
-    .collect();
-    anyhow::ensure!(
-        !aided_by.is_empty(),
-        "{what}: nothing would aid the INS (no --depth, no --fixes); refused"
-    );
-    let message = format!(
-        "{what}; the run is aided by {} only",
-        aided_by.join(" and ")
-    );
-    eprintln!("warning: {message}");
-    Ok(vec![json!({
-        "code": "dvl_no_lock",
-        "file": path,
-        "message": message,
-    })])
 }
 
 /// Read a truth CSV onto the navigator's clock: its times relative to `epoch`, scaled
