@@ -281,12 +281,17 @@ fn an_evaluation_with_nothing_scored_is_null_with_a_reason() {
     let d = v.dir.path();
     let no_lock = write(d, "dvl_nolock.csv", &dvl((0..60).map(f64::from), false));
     let truth = write(d, "gt.csv", &gt(60));
+    // A depth sensor still aids the INS, so the lockless DVL is a warning (see
+    // a_dvl_file_without_any_lock_is_refused_or_warned_about).
+    let depth = write(d, "depth.csv", &depth_file(60));
     let out = estim(&[
         "navigate",
         "--imu",
         s(&v.imu),
         "--dvl",
         s(&no_lock),
+        "--depth",
+        s(&depth),
         "--vehicle",
         s(&v.vehicle),
         "--truth",
@@ -311,6 +316,8 @@ fn an_evaluation_with_nothing_scored_is_null_with_a_reason() {
         s(&v.imu),
         "--dvl",
         s(&no_lock),
+        "--depth",
+        s(&depth),
         "--vehicle",
         s(&v.vehicle),
         "--truth",
@@ -320,6 +327,108 @@ fn an_evaluation_with_nothing_scored_is_null_with_a_reason() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("against truth: not scored"), "{text}");
     assert!(!text.contains("RMSE 0"), "{text}");
+}
+
+/// A depth file of the stationary vehicle (20 m), 1 Hz.
+fn depth_file(seconds: usize) -> String {
+    let mut text = String::from("time_s,depth_m\n");
+    for k in 0..seconds {
+        text.push_str(&format!("{k},20\n"));
+    }
+    text
+}
+
+/// Class 2 (a whole aiding file dropped silently): a DVL file none of whose rows has
+/// bottom lock (empty cells, NaN, the RDI marker, a validity flag, beams: fewer than
+/// 3) is refused when nothing else aids the INS, naming the file; with a depth or
+/// fix file it runs with a warning on stderr and in the summary's `warnings`.
+#[test]
+fn a_dvl_file_without_any_lock_is_refused_or_warned_about() {
+    let v = survey();
+    let d = v.dir.path();
+    let nan = (0..60).fold(String::from("time_s,vx,vy,vz\n"), |t, k| {
+        t + &format!("{k},nan,NaN,nan\n")
+    });
+    let marker = (0..60).fold(String::from("time_s,vx,vy,vz\n"), |t, k| {
+        t + &format!("{k},-32.768,-32.768,-32.768\n")
+    });
+    let flagged = (0..60).fold(String::from("time_s,vx,vy,vz,valid\n"), |t, k| {
+        t + &format!("{k},0.1,0,0,0\n")
+    });
+    let beams = (0..60).fold(String::from("time_s,b1,b2,b3,b4\n"), |t, k| {
+        t + &format!("{k},0.1,0.1,,\n")
+    });
+    let cases = [
+        ("empty.csv", dvl((0..60).map(f64::from), false), "--dvl"),
+        ("nan.csv", nan, "--dvl"),
+        ("marker.csv", marker, "--dvl"),
+        ("flagged.csv", flagged, "--dvl"),
+        ("beams.csv", beams, "--beams"),
+    ];
+    let depth = write(d, "depth.csv", &depth_file(60));
+    for (name, text, flag) in cases {
+        let file = write(d, name, &text);
+        let base = [
+            "navigate",
+            "--imu",
+            s(&v.imu),
+            flag,
+            s(&file),
+            "--vehicle",
+            s(&v.vehicle),
+        ];
+        let out = estim(&base);
+        refused(
+            &out,
+            &[
+                name,
+                "none of its 60 rows has bottom lock",
+                "nothing would aid",
+            ],
+        );
+        assert!(out.stdout.is_empty());
+        let mut args = base.to_vec();
+        args.extend(["--depth", s(&depth), "--json"]);
+        let out = estim(&args);
+        assert_eq!(out.status.code(), Some(0), "{name}: {}", stderr(&out));
+        let e = stderr(&out);
+        assert!(
+            e.contains("warning:") && e.contains(name) && e.contains("aided by depth only"),
+            "{name}: {e}"
+        );
+        let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+        let warnings = summary["warnings"].as_array().expect("warnings");
+        assert_eq!(warnings.len(), 1, "{summary}");
+        assert_eq!(warnings[0]["code"], "dvl_no_lock");
+        assert!(warnings[0]["file"]
+            .as_str()
+            .is_some_and(|f| f.ends_with(name)));
+        assert_eq!(summary["updates"]["dvl"]["accepted"], 0);
+        assert!(
+            summary["updates"]["depth"]["accepted"]
+                .as_u64()
+                .unwrap_or(0)
+                > 0
+        );
+    }
+    // One locked row is enough: no warning.
+    let mut text = dvl((0..59).map(f64::from), false);
+    text.push_str("59,0,0,0\n");
+    let one = write(d, "one.csv", &text);
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&v.imu),
+        "--dvl",
+        s(&one),
+        "--vehicle",
+        s(&v.vehicle),
+        "--json",
+    ]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    assert!(!stderr(&out).contains("warning"), "{}", stderr(&out));
+    let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert_eq!(summary["warnings"], serde_json::json!([]));
 }
 
 /// Class 3: `reproduce --config` refuses three-number keys of other lengths,
@@ -631,4 +740,113 @@ fn write_errors_name_their_path() {
     let e = stderr(&out);
     assert_eq!(out.status.code(), Some(2), "{e}");
     assert!(e.contains("summary.json"), "{e}");
+}
+
+/// Class 1: a first fix 100 km off (no initial position, so the run starts there)
+/// with every later fix gated: stopped by the fixes' NIS window (exit 3, status
+/// `diverged`, the check naming the sensor), never an "ok" run 100 km off.
+#[test]
+fn a_first_fix_far_off_ends_diverged_not_ok() {
+    let v = survey();
+    let d = v.dir.path();
+    let (lat, lon) = (35.0_f64, 33.0_f64);
+    let mut fixes = format!(
+        "time,lat [deg],lon [deg],sigma\n1,{:.7},{lon:.7},2\n",
+        lat + 100e3 / 111e3
+    );
+    for t in [10, 20, 30, 40, 50] {
+        fixes.push_str(&format!("{t},{lat:.7},{lon:.7},2\n"));
+    }
+    let fixes = write(d, "fixes.csv", &fixes);
+    let vehicle = write(d, "start.toml", "[initial]\ndepth_m = 20.0\n");
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&v.imu),
+        "--dvl",
+        s(&v.dvl),
+        "--fixes",
+        s(&fixes),
+        "--vehicle",
+        s(&vehicle),
+        "--json",
+    ]);
+    assert_eq!(out.status.code(), Some(3), "{}", stderr(&out));
+    let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert_eq!(summary["status"], "diverged", "{summary}");
+    assert_eq!(summary["partial"], true);
+    assert_eq!(summary["stop"]["check"]["check"], "nis", "{summary}");
+    assert_eq!(summary["stop"]["check"]["sensor"], "fixes", "{summary}");
+}
+
+/// Class 5: a `--truth` file shorter than the survey (30 s of 60) does not abort
+/// the run: exit 0, the truth's 30 epochs scored, the solution complete.
+#[test]
+fn a_truth_shorter_than_the_survey_keeps_the_run() {
+    let v = survey();
+    let d = v.dir.path();
+    let truth = write(d, "gt30.csv", &gt(30));
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&v.imu),
+        "--dvl",
+        s(&v.dvl),
+        "--vehicle",
+        s(&v.vehicle),
+        "--truth",
+        s(&truth),
+        "--json",
+    ]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+    let e = &summary["evaluation"];
+    assert_eq!(e["epochs"], 30, "{e}");
+    assert!(
+        e["position_rmse_m"].as_f64().is_some_and(f64::is_finite),
+        "{e}"
+    );
+    // The solution runs to the IMU's end, past the truth.
+    let end = summary["final"]["time_s"].as_f64().expect("final time");
+    assert!(end > 59.0, "{end}");
+}
+
+/// Class 1: a 60 s hole in the IMU file (on main: exit 0 at a depth of -341,798 m)
+/// stops `navigate` (exit 3, `diverged`, the IMU-gap check at the hole's start, 19.9
+/// s). The IMU's times are checked before the run, so `--out` holds a partial
+/// summary and a `solution.csv` with its header only, as the summary says.
+#[test]
+fn navigate_stops_at_an_imu_hole() {
+    let v = survey();
+    let d = v.dir.path();
+    let mut text = String::from("time_s,acc_x_mps2,acc_y_mps2,acc_z_mps2,gx,gy,gz\n");
+    for k in (0..200).chain(800..1000) {
+        text.push_str(&format!("{:.1},0,0,-9.81,0,0,0\n", f64::from(k) * 0.1));
+    }
+    let holed = write(d, "imu_hole.csv", &text);
+    let long_dvl = write(d, "dvl100.csv", &dvl((0..100).map(f64::from), true));
+    let out_dir = d.join("out");
+    let out = estim(&[
+        "navigate",
+        "--imu",
+        s(&holed),
+        "--dvl",
+        s(&long_dvl),
+        "--vehicle",
+        s(&v.vehicle),
+        "--out",
+        s(&out_dir),
+        "--json",
+    ]);
+    assert_eq!(out.status.code(), Some(3), "{}", stderr(&out));
+    let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert_eq!(summary["status"], "diverged", "{summary}");
+    assert_eq!(summary["partial"], true);
+    assert_eq!(summary["stop"]["check"]["check"], "imu_gap", "{summary}");
+    let at = summary["stop"]["time_s"].as_f64().expect("stop time");
+    assert!((at - 19.9).abs() < 1e-9, "{at}");
+    assert_eq!(summary["solution_rows_before_stop"], 0);
+    let rows = std::fs::read_to_string(out_dir.join("solution.csv")).expect("solution.csv");
+    assert_eq!(rows.lines().count(), 1, "header only: {rows}");
+    assert!(stderr(&out).contains("the 0 solution rows before the stop"));
 }

@@ -181,6 +181,20 @@ fn shards_merge_exactly_and_bad_shards_are_refused() {
         cwd,
         &["seed.json: key `sufficient_statistics`: variant ls: seed 9 is outside the seed ranges [[5000, 5001]]"],
     );
+    // Internally inconsistent: the document announces other seeds than its
+    // statistics hold, or "ok" beside failures (issue 46): refused, not merged.
+    let mut doc: Value = serde_json::from_str(&text).unwrap();
+    doc["inputs"]["runs"] = serde_json::json!(2);
+    std::fs::write(cwd.join("runs.json"), doc.to_string()).unwrap();
+    refused(
+        &["montecarlo", "merge", "runs.json", "b.json"],
+        cwd,
+        &[
+            "runs.json: key `inputs.runs`",
+            "[[5000, 5002]]",
+            "[[5000, 5001]]",
+        ],
+    );
     refused(
         &["montecarlo", "merge", "missing.json"],
         cwd,

@@ -23,6 +23,7 @@ mod reproduce;
 mod schema;
 mod simulate;
 mod smooth;
+mod survey_checks;
 mod tune;
 mod where_m;
 

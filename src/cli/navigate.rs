@@ -9,7 +9,9 @@ use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use estim::datasets::{load_depth, load_fixes, load_gt, load_times, DvlLog, ImuLog};
+use estim::datasets::{
+    load_depth_with, load_fixes_with, load_gt_with, load_times_with, DvlLog, ImuLog,
+};
 use estim::ins::{ErrorMatrix, InsState, Trajectory, ATT, ERROR_STATES, POS, VEL};
 use estim::navigator::{
     format_heading, navigate, navigate_learned, pd0_records, rdi_beam_geometry, DvlRecord,
@@ -85,6 +87,10 @@ pub struct Args {
     /// Vehicle configuration TOML (lever arms, noise, time offsets, initial state).
     #[arg(long, value_name = "FILE")]
     vehicle: Option<PathBuf>,
+    /// TOML with a `[columns]` table (the input files' column names and units); its
+    /// entries override the vehicle file's `[columns]`, quantity by quantity.
+    #[arg(long, value_name = "FILE")]
+    columns: Option<PathBuf>,
     /// Ground truth CSV: adds errors and NEES at the truth's own epochs (evaluation).
     /// Its clock is aligned to the IMU's (`[truth]` in the vehicle file, else
     /// estimated) and its point carried by `truth.lever_arm_m`.
@@ -236,6 +242,22 @@ impl Truth {
         Ok(())
     }
 
+    /// The reference's track for the plots: latitude, longitude \[deg\] (carried to the
+    /// IMU's point) at its own epochs within `[from, to]` (the navigator's clock).
+    pub fn track_deg(&self, from: f64, to: f64) -> Vec<[f64; 2]> {
+        self.epochs
+            .iter()
+            .filter(|&&t| t >= from && t <= to)
+            .filter_map(|&t| self.trajectory.evaluate(t).ok())
+            .map(|k| {
+                [
+                    k.state.latitude.to_degrees(),
+                    k.state.longitude.to_degrees(),
+                ]
+            })
+            .collect()
+    }
+
     /// The truth at `time`, `None` outside the reference's span.
     fn at(&self, time: f64) -> anyhow::Result<Option<InsState>> {
         if !(time >= self.span[0] && time <= self.span[1]) {
@@ -384,6 +406,9 @@ pub struct Survey {
     pub truth: Option<Truth>,
     /// What the PD0 reader and conversion did, with `--pd0`.
     pub pd0: Option<Value>,
+    /// Warnings about the inputs (each `code`, `file`, `message`), also printed on
+    /// stderr: the summary's `warnings`.
+    pub warnings: Vec<Value>,
 }
 
 /// Read a PD0 file into DVL rows; skipped spans are warned about on stderr with
@@ -444,16 +469,31 @@ fn load_pd0(
 
 /// Read and check every input of a survey (errors name the file and line).
 pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
-    let config = match &files.vehicle {
+    load_survey_with(files, None)
+}
+
+/// [`load_survey`] with a `--columns` file whose `[columns]` entries override the
+/// vehicle file's.
+pub fn load_survey_with(files: SurveyFiles, columns: Option<&Path>) -> anyhow::Result<Survey> {
+    let mut config = match &files.vehicle {
         Some(p) => vehicle_config(p)?,
         None => NavigatorConfig::default(),
     };
+    if let Some(path) = columns {
+        let over = crate::survey_checks::columns_file(path)?;
+        config.columns = config.columns.overridden_by(&over).map_err(|e| {
+            let vehicle = files.vehicle.as_deref().unwrap_or(Path::new("vehicle"));
+            anyhow::anyhow!("{}: {e}", vehicle.display())
+        })?;
+    }
+    let config = config;
     let in_vehicle = |e: NavigatorError| match &files.vehicle {
         Some(p) => anyhow::anyhow!("{}: {e}", p.display()),
         None => anyhow::anyhow!("{e}"),
     };
     let mut settings = config.check().map_err(in_vehicle)?;
-    let mut imu = ImuLog::load(&files.imu, None)?;
+    let map = &config.columns;
+    let mut imu = ImuLog::load_with(&files.imu, None, map)?;
     config
         .imu_frame()
         .map_err(in_vehicle)?
@@ -461,8 +501,8 @@ pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
     let epoch = imu.epoch_s;
     let mut pd0 = None;
     let dvl = match (&files.dvl, &files.beams, &files.pd0) {
-        (Some(p), _, _) => DvlLog::load_velocity(p, Some(epoch))?.records,
-        (None, Some(p), _) => DvlLog::load_beams(p, Some(epoch))?.records,
+        (Some(p), _, _) => DvlLog::load_velocity_with(p, Some(epoch), map)?.records,
+        (None, Some(p), _) => DvlLog::load_beams_with(p, Some(epoch), map)?.records,
         (None, None, Some(p)) => {
             let (records, with_geometry, summary) = load_pd0(p, epoch, settings)?;
             settings = with_geometry;
@@ -486,11 +526,11 @@ pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
         (None, None, None) => anyhow::bail!("give --dvl, --beams or --pd0"),
     };
     let depth = match &files.depth {
-        Some(p) => load_depth(p, Some(epoch))?.0,
+        Some(p) => load_depth_with(p, Some(epoch), map)?.0,
         None => Vec::new(),
     };
     let fixes = match &files.fixes {
-        Some(p) => load_fixes(p, Some(epoch))?.0,
+        Some(p) => load_fixes_with(p, Some(epoch), map)?.0,
         None => Vec::new(),
     };
     let truth = match &files.truth {
@@ -546,6 +586,7 @@ pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
         output_epochs: Vec::new(),
     };
     crate::aiding_span::check_survey(&files, &config, &inputs, epoch)?;
+    let warnings = crate::survey_checks::check_dvl_lock(&files, &inputs)?;
     Ok(Survey {
         files,
         config,
@@ -554,6 +595,7 @@ pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
         epoch,
         truth,
         pd0,
+        warnings,
     })
 }
 
@@ -569,9 +611,9 @@ fn load_truth(
 ) -> anyhow::Result<Truth> {
     {
         {
-            let gt = load_gt(p)?;
+            let gt = load_gt_with(p, &config.columns)?;
             // The GT times on the navigator's clock, read on their digits.
-            let times = load_times(p, epoch)?;
+            let times = load_times_with(p, epoch, &config.columns)?;
             anyhow::ensure!(
                 times.len() == gt.len(),
                 "{}: {} time cells for {} rows",
@@ -703,9 +745,33 @@ impl Writer {
         self
     }
 
-    /// The solutions kept for the plots.
-    pub fn plot_rows(&self) -> &[crate::navigate_plots::PlotRow] {
-        self.plot_rows.as_deref().unwrap_or(&[])
+    /// Write the plots of the kept solutions (and the truth's track over their span)
+    /// into `dir`: the summary's `plots` block, or `None` when no plot was asked for.
+    pub fn write_plots(
+        &self,
+        dir: &StagedDir,
+        command: &str,
+        solution_label: &str,
+        nis: (&[f64], &[f64]),
+        stopped: Option<&str>,
+    ) -> Option<Value> {
+        let rows = self.plot_rows.as_deref()?;
+        let truth = match (self.truth.as_ref(), rows.first(), rows.last()) {
+            (Some(t), Some(a), Some(b)) => t.track_deg(a.time, b.time),
+            _ => Vec::new(),
+        };
+        Some(crate::navigate_plots::write_plots_or_warn(
+            &dir.path(""),
+            &crate::navigate_plots::PlotData {
+                command,
+                solution_label,
+                rows,
+                nis_times: nis.0,
+                nis: nis.1,
+                truth: &truth,
+                stopped,
+            },
+        ))
     }
 
     /// The evaluation against truth, if any.
@@ -862,6 +928,7 @@ pub fn summary_json(
             "fixes": stats(&run.fix_nis),
         },
         "pd0": survey.pd0,
+        "warnings": survey.warnings,
         "solutions": run.solutions,
         "final": {
             "time_s": epoch + f.time,
@@ -877,23 +944,25 @@ pub fn summary_json(
     if let (Some(b), Value::Object(e)) = (body.as_object_mut(), extra) {
         b.extend(e);
     }
-    schema::document(
-        command,
-        json!({
-            "imu": schema::path_json(Some(&files.imu)),
-            "dvl": schema::path_json(files.dvl.as_deref()),
-            "beams": schema::path_json(files.beams.as_deref()),
-            "pd0": schema::path_json(files.pd0.as_deref()),
-            "depth": schema::path_json(files.depth.as_deref()),
-            "fixes": schema::path_json(files.fixes.as_deref()),
-            "vehicle": schema::path_json(files.vehicle.as_deref()),
-            "truth": schema::path_json(files.truth.as_deref()),
-            "rate_hz": rate,
-            "configuration": survey.config,
-        }),
-        0,
-        body,
-    )
+    schema::document(command, inputs_json(survey, rate), 0, body)
+}
+
+/// The summary's `inputs` block of a survey run (`navigate`, `smooth`; a completed or
+/// a stopped run): every input path, the rate and the configuration in effect.
+pub fn inputs_json(survey: &Survey, rate: Option<f64>) -> Value {
+    let files = &survey.files;
+    json!({
+        "imu": schema::path_json(Some(&files.imu)),
+        "dvl": schema::path_json(files.dvl.as_deref()),
+        "beams": schema::path_json(files.beams.as_deref()),
+        "pd0": schema::path_json(files.pd0.as_deref()),
+        "depth": schema::path_json(files.depth.as_deref()),
+        "fixes": schema::path_json(files.fixes.as_deref()),
+        "vehicle": schema::path_json(files.vehicle.as_deref()),
+        "truth": schema::path_json(files.truth.as_deref()),
+        "rate_hz": rate,
+        "configuration": survey.config,
+    })
 }
 
 /// The final DVL error states of a run with `[dvl_states]` (null without): each
@@ -1051,21 +1120,13 @@ pub fn stopped(
     writer: &mut Writer,
     staged: Option<StagedDir>,
     error: &NavigatorError,
+    rate: Option<f64>,
     json_out: bool,
 ) -> anyhow::Result<()> {
     let (status, stop) = stop_json(survey.epoch, error);
-    let files = &survey.files;
     let mut summary = schema::document(
         command,
-        json!({
-            "imu": schema::path_json(Some(&files.imu)),
-            "dvl": schema::path_json(files.dvl.as_deref()),
-            "beams": schema::path_json(files.beams.as_deref()),
-            "pd0": schema::path_json(files.pd0.as_deref()),
-            "vehicle": schema::path_json(files.vehicle.as_deref()),
-            "truth": schema::path_json(files.truth.as_deref()),
-            "configuration": survey.config,
-        }),
+        inputs_json(survey, rate),
         0,
         json!({
             "epoch_s": survey.epoch,
@@ -1080,11 +1141,23 @@ pub fn stopped(
                 "position_sigma_m": f.position_sigma_m,
             })),
             "evaluation_before_stop": evaluation_json(writer.truth()),
+            "warnings": survey.warnings,
         }),
     );
     summary["status"] = json!(status);
     let kept = match staged {
         Some(dir) => {
+            // The plots of the solutions before the stop (their axes bounded by the
+            // valid part, see navigate_plots); the NIS were not kept.
+            let note = format!(
+                "{status} at t = {:.1} s",
+                stop["time_since_epoch_s"].as_f64().unwrap_or(f64::NAN)
+            );
+            if let Some(plots) =
+                writer.write_plots(&dir, command, "filter", (&[], &[]), Some(&note))
+            {
+                summary["plots"] = plots;
+            }
             writer.finish(
                 &dir,
                 &format!("estim {command} track before the stop (partial)"),
@@ -1123,9 +1196,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let mut staged = args.out.as_deref().map(StagedDir::new).transpose()?;
     if let Some(dir) = &mut staged {
-        dir.keep_inputs(args.files().paths());
+        dir.keep_inputs(args.files().paths().chain(args.columns.as_deref()));
     }
-    let mut survey = load_survey(args.files())?;
+    let mut survey = load_survey_with(args.files(), args.columns.as_deref())?;
     if let Some(truth) = &survey.truth {
         survey.inputs.output_epochs = truth.epochs();
     }
@@ -1155,7 +1228,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let run = match result {
         Ok(run) => run,
         Err(e @ (NavigatorError::Filter { .. } | NavigatorError::Diverged { .. })) => {
-            return stopped("navigate", &survey, &mut writer, staged, &e, args.json);
+            return stopped(
+                "navigate",
+                &survey,
+                &mut writer,
+                staged,
+                &e,
+                args.rate,
+                args.json,
+            );
         }
         Err(e) => return Err(e.into()),
     };
@@ -1174,18 +1255,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         learned_json(&run),
     );
     if let Some(dir) = staged {
-        if args.plots {
-            // Optional: a plot that cannot be drawn is warned about, not the run lost.
-            summary["plots"] = crate::navigate_plots::write_plots_or_warn(
-                &dir.path(""),
-                &crate::navigate_plots::PlotData {
-                    command: "navigate",
-                    solution_label: "filter",
-                    rows: writer.plot_rows(),
-                    nis_times: &run.dvl_nis_times,
-                    nis: &run.dvl_nis,
-                },
-            );
+        // Optional: a plot that cannot be drawn is warned about, not the run lost.
+        let nis = (&run.dvl_nis_times[..], &run.dvl_nis[..]);
+        if let Some(plots) = writer.write_plots(&dir, "navigate", "filter", nis, None) {
+            summary["plots"] = plots;
         }
         writer.finish(&dir, "estim navigate track (DVL epochs)", &summary)?;
         dir.commit()?;

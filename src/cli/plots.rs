@@ -187,6 +187,21 @@ pub fn tick_label(value: f64, span: f64) -> String {
     }
 }
 
+/// A log axis's range covering `[lo, hi]` (both > 0) from a power of ten to a power of
+/// ten, at least one decade, widened by 1 % so that rounding in plotters' logarithms
+/// keeps both ends: plotters labels a log axis at the powers of ten inside it (and
+/// between them), so a range inside one decade got no tick label at all.
+pub fn log_axis_range(lo: f64, hi: f64) -> (f64, f64) {
+    let lo = lo.max(1e-300);
+    let hi = hi.max(lo);
+    let bottom = 10f64.powf(lo.log10().floor());
+    let mut top = 10f64.powf(hi.log10().ceil());
+    if top <= bottom * 1.5 {
+        top = bottom * 10.0;
+    }
+    (bottom * 0.99, top * 1.01)
+}
+
 const SIZE: (u32, u32) = (960, 640);
 const MARGIN: u32 = 12;
 const TITLE_HEIGHT: u32 = 40;
@@ -431,7 +446,10 @@ where
     let geometry = if c.log_y {
         // A log axis: each tick its own magnitude.
         body!(
-            builder.build_cartesian_2d(x0..x1, (y0.max(1e-300) * 0.9..y1 * 1.1).log_scale())?,
+            builder.build_cartesian_2d(x0..x1, {
+                let (lo, hi) = log_axis_range(y0, y1);
+                (lo..hi).log_scale()
+            })?,
             &|y: &f64| tick_label(*y, *y)
         )
     } else {

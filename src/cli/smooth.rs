@@ -42,6 +42,9 @@ pub struct Args {
     /// Survey mode: vehicle configuration TOML.
     #[arg(long, value_name = "FILE", requires = "imu")]
     vehicle: Option<PathBuf>,
+    /// Survey mode: TOML with a `[columns]` table overriding the vehicle file's.
+    #[arg(long, value_name = "FILE", requires = "imu")]
+    columns: Option<PathBuf>,
     /// Survey mode: ground truth CSV (errors and NEES of the filtered and smoothed
     /// solutions at the DVL epochs).
     #[arg(long, value_name = "FILE", requires = "imu")]
@@ -105,7 +108,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         } else {
             estim::core::smoother::RecordAt::Measurements
         };
-        return smooth_survey_files(files, args.out.as_deref(), args.json, args.plots, epochs);
+        return smooth_survey_files(
+            files,
+            args.columns.as_deref(),
+            args.out.as_deref(),
+            args.json,
+            args.plots,
+            epochs,
+        );
     }
     let config = match &args.config {
         Some(path) => Config::from_file(path)?,
@@ -181,25 +191,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 /// `estim navigate` writes its own (the summary adds the forward pass's figures).
 fn smooth_survey_files(
     files: crate::navigate::SurveyFiles,
+    columns: Option<&Path>,
     out: Option<&Path>,
     json: bool,
     plots: bool,
     epochs: estim::core::smoother::RecordAt,
 ) -> anyhow::Result<()> {
-    use crate::navigate::{evaluation_json, load_survey, summary_json, summary_text, Writer};
+    use crate::navigate::{evaluation_json, load_survey_with, summary_json, summary_text, Writer};
     use estim::navigator::{smooth_survey_at, NavigationObserver, NavigatorError};
 
     let mut staged = out.map(crate::output::StagedDir::new).transpose()?;
     if let Some(dir) = &mut staged {
-        dir.keep_inputs(files.paths());
+        dir.keep_inputs(files.paths().chain(columns));
     }
-    let mut survey = load_survey(files)?;
+    let mut survey = load_survey_with(files, columns)?;
     let truth = survey.truth.take();
     let mut forward = Writer::new(None, survey.epoch, truth.clone())?;
     let run = match smooth_survey_at(&survey.inputs, &survey.settings, None, &mut forward, epochs) {
         Ok(run) => run,
         Err(e @ (NavigatorError::Filter { .. } | NavigatorError::Diverged { .. })) => {
-            return forward_stopped(&survey, staged, &e, json);
+            return forward_stopped(&survey, staged, &e, plots, json);
         }
         Err(NavigatorError::Smoother(e)) => {
             anyhow::bail!("{e}; nothing was smoothed, nothing written")
@@ -242,18 +253,10 @@ fn smooth_survey_files(
         extra,
     );
     if let Some(dir) = staged {
-        if plots {
-            // Optional: a plot that cannot be drawn is warned about, not the run lost.
-            summary["plots"] = crate::navigate_plots::write_plots_or_warn(
-                &dir.path(""),
-                &crate::navigate_plots::PlotData {
-                    command: "smooth",
-                    solution_label: "smoothed",
-                    rows: writer.plot_rows(),
-                    nis_times: &run.forward.dvl_nis_times,
-                    nis: &run.forward.dvl_nis,
-                },
-            );
+        // Optional: a plot that cannot be drawn is warned about, not the run lost.
+        let nis = (&run.forward.dvl_nis_times[..], &run.forward.dvl_nis[..]);
+        if let Some(plots) = writer.write_plots(&dir, "smooth", "smoothed", nis, None) {
+            summary["plots"] = plots;
         }
         writer.finish(&dir, "estim smooth track (smoothed, DVL epochs)", &summary)?;
         dir.commit()?;
@@ -266,26 +269,19 @@ fn smooth_survey_files(
 
 /// The forward pass stopped (divergence or a numerical failure): nothing was
 /// smoothed, so no solution is kept. With `--out`, only `summary.json` is committed,
-/// marked `partial`, with the stop and `"smoothed_epochs": 0`; exit 3 says so.
+/// marked `partial`, with the stop and `"smoothed_epochs": 0`; exit 3 says so. With
+/// `--plots`, no plot is drawn and the summary's `plots` block says why.
 fn forward_stopped(
     survey: &crate::navigate::Survey,
     staged: Option<crate::output::StagedDir>,
     error: &estim::navigator::NavigatorError,
+    plots: bool,
     json: bool,
 ) -> anyhow::Result<()> {
     let (status, stop) = crate::navigate::stop_json(survey.epoch, error);
-    let files = &survey.files;
     let mut summary = crate::schema::document(
         "smooth",
-        serde_json::json!({
-            "imu": crate::schema::path_json(Some(&files.imu)),
-            "dvl": crate::schema::path_json(files.dvl.as_deref()),
-            "beams": crate::schema::path_json(files.beams.as_deref()),
-            "pd0": crate::schema::path_json(files.pd0.as_deref()),
-            "vehicle": crate::schema::path_json(files.vehicle.as_deref()),
-            "truth": crate::schema::path_json(files.truth.as_deref()),
-            "configuration": survey.config,
-        }),
+        crate::navigate::inputs_json(survey, None),
         0,
         serde_json::json!({
             "epoch_s": survey.epoch,
@@ -296,6 +292,12 @@ fn forward_stopped(
         }),
     );
     summary["status"] = serde_json::json!(status);
+    if plots {
+        summary["plots"] = serde_json::json!({
+            "written": false,
+            "reason": "the forward pass stopped: nothing was smoothed, nothing to draw",
+        });
+    }
     let kept = match staged {
         Some(dir) => {
             let path = dir.target().join("summary.json");

@@ -15,8 +15,9 @@
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
-use super::columns::{flipped, resolve, same, Alias, Kind, Quantity};
-use super::input::{read_file, read_input, Lines};
+use super::columns::{flipped, same, Alias, Kind, Quantity};
+use super::input::{open_text, Lines};
+use super::table::{for_each_row, MapSection};
 use super::{ColumnMap, DatasetError, Result, MIN_INTERVAL_FRACTION};
 
 /// Header of A-KIT's `GT_trajectoryN.csv` (one accepted layout among many).
@@ -238,7 +239,7 @@ pub fn load_gt(path: &Path) -> Result<Vec<GtSample>> {
 /// # Errors
 /// As [`load_gt`], and [`DatasetError::ColumnMap`].
 pub fn load_gt_with(path: &Path, map: &ColumnMap) -> Result<Vec<GtSample>> {
-    gt_from_bytes(&read_file(path)?, path, map)
+    gt_from(open_text(path)?, path, map)
 }
 
 /// Parse ground truth from any reader; `path` names the source in errors.
@@ -246,11 +247,11 @@ pub fn load_gt_with(path: &Path, map: &ColumnMap) -> Result<Vec<GtSample>> {
 /// # Errors
 /// As [`load_gt`].
 pub fn parse_gt(reader: impl Read, path: &Path) -> Result<Vec<GtSample>> {
-    gt_from_bytes(&read_input(reader, path)?, path, &ColumnMap::default())
+    gt_from(reader, path, &ColumnMap::default())
 }
 
-fn gt_from_bytes(bytes: &[u8], path: &Path, map: &ColumnMap) -> Result<Vec<GtSample>> {
-    let rows = read_table(bytes, path, GT_QUANTITIES, &map.gt, "columns.gt", 2)?;
+fn gt_from(input: impl Read, path: &Path, map: &ColumnMap) -> Result<Vec<GtSample>> {
+    let rows = read_table(input, path, GT_QUANTITIES, &map.gt, "columns.gt", 2)?;
     Ok(rows
         .into_iter()
         .map(|(line, r)| GtSample {
@@ -278,7 +279,7 @@ pub fn load_dvl(path: &Path) -> Result<Vec<DvlSample>> {
 /// # Errors
 /// As [`load_gt_with`].
 pub fn load_dvl_with(path: &Path, map: &ColumnMap) -> Result<Vec<DvlSample>> {
-    dvl_from_bytes(&read_file(path)?, path, map)
+    dvl_from(open_text(path)?, path, map)
 }
 
 /// Parse a DVL log from any reader; `path` names the source in errors.
@@ -286,11 +287,11 @@ pub fn load_dvl_with(path: &Path, map: &ColumnMap) -> Result<Vec<DvlSample>> {
 /// # Errors
 /// As [`load_gt`].
 pub fn parse_dvl(reader: impl Read, path: &Path) -> Result<Vec<DvlSample>> {
-    dvl_from_bytes(&read_input(reader, path)?, path, &ColumnMap::default())
+    dvl_from(reader, path, &ColumnMap::default())
 }
 
-fn dvl_from_bytes(bytes: &[u8], path: &Path, map: &ColumnMap) -> Result<Vec<DvlSample>> {
-    let rows = read_table(bytes, path, DVL_QUANTITIES, &map.dvl, "columns.dvl", 2)?;
+fn dvl_from(input: impl Read, path: &Path, map: &ColumnMap) -> Result<Vec<DvlSample>> {
+    let rows = read_table(input, path, DVL_QUANTITIES, &map.dvl, "columns.dvl", 2)?;
     Ok(rows
         .into_iter()
         .map(|(line, r)| DvlSample {
@@ -322,13 +323,14 @@ pub(crate) fn csv_error(bytes: &[u8], path: &Path, e: &csv::Error) -> DatasetErr
     }
 }
 
-/// Read a table: the header names the quantities' columns (see [`resolve`]); every
-/// row holds as many fields as the header; every cell of a quantity's column is a
-/// finite number within the quantity's range (in SI after the header's unit); the
-/// first quantity is a strictly increasing time; at least `min_rows` rows.
-/// Returns (line, values in quantity order) per row.
+/// Read a table, streamed record by record (see [`super::table`]): the header names
+/// the quantities' columns (see [`super::columns`]); every row holds as many fields as
+/// the header; every cell of a quantity's column is a finite number within the
+/// quantity's range (in SI after the header's unit); the first quantity is a strictly
+/// increasing time; at least `min_rows` rows. Returns (line, values in quantity
+/// order) per row.
 fn read_table<const C: usize>(
-    bytes: &[u8],
+    input: impl Read,
     path: &Path,
     quantities: &[Quantity; C],
     map: &std::collections::BTreeMap<String, String>,
@@ -336,91 +338,45 @@ fn read_table<const C: usize>(
     min_rows: usize,
 ) -> Result<Vec<(u64, [f64; C])>> {
     let pb = || PathBuf::from(path);
-    if bytes.iter().all(|c| c.is_ascii_whitespace()) {
-        return Err(DatasetError::TooFewRows {
-            path: pb(),
-            found: 0,
-            min: min_rows,
-        });
-    }
-    if let Some(line) = truncated_line(bytes) {
-        return Err(DatasetError::Truncated { path: pb(), line });
-    }
-    let mut reader = csv::ReaderBuilder::new()
-        .has_headers(false)
-        .flexible(true)
-        .from_reader(bytes);
-    let mut records = reader.records();
-    let header = match records.next() {
-        None => {
+    let mut rows: Vec<(u64, [f64; C])> = Vec::new();
+    let read = for_each_row(
+        input,
+        path,
+        MapSection {
+            map,
+            section,
+            quantities,
+        },
+        |h| h.require(quantities),
+        |columns, record| {
+            let mut row = [0.0; C];
+            for (k, (column, quantity)) in columns.iter().zip(quantities).enumerate() {
+                row[k] = record.number(column, quantity)?;
+            }
+            if let Some(&(_, previous)) = rows.last() {
+                if row[0] <= previous[0] {
+                    return Err(DatasetError::TimeNotIncreasing {
+                        path: pb(),
+                        line: record.line,
+                        time: row[0],
+                        previous: previous[0],
+                    });
+                }
+            }
+            rows.push((record.line, row));
+            Ok(())
+        },
+    );
+    match read {
+        // A blank file: the count this table needs.
+        Err(DatasetError::TooFewRows { found: 0, .. }) => {
             return Err(DatasetError::TooFewRows {
                 path: pb(),
                 found: 0,
                 min: min_rows,
             })
         }
-        Some(r) => r.map_err(|e| csv_error(bytes, path, &e))?,
-    };
-    let header: Vec<String> = header.iter().map(str::to_string).collect();
-    let columns = resolve(path, &header, quantities, map, section)?;
-    let mut rows: Vec<(u64, [f64; C])> = Vec::new();
-    let mut previous: Option<f64> = None;
-    let mut lines = Lines::new(bytes);
-    for record in records {
-        let record = record.map_err(|e| csv_error(bytes, path, &e))?;
-        let line = record.position().map_or(0, |p| lines.line_at(p.byte()));
-        if record.len() <= 1 && record.iter().all(|c| c.trim().is_empty()) {
-            continue; // blank line
-        }
-        if record.len() != header.len() {
-            return Err(DatasetError::FieldCount {
-                path: pb(),
-                line,
-                expected: header.len(),
-                found: record.len(),
-            });
-        }
-        let mut row = [0.0; C];
-        for (k, (column, quantity)) in columns.iter().zip(quantities).enumerate() {
-            let cell = record.get(column.index).unwrap_or("").trim();
-            let read: f64 = cell.parse().map_err(|_| DatasetError::Parse {
-                path: pb(),
-                line,
-                column: column.header.clone(),
-                value: cell.chars().take(40).collect(),
-            })?;
-            if !read.is_finite() {
-                return Err(DatasetError::NonFinite {
-                    path: pb(),
-                    line,
-                    column: column.header.clone(),
-                });
-            }
-            let value = read * column.factor;
-            if value.abs() >= quantity.max_abs {
-                return Err(DatasetError::OutOfRange {
-                    path: pb(),
-                    line,
-                    column: column.header.clone(),
-                    value,
-                    limit: quantity.max_abs,
-                    unit: quantity.kind.si_unit(),
-                });
-            }
-            row[k] = value;
-        }
-        if let Some(prev) = previous {
-            if row[0] <= prev {
-                return Err(DatasetError::TimeNotIncreasing {
-                    path: pb(),
-                    line,
-                    time: row[0],
-                    previous: prev,
-                });
-            }
-        }
-        previous = Some(row[0]);
-        rows.push((line, row));
+        other => other?,
     }
     if rows.len() < min_rows {
         return Err(DatasetError::TooFewRows {

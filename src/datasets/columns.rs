@@ -114,7 +114,7 @@ impl Kind {
             Kind::Speed => &[("mps", "m/s"), ("mmps", "mm/s"), ("cmps", "cm/s")],
             Kind::Acceleration => &[("mps2", "m/s^2"), ("g", "g")],
             Kind::AngularRate => &[("radps", "rad/s"), ("degps", "deg/s")],
-            Kind::Flag => &[],
+            Kind::Flag => &[("flag", "")],
         }
     }
 
@@ -184,29 +184,133 @@ pub(crate) struct Resolved {
 /// `latitude_rad`/`_deg`, `altitude_m`, `height_m`, `depth_m`, `v_north_mps`,
 /// `v_east_mps`, `v_down_mps`, `v_up_mps`, `roll_rad`/`_deg`, `pitch_rad`/`_deg`,
 /// `yaw_rad`/`_deg`, `heading_rad`/`_deg`; for DVL `time_s`, `x_mps`, `y_mps`, `z_mps`
-/// (speeds also `_mmps`, `_cmps`; times also `_ms`). The value is the header cell's
-/// text (trimmed). A mapped quantity is found only through the map; the others by
-/// name as usual.
+/// (speeds also `_mmps`, `_cmps`; times also `_ms`), and for the survey readers
+/// `validity_flag` and `fom_mps`; for the IMU `time_s`, `acc_x_mps2`/`_g` (x, y, z),
+/// `gyro_x_radps`/`_degps`, or increments `dv_x_mps`, `dtheta_x_rad`/`_deg`, and
+/// `true_acc_bias_x_mps2`, `true_gyro_bias_x_radps`; for DVL beams `time_s`,
+/// `beam1_mps` .. `beam4_mps`; for depth `time_s`, `depth_m`; for fixes `time_s`,
+/// `latitude_rad`/`_deg`, `longitude_rad`/`_deg`, `sigma_m`. The value is the header
+/// cell's text (trimmed). A mapped quantity is found only through the map; the others
+/// by name as usual. `[columns]` of the study's configuration (`gt`, `dvl`) and of the
+/// navigator's vehicle file (every section; `gt` for `--truth`) are this map.
 #[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ColumnMap {
     /// Ground-truth file: key -> header text.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub gt: BTreeMap<String, String>,
     /// DVL velocity file: key -> header text.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub dvl: BTreeMap<String, String>,
+    /// IMU file (survey readers): key -> header text.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub imu: BTreeMap<String, String>,
+    /// DVL beams file (survey readers): key -> header text.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub beams: BTreeMap<String, String>,
+    /// Depth file: key -> header text.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub depth: BTreeMap<String, String>,
+    /// Position-fix file: key -> header text.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub fixes: BTreeMap<String, String>,
+}
+
+/// The sections of a [`ColumnMap`] with the quantities each may map.
+fn sections(map: &ColumnMap) -> [(&BTreeMap<String, String>, Vec<Quantity>, &'static str); 6] {
+    let dvl: Vec<Quantity> = super::akit::DVL_QUANTITIES
+        .iter()
+        .chain(super::dvl_log::FLAG_QUANTITIES)
+        .copied()
+        .collect();
+    [
+        (&map.gt, super::akit::GT_QUANTITIES.to_vec(), "columns.gt"),
+        (&map.dvl, dvl, "columns.dvl"),
+        (&map.imu, super::imu::quantities(), "columns.imu"),
+        (
+            &map.beams,
+            super::dvl_log::beam_quantities(),
+            "columns.beams",
+        ),
+        (
+            &map.depth,
+            super::fixes::depth_quantities(),
+            "columns.depth",
+        ),
+        (&map.fixes, super::fixes::fix_quantities(), "columns.fixes"),
+    ]
 }
 
 impl ColumnMap {
     /// Validate every key against the quantities of its file; the message names the key.
+    ///
+    /// # Errors
+    /// The first invalid key: unknown (with the keys its section accepts), an empty
+    /// header text, or a quantity mapped twice.
     pub fn check(&self) -> std::result::Result<(), String> {
-        check_map(&self.gt, super::akit::GT_QUANTITIES, "columns.gt")?;
-        check_map(&self.dvl, super::akit::DVL_QUANTITIES, "columns.dvl")?;
+        for (map, quantities, section) in sections(self) {
+            check_map(map, &quantities, section)?;
+        }
+        Ok(())
+    }
+
+    /// [`ColumnMap::check`], and refuse a mapped section that is not among `used`
+    /// (e.g. `[columns.imu]` in the study's configuration, whose IMU is synthesized):
+    /// a map that would be ignored is an error naming it.
+    ///
+    /// # Errors
+    /// As [`ColumnMap::check`]; `columns.<section>: not used here` for the others.
+    pub fn check_used(&self, used: &[&str]) -> std::result::Result<(), String> {
+        self.check()?;
+        for (map, _, section) in sections(self) {
+            let name = section.trim_start_matches("columns.");
+            if !map.is_empty() && !used.contains(&name) {
+                return Err(format!(
+                    "{section}: not used here (this file reads only [columns.{}])",
+                    used.join("], [columns.")
+                ));
+            }
+        }
         Ok(())
     }
 
     /// True when no column is mapped.
     pub fn is_empty(&self) -> bool {
-        self.gt.is_empty() && self.dvl.is_empty()
+        self.gt.is_empty()
+            && self.dvl.is_empty()
+            && self.imu.is_empty()
+            && self.beams.is_empty()
+            && self.depth.is_empty()
+            && self.fixes.is_empty()
+    }
+
+    /// This map with `over`'s entries taking precedence: an entry of `over` replaces
+    /// the entry of the same section that maps the same quantity (whatever its unit),
+    /// the others are kept (a command-line map over a vehicle file's).
+    ///
+    /// # Errors
+    /// As [`ColumnMap::check`], for either map.
+    pub fn overridden_by(&self, over: &ColumnMap) -> std::result::Result<ColumnMap, String> {
+        self.check()?;
+        over.check()?;
+        let mut out = self.clone();
+        let targets = [
+            (&mut out.gt, &over.gt),
+            (&mut out.dvl, &over.dvl),
+            (&mut out.imu, &over.imu),
+            (&mut out.beams, &over.beams),
+            (&mut out.depth, &over.depth),
+            (&mut out.fixes, &over.fixes),
+        ];
+        for ((base, top), (_, quantities, _)) in targets.into_iter().zip(sections(self)) {
+            let quantity = |key: &str| parse_map_key(key, &quantities).map(|(q, _)| q);
+            for (key, header) in top {
+                let q = quantity(key);
+                base.retain(|k, _| quantity(k) != q);
+                base.insert(key.clone(), header.clone());
+            }
+        }
+        Ok(out)
     }
 }
 
@@ -238,23 +342,21 @@ fn parse_map_key(key: &str, quantities: &[Quantity]) -> Option<(&'static str, f6
     None
 }
 
-/// Column-map key stems per quantity (the canonical one first).
-fn map_stems(key: &str) -> &'static [&'static str] {
+/// Whether `map` names a column for `quantity` (a mapped column that is missing is an
+/// error even where the quantity is optional).
+pub(crate) fn maps(map: &BTreeMap<String, String>, quantity: &Quantity) -> bool {
+    map.keys()
+        .any(|k| parse_map_key(k, std::slice::from_ref(quantity)).is_some())
+}
+
+/// Column-map key stems per quantity (the canonical one first): the quantity's key,
+/// and for some the documented alternatives.
+fn map_stems(key: &'static str) -> Vec<&'static str> {
     match key {
-        "time" => &["time"],
-        "longitude" => &["longitude"],
-        "latitude" => &["latitude"],
-        "altitude" => &["altitude", "height", "depth"],
-        "v_north" => &["v_north"],
-        "v_east" => &["v_east"],
-        "v_down" => &["v_down", "v_up"],
-        "roll" => &["roll"],
-        "pitch" => &["pitch"],
-        "yaw" => &["yaw", "heading"],
-        "x" => &["x"],
-        "y" => &["y"],
-        "z" => &["z"],
-        _ => &[],
+        "altitude" => vec!["altitude", "height", "depth"],
+        "v_down" => vec!["v_down", "v_up"],
+        "yaw" => vec!["yaw", "heading"],
+        other => vec![other],
     }
 }
 
@@ -262,14 +364,19 @@ fn map_entries<'a>(
     map: &'a BTreeMap<String, String>,
     quantities: &[Quantity],
     section: &str,
+    strict: bool,
 ) -> std::result::Result<Vec<MapEntry<'a>>, String> {
     let mut entries: Vec<MapEntry<'a>> = Vec::new();
     for (key, header) in map {
         let Some((quantity, factor)) = parse_map_key(key, quantities) else {
+            if !strict {
+                // A key of another quantity of the file (checked by ColumnMap::check).
+                continue;
+            }
             let keys: Vec<String> = quantities
                 .iter()
                 .flat_map(|q| {
-                    map_stems(q.key).iter().map(move |s| {
+                    map_stems(q.key).into_iter().map(move |s| {
                         let units: Vec<&str> =
                             q.kind.map_suffixes().iter().map(|(u, _)| *u).collect();
                         format!("{s}_{}", units.join("|"))
@@ -304,7 +411,7 @@ fn check_map(
     quantities: &[Quantity],
     section: &str,
 ) -> std::result::Result<(), String> {
-    map_entries(map, quantities, section).map(|_| ())
+    map_entries(map, quantities, section, true).map(|_| ())
 }
 
 /// Lower-case, without spaces, `_`, `-`, `.` and a BOM.
@@ -365,11 +472,53 @@ pub(crate) fn resolve(
     map: &BTreeMap<String, String>,
     section: &str,
 ) -> Result<Vec<Resolved>> {
-    let entries =
-        map_entries(map, quantities, section).map_err(|message| DatasetError::ColumnMap {
+    resolve_with(path, header, quantities, map, section, true)
+}
+
+/// [`resolve`] for a subset of a file's quantities: map keys of the file's other
+/// quantities are passed over (the whole map is checked once, before the header is
+/// read: [`check_section`]).
+pub(crate) fn resolve_some(
+    path: &Path,
+    header: &[String],
+    quantities: &[Quantity],
+    map: &BTreeMap<String, String>,
+    section: &str,
+) -> Result<Vec<Resolved>> {
+    resolve_with(path, header, quantities, map, section, false)
+}
+
+/// Check one section of a map against all the quantities its file may have, as an
+/// error naming the file.
+///
+/// # Errors
+/// [`DatasetError::ColumnMap`] naming the key.
+pub(crate) fn check_section(
+    path: &Path,
+    map: &BTreeMap<String, String>,
+    quantities: &[Quantity],
+    section: &str,
+) -> Result<()> {
+    check_map(map, quantities, section).map_err(|message| DatasetError::ColumnMap {
+        path: path.to_path_buf(),
+        message,
+    })
+}
+
+fn resolve_with(
+    path: &Path,
+    header: &[String],
+    quantities: &[Quantity],
+    map: &BTreeMap<String, String>,
+    section: &str,
+    strict: bool,
+) -> Result<Vec<Resolved>> {
+    let entries = map_entries(map, quantities, section, strict).map_err(|message| {
+        DatasetError::ColumnMap {
             path: path.to_path_buf(),
             message,
-        })?;
+        }
+    })?;
     let found = || header.join(",").chars().take(200).collect::<String>();
     let mut out = Vec::with_capacity(quantities.len());
     for q in quantities {

@@ -18,8 +18,8 @@ use nalgebra::Vector3;
 
 use super::akit::{DVL_QUANTITIES, MAX_ABS_SPEED_MPS};
 use super::columns::{same, Kind, Quantity, Resolved};
-use super::input::read_file;
-use super::table::{for_each_row, Row, TIME};
+use super::input::open_text;
+use super::table::{for_each_row, MapSection, Row, TIME};
 use super::{DatasetError, Result};
 use crate::navigator::{DvlInput, DvlRecord};
 
@@ -46,6 +46,15 @@ const FOM: Quantity = Quantity {
     aliases: &[same("fom"), same("figureofmerit")],
     max_abs: MAX_ABS_SPEED_MPS,
 };
+
+/// The validity and figure-of-merit columns of a DVL velocity log (keys of
+/// `[columns.dvl]` beside time, x, y, z).
+pub(crate) const FLAG_QUANTITIES: &[Quantity] = &[VALIDITY, FOM];
+
+/// Every quantity of a DVL beams log (the keys of `[columns.beams]`).
+pub(crate) fn beam_quantities() -> Vec<Quantity> {
+    std::iter::once(TIME).chain(BEAMS).collect()
+}
 
 const fn beam(key: &'static str, aliases: &'static [super::columns::Alias]) -> Quantity {
     Quantity {
@@ -124,7 +133,12 @@ impl DvlLog {
     /// # Errors
     /// [`DatasetError::Io`], then those of [`DvlLog::parse_velocity`].
     pub fn load_velocity(path: &Path, epoch_s: Option<f64>) -> Result<Self> {
-        Self::parse_velocity(&read_file(path)?, path, epoch_s)
+        Self::parse_velocity_with(
+            open_text(path)?,
+            path,
+            epoch_s,
+            &super::ColumnMap::default(),
+        )
     }
 
     /// Read a DVL beams log.
@@ -132,7 +146,36 @@ impl DvlLog {
     /// # Errors
     /// [`DatasetError::Io`], then those of [`DvlLog::parse_beams`].
     pub fn load_beams(path: &Path, epoch_s: Option<f64>) -> Result<Self> {
-        Self::parse_beams(&read_file(path)?, path, epoch_s)
+        Self::parse_beams_with(
+            open_text(path)?,
+            path,
+            epoch_s,
+            &super::ColumnMap::default(),
+        )
+    }
+
+    /// [`DvlLog::load_velocity`] with a column map (its `dvl` section).
+    ///
+    /// # Errors
+    /// As [`DvlLog::parse_velocity_with`].
+    pub fn load_velocity_with(
+        path: &Path,
+        epoch_s: Option<f64>,
+        map: &super::ColumnMap,
+    ) -> Result<Self> {
+        Self::parse_velocity_with(open_text(path)?, path, epoch_s, map)
+    }
+
+    /// [`DvlLog::load_beams`] with a column map (its `beams` section).
+    ///
+    /// # Errors
+    /// As [`DvlLog::parse_beams_with`].
+    pub fn load_beams_with(
+        path: &Path,
+        epoch_s: Option<f64>,
+        map: &super::ColumnMap,
+    ) -> Result<Self> {
+        Self::parse_beams_with(open_text(path)?, path, epoch_s, map)
     }
 
     /// Parse a DVL velocity log; errors name the file and line. A lost lock is a
@@ -142,10 +185,34 @@ impl DvlLog {
     /// Missing or ambiguous columns, units, text that is not a number (or a validity
     /// word), infinite or out-of-range values, times that do not increase, no rows.
     pub fn parse_velocity(bytes: &[u8], path: &Path, epoch_s: Option<f64>) -> Result<Self> {
+        Self::parse_velocity_with(bytes, path, epoch_s, &super::ColumnMap::default())
+    }
+
+    /// [`DvlLog::parse_velocity`] with a column map (its `dvl` section).
+    ///
+    /// # Errors
+    /// As [`DvlLog::parse_velocity`], and [`DatasetError::ColumnMap`] naming a bad key.
+    pub fn parse_velocity_with(
+        input: impl std::io::Read,
+        path: &Path,
+        epoch_s: Option<f64>,
+        map: &super::ColumnMap,
+    ) -> Result<Self> {
+        let quantities: Vec<Quantity> = DVL_QUANTITIES
+            .iter()
+            .chain(FLAG_QUANTITIES)
+            .copied()
+            .collect();
+        let section = MapSection {
+            map: &map.dvl,
+            section: "columns.dvl",
+            quantities: &quantities,
+        };
         let mut log = Self::empty(epoch_s);
         for_each_row(
-            bytes,
+            input,
             path,
+            section,
             |h| {
                 let mut cols = h.require(DVL_QUANTITIES)?;
                 let validity = h.optional(VALIDITY)?;
@@ -185,10 +252,30 @@ impl DvlLog {
     /// # Errors
     /// As [`DvlLog::parse_velocity`].
     pub fn parse_beams(bytes: &[u8], path: &Path, epoch_s: Option<f64>) -> Result<Self> {
+        Self::parse_beams_with(bytes, path, epoch_s, &super::ColumnMap::default())
+    }
+
+    /// [`DvlLog::parse_beams`] with a column map (its `beams` section).
+    ///
+    /// # Errors
+    /// As [`DvlLog::parse_beams`], and [`DatasetError::ColumnMap`] naming a bad key.
+    pub fn parse_beams_with(
+        input: impl std::io::Read,
+        path: &Path,
+        epoch_s: Option<f64>,
+        map: &super::ColumnMap,
+    ) -> Result<Self> {
+        let quantities = beam_quantities();
+        let section = MapSection {
+            map: &map.beams,
+            section: "columns.beams",
+            quantities: &quantities,
+        };
         let mut log = Self::empty(epoch_s);
         for_each_row(
-            bytes,
+            input,
             path,
+            section,
             |h| Ok((h.require(&[TIME])?.remove(0), h.require(&BEAMS)?)),
             |(time, cols), row| {
                 let t = log.time(row, time)?;

@@ -9,8 +9,9 @@ use std::path::Path;
 
 use super::akit::{MAX_ABS_ALTITUDE_M, MAX_ABS_LATITUDE_RAD, MAX_ABS_LONGITUDE_RAD};
 use super::columns::{same, Kind, Quantity};
-use super::input::read_file;
-use super::table::{for_each_row, TIME};
+use super::input::open_text;
+use super::table::{for_each_row, MapSection, TIME};
+use super::ColumnMap;
 use super::{DatasetError, Result};
 use crate::navigator::{DepthSample, PositionFix};
 
@@ -49,6 +50,16 @@ const FIX: [Quantity; 3] = [
     },
 ];
 
+/// Every quantity of a depth file (the keys of `[columns.depth]`).
+pub(crate) fn depth_quantities() -> Vec<Quantity> {
+    vec![TIME, DEPTH]
+}
+
+/// Every quantity of a position-fix file (the keys of `[columns.fixes]`).
+pub(crate) fn fix_quantities() -> Vec<Quantity> {
+    std::iter::once(TIME).chain(FIX).collect()
+}
+
 fn epoch_of(
     epoch: &mut Option<f64>,
     row: &super::table::Row<'_>,
@@ -67,7 +78,19 @@ fn epoch_of(
 /// [`DatasetError::Io`]; missing columns, bad cells, times that do not increase, no
 /// rows (file and line).
 pub fn load_depth(path: &Path, epoch_s: Option<f64>) -> Result<(Vec<DepthSample>, f64)> {
-    parse_depth(&read_file(path)?, path, epoch_s)
+    parse_depth_with(open_text(path)?, path, epoch_s, &ColumnMap::default())
+}
+
+/// [`load_depth`] with a column map (its `depth` section).
+///
+/// # Errors
+/// As [`load_depth`], and [`DatasetError::ColumnMap`] naming a bad key.
+pub fn load_depth_with(
+    path: &Path,
+    epoch_s: Option<f64>,
+    map: &ColumnMap,
+) -> Result<(Vec<DepthSample>, f64)> {
+    parse_depth_with(open_text(path)?, path, epoch_s, map)
 }
 
 /// Parse a depth file (see [`load_depth`]).
@@ -79,11 +102,31 @@ pub fn parse_depth(
     path: &Path,
     epoch_s: Option<f64>,
 ) -> Result<(Vec<DepthSample>, f64)> {
+    parse_depth_with(bytes, path, epoch_s, &ColumnMap::default())
+}
+
+/// [`parse_depth`] with a column map (its `depth` section).
+///
+/// # Errors
+/// As [`load_depth_with`].
+pub fn parse_depth_with(
+    input: impl std::io::Read,
+    path: &Path,
+    epoch_s: Option<f64>,
+    map: &ColumnMap,
+) -> Result<(Vec<DepthSample>, f64)> {
+    let quantities = depth_quantities();
+    let section = MapSection {
+        map: &map.depth,
+        section: "columns.depth",
+        quantities: &quantities,
+    };
     let mut epoch = epoch_s;
     let mut out: Vec<DepthSample> = Vec::new();
     for_each_row(
-        bytes,
+        input,
         path,
+        section,
         |h| {
             Ok((
                 h.require(&[TIME])?.remove(0),
@@ -112,7 +155,19 @@ pub fn parse_depth(
 /// # Errors
 /// As [`load_depth`]; a sigma that is not positive.
 pub fn load_fixes(path: &Path, epoch_s: Option<f64>) -> Result<(Vec<PositionFix>, f64)> {
-    parse_fixes(&read_file(path)?, path, epoch_s)
+    parse_fixes_with(open_text(path)?, path, epoch_s, &ColumnMap::default())
+}
+
+/// [`load_fixes`] with a column map (its `fixes` section).
+///
+/// # Errors
+/// As [`load_fixes`], and [`DatasetError::ColumnMap`] naming a bad key.
+pub fn load_fixes_with(
+    path: &Path,
+    epoch_s: Option<f64>,
+    map: &ColumnMap,
+) -> Result<(Vec<PositionFix>, f64)> {
+    parse_fixes_with(open_text(path)?, path, epoch_s, map)
 }
 
 /// Parse a position-fix file.
@@ -124,11 +179,31 @@ pub fn parse_fixes(
     path: &Path,
     epoch_s: Option<f64>,
 ) -> Result<(Vec<PositionFix>, f64)> {
+    parse_fixes_with(bytes, path, epoch_s, &ColumnMap::default())
+}
+
+/// [`parse_fixes`] with a column map (its `fixes` section).
+///
+/// # Errors
+/// As [`load_fixes_with`].
+pub fn parse_fixes_with(
+    input: impl std::io::Read,
+    path: &Path,
+    epoch_s: Option<f64>,
+    map: &ColumnMap,
+) -> Result<(Vec<PositionFix>, f64)> {
+    let quantities = fix_quantities();
+    let section = MapSection {
+        map: &map.fixes,
+        section: "columns.fixes",
+        quantities: &quantities,
+    };
     let mut epoch = epoch_s;
     let mut out: Vec<PositionFix> = Vec::new();
     for_each_row(
-        bytes,
+        input,
         path,
+        section,
         |h| Ok((h.require(&[TIME])?.remove(0), h.require(&FIX)?)),
         |(time, cols), row| {
             let t = row.time(time, epoch_of(&mut epoch, row, time)?)?;

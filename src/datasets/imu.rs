@@ -20,8 +20,8 @@ use estim_ins::ImuSample;
 use nalgebra::Vector3;
 
 use super::columns::{same, Alias, Kind, Quantity, Resolved};
-use super::input::read_file;
-use super::table::{for_each_row, TIME};
+use super::input::open_text;
+use super::table::{for_each_row, MapSection, TIME};
 use super::{DatasetError, Result};
 
 /// Largest |specific force| accepted \[m/s^2\] (about 100 g).
@@ -270,6 +270,18 @@ struct Columns {
     truth: Option<(Vec<Resolved>, Vec<Resolved>)>,
 }
 
+/// Every quantity an IMU file may have (the keys of `[columns.imu]`).
+pub(crate) fn quantities() -> Vec<Quantity> {
+    std::iter::once(TIME)
+        .chain(FORCE)
+        .chain(RATE)
+        .chain(DELTA_V)
+        .chain(DELTA_THETA)
+        .chain(TRUE_ACC_BIAS)
+        .chain(TRUE_GYRO_BIAS)
+        .collect()
+}
+
 fn pick(
     header: &super::table::Header<'_>,
     rate: &[Quantity; 3],
@@ -290,7 +302,20 @@ impl ImuLog {
     /// # Errors
     /// [`DatasetError::Io`], then those of [`ImuLog::parse`].
     pub fn load(path: &Path, epoch_s: Option<f64>) -> Result<Self> {
-        Self::parse(&read_file(path)?, path, epoch_s)
+        Self::parse_with(
+            open_text(path)?,
+            path,
+            epoch_s,
+            &super::ColumnMap::default(),
+        )
+    }
+
+    /// [`ImuLog::load`] with a column map (its `imu` section).
+    ///
+    /// # Errors
+    /// As [`ImuLog::load`], and [`DatasetError::ColumnMap`] naming a bad key.
+    pub fn load_with(path: &Path, epoch_s: Option<f64>, map: &super::ColumnMap) -> Result<Self> {
+        Self::parse_with(open_text(path)?, path, epoch_s, map)
     }
 
     /// Parse an IMU file; `path` names it in errors (with the 1-based line).
@@ -299,6 +324,25 @@ impl ImuLog {
     /// Missing, ambiguous or badly united columns, non-numeric, non-finite or
     /// out-of-range cells, times that do not increase, fewer than 2 samples.
     pub fn parse(bytes: &[u8], path: &Path, epoch_s: Option<f64>) -> Result<Self> {
+        Self::parse_with(bytes, path, epoch_s, &super::ColumnMap::default())
+    }
+
+    /// [`ImuLog::parse`] with a column map (its `imu` section).
+    ///
+    /// # Errors
+    /// As [`ImuLog::parse`], and [`DatasetError::ColumnMap`] naming a bad key.
+    pub fn parse_with(
+        input: impl std::io::Read,
+        path: &Path,
+        epoch_s: Option<f64>,
+        map: &super::ColumnMap,
+    ) -> Result<Self> {
+        let quantities = quantities();
+        let section = MapSection {
+            map: &map.imu,
+            section: "columns.imu",
+            quantities: &quantities,
+        };
         let mut epoch = epoch_s;
         let mut samples = Vec::new();
         let mut lines = Vec::new();
@@ -308,8 +352,9 @@ impl ImuLog {
         let mut unitless_rates: Option<Vec<String>> = None;
         let mut first_row = true;
         for_each_row(
-            bytes,
+            input,
             path,
+            section,
             |h| {
                 let time = h.require(&[TIME])?.remove(0);
                 let (force, dv) = pick(h, &FORCE, &DELTA_V)?;

@@ -1,7 +1,9 @@
 //! Reading an input file: a size limit, what the bytes are (UTF-8 text or not), and
 //! line numbers found in one pass.
 //!
-//! Every loader reads through [`read_input`]: at most [`MAX_INPUT_BYTES`] are read (an
+//! Every loader reads through [`read_input`] (the file whole) or, for the survey
+//! readers' CSV files, a `TextStream` (record by record, the same checks block by
+//! block): at most [`MAX_INPUT_BYTES`] are read (an
 //! endless stream such as `/dev/zero` stops at the first block that holds a NUL byte,
 //! an endless text stream at the limit), and the bytes must be UTF-8 text with LF or
 //! CRLF line ends: UTF-16 and UTF-32 (with or without a byte-order mark), CR-only
@@ -122,6 +124,268 @@ pub fn read_binary_file(path: &Path, limit: u64) -> Result<Vec<u8>> {
         return Err(too_large());
     }
     Ok(bytes)
+}
+
+/// A text input read block by block, with the checks of [`read_limited`] made as it
+/// goes, so that a CSV reader can stream its records in bounded memory: the first
+/// block is read and examined at once (encoding, binary data; everything, the end of
+/// the file included, when the file fits in it), each later block for binary bytes
+/// and invalid UTF-8 (offset and line), and the total against the cap. A failure is
+/// kept and surfaces as an I/O error of the reader: take it with
+/// [`TextStream::take_failure`]. What a table needs at the end (a cut last line, a
+/// blank file) is answered by [`TextStream::truncated_line`] and
+/// [`TextStream::blank`] once the end has been read.
+pub(crate) struct TextStream<R> {
+    inner: R,
+    path: std::path::PathBuf,
+    limit: u64,
+    head: Vec<u8>,
+    served: usize,
+    read: u64,
+    newlines: u64,
+    seen_lf: bool,
+    seen_cr: bool,
+    carry: Vec<u8>,
+    tail_blank: bool,
+    content: bool,
+    end: bool,
+    failure: Option<DatasetError>,
+}
+
+impl<R: Read> TextStream<R> {
+    /// Read and examine the first block of `inner`.
+    ///
+    /// # Errors
+    /// As [`read_limited`] for that block.
+    pub(crate) fn new(mut inner: R, path: &Path, limit: u64) -> Result<Self> {
+        let mut head = vec![0u8; BLOCK];
+        let mut filled = 0;
+        let mut end = false;
+        while filled < BLOCK {
+            match inner.read(&mut head[filled..]) {
+                Ok(0) => {
+                    end = true;
+                    break;
+                }
+                Ok(n) => filled += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(error) => {
+                    return Err(DatasetError::Io {
+                        path: path.to_path_buf(),
+                        error,
+                    })
+                }
+            }
+        }
+        head.truncate(filled);
+        if filled as u64 > limit {
+            return Err(DatasetError::TooLarge {
+                path: path.to_path_buf(),
+                limit,
+            });
+        }
+        check_text(&head, path, end)?;
+        if !end && !head.contains(&b'\n') && head.contains(&b'\r') {
+            // A whole block without a line feed but with carriage returns.
+            check_text(&head, path, true)?;
+        }
+        let mut stream = Self {
+            inner,
+            path: path.to_path_buf(),
+            limit,
+            head: Vec::new(),
+            served: 0,
+            read: filled as u64,
+            newlines: 0,
+            seen_lf: false,
+            seen_cr: false,
+            carry: Vec::new(),
+            tail_blank: true,
+            content: false,
+            end,
+            failure: None,
+        };
+        stream.scan(&head, 0)?;
+        stream.head = head;
+        Ok(stream)
+    }
+
+    /// Track lines, the last line's content and UTF-8 across blocks; check a later
+    /// block's bytes (`offset`: the block's first byte in the file).
+    fn scan(&mut self, block: &[u8], offset: u64) -> Result<()> {
+        let line_at = |newlines: u64, i: usize| {
+            1 + newlines + block[..i].iter().filter(|&&b| b == b'\n').count() as u64
+        };
+        if offset > 0 {
+            if let Some(i) = block
+                .iter()
+                .position(|&b| b < 0x20 && !matches!(b, b'\n' | b'\r' | b'\t' | 0x0c))
+            {
+                let (at, line) = (offset + i as u64, line_at(self.newlines, i));
+                let what = if block[i] == 0 {
+                    format!(
+                        "binary data, not a CSV text file (a NUL byte at offset {at}, line {line})"
+                    )
+                } else {
+                    format!(
+                        "binary data, not a CSV text file (control byte 0x{:02x} at offset {at}, line {line})",
+                        block[i]
+                    )
+                };
+                return Err(DatasetError::NotText {
+                    path: self.path.clone(),
+                    line: Some(line),
+                    what,
+                });
+            }
+            let mut joined = std::mem::take(&mut self.carry);
+            let carried = joined.len();
+            joined.extend_from_slice(block);
+            if let Err(e) = std::str::from_utf8(&joined) {
+                let i = e.valid_up_to();
+                if e.error_len().is_some() {
+                    let in_block = i.saturating_sub(carried);
+                    let line = line_at(self.newlines, in_block);
+                    return Err(DatasetError::NotText {
+                        path: self.path.clone(),
+                        line: Some(line),
+                        what: format!(
+                            "not UTF-8 text (invalid byte 0x{:02x} at offset {}, line {line}; \
+                             Latin-1 or Windows-1252? save it as UTF-8)",
+                            joined[i],
+                            offset + in_block as u64
+                        ),
+                    });
+                }
+                self.carry = joined[i..].to_vec();
+            }
+        } else if let Err(e) = std::str::from_utf8(block) {
+            // The first block was examined whole; keep a sequence cut at its end.
+            self.carry = block[e.valid_up_to()..].to_vec();
+        }
+        for &b in block {
+            match b {
+                b'\n' => {
+                    self.newlines += 1;
+                    self.seen_lf = true;
+                    self.tail_blank = true;
+                }
+                b' ' | b'\t' => {}
+                _ => {
+                    self.seen_cr |= b == b'\r';
+                    self.tail_blank = false;
+                    self.content |= !b.is_ascii_whitespace();
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The checks at the end of the input.
+    fn finish(&mut self) -> Result<()> {
+        if !self.carry.is_empty() {
+            let at = self.read - self.carry.len() as u64;
+            let line = 1 + self.newlines;
+            return Err(DatasetError::NotText {
+                path: self.path.clone(),
+                line: Some(line),
+                what: format!(
+                    "not UTF-8 text (invalid byte 0x{:02x} at offset {at}, line {line}; \
+                     Latin-1 or Windows-1252? save it as UTF-8)",
+                    self.carry[0]
+                ),
+            });
+        }
+        Ok(())
+    }
+
+    /// At the end: the line of a last line without its line end (a cut file), as
+    /// [`super::akit`]'s check of a whole file says.
+    pub(crate) fn truncated_line(&self) -> Option<u64> {
+        (self.end && !self.tail_blank).then_some(1 + self.newlines)
+    }
+
+    /// At the end: the input holds nothing but white space.
+    pub(crate) fn blank(&self) -> bool {
+        self.end && !self.content
+    }
+
+    /// The failure that ended reading, if any.
+    pub(crate) fn take_failure(&mut self) -> Option<DatasetError> {
+        self.failure.take()
+    }
+
+    fn fail(&mut self, e: DatasetError) -> std::io::Error {
+        let message = e.to_string();
+        self.failure = Some(e);
+        std::io::Error::other(message)
+    }
+}
+
+impl<R: Read> Read for TextStream<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        if self.served < self.head.len() {
+            let n = buf.len().min(self.head.len() - self.served);
+            buf[..n].copy_from_slice(&self.head[self.served..self.served + n]);
+            self.served += n;
+            if self.served == self.head.len() {
+                self.head = Vec::new();
+                self.served = 0;
+            }
+            return Ok(n);
+        }
+        if self.end {
+            return Ok(0);
+        }
+        let n = loop {
+            match self.inner.read(buf) {
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                other => break other?,
+            }
+        };
+        if n == 0 {
+            self.end = true;
+            return match self.finish() {
+                Ok(()) => Ok(0),
+                Err(e) => Err(self.fail(e)),
+            };
+        }
+        let offset = self.read;
+        self.read += n as u64;
+        if self.read > self.limit {
+            let e = DatasetError::TooLarge {
+                path: self.path.clone(),
+                limit: self.limit,
+            };
+            return Err(self.fail(e));
+        }
+        match self.scan(&buf[..n], offset) {
+            Ok(()) => Ok(n),
+            Err(e) => Err(self.fail(e)),
+        }
+    }
+}
+
+/// Open a file to stream it (see [`TextStream`]): a regular file above the cap is
+/// refused before it is read.
+///
+/// # Errors
+/// [`DatasetError::Io`], [`DatasetError::TooLarge`].
+pub(crate) fn open_text(path: &Path) -> Result<std::io::BufReader<std::fs::File>> {
+    let file = std::fs::File::open(path).map_err(|error| DatasetError::Io {
+        path: path.to_path_buf(),
+        error,
+    })?;
+    if file
+        .metadata()
+        .is_ok_and(|m| m.is_file() && m.len() > MAX_INPUT_BYTES)
+    {
+        return Err(DatasetError::TooLarge {
+            path: path.to_path_buf(),
+            limit: MAX_INPUT_BYTES,
+        });
+    }
+    Ok(std::io::BufReader::with_capacity(BLOCK, file))
 }
 
 /// What the bytes are, when they are not UTF-8 text with LF (or CRLF) line ends.

@@ -27,7 +27,10 @@ pub use akit::{
 pub use beams::{load_beams, parse_beams, BeamFile, BeamRow};
 pub use columns::ColumnMap;
 pub use dvl_log::{DvlLog, RDI_BAD_VELOCITY_MPS};
-pub use fixes::{load_depth, load_fixes, parse_depth, parse_fixes};
+pub use fixes::{
+    load_depth, load_depth_with, load_fixes, load_fixes_with, parse_depth, parse_depth_with,
+    parse_fixes, parse_fixes_with,
+};
 pub use imu::{
     ImuLog, IMPLAUSIBLE_RATE_DURATION_S, MAX_ABS_ANGULAR_RATE_RADPS, MAX_ABS_SPECIFIC_FORCE_MPS2,
     PLAUSIBLE_ANGULAR_RATE_RADPS,
@@ -38,7 +41,7 @@ pub use locate::{
 };
 pub use overlaps::{akit_overlaps, akit_row_keys, touches_held_out, WINDOW_MARGIN_ROWS};
 pub use span::{check_spans, span_tolerance, SpanCheck, SPAN_TIME_OFFSET_ALLOWANCE_S};
-pub use table::load_times;
+pub use table::{load_times, load_times_with};
 
 use std::path::PathBuf;
 

@@ -39,6 +39,12 @@ pub struct NavigatorConfig {
     pub truth: TruthConfig,
     /// Limits of the navigator's health checks ([`HealthConfig`]).
     pub health: HealthConfig,
+    /// The input files' column names and units (`[columns.imu]`, `[columns.dvl]`,
+    /// `[columns.beams]`, `[columns.depth]`, `[columns.fixes]`, and `[columns.gt]` for
+    /// the reference of an evaluation; keys as in [`crate::datasets::ColumnMap`]).
+    /// Empty (default): every column found by name.
+    #[serde(skip_serializing_if = "crate::datasets::ColumnMap::is_empty")]
+    pub columns: crate::datasets::ColumnMap,
 }
 
 /// The reference (truth) track of an evaluation, as it was recorded.
@@ -614,6 +620,7 @@ impl NavigatorConfig {
     /// [`NavigatorError::Config`] naming the key; the member crates' errors for
     /// invalid model parameters.
     pub fn check(&self) -> Result<NavigatorSettings> {
+        self.columns.check().map_err(NavigatorError::Config)?;
         let mut sensor = imu_preset(&self.imu.preset)?;
         if self.imu.accelerometer.is_some() || self.imu.gyroscope.is_some() {
             sensor = ImuSpec::builder()

@@ -541,7 +541,7 @@ impl Config {
             ));
         }
         self.faults.check().map_err(|e| e.to_string())?;
-        self.columns.check()?;
+        self.columns.check_used(&["gt", "dvl"])?;
         self.imu_spec().map(|_| ())
     }
 

@@ -168,12 +168,52 @@ fn read_shard(path: &Path) -> Result<Shard, ShardError> {
         .sufficient_statistics
         .check()
         .map_err(|e| key("sufficient_statistics", e.to_string()))?;
+    check_against_inputs(&doc, &typed.sufficient_statistics).map_err(|(k, m)| key(k, m))?;
     Ok(Shard {
         path: name,
         config,
         estim_version: doc["estim_version"].clone(),
         sums: typed.sufficient_statistics,
     })
+}
+
+/// A shard's statistics must be those its own document announces: the seeds of
+/// `inputs.seed_ranges` (a merge), else of `inputs.first_seed` and `inputs.runs`,
+/// and `status` "ok" only without a filter failure. A shard edited by hand, or two
+/// documents spliced, is refused naming the key rather than merged.
+fn check_against_inputs(
+    doc: &Value,
+    sums: &crate::study::MonteCarloSums,
+) -> Result<(), (&'static str, String)> {
+    let inputs = &doc["inputs"];
+    // A merged document announces its seed ranges; a run, its first seed and count.
+    let announced: Option<Vec<[u64; 2]>> = match (
+        serde_json::from_value::<Vec<[u64; 2]>>(inputs["seed_ranges"].clone()),
+        inputs["first_seed"].as_u64(),
+        inputs["runs"].as_u64(),
+    ) {
+        (Ok(ranges), _, _) => Some(ranges),
+        (Err(_), Some(first), Some(runs)) => Some(vec![[first, first.saturating_add(runs)]]),
+        _ => None,
+    };
+    if let Some(expected) = announced.filter(|a| *a != sums.seed_ranges) {
+        return Err((
+            "inputs.runs",
+            format!(
+                "the document announces the seeds {expected:?}, its sufficient statistics \
+                 hold {:?}",
+                sums.seed_ranges
+            ),
+        ));
+    }
+    let failures: usize = sums.variants.iter().map(|v| v.failures.len()).sum();
+    if doc["status"] == "ok" && failures > 0 {
+        return Err((
+            "status",
+            format!("\"ok\" with {failures} filter failures in the sufficient statistics"),
+        ));
+    }
+    Ok(())
 }
 
 /// The first key (dotted path) at which `a` and `b` differ, with both values.

@@ -1,0 +1,83 @@
+//! Checks of a survey's inputs beside their readers (`navigate`, `smooth`, `tune
+//! --imu`): the `--columns` file, and a DVL file with no lock at all.
+
+use std::path::Path;
+
+use estim::datasets::ColumnMap;
+use estim::navigator::SurveyInputs;
+use serde_json::{json, Value};
+
+use crate::navigate::SurveyFiles;
+
+/// A `--columns` file: a `[columns]` table and nothing else.
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ColumnsFile {
+    columns: ColumnMap,
+}
+
+/// Read a `--columns` file; errors name the file, the line or the key.
+pub fn columns_file(path: &Path) -> anyhow::Result<ColumnMap> {
+    let text = estim::datasets::read_text_file(path)?;
+    let file = toml::from_str::<ColumnsFile>(&text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
+        match line {
+            Some(l) => anyhow::anyhow!("{}:{l}: {}", path.display(), e.message()),
+            None => anyhow::anyhow!("{}: {}", path.display(), e.message()),
+        }
+    })?;
+    file.columns
+        .check()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    Ok(file.columns)
+}
+
+/// A DVL file none of whose rows has bottom lock (every velocity empty, NaN, the
+/// -32.768 marker or flagged invalid; beams: fewer than 3) is refused when nothing
+/// else aids the INS (no depth, no fix: the run would be free inertial, not the run
+/// asked for), and is otherwise a warning, printed on stderr and returned for the
+/// summary's `warnings`.
+pub fn check_dvl_lock(files: &SurveyFiles, inputs: &SurveyInputs) -> anyhow::Result<Vec<Value>> {
+    use estim::navigator::DvlInput;
+    let usable = |input: &DvlInput| match input {
+        DvlInput::Velocity(_) | DvlInput::EarthVelocity(_) => true,
+        DvlInput::Beams(b) => b.iter().flatten().count() >= 3,
+        DvlInput::NoLock => false,
+    };
+    if inputs.dvl.iter().any(|r| usable(&r.input)) {
+        return Ok(Vec::new());
+    }
+    let path = [&files.dvl, &files.beams, &files.pd0]
+        .into_iter()
+        .flatten()
+        .next()
+        .map_or_else(|| "the DVL input".to_string(), |p| p.display().to_string());
+    let what = format!(
+        "{path}: none of its {} rows has bottom lock (an empty, NaN or -32.768 velocity, a \
+         validity flag saying no, or fewer than 3 beams)",
+        inputs.dvl.len()
+    );
+    let aided_by: Vec<&str> = [
+        (!inputs.depth.is_empty()).then_some("depth"),
+        (!inputs.fixes.is_empty()).then_some("fixes"),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    anyhow::ensure!(
+        !aided_by.is_empty(),
+        "{what}: nothing would aid the INS (no --depth, no --fixes); refused"
+    );
+    let message = format!(
+        "{what}; the run is aided by {} only",
+        aided_by.join(" and ")
+    );
+    eprintln!("warning: {message}");
+    Ok(vec![json!({
+        "code": "dvl_no_lock",
+        "file": path,
+        "message": message,
+    })])
+}
