@@ -23,7 +23,9 @@ mod reproduce;
 mod schema;
 mod simulate;
 mod smooth;
+mod stream;
 mod tune;
+mod waterlinked;
 mod where_m;
 
 /// The paper study (reproduce, montecarlo, report): private to the binary, not
