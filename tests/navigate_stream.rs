@@ -493,3 +493,52 @@ fn bad_lines_are_named_and_refused() {
     writer.join().unwrap();
     assert_eq!(status.code(), Some(2), "{stderr}");
 }
+
+#[test]
+fn follow_reads_a_file_still_being_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let (chunks, vehicle) = synthetic(6, 0.0);
+    let vehicle_path = dir.path().join("vehicle.toml");
+    std::fs::write(&vehicle_path, vehicle).unwrap();
+    let vehicle_arg = vehicle_path.display().to_string();
+    let all: String = chunks.concat().iter().map(|l| format!("{l}\n")).collect();
+    let reference = run_with_stdin(&["navigate", "--stream", "--vehicle", &vehicle_arg], all);
+    assert!(reference.status.success());
+    // The file grows by one second of records every 100 ms, a line cut in two once.
+    let log = dir.path().join("live.jsonl");
+    std::fs::write(&log, "").unwrap();
+    let child = estim()
+        .args([
+            "navigate",
+            "--stream",
+            "--vehicle",
+            &vehicle_arg,
+            "--idle-timeout",
+            "1",
+            "--follow",
+        ])
+        .arg(&log)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut file = std::fs::OpenOptions::new().append(true).open(&log).unwrap();
+    for chunk in &chunks {
+        let text: String = chunk.iter().map(|l| format!("{l}\n")).collect();
+        let (a, b) = text.split_at(text.len() / 2 + 7);
+        file.write_all(a.as_bytes()).unwrap();
+        file.flush().unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+        file.write_all(b.as_bytes()).unwrap();
+        file.flush().unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(out.stdout, reference.stdout);
+    assert_eq!(rows(&String::from_utf8_lossy(&out.stdout)).len(), 6);
+}

@@ -125,6 +125,10 @@ pub struct Args {
     /// this address (e.g. 127.0.0.1:16171).
     #[arg(long, value_name = "ADDR", requires = "stream")]
     dvl_tcp: Option<String>,
+    /// With --stream: apply each measurement at its own time, splitting the IMU
+    /// interval, instead of at the nearest IMU sample (the batch run's rule).
+    #[arg(long, requires = "stream")]
+    exact_times: bool,
 }
 
 impl SurveyFiles {
@@ -1150,6 +1154,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             follow: args.follow,
             idle_timeout_s: args.idle_timeout,
             dvl_tcp: args.dvl_tcp,
+            exact_times: args.exact_times,
             rate: args.rate,
             out: args.out,
             json: args.json,

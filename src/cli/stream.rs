@@ -23,9 +23,9 @@ use anyhow::Context;
 use estim::core::nalgebra::Vector3;
 use estim::ins::ImuSample;
 use estim::navigator::{
-    Admission, DepthSample, DvlInput, DvlRecord, FinalSolution, ImuFrame, NavSolution,
-    NavigatorConfig, NavigatorError, PositionFix, Refusal, SolutionKind, StreamConfig, StreamError,
-    StreamNavigator,
+    Admission, DepthSample, DvlInput, DvlRecord, FinalSolution, ImuFrame, MeasurementTiming,
+    NavSolution, NavigatorConfig, NavigatorError, PositionFix, Refusal, SolutionKind, StreamConfig,
+    StreamError, StreamNavigator,
 };
 use serde_json::{json, Map, Value};
 
@@ -60,6 +60,8 @@ pub struct Options {
     pub idle_timeout_s: f64,
     /// A Water Linked DVL's TCP address.
     pub dvl_tcp: Option<String>,
+    /// Measurements at their own times instead of the nearest IMU sample.
+    pub exact_times: bool,
     /// Solutions at this rate too \[Hz\].
     pub rate: Option<f64>,
     /// Output folder.
@@ -614,6 +616,11 @@ pub fn run(options: Options) -> anyhow::Result<()> {
     let stream = StreamConfig::builder()
         .history_s(options.history_s)
         .output_rate_hz(options.rate)
+        .timing(if options.exact_times {
+            MeasurementTiming::Exact
+        } else {
+            MeasurementTiming::NearestImuSample
+        })
         .build()
         .map_err(|e| anyhow::anyhow!("--history / --rate: {e}"))?;
     let config = match &options.vehicle {
@@ -835,6 +842,7 @@ fn summary(
             "dvl_tcp": options.dvl_tcp,
             "vehicle": schema::path_json(options.vehicle.as_deref()),
             "history_s": options.history_s,
+            "exact_times": options.exact_times,
             "rate_hz": options.rate,
             "configuration": run.config,
         }),

@@ -21,6 +21,7 @@ pub(super) struct Waiting {
 }
 
 /// The running stream on one error model.
+#[derive(Clone)]
 pub(super) struct Engine<E: NavigationModel<N>, const N: usize>
 where
     E: Clone,

@@ -66,6 +66,7 @@ enum Buffered {
 }
 
 /// The navigator the settings ask for.
+#[derive(Clone)]
 enum Running {
     Ins(Box<Engine<InsErrorModel, ERROR_STATES>>),
     Augmented(Box<Engine<AugmentedErrorModel, AUGMENTED_STATES>>),
@@ -113,6 +114,7 @@ macro_rules! dispatch {
 /// assert_eq!(nav.counts().rewinds, 1);
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
+#[derive(Clone)]
 pub struct StreamNavigator {
     settings: Arc<NavigatorSettings>,
     config: StreamConfig,
