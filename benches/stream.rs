@@ -11,7 +11,9 @@
 //! `ESTIM_STREAM_SURVEY=1 cargo bench --bench stream` instead streams a synthetic
 //! 10-hour survey (DVL rows up to 2 s late) through the library and prints the time
 //! of its first hour against real time and the resident memory (`VmRSS`, `VmHWM` of
-//! /proc/self/status) at 1 h and 10 h.
+//! /proc/self/status) at 1 h and 10 h. `ESTIM_STREAM_JSONL=HOURS cargo bench --bench
+//! stream` writes that survey as JSON lines on stdout, in arrival order, for
+//! `estim navigate --stream` (docs/cli.md, "Streaming").
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -136,6 +138,43 @@ fn memory_kb() -> (u64, u64) {
     (field("VmRSS:"), field("VmHWM:"))
 }
 
+/// When the DVL row of IMU sample `k` arrives (up to 2 s late, spread
+/// deterministically): the index of the sample after which it comes.
+fn arrival(k: u64) -> u64 {
+    k + (k / 100 * 7919) % 200
+}
+
+/// The synthetic survey of `hours` as JSON lines on stdout, in arrival order (module
+/// docs).
+fn write_jsonl(hours: u64) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    let mut late: Vec<(u64, DvlRecord)> = Vec::new();
+    for k in 0..hours * 360_000 {
+        let s = sample(k);
+        let (f, w) = (s.specific_force, s.angular_rate);
+        writeln!(
+            out,
+            r#"{{"sensor":"imu","time":{},"acc":[{},{},{}],"gyro":[{},{},{}]}}"#,
+            s.time, f.x, f.y, f.z, w.x, w.y, w.z
+        )?;
+        if k % 100 == 50 {
+            late.push((arrival(k), dvl(k as f64 * PERIOD)));
+        }
+        while let Some(i) = late.iter().position(|(due, _)| *due <= k) {
+            let (_, record) = late.swap_remove(i);
+            if let DvlInput::Velocity(v) = record.input {
+                writeln!(
+                    out,
+                    r#"{{"sensor":"dvl","time":{},"velocity":[{},{},{}]}}"#,
+                    record.time, v.x, v.y, v.z
+                )?;
+            }
+        }
+    }
+    out.flush()
+}
+
 /// The 10-hour synthetic survey (module docs).
 fn survey() {
     let hours = 10;
@@ -146,9 +185,7 @@ fn survey() {
     for k in 0..hours * 360_000 {
         nav.push_imu(sample(k)).expect("imu");
         if k % 100 == 50 {
-            // Up to 2 s late, deterministically spread.
-            let delay = (k / 100 * 7919) % 200;
-            late.push((k + delay, dvl(k as f64 * PERIOD)));
+            late.push((arrival(k), dvl(k as f64 * PERIOD)));
         }
         while let Some(i) = late.iter().position(|(due, _)| *due <= k) {
             let (_, record) = late.swap_remove(i);
@@ -183,6 +220,15 @@ criterion_group! {
 }
 
 fn main() {
+    if let Some(hours) = std::env::var("ESTIM_STREAM_JSONL")
+        .ok()
+        .and_then(|h| h.parse().ok())
+    {
+        if let Err(e) = write_jsonl(hours) {
+            eprintln!("error: stdout: {e}");
+        }
+        return;
+    }
     if std::env::var_os("ESTIM_STREAM_SURVEY").is_some() {
         survey();
         return;

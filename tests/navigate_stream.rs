@@ -542,3 +542,46 @@ fn follow_reads_a_file_still_being_written() {
     assert_eq!(out.stdout, reference.stdout);
     assert_eq!(rows(&String::from_utf8_lossy(&out.stdout)).len(), 6);
 }
+
+#[test]
+fn out_folder_holds_the_streamed_solution() {
+    let dir = tempfile::tempdir().unwrap();
+    let (chunks, vehicle) = synthetic(5, 0.0);
+    let vehicle_path = dir.path().join("vehicle.toml");
+    std::fs::write(&vehicle_path, vehicle).unwrap();
+    let vehicle_arg = vehicle_path.display().to_string();
+    let input: String = chunks.concat().iter().map(|l| format!("{l}\n")).collect();
+    let live = run_with_stdin(
+        &["navigate", "--stream", "--vehicle", &vehicle_arg],
+        input.clone(),
+    );
+    assert!(live.status.success());
+    let out = dir.path().join("nav");
+    let out_arg = out.display().to_string();
+    let staged = run_with_stdin(
+        &[
+            "navigate",
+            "--stream",
+            "--vehicle",
+            &vehicle_arg,
+            "--out",
+            &out_arg,
+            "--json",
+        ],
+        input,
+    );
+    assert!(
+        staged.status.success(),
+        "{}",
+        String::from_utf8_lossy(&staged.stderr)
+    );
+    assert_eq!(
+        std::fs::read(out.join("solution.csv")).unwrap(),
+        live.stdout
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&staged.stdout).unwrap();
+    assert_eq!(summary["command"], "navigate");
+    assert_eq!(summary["inputs"]["mode"], "stream");
+    assert_eq!(summary["solutions"], 5);
+    assert!(out.join("track.geojson").exists() && out.join("summary.json").exists());
+}

@@ -129,8 +129,7 @@ pub struct LineError {
     pub source_name: String,
     /// The line's number (from 1).
     pub line: usize,
-    /// What was wrong.
-    #[source]
+    /// What was wrong (in the message: not also a source, so printed once).
     pub error: RecordError,
 }
 

@@ -117,6 +117,8 @@ macro_rules! dispatch {
 #[derive(Clone)]
 pub struct StreamNavigator {
     settings: Arc<NavigatorSettings>,
+    /// Checks the IMU's gaps as the samples arrive (`health.max_imu_gap_s`).
+    gaps: HealthMonitor,
     config: StreamConfig,
     startup: Vec<Buffered>,
     running: Option<Running>,
@@ -133,6 +135,7 @@ impl StreamNavigator {
     /// augmented one when they hold `[dvl_states]`).
     pub fn new(settings: NavigatorSettings, config: StreamConfig) -> Self {
         Self {
+            gaps: HealthMonitor::new(settings.config.health.clone()),
             settings: Arc::new(settings),
             config,
             startup: Vec::new(),
@@ -257,8 +260,7 @@ impl StreamNavigator {
                     previous,
                 });
             }
-            HealthMonitor::new(self.settings.config.health.clone())
-                .check_imu_times([previous, sample.time])?;
+            self.gaps.check_imu_times([previous, sample.time])?;
         }
         self.last_imu_time = Some(sample.time);
         self.counts.imu_samples += 1;
