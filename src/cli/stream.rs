@@ -648,7 +648,8 @@ pub fn run(options: Options) -> anyhow::Result<()> {
     };
 
     // The sources: stdin or the followed file (the stream's end), and the DVL's TCP.
-    let (tx, rx) = mpsc::sync_channel::<Message>(4096);
+    // At most 256 lines in flight (16 MiB of the longest lines).
+    let (tx, rx) = mpsc::sync_channel::<Message>(256);
     let mut names = Vec::new();
     match &options.follow {
         Some(path) => {

@@ -454,6 +454,8 @@ impl StreamNavigator {
     fn try_start(&mut self) -> Result<()> {
         if self.ready_to_start()? {
             self.start(false)?;
+        } else {
+            self.check_buffer("the initial state's inputs are not all in yet")?;
         }
         Ok(())
     }

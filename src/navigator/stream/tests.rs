@@ -550,3 +550,31 @@ fn bad_records_are_typed_errors() {
     assert!(StreamConfig::builder().history_s(f64::NAN).build().is_err());
     assert!(StreamConfig::builder().max_events(3).build().is_err());
 }
+
+/// Without a configured position the stream buffers until the first fix, and starts
+/// from it as the batch run does; a flood of records before it is refused, bounded.
+#[test]
+fn the_start_waits_for_the_first_fix_with_bounded_memory() {
+    let (inputs, mut config) = survey(60.0, 9);
+    config.initial.latitude_deg = None;
+    config.initial.longitude_deg = None;
+    let settings = config.check().unwrap();
+    let mut batch = Collect::default();
+    navigate(&inputs, &settings, None, &mut batch).unwrap();
+    let stream_config = StreamConfig::builder().history_s(20.0).build().unwrap();
+    let (solutions, nav, _) = stream(&inputs, &settings, stream_config, |_, _| 0.0);
+    assert_eq!(nav.alignment().unwrap().position, "first_fix");
+    assert_same(&solutions, &batch.0);
+    // No fix ever: the buffer fills and the stream says why.
+    let small = StreamConfig::builder().max_events(500).build().unwrap();
+    let mut nav = StreamNavigator::new(settings, small);
+    let error = inputs
+        .imu
+        .iter()
+        .find_map(|s| nav.push_imu(*s).err())
+        .expect("refused");
+    assert!(
+        matches!(&error, StreamError::NotInitialized { records: 500, reason } if reason.contains("fix")),
+        "{error}"
+    );
+}
