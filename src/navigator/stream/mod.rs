@@ -532,7 +532,8 @@ impl StreamNavigator {
             });
         }
         let period = imu_period(&inputs.imu, &self.settings)?;
-        let skipped = first_imu_index(&inputs, &self.settings)?;
+        // As the batch run: an `initial.time_s` with no IMU sample near it is refused.
+        first_imu_index(&inputs, &self.settings)?;
         let (state, covariance, alignment) = initial_state(&inputs, &self.settings)?;
         let first_imu_time = inputs.imu[0].time;
         let skip_before = self.settings.config.initial.time_s;
@@ -543,7 +544,6 @@ impl StreamNavigator {
             .config
             .output_rate_hz()
             .map(|r| (first_imu_time, 1.0 / r));
-        let _ = skipped;
         let running = match self.settings.dvl_states().copied() {
             None => {
                 let nav = Navigator::new(&self.settings, state, covariance, period)?;
