@@ -23,8 +23,10 @@ mod reproduce;
 mod schema;
 mod simulate;
 mod smooth;
+mod stream;
 mod survey_checks;
 mod tune;
+mod waterlinked;
 mod where_m;
 
 /// The paper study (reproduce, montecarlo, report): private to the binary, not

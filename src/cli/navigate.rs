@@ -51,14 +51,14 @@ pub struct SurveyFiles {
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// IMU CSV (specific force and angular rate, or increments; any rate).
-    #[arg(long, value_name = "FILE")]
-    imu: PathBuf,
+    #[arg(long, value_name = "FILE", required_unless_present = "stream")]
+    imu: Option<PathBuf>,
     /// DVL velocity CSV (body frame; lost-lock rows are skipped and counted).
     #[arg(
         long,
         value_name = "FILE",
         conflicts_with_all = ["beams", "pd0", "learned"],
-        required_unless_present_any = ["beams", "pd0"]
+        required_unless_present_any = ["beams", "pd0", "stream"]
     )]
     dvl: Option<PathBuf>,
     /// DVL beams CSV (beam1..beam4; least squares on the beams present).
@@ -109,6 +109,32 @@ pub struct Args {
     /// Print the summary as JSON on stdout.
     #[arg(long)]
     json: bool,
+    /// Read sensor records as JSON lines from stdin in arrival order and write each
+    /// solution line (solution.csv's columns, header first) to stdout once final.
+    #[arg(
+        long,
+        conflicts_with_all = ["imu", "dvl", "beams", "pd0", "depth", "fixes", "truth", "learned", "plots"]
+    )]
+    stream: bool,
+    /// With --stream: read the records from FILE, still being written, instead of stdin
+    /// (ends when FILE has not grown for --idle-timeout seconds).
+    #[arg(long, value_name = "FILE", requires = "stream")]
+    follow: Option<PathBuf>,
+    /// With --follow: seconds without new data after which the stream ends.
+    #[arg(long, value_name = "S", default_value_t = 10.0, requires = "follow")]
+    idle_timeout: f64,
+    /// With --stream: the history's length [s]: the largest delay a measurement may
+    /// have, and the delay of each solution line.
+    #[arg(long, value_name = "S", default_value_t = 10.0, requires = "stream")]
+    history: f64,
+    /// With --stream: also read Water Linked DVL velocity reports (JSON over TCP) from
+    /// this address (e.g. 127.0.0.1:16171).
+    #[arg(long, value_name = "ADDR", requires = "stream")]
+    dvl_tcp: Option<String>,
+    /// With --stream: apply each measurement at its own time, splitting the IMU
+    /// interval, instead of at the nearest IMU sample (the batch run's rule).
+    #[arg(long, requires = "stream")]
+    exact_times: bool,
 }
 
 impl SurveyFiles {
@@ -133,7 +159,7 @@ impl SurveyFiles {
 impl Args {
     fn files(&self) -> SurveyFiles {
         SurveyFiles {
-            imu: self.imu.clone(),
+            imu: self.imu.clone().unwrap_or_default(),
             dvl: self.dvl.clone(),
             beams: self.beams.clone(),
             pd0: self.pd0.clone(),
@@ -296,7 +322,8 @@ pub struct Writer {
     plot_rows: Option<Vec<crate::navigate_plots::PlotRow>>,
 }
 
-const CSV_HEADER: &str = "time_s,kind,latitude_deg,longitude_deg,depth_m,v_north_mps,v_east_mps,v_down_mps,roll_deg,pitch_deg,heading_deg,acc_bias_x_mps2,acc_bias_y_mps2,acc_bias_z_mps2,gyro_bias_x_radps,gyro_bias_y_radps,gyro_bias_z_radps,sigma_north_m,sigma_east_m,sigma_down_m,sigma_v_north_mps,sigma_v_east_mps,sigma_v_down_mps,sigma_roll_deg,sigma_pitch_deg,sigma_heading_deg,sigma_acc_bias_x_mps2,sigma_acc_bias_y_mps2,sigma_acc_bias_z_mps2,sigma_gyro_bias_x_radps,sigma_gyro_bias_y_radps,sigma_gyro_bias_z_radps\n";
+/// The header of `solution.csv` (also the first line of `navigate --stream`).
+pub const CSV_HEADER: &str = "time_s,kind,latitude_deg,longitude_deg,depth_m,v_north_mps,v_east_mps,v_down_mps,roll_deg,pitch_deg,heading_deg,acc_bias_x_mps2,acc_bias_y_mps2,acc_bias_z_mps2,gyro_bias_x_radps,gyro_bias_y_radps,gyro_bias_z_radps,sigma_north_m,sigma_east_m,sigma_down_m,sigma_v_north_mps,sigma_v_east_mps,sigma_v_down_mps,sigma_roll_deg,sigma_pitch_deg,sigma_heading_deg,sigma_acc_bias_x_mps2,sigma_acc_bias_y_mps2,sigma_acc_bias_z_mps2,sigma_gyro_bias_x_radps,sigma_gyro_bias_y_radps,sigma_gyro_bias_z_radps\n";
 
 impl NavigationObserver for Writer {
     fn on_solution(
@@ -344,40 +371,45 @@ impl Writer {
         self.rows += 1;
         if let Some(csv) = &mut self.csv {
             let l = &mut self.line;
-            l.clear();
-            let kind = kind.as_str();
-            let _ = write!(
-                l,
-                "{},{kind},{:.9},{:.9},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5},{}",
-                self.epoch_s + s.time,
-                s.latitude_deg,
-                s.longitude_deg,
-                s.depth_m,
-                s.velocity_ned_mps[0],
-                s.velocity_ned_mps[1],
-                s.velocity_ned_mps[2],
-                s.roll_deg,
-                s.pitch_deg,
-                format_heading(s.heading_deg, 5)
-            );
-            for v in s.acc_bias_mps2.iter().chain(&s.gyro_bias_radps) {
-                let _ = write!(l, ",{v:.4e}");
-            }
-            for v in s.position_sigma_m.iter().chain(&s.velocity_sigma_mps) {
-                let _ = write!(l, ",{v:.5}");
-            }
-            for v in &s.attitude_sigma_deg {
-                let _ = write!(l, ",{v:.6}");
-            }
-            for v in s.acc_bias_sigma_mps2.iter().chain(&s.gyro_bias_sigma_radps) {
-                let _ = write!(l, ",{v:.4e}");
-            }
-            l.push('\n');
+            solution_row(l, self.epoch_s, kind, s);
             csv.write_all(l.as_bytes())
                 .map_err(|e| format!("{}: cannot write: {e}", self.csv_target.display()))?;
         }
         Ok(())
     }
+}
+
+/// One line of `solution.csv` (with its newline) into `l`: `s` at `epoch_s + s.time`.
+pub fn solution_row(l: &mut String, epoch_s: f64, kind: SolutionKind, s: &NavSolution) {
+    l.clear();
+    let kind = kind.as_str();
+    let _ = write!(
+        l,
+        "{},{kind},{:.9},{:.9},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5},{}",
+        epoch_s + s.time,
+        s.latitude_deg,
+        s.longitude_deg,
+        s.depth_m,
+        s.velocity_ned_mps[0],
+        s.velocity_ned_mps[1],
+        s.velocity_ned_mps[2],
+        s.roll_deg,
+        s.pitch_deg,
+        format_heading(s.heading_deg, 5)
+    );
+    for v in s.acc_bias_mps2.iter().chain(&s.gyro_bias_radps) {
+        let _ = write!(l, ",{v:.4e}");
+    }
+    for v in s.position_sigma_m.iter().chain(&s.velocity_sigma_mps) {
+        let _ = write!(l, ",{v:.5}");
+    }
+    for v in &s.attitude_sigma_deg {
+        let _ = write!(l, ",{v:.6}");
+    }
+    for v in s.acc_bias_sigma_mps2.iter().chain(&s.gyro_bias_sigma_radps) {
+        let _ = write!(l, ",{v:.4e}");
+    }
+    l.push('\n');
 }
 
 fn stats(values: &[f64]) -> Value {
@@ -1188,6 +1220,19 @@ pub fn stopped(
 
 /// Run it.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.stream {
+        return crate::stream::run(crate::stream::Options {
+            vehicle: args.vehicle,
+            history_s: args.history,
+            follow: args.follow,
+            idle_timeout_s: args.idle_timeout,
+            dvl_tcp: args.dvl_tcp,
+            exact_times: args.exact_times,
+            rate: args.rate,
+            out: args.out,
+            json: args.json,
+        });
+    }
     if let Some(rate) = args.rate {
         anyhow::ensure!(
             rate.is_finite() && rate > 0.0,

@@ -178,6 +178,35 @@ where
     pub fix_counts: UpdateCounts,
 }
 
+/// A copy of the whole navigator (filter, accumulated process noise, recorded window,
+/// adaptive noise level, DVL memory, counts): what the streaming navigator keeps as a
+/// checkpoint ([`super::StreamNavigator`]), so that a rewind restores every quantity a
+/// later update depends on.
+impl<E, O, const N: usize> Clone for Navigator<E, O, N>
+where
+    E: NavigationModel<N> + Clone,
+    E::State: Clone,
+    E::DvlMemory: Clone,
+    O: Clone,
+{
+    fn clone(&self) -> Self {
+        Self {
+            filter: self.filter.clone(),
+            dvl: self.dvl.clone(),
+            dvl_memory: self.dvl_memory.clone(),
+            depth: self.depth.clone(),
+            fix_lever_arm: self.fix_lever_arm,
+            imu_clock: self.imu_clock,
+            last_step: self.last_step,
+            last_learned_velocity: self.last_learned_velocity,
+            noise_scale: self.noise_scale.clone(),
+            dvl_counts: self.dvl_counts,
+            depth_counts: self.depth_counts,
+            fix_counts: self.fix_counts,
+        }
+    }
+}
+
 impl Navigator {
     /// A navigator from checked settings, the initial nominal state (its `time` starts
     /// the clock), its error covariance and the nominal IMU period \[s\].

@@ -24,7 +24,10 @@
 //! - [`tune`]: maximum-likelihood noise parameters (IMU white-noise densities, DVL
 //!   beam noise and mismatch, the scale of the paper's M) with standard errors and a
 //!   likelihood-ratio test of M = 0, on A-KIT scenarios or a survey's inputs
-//!   ([`tune::survey_measurements`]).
+//!   ([`tune::survey_measurements`]);
+//! - [`StreamNavigator`]: records fed in arrival order, a measurement stamped in the
+//!   past applied at its own time by rewind and replay from a bounded [`History`],
+//!   solutions emitted once final; equal to [`navigate`] on the same records.
 //!
 //! Conventions (estim-ins): NED, body x forward y right z down, true = nominal +
 //! error, misalignment in NED. A sensor's time offset tau means a sample stamped t
@@ -45,6 +48,7 @@ mod reference;
 mod run;
 mod smooth;
 mod solution;
+mod stream;
 pub mod tune;
 
 pub use aiding::{DepthModel, InsNominal, PositionFixModel};
@@ -75,6 +79,11 @@ pub use reference::{
 pub use run::{run_epochs, EpochHook, Tail};
 pub use smooth::{smooth_survey, smooth_survey_at, SmoothedSolution, SmoothingRun};
 pub use solution::{format_heading, wrap_heading_deg, NavSolution, UpdateCounts};
+pub use stream::{
+    solutions_agree, Admission, EventKey, FinalSolution, History, HistoryLimits, HistoryStats,
+    MeasurementTiming, NisSummary, NotInserted, Refusal, Replay, Sensor, StreamConfig,
+    StreamConfigBuilder, StreamCounts, StreamError, StreamNavigator,
+};
 
 /// Errors of the navigator.
 #[derive(Debug, thiserror::Error)]
