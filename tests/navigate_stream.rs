@@ -585,3 +585,55 @@ fn out_folder_holds_the_streamed_solution() {
     assert_eq!(summary["solutions"], 5);
     assert!(out.join("track.geojson").exists() && out.join("summary.json").exists());
 }
+
+#[test]
+fn lag_adds_smoothed_rows_next_to_the_filter_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    let (chunks, vehicle) = synthetic(8, 0.0);
+    let vehicle_path = dir.path().join("vehicle.toml");
+    std::fs::write(&vehicle_path, &vehicle).unwrap();
+    let vehicle_arg = vehicle_path.display().to_string();
+    let input: String = chunks.concat().iter().map(|l| format!("{l}\n")).collect();
+    let out = run_with_stdin(
+        &[
+            "navigate",
+            "--stream",
+            "--lag",
+            "2",
+            "--vehicle",
+            &vehicle_arg,
+        ],
+        input.clone(),
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let all = rows(&String::from_utf8_lossy(&out.stdout));
+    let filter: Vec<_> = all.iter().filter(|(k, _)| k == "dvl").collect();
+    let lagged: Vec<_> = all.iter().filter(|(k, _)| k == "lag").collect();
+    // One per accepted DVL update, and the end of the stream.
+    assert_eq!(filter.len(), 8);
+    assert_eq!(lagged.len(), 9);
+    for (f, l) in filter.iter().zip(&lagged) {
+        assert!((f.1[0] - l.1[0]).abs() < 1e-6, "same epochs");
+        // sigma_north_m (index 16 without `kind`): smoothed at or below filtered.
+        assert!(l.1[16] <= f.1[16] + 1e-12);
+    }
+    // The lag needs the 15-state filter, as `estim smooth`.
+    std::fs::write(&vehicle_path, vehicle + "[dvl_states]\n").unwrap();
+    let refused = run_with_stdin(
+        &[
+            "navigate",
+            "--stream",
+            "--lag",
+            "2",
+            "--vehicle",
+            &vehicle_arg,
+        ],
+        input,
+    );
+    assert_eq!(refused.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("[dvl_states]"));
+}

@@ -131,6 +131,10 @@ pub struct Args {
     /// this address (e.g. 127.0.0.1:16171).
     #[arg(long, value_name = "ADDR", requires = "stream")]
     dvl_tcp: Option<String>,
+    /// With --stream: also write, for each update epoch, its fixed-lag smoothed
+    /// solution given the measurements up to S seconds after it (rows of kind `lag`).
+    #[arg(long, value_name = "S", requires = "stream")]
+    lag: Option<f64>,
     /// With --stream: apply each measurement at its own time, splitting the IMU
     /// interval, instead of at the nearest IMU sample (the batch run's rule).
     #[arg(long, requires = "stream")]
@@ -371,7 +375,7 @@ impl Writer {
         self.rows += 1;
         if let Some(csv) = &mut self.csv {
             let l = &mut self.line;
-            solution_row(l, self.epoch_s, kind, s);
+            solution_row(l, self.epoch_s, kind.as_str(), s);
             csv.write_all(l.as_bytes())
                 .map_err(|e| format!("{}: cannot write: {e}", self.csv_target.display()))?;
         }
@@ -379,10 +383,10 @@ impl Writer {
     }
 }
 
-/// One line of `solution.csv` (with its newline) into `l`: `s` at `epoch_s + s.time`.
-pub fn solution_row(l: &mut String, epoch_s: f64, kind: SolutionKind, s: &NavSolution) {
+/// One line of `solution.csv` (with its newline) into `l`: `s` at `epoch_s + s.time`,
+/// `kind` in the `kind` column.
+pub fn solution_row(l: &mut String, epoch_s: f64, kind: &str, s: &NavSolution) {
     l.clear();
-    let kind = kind.as_str();
     let _ = write!(
         l,
         "{},{kind},{:.9},{:.9},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5},{}",
@@ -1228,6 +1232,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             idle_timeout_s: args.idle_timeout,
             dvl_tcp: args.dvl_tcp,
             exact_times: args.exact_times,
+            lag_s: args.lag,
             rate: args.rate,
             out: args.out,
             json: args.json,

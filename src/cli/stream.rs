@@ -59,6 +59,8 @@ pub struct Options {
     pub dvl_tcp: Option<String>,
     /// Measurements at their own times instead of the nearest IMU sample.
     pub exact_times: bool,
+    /// The lag of the smoothed rows \[s\], if any.
+    pub lag_s: Option<f64>,
     /// Solutions at this rate too \[Hz\].
     pub rate: Option<f64>,
     /// Output folder.
@@ -138,7 +140,8 @@ impl Output {
             return Ok(());
         }
         for s in solutions {
-            solution_row(&mut self.line, epoch, s.kind, &s.solution);
+            let kind = if s.smoothed { "lag" } else { s.kind.as_str() };
+            solution_row(&mut self.line, epoch, kind, &s.solution);
             if let Some(out) = &mut self.stdout {
                 out.write_all(self.line.as_bytes())?;
             }
@@ -146,11 +149,13 @@ impl Output {
                 file.write_all(self.line.as_bytes())
                     .with_context(|| format!("{}: cannot write", path.display()))?;
             }
-            if s.kind == SolutionKind::Dvl && self.file.is_some() {
+            if s.kind == SolutionKind::Dvl && !s.smoothed && self.file.is_some() {
                 self.track
                     .push([s.solution.longitude_deg, s.solution.latitude_deg]);
             }
-            self.last = Some(s.solution);
+            if !s.smoothed {
+                self.last = Some(s.solution);
+            }
         }
         if let Some(out) = &mut self.stdout {
             out.flush()?;
@@ -403,13 +408,14 @@ fn settings(options: &Options) -> anyhow::Result<(NavigatorConfig, ImuFrame, Str
     let stream = StreamConfig::builder()
         .history_s(options.history_s)
         .output_rate_hz(options.rate)
+        .lag_s(options.lag_s)
         .timing(if options.exact_times {
             MeasurementTiming::Exact
         } else {
             MeasurementTiming::NearestImuSample
         })
         .build()
-        .map_err(|e| anyhow::anyhow!("--history / --rate: {e}"))?;
+        .map_err(|e| anyhow::anyhow!("--history / --rate / --lag: {e}"))?;
     let config = match &options.vehicle {
         Some(p) => vehicle_config(p)?,
         None => NavigatorConfig::default(),
@@ -420,6 +426,14 @@ fn settings(options: &Options) -> anyhow::Result<(NavigatorConfig, ImuFrame, Str
     };
     let frame = config.imu_frame().map_err(in_vehicle)?;
     config.check().map_err(in_vehicle)?;
+    anyhow::ensure!(
+        options.lag_s.is_none() || config.dvl_states.is_none(),
+        "{}: --lag runs the 15-state filter (as estim smooth); remove the [dvl_states] table",
+        options
+            .vehicle
+            .as_deref()
+            .map_or_else(|| "vehicle".to_string(), |p| p.display().to_string())
+    );
     Ok((config, frame, stream))
 }
 
@@ -543,6 +557,7 @@ fn summary(
             "vehicle": schema::path_json(options.vehicle.as_deref()),
             "history_s": options.history_s,
             "exact_times": options.exact_times,
+            "lag_s": options.lag_s,
             "rate_hz": options.rate,
             "configuration": run.config,
         }),
@@ -557,6 +572,7 @@ fn summary(
             "water_linked_velocity_reports": { "valid": run.water_linked[0], "no_lock": run.water_linked[1] },
             "ignored_records": run.ignored,
             "refusals_first": run.refusals,
+            "lag_failure": nav.lag_failure(),
             "dvl_noise_scale": nav.dvl_noise_scale(),
             "dvl_states": nav.dvl_states(),
             "solutions": counts.solutions,

@@ -53,7 +53,7 @@ use super::initial::{first_imu_index, imu_period, initial_state};
 use super::{
     Alignment, AugmentedErrorModel, AugmentedNavigator, DepthSample, DvlInput, DvlRecord,
     DvlStateSolution, HealthMonitor, NavSolution, Navigator, NavigatorSettings, PositionFix,
-    SurveyInputs, UpdateCounts, AUGMENTED_STATES,
+    SolutionKind, SurveyInputs, UpdateCounts, AUGMENTED_STATES,
 };
 
 /// A record buffered before the initial state is made.
@@ -127,6 +127,7 @@ pub struct StreamNavigator {
     sequence: u64,
     counts: StreamCounts,
     ready: Vec<FinalSolution>,
+    lag_failure: Option<String>,
     finished: bool,
 }
 
@@ -145,6 +146,7 @@ impl StreamNavigator {
             sequence: 0,
             counts: StreamCounts::default(),
             ready: Vec::new(),
+            lag_failure: None,
             finished: false,
         }
     }
@@ -229,6 +231,12 @@ impl StreamNavigator {
         self.running
             .as_ref()
             .and_then(|r| dispatch!(r, e => e.history.current().nav.dvl_noise_scale()))
+    }
+
+    /// Why an update epoch had no fixed-lag smoothed solution, the first time it
+    /// happened (the count is [`StreamCounts::lag_unavailable`]).
+    pub fn lag_failure(&self) -> Option<&str> {
+        self.lag_failure.as_deref()
     }
 
     /// The solutions made final since the last call, in time order.
@@ -319,14 +327,24 @@ impl StreamNavigator {
             self.start(true)?;
         }
         let mut refusals = Vec::new();
+        let mut tail = Vec::new();
         if let Some(running) = &mut self.running {
             dispatch!(running, e => {
                 e.resolve_at_end(&mut refusals)?;
                 e.history.finalize_all();
+                tail = e.history.current().lagged_tail();
             });
         }
         self.count_refusals(&refusals);
         self.collect();
+        for output in tail {
+            absorb(
+                &mut self.counts,
+                &mut self.ready,
+                &mut self.lag_failure,
+                output,
+            );
+        }
         Ok(())
     }
 
@@ -434,18 +452,10 @@ impl StreamNavigator {
         };
         let counts = &mut self.counts;
         let ready = &mut self.ready;
+        let lag_failure = &mut self.lag_failure;
         dispatch!(running, e => {
             for (_, output) in e.history.take_final() {
-                match output {
-                    Produced::Solution(kind, solution) => {
-                        counts.solutions += 1;
-                        ready.push(FinalSolution { kind, solution });
-                    }
-                    Produced::Nis(Sensor::Dvl, nis) => counts.dvl_nis.add(nis),
-                    Produced::Nis(Sensor::Depth, nis) => counts.depth_nis.add(nis),
-                    Produced::Nis(_, nis) => counts.fix_nis.add(nis),
-                    Produced::InsufficientBeams => counts.dvl_insufficient_beams += 1,
-                }
+                absorb(counts, ready, lag_failure, output);
             }
         });
     }
@@ -540,6 +550,15 @@ impl StreamNavigator {
         let start_time = state.time;
         let geometry = Arc::new(self.settings.geometry.clone());
         let health = HealthMonitor::new(self.settings.config.health.clone());
+        let lag = self.config.lag_s().zip(self.config.lag_epochs());
+        if lag.is_some() && self.settings.dvl_states().is_some() {
+            return Err(StreamError::Config {
+                key: "lag_s",
+                reason: "the fixed-lag smoother runs the 15-state filter (held DVL states \
+                         make the covariance singular); remove the [dvl_states] table"
+                    .into(),
+            });
+        }
         let rate = self
             .config
             .output_rate_hz()
@@ -548,7 +567,7 @@ impl StreamNavigator {
             None => {
                 let nav = Navigator::new(&self.settings, state, covariance, period)?;
                 Running::Ins(Box::new(Engine::new(
-                    Replica::new(nav, health, geometry, rate),
+                    Replica::new(nav, health, geometry, rate, lag),
                     self.config.limits(),
                     first_imu_time,
                     start_time,
@@ -566,7 +585,7 @@ impl StreamNavigator {
                     period,
                 )?;
                 Running::Augmented(Box::new(Engine::new(
-                    Replica::new(nav, health, geometry, rate),
+                    Replica::new(nav, health, geometry, rate, lag),
                     self.config.limits(),
                     first_imu_time,
                     start_time,
@@ -588,6 +607,41 @@ impl StreamNavigator {
         }
         self.collect();
         Ok(())
+    }
+}
+
+/// Count an output made final, and keep it when it is a solution.
+fn absorb(
+    counts: &mut StreamCounts,
+    ready: &mut Vec<FinalSolution>,
+    lag_failure: &mut Option<String>,
+    output: Produced,
+) {
+    match output {
+        Produced::Solution(kind, solution) => {
+            counts.solutions += 1;
+            ready.push(FinalSolution {
+                kind,
+                solution,
+                smoothed: false,
+            });
+        }
+        Produced::Lagged(solution) => {
+            counts.lagged_solutions += 1;
+            ready.push(FinalSolution {
+                kind: SolutionKind::Dvl,
+                solution,
+                smoothed: true,
+            });
+        }
+        Produced::LagUnavailable(reason) => {
+            counts.lag_unavailable += 1;
+            lag_failure.get_or_insert(reason);
+        }
+        Produced::Nis(Sensor::Dvl, nis) => counts.dvl_nis.add(nis),
+        Produced::Nis(Sensor::Depth, nis) => counts.depth_nis.add(nis),
+        Produced::Nis(_, nis) => counts.fix_nis.add(nis),
+        Produced::InsufficientBeams => counts.dvl_insufficient_beams += 1,
     }
 }
 

@@ -106,6 +106,7 @@ pub struct StreamConfig {
     history_s: f64,
     timing: MeasurementTiming,
     output_rate_hz: Option<f64>,
+    lag_s: Option<f64>,
     limits: HistoryLimits,
 }
 
@@ -132,6 +133,16 @@ impl StreamConfig {
         self.output_rate_hz
     }
 
+    /// The lag of the fixed-lag smoothed solutions \[s\], if any.
+    pub fn lag_s(&self) -> Option<f64> {
+        self.lag_s
+    }
+
+    /// The update epochs the fixed-lag recording holds: 8 a second of lag, and 2.
+    pub fn lag_epochs(&self) -> Option<usize> {
+        self.lag_s.map(|lag| 2 + 8 * lag.ceil() as usize)
+    }
+
     /// The history's checkpoint interval and event cap.
     pub fn limits(&self) -> HistoryLimits {
         self.limits
@@ -144,6 +155,7 @@ impl Default for StreamConfig {
             history_s: 10.0,
             timing: MeasurementTiming::NearestImuSample,
             output_rate_hz: None,
+            lag_s: None,
             limits: HistoryLimits::new(10, 65_536),
         }
     }
@@ -185,6 +197,16 @@ impl StreamConfigBuilder {
         self
     }
 
+    /// Also emit, at each update epoch, its fixed-lag smoothed solution given the
+    /// measurements up to `lag` seconds after it (0 < lag <= 600; estim-core's
+    /// Rauch-Tung-Striebel recursion over the recorded update epochs, holding
+    /// [`StreamConfig::lag_epochs`] of them).
+    #[must_use]
+    pub fn lag_s(mut self, lag: Option<f64>) -> Self {
+        self.0.lag_s = lag;
+        self
+    }
+
     /// A checkpoint before every `events` events (1-10,000).
     #[must_use]
     pub fn checkpoint_every(mut self, events: usize) -> Self {
@@ -215,6 +237,11 @@ impl StreamConfigBuilder {
         if let Some(rate) = c.output_rate_hz {
             if !(rate.is_finite() && rate > 0.0) {
                 return bad("output_rate_hz", format!("{rate} Hz is not positive"));
+            }
+        }
+        if let Some(lag) = c.lag_s {
+            if !(lag.is_finite() && lag > 0.0 && lag <= 600.0) {
+                return bad("lag_s", format!("{lag} s is not in (0, 600]"));
             }
         }
         if !(1..=10_000).contains(&c.limits.checkpoint_every) {
@@ -279,10 +306,14 @@ pub enum Admission {
 /// A solution made final.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FinalSolution {
-    /// Why it was emitted (`dvl` after each DVL row, `rate`).
+    /// Why it was emitted (`dvl` after each DVL row, `rate`; for a smoothed solution,
+    /// `dvl`).
     pub kind: SolutionKind,
     /// The solution.
     pub solution: NavSolution,
+    /// A fixed-lag smoothed solution ([`StreamConfigBuilder::lag_s`]) of an update
+    /// epoch, not the filter's.
+    pub smoothed: bool,
 }
 
 /// Count, mean and largest NIS of one sensor's update attempts (final ones).
@@ -329,6 +360,11 @@ pub struct StreamCounts {
     pub max_checkpoints: usize,
     /// Final solutions emitted.
     pub solutions: usize,
+    /// Fixed-lag smoothed solutions emitted.
+    pub lagged_solutions: usize,
+    /// Epochs without a smoothed solution: the recording could not be smoothed
+    /// exactly (an update accepted by the gate's recovery rule).
+    pub lag_unavailable: usize,
     /// DVL beam rows with fewer than 3 beams (final ones).
     pub dvl_insufficient_beams: usize,
     /// NIS of the final DVL update attempts.
