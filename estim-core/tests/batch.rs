@@ -118,6 +118,9 @@ fn smoothing_errors(plan: &Plan) -> (f64, f64, f64) {
     let (kf, ys, cross) = setup(plan);
     let before = kf.clone();
     let out = kf.smooth_batch(&ys, &cross).expect("smooth");
+    // The same call's filtered estimates are filter_batch's, bit for bit.
+    let filtered = before.clone().filter_batch(&ys, &cross).expect("filter");
+    assert_eq!(out.filtered, filtered.estimates);
     assert_eq!(kf.estimate(), before.estimate());
     assert_eq!(kf.log_likelihood(), 0.0);
     assert_eq!(kf.propagations_since_update(), 0);

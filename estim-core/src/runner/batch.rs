@@ -55,6 +55,9 @@ pub struct SmoothedBatch<T: Scalar, const N: usize, E = StateAndCovariance<T, N>
     pub initial: E,
     /// The smoothed estimate of x_k after step k (index k - 1).
     pub estimates: Vec<E>,
+    /// The filter's own estimate after step k (index k - 1), from the same forward
+    /// pass: [`FilteredBatch::estimates`] (one call gives both).
+    pub filtered: Vec<E>,
     /// As [`FilteredBatch::log_likelihood`] (smoothing does not change it).
     pub log_likelihood: T,
 }
@@ -128,6 +131,7 @@ pub(super) fn smooth_steps<T: Scalar, S: Clone, E, const N: usize, const M: usiz
     Ok(SmoothedBatch {
         initial,
         estimates,
+        filtered: filtered.estimates,
         log_likelihood: filtered.log_likelihood,
     })
 }
