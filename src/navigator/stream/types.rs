@@ -7,7 +7,7 @@ use crate::navigator::{NavSolution, NavigatorError, SolutionKind};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum MeasurementTiming {
     /// At the IMU sample time nearest to its time (within half a period; its own time
-    /// inside an IMU gap): the batch run's rule ([`super::navigate`]), so that a stream
+    /// inside an IMU gap): the batch run's rule ([`navigate`](crate::navigator::navigate)), so that a stream
     /// equals the batch run of the same records.
     #[default]
     NearestImuSample,
