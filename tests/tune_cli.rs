@@ -241,6 +241,29 @@ fn a_degenerate_optimum_exits_3_and_a_held_parameter_lets_the_fit_converge() {
 }
 
 #[test]
+fn a_held_m_scale_beyond_the_valid_range_is_refused() {
+    let Some((_dir, [imu, dvl, gt, vehicle])) = recorded_survey(7) else {
+        return;
+    };
+    let out = estim(&[
+        "tune",
+        "--imu",
+        &imu,
+        "--dvl",
+        &dvl,
+        "--truth",
+        &gt,
+        "--vehicle",
+        &vehicle,
+        "--fix",
+        "m_scale=0.9",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("m_scale held at 0.9 is beyond"), "{err}");
+}
+
+#[test]
 fn fix_names_a_parameter_and_a_valid_value() {
     for (fix, says) in [
         ("gyro=1e-9", "is not a parameter"),

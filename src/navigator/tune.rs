@@ -610,7 +610,8 @@ pub struct TuneOptions {
     pub rho_margin: f64,
     /// Parameters held at a value instead of fitted (`None`: fitted), in theta's
     /// order ([`PARAMETER_NAMES`]); e.g. an IMU density from its data sheet where the
-    /// data cannot tell it (a degenerate optimum, [`TuneStatus::Degenerate`]).
+    /// data cannot tell it (a degenerate optimum, [`TuneStatus::Degenerate`]). An
+    /// m_scale beyond the largest valid value of a linearization is refused.
     pub fixed: [Option<f64>; TUNE_PARAMETERS],
 }
 
@@ -748,8 +749,8 @@ pub struct TuneFit {
 /// Fit theta on `trajectories` from `start` (module docs).
 ///
 /// # Errors
-/// [`NavigatorError::Config`] for no trajectories, zero linearizations or an invalid
-/// start; [`linearize`]'s; the fit's errors as [`NavigatorError::Core`].
+/// [`NavigatorError::Config`] for no trajectories, zero linearizations, an invalid
+/// start or a held m_scale beyond its valid range; [`linearize`]'s; the fit's errors as [`NavigatorError::Core`].
 pub fn tune(
     trajectories: &[TuneTrajectory<'_>],
     model: &TuneModel,
@@ -791,6 +792,13 @@ pub fn tune(
         begin[M_SCALE] = begin[M_SCALE].clamp(-0.5 * rho_bound, 0.5 * rho_bound);
         for (i, value) in options.fixed.iter().enumerate() {
             if let Some(v) = *value {
+                if i == M_SCALE && v.abs() > rho_bound {
+                    return Err(NavigatorError::Config(format!(
+                        "tune: m_scale held at {v} is beyond the largest valid value \
+                         +-{rho_bound:.4} at this linearization (M would not be a \
+                         cross-covariance)"
+                    )));
+                }
                 (lower[i], upper[i], begin[i]) = (v, v, v);
             }
         }
