@@ -517,18 +517,25 @@ proptest! {
     }
 }
 
+/// A 10 Hz IMU at rest with a 60 s hole (20-80 s) and 100 s of DVL rows, in `d`.
+fn imu_hole_files(d: &Path) -> (PathBuf, PathBuf) {
+    let mut text = String::from("time_s,acc_x_mps2,acc_y_mps2,acc_z_mps2,gx,gy,gz\n");
+    for k in (0..200).chain(800..1000) {
+        text.push_str(&format!("{:.1},0,0,-9.81,0,0,0\n", f64::from(k) * 0.1));
+    }
+    (
+        write(d, "imu_hole.csv", &text),
+        write(d, "dvl100.csv", &dvl((0..100).map(f64::from), true)),
+    )
+}
+
 /// Class 5: smooth's forward pass stopping (an IMU hole) keeps nothing smoothed and
 /// says so: exit 3, only summary.json committed, marked partial.
 #[test]
 fn smooth_stopped_by_divergence_says_nothing_was_kept() {
     let v = survey();
     let d = v.dir.path();
-    let mut text = String::from("time_s,acc_x_mps2,acc_y_mps2,acc_z_mps2,gx,gy,gz\n");
-    for k in (0..200).chain(800..1000) {
-        text.push_str(&format!("{:.1},0,0,-9.81,0,0,0\n", f64::from(k) * 0.1));
-    }
-    let holed = write(d, "imu_hole.csv", &text);
-    let long_dvl = write(d, "dvl100.csv", &dvl((0..100).map(f64::from), true));
+    let (holed, long_dvl) = imu_hole_files(d);
     let out_dir = d.join("out");
     let out = estim(&[
         "smooth",
@@ -819,12 +826,7 @@ fn a_truth_shorter_than_the_survey_keeps_the_run() {
 fn navigate_stops_at_an_imu_hole() {
     let v = survey();
     let d = v.dir.path();
-    let mut text = String::from("time_s,acc_x_mps2,acc_y_mps2,acc_z_mps2,gx,gy,gz\n");
-    for k in (0..200).chain(800..1000) {
-        text.push_str(&format!("{:.1},0,0,-9.81,0,0,0\n", f64::from(k) * 0.1));
-    }
-    let holed = write(d, "imu_hole.csv", &text);
-    let long_dvl = write(d, "dvl100.csv", &dvl((0..100).map(f64::from), true));
+    let (holed, long_dvl) = imu_hole_files(d);
     let out_dir = d.join("out");
     let out = estim(&[
         "navigate",
