@@ -263,14 +263,16 @@ fn stdout_closed_or_full_never_panics() {
         vec!["beamsnet", "eval", "--json"],
     ];
     for args in &commands {
-        let mut child = bin()
+        // The reader is gone before the command starts (closing it after the spawn
+        // raced a fast command that wrote into the pipe's buffer first).
+        let (reader, writer) = std::io::pipe().unwrap();
+        drop(reader);
+        let out = bin()
             .args(args)
-            .stdout(Stdio::piped())
+            .stdout(writer)
             .stderr(Stdio::piped())
-            .spawn()
+            .output()
             .unwrap();
-        drop(child.stdout.take()); // the reader goes away before anything is written
-        let out = child.wait_with_output().unwrap();
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(141), "{args:?}: {stderr}");
         assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");

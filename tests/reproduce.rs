@@ -130,3 +130,64 @@ fn reproduce_akit_json_has_every_field_finite() {
         check_trajectory(x, learned_available());
     }
 }
+
+/// A trajectory whose folder holds `IMU_trajectoryN.csv` runs on the recorded IMU
+/// (read with the embedded vehicles/akit.toml, NEES over the 9 states with truth),
+/// `--imu synthesized` keeps the synthesized one, and a folder without the file
+/// falls back to it under `--imu auto` and is an error naming the file under
+/// `--imu recorded`.
+#[test]
+fn reproduce_uses_the_recorded_imu_where_there_is_one() {
+    let Some(dir) = data_dir() else { return };
+    let d = dir.to_str().expect("utf-8 path");
+    let v = reproduce_json(&["--data", d, "--trajectory", "2"]);
+    let t = &v["trajectories"][0];
+    assert_eq!(t["imu_source"], "recorded");
+    assert_eq!(t["recorded"]["nees_states"], 9);
+    assert_eq!(t["recorded"]["scored_at"], "reference_epochs");
+    assert!(t["recorded"]["vehicle"]
+        .as_str()
+        .is_some_and(|s| s.contains("akit.toml")));
+    check_trajectory(t, learned_available());
+    for f in t["filters"].as_array().expect("filters") {
+        assert_eq!(f["nees_states"], 9, "{}", f["id"]);
+        let band = f["nees_band"].as_array().expect("band");
+        assert!(band[0].as_f64() < Some(9.0) && band[1].as_f64() > Some(9.0));
+    }
+    let s = reproduce_json(&["--data", d, "--trajectory", "2", "--imu", "synthesized"]);
+    let t = &s["trajectories"][0];
+    assert_eq!(t["imu_source"], "synthesized");
+    assert!(t.get("recorded").is_none());
+    assert_eq!(t["filters"][0]["nees_states"], 15);
+
+    // The same trajectory without its IMU file.
+    let root = tempfile::tempdir().expect("temp dir");
+    let folder = root.path().join("a-kit/Trajectory2");
+    std::fs::create_dir_all(&folder).expect("folder");
+    let source = if dir.join("a-kit").is_dir() {
+        dir.join("a-kit/Trajectory2")
+    } else {
+        dir.join("Trajectory2")
+    };
+    for file in ["GT_trajectory2.csv", "DVL_trajectory2.csv"] {
+        std::fs::copy(source.join(file), folder.join(file)).expect("copy");
+    }
+    let r = root.path().to_str().expect("utf-8 path");
+    let auto = reproduce_json(&["--data", r, "--trajectory", "2"]);
+    assert_eq!(auto["trajectories"][0]["imu_source"], "synthesized");
+    let out = Command::new(env!("CARGO_BIN_EXE_estim"))
+        .args([
+            "reproduce",
+            "--data",
+            r,
+            "--trajectory",
+            "2",
+            "--imu",
+            "recorded",
+        ])
+        .output()
+        .expect("run estim");
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("IMU_trajectory2.csv"), "{stderr}");
+}

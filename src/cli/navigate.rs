@@ -289,7 +289,31 @@ impl Truth {
     }
 
     /// The truth at `time`, `None` outside the reference's span.
-    fn at(&self, time: f64) -> anyhow::Result<Option<InsState>> {
+    /// The truth at `time` with its error-free specific force and angular rate at the
+    /// IMU (`None` outside the reference's span): the study's reference IMU.
+    pub fn kinematics(
+        &self,
+        time: f64,
+    ) -> anyhow::Result<Option<(InsState, estim::core::nalgebra::Vector3<f64>)>> {
+        let Some(state) = self.at(time)? else {
+            return Ok(None);
+        };
+        let k = self.trajectory.evaluate(time)?;
+        // The specific force at the IMU: the reference point's less the lever arm's
+        // centripetal term (the angular acceleration's term is below the spline's
+        // resolution at 1 Hz and left out).
+        let w = k.angular_rate;
+        let force = k.specific_force - w.cross(&w.cross(&self.lever_arm));
+        Ok(Some((state, force)))
+    }
+
+    /// The reference's clock offset in effect (`source`, `offset_s`, and for an
+    /// estimate its `sigma_s`, `residual_rad`, `intervals`).
+    pub fn time_offset(&self) -> &Value {
+        &self.time_offset
+    }
+
+    pub(crate) fn at(&self, time: f64) -> anyhow::Result<Option<InsState>> {
         if !(time >= self.span[0] && time <= self.span[1]) {
             return Ok(None);
         }
@@ -522,7 +546,12 @@ pub fn load_survey_with(files: SurveyFiles, columns: Option<&Path>) -> anyhow::R
             anyhow::anyhow!("{}: {e}", vehicle.display())
         })?;
     }
-    let config = config;
+    load_survey_from(files, config)
+}
+
+/// [`load_survey`] with the vehicle configuration already read (`files.vehicle` only
+/// names it in messages): the study reads the embedded A-KIT vehicle this way.
+pub fn load_survey_from(files: SurveyFiles, config: NavigatorConfig) -> anyhow::Result<Survey> {
     let in_vehicle = |e: NavigatorError| match &files.vehicle {
         Some(p) => anyhow::anyhow!("{}: {e}", p.display()),
         None => anyhow::anyhow!("{e}"),

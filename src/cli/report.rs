@@ -4,8 +4,8 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use crate::study::markdown::{
-    default_beamsnet, learned_seed_tables, long_run_tables, monte_carlo_table, results_tables,
-    seed_interval_tables, splice, Table,
+    default_beamsnet, learned_seed_tables, long_run_tables, monte_carlo_table, recorded_tables,
+    results_tables, seed_interval_tables, splice, Table,
 };
 use crate::study::Config;
 use anyhow::Context;
@@ -47,11 +47,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             tables.extend(results_tables(&config, &dir, learned.as_ref())?);
             tables.extend(seed_interval_tables(&config, &dir, learned.as_ref())?);
             tables.extend(learned_seed_tables(&config, &dir)?);
+            tables.extend(recorded_tables(&config, &dir, learned.as_ref())?);
         }
         None => eprintln!(
             "note: A-KIT data not found (--data, ESTIM_DATA_DIR, ../shared/data): \
-             velocity, filters, paper-std, rho and their -seeds tables and \
-             two-beams-seeds, outage-seeds skipped"
+             velocity, filters, paper-std, rho and their -seeds tables, \
+             two-beams-seeds, outage-seeds, recorded-imu and recorded-imu-paired skipped"
         ),
     }
     tables.push(monte_carlo_table(&config, learned.as_ref())?);

@@ -52,6 +52,15 @@ pub struct Args {
     /// two-beams network), `outage` (no DVL for 60 s, the outage network).
     #[arg(long, value_enum, default_value = "paper")]
     scenario: crate::learned_scenarios::ScenarioKind,
+    /// Which IMU an A-KIT trajectory uses: `auto` (the recorded `IMU_trajectoryN.csv`
+    /// where the folder holds one, else synthesized from the reference), `recorded`
+    /// (an error where there is none) or `synthesized`.
+    #[arg(long = "imu", value_enum, default_value = "auto")]
+    imu: crate::study::ImuChoice,
+    /// Vehicle file a recorded IMU is read with (axes, clocks, offsets, lever arms);
+    /// default: the A-KIT vehicle, `vehicles/akit.toml`, embedded in the binary.
+    #[arg(long, value_name = "FILE")]
+    vehicle: Option<PathBuf>,
     /// Also smooth each trajectory (RTS, LS DVL, M = 0): smoothed vs filtered errors
     /// and NEES (files in `--out DIR/smoothing`).
     #[arg(long)]
@@ -107,7 +116,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 let s = list
                     .iter()
                     .map(|n| {
-                        Scenario::akit_with(&dir, *n, &config, config.seed, args.allow_partial)
+                        Scenario::akit_choosing(
+                            &dir,
+                            *n,
+                            &config,
+                            config.seed,
+                            args.allow_partial,
+                            args.imu,
+                            args.vehicle.as_deref(),
+                        )
                     })
                     .collect::<Result<_, _>>()?;
                 (s, Some(list))
@@ -219,9 +236,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 fn print_report(out: &mut String, r: &TrajectoryReport) -> std::fmt::Result {
     writeln!(
         out,
-        "== {} ({:.0} s, {} DVL epochs)",
-        r.name, r.duration_s, r.dvl_epochs
+        "== {} ({:.0} s, {} DVL epochs, IMU {})",
+        r.name,
+        r.duration_s,
+        r.dvl_epochs,
+        r.imu_source.as_str()
     )?;
+    if let Some(recorded) = &r.recorded {
+        writeln!(
+            out,
+            "recorded IMU read with {}; reference clock offset {} s; errors and NEES (over \
+             {} states with truth) at the reference's epochs",
+            recorded["vehicle"].as_str().unwrap_or("?"),
+            recorded["truth_time_offset"]["offset_s"],
+            recorded["nees_states"]
+        )?;
+    }
     writeln!(out, "velocity norm vs DVL reference (paper Tables I/II):")?;
     writeln!(
         out,
@@ -259,9 +289,11 @@ fn print_report(out: &mut String, r: &TrajectoryReport) -> std::fmt::Result {
         }
         writeln!(
             out,
-            "    error position {:.3} / {:.3} m, velocity {:.4} / {:.4} m/s, attitude {:.4} / {:.4} deg",
+            "    error position {:.3} / {:.3} m (horizontal {:.3} / {:.3} m), velocity {:.4} / {:.4} m/s, attitude {:.4} / {:.4} deg",
             f.position_error_m.rmse,
             f.position_error_m.final_value,
+            f.horizontal_position_error_m.rmse,
+            f.horizontal_position_error_m.final_value,
             f.velocity_error_mps.rmse,
             f.velocity_error_mps.final_value,
             f.attitude_error_deg.rmse,

@@ -123,6 +123,8 @@ fn vehicle_toml(
         imu_spec: *spec,
         dvl: Vec::new(),
         span: None,
+        imu_source: crate::study::ImuSource::Synthesized,
+        recorded: None,
     };
     let p0 = initial_covariance(config, &scenario);
     let x0 = crate::study::initial_nominal(truth0, &p0, config.seed);

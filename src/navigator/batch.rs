@@ -340,6 +340,51 @@ pub fn navigate_learned(
     .map(|(run, _)| run)
 }
 
+/// A caller's DVL update on the 4-beam rows of a batch run ([`navigate_beams_with`]):
+/// given the navigator (not yet propagated to the row), the row's time on the
+/// navigator's clock (snapped to the IMU) and its four beams, it applies an update
+/// and returns its report, or `Ok(None)` to leave the row to least squares.
+pub type BeamUpdate<'a, E, O, const N: usize> = dyn FnMut(
+        &mut Navigator<E, O, N>,
+        f64,
+        &Vector4<f64>,
+    ) -> Result<Option<estim_core::UpdateReport<f64, N, 3>>>
+    + 'a;
+
+/// [`navigate`] on the navigator `make` builds (from the initial state, its 15 x 15
+/// covariance and the IMU period), with the caller's `update` on every DVL row with 4
+/// beams (another velocity source, another R or a cross-covariance M). Everything
+/// else is [`navigate`]'s: the same events, timing, health checks and counts (the
+/// caller's updates are counted as `learned.beamsnet_updates`). The study's
+/// recorded-IMU runs are this loop with the study's velocity and M.
+///
+/// # Errors
+/// As [`navigate`].
+pub fn navigate_beams_with<E, const N: usize>(
+    inputs: &SurveyInputs,
+    settings: &NavigatorSettings,
+    output_rate_hz: Option<f64>,
+    observer: &mut dyn NavigationObserver,
+    update: &mut BeamUpdate<'_, E, NoObserver, N>,
+    make: impl FnOnce(InsState, ErrorMatrix, f64) -> Result<Navigator<E, NoObserver, N>>,
+) -> Result<NavigationRun>
+where
+    E: NavigationModel<N>,
+{
+    let mut applied = |nav: &mut Navigator<E, NoObserver, N>, time: f64, beams: &Vector4<f64>| {
+        Ok(update(nav, time, beams)?.map(Applied::from))
+    };
+    run_batch(
+        inputs,
+        settings,
+        output_rate_hz,
+        observer,
+        Some(&mut applied),
+        make,
+    )
+    .map(|(run, _)| run)
+}
+
 /// The events of a batch run: each measurement at its stamp minus its sensor's time
 /// offset, snapped to the IMU ([`snap`]), and the output epochs inside the run's span,
 /// in time order (stable: DVL before depth before fixes before outputs at one time,

@@ -43,6 +43,15 @@ pub fn coarse_alignment(mean_specific_force: &Vector3<f64>) -> (f64, f64) {
     (roll, pitch)
 }
 
+/// The nominal IMU period a run on `settings` uses: 1 / `imu.rate_hz`, else the median
+/// interval of `imu`'s samples.
+///
+/// # Errors
+/// [`NavigatorError::Inputs`] without a rate and fewer than 2 increasing samples.
+pub fn nominal_imu_period(imu: &[ImuSample], settings: &NavigatorSettings) -> Result<f64> {
+    imu_period(imu, settings)
+}
+
 /// The nominal IMU period: 1 / `imu.rate_hz`, else the median sample interval.
 pub(super) fn imu_period(imu: &[ImuSample], settings: &NavigatorSettings) -> Result<f64> {
     if let Some(rate) = settings.config.imu.rate_hz {

@@ -59,7 +59,10 @@ pub use augmented::{
     TimeOffsetState, ACCELERATION_HISTORY_S, AUGMENTED_STATES, DVL_BIAS, DVL_LEVER_ARM,
     DVL_MISALIGNMENT, DVL_SCALE, DVL_STATES, DVL_TIME_OFFSET,
 };
-pub use batch::{navigate, navigate_learned, navigate_with, LearnedCounts, NavigationRun};
+pub use batch::{
+    navigate, navigate_beams_with, navigate_learned, navigate_with, BeamUpdate, LearnedCounts,
+    NavigationRun,
+};
 pub use clock::IMU_PERIOD_SNAP;
 pub use config::{
     filter_config, filter_imu_spec, imu_preset, DepthConfig, DvlConfig, FixConfig, GateConfig,
@@ -68,7 +71,7 @@ pub use config::{
 };
 pub use filter::{beams_from_nan, DvlCross, InsFilter, NavigationModel, Navigator};
 pub use health::{Divergence, HealthConfig, HealthMonitor};
-pub use initial::{coarse_alignment, Alignment, InitialAttitude};
+pub use initial::{coarse_alignment, nominal_imu_period, Alignment, InitialAttitude};
 pub use inputs::{
     DepthSample, DvlInput, DvlRecord, NavigationObserver, PositionFix, SolutionKind, SurveyInputs,
 };

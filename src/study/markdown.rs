@@ -35,8 +35,10 @@
 
 use std::path::Path;
 
+mod recorded;
 mod seeds;
 
+pub use recorded::recorded_tables;
 pub use seeds::{learned_seed_tables, seed_interval_tables};
 
 use super::report::{BEAMSNET, BEAMSNET_NEGLECTED, BEAMSNET_SCALED, BEAMSNET_SENSITIVITY, LS};

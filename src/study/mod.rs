@@ -17,6 +17,7 @@ mod mismatch;
 mod montecarlo;
 mod oracle;
 mod paired;
+mod recorded;
 mod report;
 mod run;
 mod scenario;
@@ -45,6 +46,7 @@ pub use paired::{
     beamsnet_without_sensitivity, markdown as paired_markdown, paired_study, CellRun, Gate,
     PairedInterval, PairedStudy, BEAMSNET_PER_STEP,
 };
+pub use recorded::{run_recorded, ImuChoice, ImuSource, RecordedSurvey, RECORDED_NEES_STATES};
 pub use report::{
     analyse, filter_label, least_squares_velocities, run_variant, summarise, FilterSummary,
     Improvement, LearnedInputs, TrajectoryReport, BEAMSNET, BEAMSNET_NEGLECTED, BEAMSNET_SCALED,
@@ -55,7 +57,7 @@ pub use run::{
     run_filter_per_epoch_noise, run_filter_with_observer, CrossMatrix, CrossSource, FilterRun,
     MeasurementSet,
 };
-pub use scenario::{synthesize_imu, BeamLoss, Scenario};
+pub use scenario::{synthesize_imu, BeamLoss, DvlEpoch, Scenario};
 pub use smooth::{least_squares_measurements, smooth_scenario, SmoothReport};
 pub use tune::{tune_akit, TuneReport};
 pub use where_m::{GRADES, MISSION_DURATION_S};

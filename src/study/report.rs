@@ -157,17 +157,22 @@ pub struct FilterSummary {
     pub std: BTreeMap<String, StdSummary>,
     /// |position error| against truth \[m\].
     pub position_error_m: ErrorSummary,
+    /// Horizontal position error (north and east) against truth \[m\].
+    pub horizontal_position_error_m: ErrorSummary,
     /// |velocity error| against truth \[m/s\].
     pub velocity_error_mps: ErrorSummary,
     /// |attitude error| against truth \[deg\].
     pub attitude_error_deg: ErrorSummary,
-    /// Time-averaged NEES (15 states) against truth, over the epochs where P was
-    /// positive definite.
+    /// Time-averaged NEES against truth over `nees_states` states, over the epochs
+    /// where P was positive definite.
     pub nees_average: f64,
+    /// The states NEES is over: 15, or 9 on a recorded IMU (position, velocity,
+    /// attitude: the IMU's true biases are unknown).
+    pub nees_states: usize,
     /// Epochs at which P was not positive definite.
     pub covariance_not_positive_definite_epochs: usize,
-    /// 95 % band of a time average of independent chi-square(15) values over the
-    /// epochs (successive NEES are correlated in time, so this band is a guide).
+    /// 95 % band of a time average of independent chi-square(`nees_states`) values over
+    /// the epochs (successive NEES are correlated in time, so this band is a guide).
     pub nees_band: [f64; 2],
     /// Time-averaged NIS (3 dof).
     pub nis_average: f64,
@@ -216,6 +221,12 @@ pub struct TrajectoryReport {
     /// A-KIT trajectory number, if any.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub trajectory: Option<u32>,
+    /// Which IMU the filters integrated: `recorded` or `synthesized`.
+    pub imu_source: super::ImuSource,
+    /// With a recorded IMU: the vehicle file it was read with and the reference's
+    /// clock offset against it (`source`, `offset_s`, `sigma_s`, ...).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub recorded: Option<serde_json::Value>,
     /// Duration \[s\].
     pub duration_s: f64,
     /// DVL epochs.
@@ -319,11 +330,18 @@ pub fn summarise(run: &FilterRun) -> Result<FilterSummary> {
         name: run.name.clone(),
         std,
         position_error_m: error_summary(&run.position_error),
+        horizontal_position_error_m: error_summary(
+            &run.axis_error
+                .iter()
+                .map(|e| e[0].hypot(e[1]))
+                .collect::<Vec<_>>(),
+        ),
         velocity_error_mps: error_summary(&run.velocity_error),
         attitude_error_deg: error_summary(&run.attitude_error_deg),
         nees_average: finite_mean(&run.nees),
+        nees_states: run.nees_states,
         covariance_not_positive_definite_epochs: run.covariance_not_positive_definite,
-        nees_band: band(15, run.nees.len())?,
+        nees_band: band(run.nees_states, run.nees.len())?,
         nis_average: finite_mean(&run.nis),
         nis_band: band(3, run.nis.len())?,
         updates_accepted: run.accepted,
@@ -458,8 +476,25 @@ pub fn analyse(
         (Some(a), Some(b)) => b.time - a.time,
         _ => 0.0,
     };
-    let truth_north_east = match scenario.truth.first() {
-        Some(t0) => {
+    let truth_north_east = match (&scenario.recorded, scenario.truth.first()) {
+        // Recorded: at the reference's epochs, where the runs are scored.
+        (Some(recorded), _) => match recorded.truth_epochs.first() {
+            Some((_, t0)) => {
+                let (rn, re) = estim_ins::earth::radii_of_curvature(t0.latitude);
+                recorded
+                    .truth_epochs
+                    .iter()
+                    .map(|(_, t)| {
+                        [
+                            (t.latitude - t0.latitude) * (rn + t0.height),
+                            (t.longitude - t0.longitude) * (re + t0.height) * t0.latitude.cos(),
+                        ]
+                    })
+                    .collect()
+            }
+            None => Vec::new(),
+        },
+        (None, Some(t0)) => {
             let (rn, re) = estim_ins::earth::radii_of_curvature(t0.latitude);
             scenario
                 .dvl
@@ -473,12 +508,21 @@ pub fn analyse(
                 })
                 .collect()
         }
-        None => Vec::new(),
+        (None, None) => Vec::new(),
     };
     Ok(TrajectoryReport {
         truth_north_east,
         name: scenario.name.clone(),
         trajectory: scenario.trajectory,
+        imu_source: scenario.imu_source,
+        recorded: scenario.recorded.as_ref().map(|r| {
+            serde_json::json!({
+                "vehicle": r.vehicle,
+                "truth_time_offset": r.truth_time_offset,
+                "nees_states": super::RECORDED_NEES_STATES,
+                "scored_at": "reference_epochs",
+            })
+        }),
         duration_s,
         dvl_epochs: scenario.dvl.len(),
         velocity,
@@ -501,7 +545,11 @@ pub fn run_variant(
     seed: u64,
 ) -> Result<std::result::Result<FilterRun, FilterFailure>> {
     let label = filter_label(id, config.filter.rho);
-    match run_filter(id, scenario, config, set, cross, seed) {
+    let outcome = match &scenario.recorded {
+        Some(recorded) => super::run_recorded(id, scenario, recorded, set, cross),
+        None => run_filter(id, scenario, config, set, cross, seed),
+    };
+    match outcome {
         Ok(mut run) => {
             run.name = label;
             Ok(Ok(run))

@@ -56,7 +56,8 @@ pub struct MeasurementSet {
     pub noise_covariance: Matrix3<f64>,
 }
 
-/// Time series of one run, sampled at the DVL epochs (after the update).
+/// Time series of one run, sampled at the DVL epochs (after the update); on a
+/// recorded IMU at the reference's epochs instead ([`super::run_recorded`]).
 #[derive(Debug, Clone, Serialize)]
 pub struct FilterRun {
     /// Stable filter id (e.g. `ls`, `beamsnet_m_rho`; see `pipeline::filter_label`).
@@ -78,8 +79,11 @@ pub struct FilterRun {
     pub velocity_error: Vec<f64>,
     /// |attitude error| \[deg\].
     pub attitude_error_deg: Vec<f64>,
-    /// NEES of the 15-state error against truth.
+    /// NEES against truth over the first `nees_states` error states (15 on a
+    /// synthesized IMU; 9 on a recorded one, whose true biases are unknown).
     pub nees: Vec<f64>,
+    /// The states NEES is over.
+    pub nees_states: usize,
     /// NIS of each attempted update.
     pub nis: Vec<f64>,
     /// Updates accepted.
@@ -350,7 +354,7 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
 
 impl FilterRun {
     /// An empty run with room for `n` epochs.
-    fn new(name: &str, n: usize) -> Self {
+    pub(super) fn new(name: &str, n: usize) -> Self {
         Self {
             id: name.to_string(),
             name: name.to_string(),
@@ -361,6 +365,7 @@ impl FilterRun {
             velocity_error: Vec::with_capacity(n),
             attitude_error_deg: Vec::with_capacity(n),
             nees: Vec::with_capacity(n),
+            nees_states: ERROR_STATES,
             nis: Vec::with_capacity(n),
             accepted: 0,
             rejected: 0,

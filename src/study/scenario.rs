@@ -55,6 +55,11 @@ pub struct Scenario {
     pub dvl: Vec<DvlEpoch>,
     /// Recorded data: the GT and DVL spans as read (before any trimming to the overlap).
     pub span: Option<SpanCheck>,
+    /// Which IMU the filter integrates.
+    pub imu_source: super::ImuSource,
+    /// A recorded IMU's survey: the navigator's settings and inputs the variants run
+    /// on ([`super::run_recorded`]).
+    pub recorded: Option<std::sync::Arc<super::RecordedSurvey>>,
 }
 
 fn protocol(config: &Config) -> BeamsNetProtocol {
@@ -115,12 +120,14 @@ impl Scenario {
             imu_spec: spec,
             dvl,
             span: None,
+            imu_source: super::ImuSource::Synthesized,
+            recorded: None,
         })
     }
 
     /// Recorded data (A-KIT or a user's files), not a simulation.
     pub fn is_recorded(&self) -> bool {
-        self.span.is_some()
+        self.span.is_some() || self.recorded.is_some()
     }
 
     /// A-KIT trajectory `n` under `dir` (see [`Scenario::recorded`]; the spans must agree).
@@ -247,6 +254,8 @@ impl Scenario {
             imu_spec: spec,
             dvl,
             span: Some(span),
+            imu_source: super::ImuSource::Synthesized,
+            recorded: None,
         })
     }
 }

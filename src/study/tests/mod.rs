@@ -15,6 +15,7 @@ mod montecarlo_fields;
 mod montecarlo_shards;
 mod oracle_monte_carlo;
 mod paired;
+mod recorded_imu;
 mod reference_mismatch;
 mod results_tables;
 mod smooth_ins;

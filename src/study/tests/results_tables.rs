@@ -14,8 +14,8 @@
 use std::path::PathBuf;
 
 use crate::study::markdown::{
-    default_beamsnet, learned_seed_tables, long_run_tables, monte_carlo_table, region,
-    results_tables, seed_interval_tables, splice, Table,
+    default_beamsnet, learned_seed_tables, long_run_tables, monte_carlo_table, recorded_tables,
+    region, results_tables, seed_interval_tables, splice, Table,
 };
 use crate::study::Config;
 
@@ -60,6 +60,8 @@ fn every_region_is_marked_once() {
         "montecarlo",
         "fuzz",
         "long-mission",
+        "recorded-imu",
+        "recorded-imu-paired",
     ];
     let tables: Vec<Table> = names
         .iter()
@@ -82,6 +84,21 @@ fn akit_and_simulated_tables_match_a_fresh_run() {
     let config = Config::default();
     let learned = default_beamsnet(&config).expect("committed BeamsNet model");
     let tables = results_tables(&config, &data, learned.as_ref()).expect("tables");
+    let text = readme();
+    for t in &tables {
+        assert_matches(&text, t);
+    }
+}
+
+/// The recorded-IMU tables of the training trajectories (about 20 s in release).
+#[test]
+fn recorded_imu_tables_match_a_fresh_run() {
+    let Some(data) = common::data_root() else {
+        return;
+    };
+    let config = Config::default();
+    let learned = default_beamsnet(&config).expect("committed BeamsNet model");
+    let tables = recorded_tables(&config, &data, learned.as_ref()).expect("tables");
     let text = readme();
     for t in &tables {
         assert_matches(&text, t);

@@ -1,0 +1,192 @@
+//! The study on a recorded IMU (training trajectory 2): the IMU is read and aligned
+//! by the vehicle file as a user's survey is, the DVL epochs fall where the vehicle's
+//! offset puts them, and a variant's run is the user's navigator with only the DVL
+//! velocity swapped.
+//!
+//! Needs the A-KIT data: skipped with a printed reason without it, required in CI.
+
+use std::path::Path;
+
+use estim::navigator::{
+    navigate, DvlInput, NavSolution, NavigationObserver, SolutionKind, SurveyInputs,
+};
+use estim_ins::{ErrorMatrix, InsState};
+
+use crate::study::{
+    least_squares_velocities, run_recorded, Config, CrossSource, ImuChoice, ImuSource,
+    MeasurementSet, Scenario, LS, RECORDED_NEES_STATES,
+};
+
+use super::common;
+
+const TRAJECTORY: u32 = 2;
+
+fn scenario(data: &Path) -> Scenario {
+    let config = Config::default();
+    Scenario::akit_choosing(
+        data,
+        TRAJECTORY,
+        &config,
+        config.seed,
+        false,
+        ImuChoice::Recorded,
+        None,
+    )
+    .expect("recorded scenario")
+}
+
+/// The IMU file's rows, parsed here: time and the six channels.
+fn imu_rows(data: &Path) -> Vec<[f64; 7]> {
+    let akit = if data.join("a-kit").is_dir() {
+        data.join("a-kit")
+    } else {
+        data.to_path_buf()
+    };
+    let path = akit.join(format!(
+        "Trajectory{TRAJECTORY}/IMU_trajectory{TRAJECTORY}.csv"
+    ));
+    std::fs::read_to_string(path)
+        .expect("IMU file")
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').map(|x| x.trim().parse().unwrap()).collect();
+            [v[0], v[1], v[2], v[3], v[4], v[5], v[6]]
+        })
+        .collect()
+}
+
+/// The IMU the study integrates is the file's, with the vehicle's y axes negated and
+/// its clock scaled by 1.0025 (vehicles/akit.toml), from the reference's first epoch
+/// in the IMU's span on; each DVL epoch is the IMU sample nearest its stamp plus the
+/// vehicle's 1.04 s.
+#[test]
+fn the_recorded_imu_is_read_through_the_vehicle_file() {
+    let Some(data) = common::data_root() else {
+        return;
+    };
+    let s = scenario(&data);
+    assert_eq!(s.imu_source, ImuSource::Recorded);
+    let rows = imu_rows(&data);
+    let scale = 1.0025;
+    // The first study sample is a file row; find it by time.
+    let first = rows
+        .iter()
+        .position(|r| (r[0] * scale - s.imu[0].time).abs() < 1e-9)
+        .expect("the first sample is a file row");
+    for (k, sample) in s.imu.iter().enumerate().step_by(997) {
+        let r = rows[first + k];
+        assert!((sample.time - r[0] * scale).abs() < 1e-9, "time at {k}");
+        let f = [r[1], -r[2], r[3]];
+        let w = [r[4], -r[5], r[6]];
+        for i in 0..3 {
+            assert!((sample.specific_force[i] - f[i]).abs() < 1e-12, "force {k}");
+            assert!((sample.angular_rate[i] - w[i]).abs() < 1e-12, "rate {k}");
+        }
+    }
+    // The run starts within one reference interval of the IMU's start.
+    assert!(
+        s.imu[0].time - rows[0][0] * scale < 1.1,
+        "{}",
+        s.imu[0].time
+    );
+    let recorded = s.recorded.as_ref().expect("survey");
+    assert_eq!(s.truth.len(), s.imu.len() + 1);
+    assert!(
+        recorded.truth_epochs.len() >= 395,
+        "{}",
+        recorded.truth_epochs.len()
+    );
+    for (epoch, row) in s.dvl.iter().zip(&recorded.inputs.dvl) {
+        let applied = row.time + 1.04;
+        let at = s.imu[epoch.imu_index].time;
+        assert!(
+            (at - applied).abs() <= 0.5 * s.imu_dt + 1e-9,
+            "{at} vs {applied}"
+        );
+    }
+    assert!(s.dvl.len() >= 395, "{}", s.dvl.len());
+}
+
+/// Records the state and covariance at the output epochs.
+#[derive(Default)]
+struct Epochs(Vec<(f64, InsState, ErrorMatrix)>);
+
+impl NavigationObserver for Epochs {
+    fn on_solution(
+        &mut self,
+        kind: SolutionKind,
+        solution: &NavSolution,
+        state: &InsState,
+        covariance: &ErrorMatrix,
+    ) -> std::result::Result<(), Box<dyn std::error::Error + Send + Sync>> {
+        if kind == SolutionKind::Epoch {
+            self.0.push((solution.time, *state, *covariance));
+        }
+        Ok(())
+    }
+}
+
+/// The LS variant equals `navigate` (the user's batch run, with its DVL error
+/// states) on the same IMU with the LS velocities as plain velocity rows: the same
+/// state at every reference epoch to 1e-9, and the study's errors and NEES are
+/// those of that state against the truth there (NEES over the 9 states with truth,
+/// recomputed here from the 9 x 9 block).
+#[test]
+fn a_recorded_run_is_the_users_navigator_with_the_variants_velocity() {
+    let Some(data) = common::data_root() else {
+        return;
+    };
+    let s = scenario(&data);
+    let config = Config::default();
+    let recorded = s.recorded.as_ref().expect("survey");
+    let set = MeasurementSet {
+        velocities: least_squares_velocities(&s, &config),
+        noise_covariance: estim_core::nalgebra::Matrix3::identity(),
+    };
+    let run = run_recorded(LS, &s, recorded, &set, &CrossSource::Zero).expect("run");
+    assert_eq!(run.nees_states, RECORDED_NEES_STATES);
+
+    let mut inputs: SurveyInputs = recorded.inputs.clone();
+    for (row, v) in inputs.dvl.iter_mut().zip(&set.velocities) {
+        row.input = match v {
+            Some(v) => DvlInput::Velocity(*v),
+            None => DvlInput::NoLock,
+        };
+    }
+    let mut epochs = Epochs::default();
+    navigate(&inputs, &recorded.settings, None, &mut epochs).expect("navigate");
+    assert_eq!(epochs.0.len(), run.time.len());
+    let t0 = recorded.truth_epochs[0].0;
+    let mut worst: f64 = 0.0;
+    for (k, ((t, state, p), (te, truth))) in epochs.0.iter().zip(&recorded.truth_epochs).enumerate()
+    {
+        assert_eq!(t, te);
+        assert!((run.time[k] - (t - t0)).abs() < 1e-12);
+        let (rn, re) = estim_ins::earth::radii_of_curvature(truth.latitude);
+        let north = (truth.latitude - state.latitude) * (rn + truth.height);
+        let east = (truth.longitude - state.longitude) * (re + truth.height) * truth.latitude.cos();
+        let down = state.height - truth.height;
+        let e = run.axis_error[k];
+        worst = worst
+            .max((e[0] - north).abs())
+            .max((e[1] - east).abs())
+            .max((e[2] - down).abs());
+        let v = truth.velocity_ned - state.velocity_ned;
+        for i in 0..3 {
+            worst = worst.max((e[3 + i] - v[i]).abs());
+        }
+        // NEES over the 9 states from the 9 x 9 block, by an explicit inverse.
+        let block = p.fixed_view::<9, 9>(0, 0).clone_owned();
+        let ev = estim_core::nalgebra::SVector::<f64, 9>::from_fn(|i, _| e[i]);
+        let nees = (ev.transpose() * block.try_inverse().expect("P") * ev)[(0, 0)];
+        assert!(
+            (run.nees[k] - nees).abs() <= 1e-6 * nees.max(1.0),
+            "epoch {k}: {} vs {nees}",
+            run.nees[k]
+        );
+    }
+    // Position to 1e-6 m (the small-angle position error of the library's
+    // error_state against the plain difference of latitudes here), velocity exactly.
+    assert!(worst < 1e-6, "{worst}");
+}
