@@ -80,7 +80,7 @@ pub enum ImuChoice {
 }
 
 /// A recorded survey as the study runs it.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct RecordedSurvey {
     /// The vehicle file (a path, or the embedded `vehicles/akit.toml`).
     pub vehicle: String,
@@ -291,7 +291,12 @@ impl Scenario {
         let imu_spec = *survey.settings.sensor_spec();
         let recorded = RecordedSurvey {
             vehicle: vehicle_name,
-            settings: survey.settings.clone(),
+            // A row the variant leaves to least squares (3 beams) is solved on the
+            // protocol's geometry, on which its beams were drawn.
+            settings: survey
+                .settings
+                .clone()
+                .with_beam_geometry(protocol.geometry().clone()),
             inputs,
             truth_epochs,
             truth_time_offset: truth.time_offset().clone(),
@@ -308,6 +313,26 @@ impl Scenario {
             span: None,
             imu_source: ImuSource::Recorded,
             recorded: Some(Arc::new(recorded)),
+        })
+    }
+}
+
+impl RecordedSurvey {
+    /// The same survey with the innovation gate off (every update accepted): for
+    /// paired comparisons whose variants must not differ in the gate's decisions.
+    ///
+    /// # Errors
+    /// The navigator's check of the changed configuration.
+    pub fn without_gate(&self) -> Result<Self> {
+        let mut config = self.settings.config().clone();
+        config.gate.probability = 0.0;
+        let settings = config
+            .check()
+            .map_err(|e| PipelineError::Invalid(format!("{}: {e}", self.vehicle)))?
+            .with_beam_geometry(self.settings.beam_geometry().clone());
+        Ok(Self {
+            settings,
+            ..self.clone()
         })
     }
 }

@@ -62,6 +62,7 @@ fn every_region_is_marked_once() {
         "long-mission",
         "recorded-imu",
         "recorded-imu-paired",
+        "recorded-imu-correlation",
     ];
     let tables: Vec<Table> = names
         .iter()
