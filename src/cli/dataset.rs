@@ -31,7 +31,8 @@ pub struct Args {
 
 #[derive(Debug, clap::Subcommand)]
 enum Kind {
-    /// BeamsNet windows (IMU synthesized from GT, beams from the real DVL velocity).
+    /// BeamsNet windows (IMU synthesized from GT, or recorded with `--imu recorded`;
+    /// beams from the real DVL velocity).
     Beamsnet(BeamsnetArgs),
 }
 
@@ -43,7 +44,8 @@ struct BeamsnetArgs {
     /// Output .npy file (a .json description is written beside it).
     #[arg(long)]
     out: PathBuf,
-    /// Noise realizations per trajectory (IMU errors and beam noise redrawn each time).
+    /// Noise realizations per trajectory (beam noise, and the IMU errors of a synthesized
+    /// IMU, redrawn each time).
     #[arg(long, default_value_t = 4)]
     realizations: u32,
     /// Base seed; realization r of trajectory n uses seed + 1000 n + r.
