@@ -20,6 +20,8 @@ use estim_learned::{BeamsNet, OutageNet, Result, TwoBeamsNet};
 /// How the embedded models are named in errors and in `--json` inputs.
 pub const BEAMSNET_NAME: &str = "embedded:models/beamsnet.onnx";
 /// See [`BEAMSNET_NAME`].
+pub const BEAMSNET_RECORDED_NAME: &str = "embedded:models/beamsnet_recorded.onnx";
+/// See [`BEAMSNET_NAME`].
 pub const TWO_BEAMS_NAME: &str = "embedded:models/two_beams.onnx";
 /// See [`BEAMSNET_NAME`].
 pub const OUTAGE_NAME: &str = "embedded:models/outage.onnx";
@@ -33,6 +35,22 @@ pub fn beamsnet() -> Result<BeamsNet> {
         include_bytes!("../models/beamsnet.onnx"),
         include_str!("../models/beamsnet.json"),
         Path::new(BEAMSNET_NAME),
+    )
+}
+
+/// BeamsNetV1 trained on the recorded IMU windows of A-KIT trajectories 1-3 and 5-12
+/// (aligned as the study's filter feeds them; beams from the DVL velocity by the
+/// BeamsNet protocol), `models/beamsnet_recorded.onnx`. Its metadata says
+/// `imu_source: recorded`; training/README.md has the command and the validation
+/// figures. [`beamsnet`] (synthesized windows) is the one the golden tables use.
+///
+/// # Errors
+/// The loader's errors (none for the committed files; tested).
+pub fn beamsnet_recorded() -> Result<BeamsNet> {
+    BeamsNet::from_bytes(
+        include_bytes!("../models/beamsnet_recorded.onnx"),
+        include_str!("../models/beamsnet_recorded.json"),
+        Path::new(BEAMSNET_RECORDED_NAME),
     )
 }
 
@@ -91,6 +109,10 @@ mod tests {
         let beamsnet = super::beamsnet().expect("embedded BeamsNet");
         let file = estim_learned::BeamsNet::load(&default_model_path()).expect("file");
         same_output(beamsnet.measurement(), file.measurement());
+        let recorded = super::beamsnet_recorded().expect("embedded recorded BeamsNet");
+        let path = default_model_path().with_file_name("beamsnet_recorded.onnx");
+        let file = estim_learned::BeamsNet::load(&path).expect("file");
+        same_output(recorded.measurement(), file.measurement());
         let outage = super::outage().expect("embedded outage network");
         let file = estim_learned::OutageNet::load(&default_outage_model_path()).expect("file");
         same_output(outage.measurement(), file.measurement());
@@ -98,5 +120,38 @@ mod tests {
         let path = default_model_path().with_file_name("two_beams.onnx");
         let file = estim_learned::TwoBeamsNet::load(&path).expect("file");
         same_output(two_beams.measurement(), file.measurement());
+    }
+
+    /// The recorded-IMU BeamsNet says what it was trained on: recorded windows aligned
+    /// as the filter feeds them, training trajectories only, validated on 3 and 10.
+    #[test]
+    fn recorded_beamsnet_was_trained_on_recorded_windows() {
+        let meta: serde_json::Value =
+            serde_json::from_str(include_str!("../models/beamsnet_recorded.json")).unwrap();
+        assert_eq!(meta["imu_source"], "recorded");
+        let training = &meta["training"];
+        assert_eq!(training["imu_source"], "recorded");
+        let data = &training["dataset_metadata"];
+        assert_eq!(data["imu_source"], "recorded");
+        assert_eq!(data["window_alignment"]["rule"], "filter");
+        assert_eq!(data["held_out_trajectories"], serde_json::json!([4, 13]));
+        let used: Vec<u64> = data["trajectories"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|t| t["trajectory"].as_u64().unwrap())
+            .collect();
+        assert_eq!(used, [1, 2, 3, 5, 6, 7, 8, 9, 10, 11, 12]);
+        assert_eq!(
+            training["validation_trajectories"],
+            serde_json::json!([3, 10])
+        );
+        // The validation figures training/README.md reports.
+        let speed = training["validation_speed_rmse_mps"].as_f64().unwrap();
+        println!(
+            "recorded BeamsNet validation: |v| RMSE {speed:.5} m/s, per axis {}",
+            training["validation_rmse_mps"]
+        );
+        assert!((speed - 0.00360).abs() < 5e-6, "{speed}");
     }
 }

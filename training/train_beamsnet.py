@@ -1,5 +1,6 @@
 """Train BeamsNetV1 on the dataset written by `estim dataset beamsnet` and export
-models/beamsnet.onnx, models/beamsnet.json (metadata) and models/beamsnet_parity.json.
+models/NAME.onnx, models/NAME.json (metadata) and models/NAME_parity.json (NAME:
+--name, default beamsnet).
 
 Deterministic: seeded torch / numpy, CPU only, deterministic algorithms, one thread
 count fixed. See training/README.md for the exact regeneration command.
@@ -29,12 +30,20 @@ def parse_args():
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--dataset", required=True, help="the .npy written by `estim dataset beamsnet` (its .json beside it)")
     p.add_argument("--out-dir", default="models")
+    p.add_argument("--name", default="beamsnet", help="output files NAME.onnx, NAME.json, NAME_parity.json")
     p.add_argument("--epochs", type=int, default=20)
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--seed", type=int, default=5)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--validation", default="3,10", help="trajectories held out for validation / R")
+    p.add_argument(
+        "--parity-inputs",
+        choices=["validation", "synthetic"],
+        default="validation",
+        help="parity cases from the validation split, or seeded synthetic inputs (for a dataset of "
+        "recorded IMU windows, which must not be committed)",
+    )
     return p.parse_args()
 
 
@@ -167,11 +176,17 @@ def main():
     with torch.no_grad():
         res = (model(va[0], va[1], va[2]) - va[3]).double().numpy()
     r = np.cov(res, rowvar=False)
+    with torch.no_grad():
+        vpred = model(va[0], va[1], va[2])
+        speed_rmse = (vpred.norm(dim=1) - va[3].norm(dim=1)).double().pow(2).mean().sqrt().item()
+    axis_rmse = np.sqrt((res**2).mean(axis=0))
+    print(f"validation (best epoch): |v| RMSE {speed_rmse:.5f} m/s, RMSE per axis {axis_rmse} m/s")
     imu_dependence = measure_imu_dependence(model, va, a)
     print(f"IMU dependence (validation): {imu_dependence}")
 
     os.makedirs(args.out_dir, exist_ok=True)
-    onnx_path = os.path.join(args.out_dir, "beamsnet.onnx")
+    onnx_name = f"{args.name}.onnx"
+    onnx_path = os.path.join(args.out_dir, onnx_name)
     dummy = (va[0][:2], va[1][:2], va[2][:2])
     torch.onnx.export(
         model,
@@ -184,14 +199,26 @@ def main():
         do_constant_folding=True,
     )
 
+    # The window the dataset paired with each DVL sample (its `window_alignment`), and
+    # whether its IMU was recorded or synthesized (`imu_source`; older datasets have
+    # none and were synthesized).
+    imu_source = meta.get("imu_source", "synthesized")
+    if meta.get("window_alignment", {}).get("rule") == "filter":
+        window_description = (
+            f"specific force, body frame, {imu_source} IMU, the 100 samples the filter integrates before "
+            "its update for the DVL sample (dataset window_alignment)"
+        )
+    else:
+        window_description = "specific force, body frame, the 100 samples of the second before the DVL sample"
     meta_out = {
         "format": "estim-learned-model/1",
+        "imu_source": imu_source,
         "name": "BeamsNetV1",
-        "model": "beamsnet.onnx",
+        "model": onnx_name,
         "inputs": [
             {"name": "acc", "stream": "acc", "channels": 3, "window": WINDOW, "sample_rate_hz": 100.0,
              "shape": [3, WINDOW], "mean": acc_mean.tolist(), "std": acc_std.tolist(),
-             "unit": "m/s^2", "description": "specific force, body frame, the 100 samples of the second before the DVL sample"},
+             "unit": "m/s^2", "description": window_description},
             {"name": "gyro", "stream": "gyro", "channels": 3, "window": WINDOW, "sample_rate_hz": 100.0,
              "shape": [3, WINDOW], "mean": gyro_mean.tolist(), "std": gyro_std.tolist(),
              "unit": "rad/s", "description": "angular rate, body frame, same window as acc"},
@@ -205,12 +232,16 @@ def main():
         "beam_protocol": meta["beam_protocol"],
         "training": {
             "dataset": os.path.basename(args.dataset),
+            "imu_source": imu_source,
             "dataset_metadata": meta,
             "train_trajectories": sorted(set(int(t) for t in np.unique(traj[~is_val]))),
             "validation_trajectories": val_set,
             "validation_samples": int(len(val)),
             "train_samples": int(len(train)),
             "best_epoch": best[2],
+            "validation_mse": best[0],
+            "validation_speed_rmse_mps": speed_rmse,
+            "validation_rmse_mps": axis_rmse.tolist(),
             "epochs": args.epochs,
             "batch_size": args.batch_size,
             "lr": args.lr,
@@ -222,25 +253,39 @@ def main():
         },
         "imu_dependence": imu_dependence,
     }
-    with open(os.path.join(args.out_dir, "beamsnet.json"), "w") as f:
+    with open(os.path.join(args.out_dir, f"{args.name}.json"), "w") as f:
         json.dump(meta_out, f, indent=1)
 
     # Parity vectors: model-level (normalised) inputs and the PyTorch outputs in eval mode.
-    k = min(4, len(va[0]))
-    rows = np.linspace(0, len(va[0]) - 1, k).astype(int)
+    description = "BeamsNetV1 inputs (already normalised, as fed to the ONNX graph) and PyTorch eval-mode outputs"
+    if args.parity_inputs == "synthetic":
+        # Recorded IMU windows stay out of the repository: standard normal normalised
+        # windows (the training split's scale) and the beams A v (1.007) of seeded
+        # velocities, from a generator of their own (training is unaffected).
+        g = torch.Generator().manual_seed(args.seed + 1)
+        k = 4
+        p_acc = torch.randn(k, 3, WINDOW, generator=g)
+        p_gyro = torch.randn(k, 3, WINDOW, generator=g)
+        v = torch.randn(k, 3, generator=g, dtype=torch.float64) * torch.tensor([1.0, 0.3, 0.1], dtype=torch.float64)
+        p_beams = (1.007 * v @ torch.tensor(a, dtype=torch.float64).T).float()
+        description += "; seeded synthetic inputs (normal windows, beams of seeded velocities), no recorded data"
+    else:
+        k = min(4, len(va[0]))
+        rows = np.linspace(0, len(va[0]) - 1, k).astype(int)
+        p_acc, p_gyro, p_beams = va[0][rows], va[1][rows], va[2][rows]
     with torch.no_grad():
-        out = model(va[0][rows], va[1][rows], va[2][rows])
+        out = model(p_acc, p_gyro, p_beams)
     parity = {
-        "description": "BeamsNetV1 inputs (already normalised, as fed to the ONNX graph) and PyTorch eval-mode outputs",
+        "description": description,
         "cases": [
-            {"acc": va[0][i].tolist(), "gyro": va[1][i].tolist(), "beams": va[2][i].tolist(), "velocity": out[j].tolist()}
-            for j, i in enumerate(rows)
+            {"acc": p_acc[j].tolist(), "gyro": p_gyro[j].tolist(), "beams": p_beams[j].tolist(), "velocity": out[j].tolist()}
+            for j in range(k)
         ],
     }
-    with open(os.path.join(args.out_dir, "beamsnet_parity.json"), "w") as f:
+    with open(os.path.join(args.out_dir, f"{args.name}_parity.json"), "w") as f:
         json.dump(parity, f)
     print(f"validation R diag sqrt: {np.sqrt(np.diag(r))}")
-    print(f"wrote {onnx_path}, beamsnet.json, beamsnet_parity.json in {time.time() - t0:.1f} s")
+    print(f"wrote {onnx_path}, {args.name}.json, {args.name}_parity.json in {time.time() - t0:.1f} s")
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-//! tract reproduces PyTorch on the parity vectors exported by training/train_beamsnet.py.
+//! tract reproduces PyTorch on the parity vectors exported by training/train_beamsnet.py,
+//! for the BeamsNet of synthesized windows and the one of recorded windows.
 
 mod common;
 use common::flatten;
@@ -7,9 +8,20 @@ use estim_learned::OnnxMeasurement;
 
 #[test]
 fn tract_matches_pytorch_within_1e_5() {
+    check_parity("beamsnet");
+}
+
+#[test]
+fn recorded_beamsnet_tract_matches_pytorch_within_1e_5() {
+    check_parity("beamsnet_recorded");
+}
+
+/// `models/NAME.onnx` run by tract on the cases of `models/NAME_parity.json`, one by
+/// one and batched, within 1e-5 of PyTorch's outputs.
+fn check_parity(name: &str) {
     let dir = common::models_dir();
-    let model = OnnxMeasurement::<3>::from_model_path(&dir.join("beamsnet.onnx")).unwrap();
-    let text = std::fs::read_to_string(dir.join("beamsnet_parity.json")).unwrap();
+    let model = OnnxMeasurement::<3>::from_model_path(&dir.join(format!("{name}.onnx"))).unwrap();
+    let text = std::fs::read_to_string(dir.join(format!("{name}_parity.json"))).unwrap();
     let parity: serde_json::Value = serde_json::from_str(&text).unwrap();
     let cases = parity["cases"].as_array().unwrap();
     assert!(cases.len() >= 2);
@@ -38,6 +50,6 @@ fn tract_matches_pytorch_within_1e_5() {
             worst = worst.max((a - f64::from(*b)).abs());
         }
     }
-    println!("worst |tract - pytorch| = {worst:e}");
+    println!("{name}: worst |tract - pytorch| = {worst:e}");
     assert!(worst <= 1e-5, "worst deviation {worst:e}");
 }

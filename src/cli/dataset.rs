@@ -11,10 +11,11 @@ use estim_core::nalgebra::Vector3;
 use estim_dvl::BeamsNetProtocol;
 use estim_ins::{ImuSpec, Trajectory};
 use estim_learned::{
-    dataset_row, synthesize_aligned, write_npy, WindowAlignment, DATASET_COLUMNS, IMU_RATE_HZ,
+    dataset_row, synthesize_aligned, write_npy, BeamsNetInput, BeamsNetSample, WindowAlignment,
+    BEAMSNET_WINDOW, DATASET_COLUMNS, IMU_RATE_HZ,
 };
 
-use crate::study::Config;
+use crate::study::{Config, ImuChoice, Scenario};
 
 /// Trajectories BeamsNet is trained on: A-KIT 1-3 and 5-12 (4 and 13 are held out).
 pub const TRAINING_TRAJECTORIES: [u32; 11] = [1, 2, 3, 5, 6, 7, 8, 9, 10, 11, 12];
@@ -30,7 +31,8 @@ pub struct Args {
 
 #[derive(Debug, clap::Subcommand)]
 enum Kind {
-    /// BeamsNet windows (IMU synthesized from GT, beams from the real DVL velocity).
+    /// BeamsNet windows (IMU synthesized from GT, or recorded with `--imu recorded`;
+    /// beams from the real DVL velocity).
     Beamsnet(BeamsnetArgs),
 }
 
@@ -42,12 +44,27 @@ struct BeamsnetArgs {
     /// Output .npy file (a .json description is written beside it).
     #[arg(long)]
     out: PathBuf,
-    /// Noise realizations per trajectory (IMU errors and beam noise redrawn each time).
+    /// Noise realizations per trajectory (beam noise, and the IMU errors of a synthesized
+    /// IMU, redrawn each time).
     #[arg(long, default_value_t = 4)]
     realizations: u32,
     /// Base seed; realization r of trajectory n uses seed + 1000 n + r.
     #[arg(long, default_value_t = 2022)]
     seed: u64,
+    /// The IMU windows: synthesized from the reference with the study's error model, or
+    /// the vehicle's recorded IMU (`IMU_trajectoryN.csv` read through
+    /// `vehicles/akit.toml`, as the study's filter integrates it).
+    #[arg(long, value_enum, default_value_t = ImuWindows::Synthesized)]
+    imu: ImuWindows,
+}
+
+/// Where `estim dataset beamsnet` takes the IMU windows from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum ImuWindows {
+    /// Synthesized from the GT track (IMU errors redrawn per realization).
+    Synthesized,
+    /// The recorded IMU (only the beam noise is redrawn per realization).
+    Recorded,
 }
 
 /// The IMU error model of `estim beamsnet eval` and of the committed BeamsNet's
@@ -107,6 +124,146 @@ pub fn load_akit(dir: &Path, n: u32) -> anyhow::Result<(Trajectory, DvlVelocitie
     Ok((trajectory, dvl))
 }
 
+/// One trajectory's examples on its recorded IMU, for one seed.
+struct RecordedExamples {
+    /// Each example with the span of GT file time it depends on (its IMU window and
+    /// its DVL sample).
+    examples: Vec<(BeamsNetSample, [f64; 2])>,
+    /// The vehicle file the IMU was read with.
+    vehicle: String,
+    /// The reference's clock offset against the IMU (as `estim navigate` reports it).
+    truth_time_offset: serde_json::Value,
+}
+
+/// The examples of A-KIT trajectory `n` on its recorded IMU, as the study's filter
+/// sees them (`Scenario::akit_choosing` with [`ImuChoice::Recorded`] and the embedded
+/// `vehicles/akit.toml`): one per DVL update with a full window, the window being the
+/// 100 recorded samples integrated before the update (`imu[imu_index - 100 ..
+/// imu_index]`), the beams the scenario drew with `seed`, the target the DVL velocity.
+fn recorded_examples(
+    root: &Path,
+    n: u32,
+    config: &Config,
+    seed: u64,
+) -> anyhow::Result<RecordedExamples> {
+    let scenario = Scenario::akit_choosing(root, n, config, seed, false, ImuChoice::Recorded, None)
+        .with_context(|| format!("trajectory {n} on its recorded IMU"))?;
+    let Some(recorded) = scenario.recorded.as_deref() else {
+        bail!("trajectory {n}: the study did not read its recorded IMU");
+    };
+    // The survey's DVL rows are the scenario's epochs, in order (their stamps).
+    anyhow::ensure!(
+        recorded.inputs.dvl.len() == scenario.dvl.len(),
+        "trajectory {n}: {} DVL rows for {} epochs",
+        recorded.inputs.dvl.len(),
+        scenario.dvl.len()
+    );
+    // The navigator's clock is the IMU's; the reference (GT, and the DVL file that
+    // shares its time column) runs `offset_s` ahead: GT file time = clock + offset_s.
+    let Some(offset) = recorded.truth_time_offset["offset_s"].as_f64() else {
+        bail!("trajectory {n}: no reference clock offset");
+    };
+    let imu = &scenario.imu;
+    let examples = scenario
+        .dvl
+        .iter()
+        .zip(&recorded.inputs.dvl)
+        .filter(|(epoch, _)| epoch.imu_index >= BEAMSNET_WINDOW && epoch.imu_index < imu.len())
+        .map(|(epoch, row)| {
+            let i = epoch.imu_index;
+            let window = &imu[i - BEAMSNET_WINDOW..i];
+            let force: Vec<_> = window.iter().map(|s| s.specific_force).collect();
+            let rate: Vec<_> = window.iter().map(|s| s.angular_rate).collect();
+            let start = (window[0].time + offset).min(row.time);
+            let end = (imu[i].time + offset).max(row.time);
+            let sample = BeamsNetSample {
+                time: row.time,
+                input: BeamsNetInput::from_samples(&force, &rate, epoch.beams),
+                target: epoch.reference_velocity,
+                imu_end: i,
+            };
+            (sample, [start, end])
+        })
+        .collect();
+    Ok(RecordedExamples {
+        examples,
+        vehicle: recorded.vehicle.clone(),
+        truth_time_offset: recorded.truth_time_offset.clone(),
+    })
+}
+
+/// The dataset description's IMU part for synthesized windows.
+fn synthesized_description(config: &Config, spec: &ImuSpec) -> serde_json::Value {
+    let a = spec.accelerometer();
+    let g = spec.gyroscope();
+    serde_json::json!({
+        "imu_source": "synthesized",
+        "window_alignment": {
+            "rule": "filter",
+            "time_offset_s": config.dvl.akit_time_offset_s,
+            "description": "as the study's filter: a DVL sample stamped t measures the motion at t - time_offset_s; \
+                its update follows IMU sample i - 1, i = round((t - time_offset_s - t0) / dt); the window is IMU \
+                samples i - 100 .. i - 1 (t0: first GT time, dt = 0.01 s); column 608 holds the stamp t"
+        },
+        "imu_error_model": {
+            "name": format!(
+                "study default configuration: imu.preset = {}, imu.scale_factor_errors = {}",
+                config.imu.preset, config.imu.scale_factor_errors
+            ),
+            "accelerometer": {
+                "white_noise_density": a.white_noise_density,
+                "per_sample_std_at_100hz": a.white_noise_density * IMU_RATE_HZ.sqrt(),
+                "bias_instability": a.bias_instability,
+                "bias_time_constant": a.bias_time_constant,
+                "turn_on_bias": a.turn_on_bias,
+                "scale_factor": a.scale_factor
+            },
+            "gyroscope": {
+                "white_noise_density": g.white_noise_density,
+                "per_sample_std_at_100hz": g.white_noise_density * IMU_RATE_HZ.sqrt(),
+                "bias_instability": g.bias_instability,
+                "bias_time_constant": g.bias_time_constant,
+                "turn_on_bias": g.turn_on_bias,
+                "scale_factor": g.scale_factor
+            }
+        },
+        "seed_rule": "IMU errors: seed + 1000 n + r; beam noise: that + 1000003",
+        "source": "A-KIT GT_trajectoryN.csv (IMU synthesized) and DVL_trajectoryN.csv (target, beams)"
+    })
+}
+
+/// The dataset description's IMU part for recorded windows read with `vehicle`.
+///
+/// # Errors
+/// The embedded vehicle file does not parse.
+fn recorded_description(vehicle: &str) -> anyhow::Result<serde_json::Value> {
+    let nav: estim::navigator::NavigatorConfig =
+        toml::from_str(crate::study::AKIT_VEHICLE).context("the embedded vehicles/akit.toml")?;
+    Ok(serde_json::json!({
+        "imu_source": "recorded",
+        "vehicle": vehicle,
+        "vehicle_toml": crate::study::AKIT_VEHICLE,
+        "window_alignment": {
+            "rule": "filter",
+            "imu": "recorded",
+            "time_offset_s": nav.dvl.time_offset_s,
+            "description": "as the study's filter on the recorded IMU (Scenario::akit_choosing, ImuChoice::Recorded): \
+                IMU_trajectoryN.csv read through the vehicle file (axes, clock scale) onto the navigator's clock, \
+                the run from the reference's first epoch in the IMU's span to its last; a DVL row stamped t is \
+                applied at the IMU sample i nearest t - time_offset_s (within half a period), after integrating \
+                samples i - 100 .. i - 1, which are the window; column 608 holds the stamp t (DVL file time); \
+                per trajectory, reference_time_offset is the reference's clock offset against the IMU, \
+                estimated from the IMU's angular rate (GT file time = navigator time + offset_s), used only \
+                to place each example on the GT rows for the overlap rule"
+        },
+        "imu_error_model": null,
+        "seed_rule": "the recorded IMU is the same in every realization; beam noise: ChaCha8 seeded with \
+            (seed + 1000 n + r) XOR 0xD71, one draw per DVL row of the run in time order, as the study draws it",
+        "source": "A-KIT IMU_trajectoryN.csv (recorded IMU windows), GT_trajectoryN.csv (clock offset, overlap \
+            rows) and DVL_trajectoryN.csv (target, beams)"
+    }))
+}
+
 /// Run `estim dataset`.
 pub fn run(args: Args) -> anyhow::Result<()> {
     match args.kind {
@@ -164,27 +321,48 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
         .context("finding rows shared with the held-out trajectories (all 13 are needed)")?;
     let mut data = Vec::new();
     let mut counts = Vec::new();
+    // What the recorded IMU was read with (the same for every trajectory).
+    let mut vehicle = None;
     for n in TRAINING_TRAJECTORIES {
-        let (trajectory, dvl) = load_akit(&root, n)?;
         let gt_times: Vec<f64> = load_gt(&trajectory_files(&root, n)?.gt)?
             .iter()
             .map(|g| g.time)
             .collect();
+        let synthesized = match args.imu {
+            ImuWindows::Synthesized => Some(load_akit(&root, n)?),
+            ImuWindows::Recorded => None,
+        };
         let mut rows = 0;
         let mut excluded = 0;
+        let mut truth_time_offset = serde_json::Value::Null;
         for r in 0..args.realizations {
             let seed = args.seed + 1000 * u64::from(n) + u64::from(r);
-            let run = synthesize_aligned(&trajectory, &dvl, &spec, &protocol, seed, alignment)
-                .with_context(|| format!("trajectory {n}"))?;
-            for s in &run.samples {
-                // The GT rows the example depends on: its IMU window and its DVL row.
-                let window = [
-                    run.truth[s.imu_end - estim_learned::BEAMSNET_WINDOW].time,
-                    run.truth[s.imu_end].time,
-                ];
-                let start = window[0].min(s.time);
-                let end = window[1].max(s.time);
-                if touches_held_out(&overlaps, n, &gt_times, start, end, &TEST_TRAJECTORIES) {
+            // Each example with the span of GT file time it depends on: its IMU window
+            // and its DVL sample.
+            let examples: Vec<(BeamsNetSample, [f64; 2])> = match &synthesized {
+                Some((trajectory, dvl)) => {
+                    let run =
+                        synthesize_aligned(trajectory, dvl, &spec, &protocol, seed, alignment)
+                            .with_context(|| format!("trajectory {n}"))?;
+                    let truth = &run.truth;
+                    run.samples
+                        .into_iter()
+                        .map(|s| {
+                            let start = truth[s.imu_end - BEAMSNET_WINDOW].time.min(s.time);
+                            let end = truth[s.imu_end].time.max(s.time);
+                            (s, [start, end])
+                        })
+                        .collect()
+                }
+                None => {
+                    let recorded = recorded_examples(&root, n, &config, seed)?;
+                    truth_time_offset = recorded.truth_time_offset;
+                    vehicle = Some(recorded.vehicle);
+                    recorded.examples
+                }
+            };
+            for (s, [start, end]) in &examples {
+                if touches_held_out(&overlaps, n, &gt_times, *start, *end, &TEST_TRAJECTORIES) {
                     excluded += 1;
                     continue;
                 }
@@ -192,9 +370,13 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
                 rows += 1;
             }
         }
-        counts.push(serde_json::json!({
+        let mut count = serde_json::json!({
             "trajectory": n, "rows": rows, "excluded_touching_held_out": excluded
-        }));
+        });
+        if args.imu == ImuWindows::Recorded {
+            count["reference_time_offset"] = truth_time_offset;
+        }
+        counts.push(count);
         eprintln!("trajectory {n}: {rows} rows ({excluded} left out: they touch rows of a held-out trajectory)");
     }
     let shared_pairs: Vec<serde_json::Value> = overlaps
@@ -213,9 +395,12 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
         .collect();
     write_npy(&npy_path, DATASET_COLUMNS, &data)?;
     let geometry = protocol.geometry();
-    let a = spec.accelerometer();
-    let g = spec.gyroscope();
-    let meta = serde_json::json!({
+    let imu = match (args.imu, vehicle) {
+        (ImuWindows::Synthesized, _) => synthesized_description(&config, &spec),
+        (ImuWindows::Recorded, Some(vehicle)) => recorded_description(&vehicle)?,
+        (ImuWindows::Recorded, None) => bail!("no trajectory was read"),
+    };
+    let mut meta = serde_json::json!({
         "format": "estim-beamsnet-dataset/2",
         "columns": DATASET_COLUMNS,
         "rows": data.len() / DATASET_COLUMNS,
@@ -226,35 +411,6 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
         },
         "imu_rate_hz": IMU_RATE_HZ,
         "dvl_rate_hz": 1.0 / 1.0025,
-        "window_alignment": {
-            "rule": "filter",
-            "time_offset_s": config.dvl.akit_time_offset_s,
-            "description": "as the study's filter: a DVL sample stamped t measures the motion at t - time_offset_s; \
-                its update follows IMU sample i - 1, i = round((t - time_offset_s - t0) / dt); the window is IMU \
-                samples i - 100 .. i - 1 (t0: first GT time, dt = 0.01 s); column 608 holds the stamp t"
-        },
-        "imu_error_model": {
-            "name": format!(
-                "study default configuration: imu.preset = {}, imu.scale_factor_errors = {}",
-                config.imu.preset, config.imu.scale_factor_errors
-            ),
-            "accelerometer": {
-                "white_noise_density": a.white_noise_density,
-                "per_sample_std_at_100hz": a.white_noise_density * IMU_RATE_HZ.sqrt(),
-                "bias_instability": a.bias_instability,
-                "bias_time_constant": a.bias_time_constant,
-                "turn_on_bias": a.turn_on_bias,
-                "scale_factor": a.scale_factor
-            },
-            "gyroscope": {
-                "white_noise_density": g.white_noise_density,
-                "per_sample_std_at_100hz": g.white_noise_density * IMU_RATE_HZ.sqrt(),
-                "bias_instability": g.bias_instability,
-                "bias_time_constant": g.bias_time_constant,
-                "turn_on_bias": g.turn_on_bias,
-                "scale_factor": g.scale_factor
-            }
-        },
         "beam_geometry": {
             "theta_deg": geometry.beam_angle_deg(),
             "psi_deg": [45.0, 135.0, 225.0, 315.0]
@@ -278,10 +434,11 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
         ),
         "realizations": args.realizations,
         "seed": args.seed,
-        "seed_rule": "IMU errors: seed + 1000 n + r; beam noise: that + 1000003",
-        "source": "A-KIT GT_trajectoryN.csv (IMU synthesized) and DVL_trajectoryN.csv (target, beams)",
         "command": std::env::args().collect::<Vec<_>>().join(" ")
     });
+    if let (Some(meta), serde_json::Value::Object(imu)) = (meta.as_object_mut(), imu) {
+        meta.extend(imu);
+    }
     let meta_path = args.out.with_extension("json");
     std::fs::write(&staged_meta, serde_json::to_string_pretty(&meta)?)
         .with_context(|| format!("writing {}", meta_path.display()))?;
@@ -401,6 +558,115 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// `--imu recorded`: every row of trajectory 2 is the study's recorded scenario at
+    /// the row's DVL stamp (the window is the scenario's `imu` slice before the update,
+    /// the beams and target its epoch's), realizations differ only in the beam noise,
+    /// and no row touches a row shared with trajectory 4 or 13.
+    #[test]
+    fn recorded_dataset_rows_are_the_recorded_scenarios_windows() {
+        let Some(root) = common::data_root() else {
+            return;
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("recorded.npy");
+        let seed = 2022;
+        beamsnet(BeamsnetArgs {
+            data: Some(root.clone()),
+            out: out.clone(),
+            realizations: 2,
+            seed,
+            imu: ImuWindows::Recorded,
+        })
+        .unwrap();
+        let bytes = std::fs::read(&out).unwrap();
+        let header = usize::from(u16::from_le_bytes([bytes[8], bytes[9]]));
+        let values: Vec<f64> = bytes[10 + header..]
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
+            .collect();
+        let rows: Vec<&[f64]> = values.chunks_exact(DATASET_COLUMNS).collect();
+        let meta: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.with_extension("json")).unwrap()).unwrap();
+        assert_eq!(meta["imu_source"], "recorded");
+        assert_eq!(meta["rows"].as_u64(), Some(rows.len() as u64));
+        assert_eq!(meta["window_alignment"]["rule"], "filter");
+
+        let config = Config::default();
+        let scenario = |n: u32, r: u32| {
+            let seed = seed + 1000 * u64::from(n) + u64::from(r);
+            Scenario::akit_choosing(&root, n, &config, seed, false, ImuChoice::Recorded, None)
+                .unwrap()
+        };
+        let n = BEAMSNET_WINDOW;
+        for r in 0..2 {
+            let study = scenario(2, r);
+            let recorded = study.recorded.as_deref().unwrap();
+            let of2: Vec<&[f64]> = rows
+                .iter()
+                .copied()
+                .filter(|row| row[607] == 2.0 && row[609] == f64::from(r))
+                .collect();
+            let full = study.dvl.iter().filter(|e| e.imu_index >= n).count();
+            assert!(of2.len() > 350 && of2.len() == full, "{} rows", of2.len());
+            for row in of2 {
+                let k = recorded
+                    .inputs
+                    .dvl
+                    .iter()
+                    .position(|d| d.time == row[608])
+                    .unwrap();
+                let epoch = &study.dvl[k];
+                let i = epoch.imu_index;
+                for (j, s) in study.imu[i - n..i].iter().enumerate() {
+                    for c in 0..3 {
+                        assert_eq!(row[c * n + j], s.specific_force[c], "stamp {}", row[608]);
+                        assert_eq!(row[3 * n + c * n + j], s.angular_rate[c]);
+                    }
+                }
+                assert_eq!(&row[600..604], epoch.beams.as_slice());
+                assert_eq!(&row[604..607], epoch.reference_velocity.as_slice());
+            }
+        }
+        // The two realizations: the same windows, other beam noise.
+        let first = |r: f64| {
+            rows.iter()
+                .find(|row| row[607] == 2.0 && row[609] == r)
+                .unwrap()
+        };
+        assert_eq!(&first(0.0)[..604 - 4], &first(1.0)[..604 - 4]);
+        assert_ne!(&first(0.0)[600..604], &first(1.0)[600..604]);
+
+        // Nothing of 4 or 13; every row of 10 ends (IMU window and DVL stamp, on the GT
+        // file's clock) more than 2 rows before the first row 10 shares with 13.
+        assert!(rows.iter().all(|row| row[607] != 4.0 && row[607] != 13.0));
+        let all: Vec<u32> = (1..=13).collect();
+        let overlaps = akit_overlaps(&root, &all).unwrap();
+        let first_shared = overlaps.rows_shared_with(10, 13)[0];
+        let gt10 = load_gt(&trajectory_files(&root, 10).unwrap().gt).unwrap();
+        let study = scenario(10, 0);
+        let recorded = study.recorded.as_deref().unwrap();
+        let offset = recorded.truth_time_offset["offset_s"].as_f64().unwrap();
+        let mut kept = 0;
+        for row in rows
+            .iter()
+            .filter(|row| row[607] == 10.0 && row[609] == 0.0)
+        {
+            let k = recorded
+                .inputs
+                .dvl
+                .iter()
+                .position(|d| d.time == row[608])
+                .unwrap();
+            let end = (study.imu[study.dvl[k].imu_index].time + offset).max(row[608]);
+            assert!(
+                end < gt10[first_shared - 2].time,
+                "a row of 10 ends at {end} s"
+            );
+            kept += 1;
+        }
+        assert!(kept > 250, "{kept} rows of 10");
     }
 
     /// The committed two-beams network's dataset was aligned as the filter feeds it,

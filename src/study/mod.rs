@@ -46,7 +46,9 @@ pub use paired::{
     beamsnet_without_sensitivity, markdown as paired_markdown, paired_study, CellRun, Gate,
     PairedInterval, PairedStudy, BEAMSNET_PER_STEP,
 };
-pub use recorded::{run_recorded, ImuChoice, ImuSource, RecordedSurvey, RECORDED_NEES_STATES};
+pub use recorded::{
+    run_recorded, ImuChoice, ImuSource, RecordedSurvey, AKIT_VEHICLE, RECORDED_NEES_STATES,
+};
 pub use report::{
     analyse, filter_label, least_squares_velocities, run_variant, summarise, FilterSummary,
     Improvement, LearnedInputs, TrajectoryReport, BEAMSNET, BEAMSNET_NEGLECTED, BEAMSNET_SCALED,
