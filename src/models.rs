@@ -42,7 +42,8 @@ pub fn beamsnet() -> Result<BeamsNet> {
 /// (aligned as the study's filter feeds them; beams from the DVL velocity by the
 /// BeamsNet protocol), `models/beamsnet_recorded.onnx`. Its metadata says
 /// `imu_source: recorded`; training/README.md has the command and the validation
-/// figures. [`beamsnet`] (synthesized windows) is the one the golden tables use.
+/// figures. The study uses it on a recorded IMU and [`beamsnet`] (trained on
+/// synthesized windows) on a synthesized one.
 ///
 /// # Errors
 /// The loader's errors (none for the committed files; tested).

@@ -192,6 +192,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Some(path) => path_json(Some(path)),
             None => serde_json::Value::from(estim::models::BEAMSNET_NAME),
         },
+        // On a recorded IMU without --model: the network trained on recorded windows.
+        "model_recorded_imu": match &args.model {
+            Some(path) => path_json(Some(path)),
+            None => serde_json::Value::from(estim::models::BEAMSNET_RECORDED_NAME),
+        },
         "out": path_json(args.out.as_deref()),
         "seed": config.seed,
         "config": config,

@@ -13,6 +13,32 @@ use estim_learned::{
 use super::run::filter_imu_spec;
 use super::{LearnedInputs, Result, Scenario};
 
+/// The committed BeamsNet for each IMU source, with M from the network's sensitivity:
+/// on a recorded IMU the network trained on recorded windows
+/// ([`estim::models::beamsnet_recorded`]), on a synthesized one the network trained
+/// on synthesized windows ([`estim::models::beamsnet`]). What `estim reproduce`, `estim
+/// report` and `estim montecarlo` use without `--model`.
+///
+/// # Errors
+/// The loaders' errors (none for the committed files; tested).
+pub fn committed_beamsnet(config: &super::Config) -> Result<Box<super::LearnedSource>> {
+    let synthesized = estim::models::beamsnet()?;
+    let recorded = estim::models::beamsnet_recorded()?;
+    let protocol = if config.dvl.protocol == "v2" {
+        estim_dvl::BeamsNetProtocol::v2()
+    } else {
+        estim_dvl::BeamsNetProtocol::v1()
+    };
+    let geometry = protocol.geometry().clone();
+    Ok(Box::new(move |scenario: &Scenario| {
+        let net = match scenario.imu_source {
+            super::ImuSource::Recorded => &recorded,
+            super::ImuSource::Synthesized => &synthesized,
+        };
+        beamsnet_inputs(net, scenario, &geometry, true)
+    }))
+}
+
 /// Beams for the network: a missing beam is replaced by its value predicted from the
 /// 3-beam least-squares velocity (A v); fewer than 3 beams give `None`.
 ///

@@ -43,8 +43,8 @@ pub use seeds::{learned_seed_tables, seed_interval_tables};
 
 use super::report::{BEAMSNET, BEAMSNET_NEGLECTED, BEAMSNET_SCALED, BEAMSNET_SENSITIVITY, LS};
 use super::{
-    analyse, apply_faults, beamsnet_inputs, monte_carlo, Config, FilterSummary, Improvement,
-    LearnedInputs, LearnedSource, PaperMBasis, PipelineError, Result, Scenario, TrajectoryReport,
+    analyse, apply_faults, monte_carlo, Config, FilterSummary, Improvement, LearnedInputs,
+    LearnedSource, PaperMBasis, PipelineError, Result, Scenario, TrajectoryReport,
     ORACLE_NEGLECTED, ORACLE_SCALED, ORACLE_TRUE_M,
 };
 
@@ -202,19 +202,11 @@ pub fn thousands(n: usize) -> String {
     out
 }
 
-/// The committed BeamsNet model as the pipeline's learned sensor, with M from the
-/// network's sensitivity (what `estim reproduce` and `estim montecarlo` use).
+/// The committed BeamsNet models as the pipeline's learned sensor, with M from the
+/// network's sensitivity, per IMU source ([`crate::study::committed_beamsnet`]: what
+/// `estim reproduce` and `estim montecarlo` use).
 pub fn default_beamsnet(config: &Config) -> Result<Box<LearnedSource>> {
-    let net = estim::models::beamsnet()?;
-    let protocol = if config.dvl.protocol == "v2" {
-        estim_dvl::BeamsNetProtocol::v2()
-    } else {
-        estim_dvl::BeamsNetProtocol::v1()
-    };
-    let geometry = protocol.geometry().clone();
-    Ok(Box::new(move |scenario| {
-        beamsnet_inputs(&net, scenario, &geometry, true)
-    }))
+    crate::study::committed_beamsnet(config)
 }
 
 /// One data set of the results tables: the report on the configured basis and the

@@ -31,7 +31,7 @@ pub use evaluate::{
     check_fit_trajectories, evaluate, fit_training, markdown as evaluation_markdown,
 };
 pub use faults::{apply_faults, DvlOutage, FaultConfig, ImuGap};
-pub use learned::beamsnet_inputs;
+pub use learned::{beamsnet_inputs, committed_beamsnet};
 pub use learned_scenarios::{
     learned_monte_carlo, learned_study, max_correlation, two_beams_measurements, LearnedEvent,
     LearnedMonteCarlo, LearnedStudy, MeanInterval, STUDY_EMPIRICAL_REALIZATIONS,
