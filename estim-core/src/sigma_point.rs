@@ -337,6 +337,34 @@ where
     T: Scalar,
     F: Fn(&SVector<T, N>) -> Result<SVector<T, N>>,
 {
+    predict_with_hooks(
+        transform,
+        prior,
+        propagate,
+        |a, b| a - b,
+        |points| Ok(points.weighted_mean()),
+        process_noise,
+    )
+}
+
+/// [`unscented_predict_linearised`] with a state residual and mean (the hooks of
+/// [`crate::SigmaPointProcess`]): deviations d_i = residual(f(chi_i), f(chi_0)), the
+/// mean from the hook, e = residual(mean, f(chi_0)) and the covariance about it as in
+/// [`sigma_statistics`].
+pub(crate) fn predict_with_hooks<T, F, D, A, const N: usize>(
+    transform: &UnscentedTransform,
+    prior: &StateAndCovariance<T, N>,
+    propagate: F,
+    residual: D,
+    mean: A,
+    process_noise: &SMatrix<T, N, N>,
+) -> Result<(StateAndCovariance<T, N>, SMatrix<T, N, N>)>
+where
+    T: Scalar,
+    F: Fn(&SVector<T, N>) -> Result<SVector<T, N>>,
+    D: Fn(&SVector<T, N>, &SVector<T, N>) -> SVector<T, N>,
+    A: Fn(&SigmaPoints<'_, T, N>) -> Result<SVector<T, N>>,
+{
     check_finite(process_noise.as_slice(), "process noise")?;
     let s = covariance_factor(prior.covariance(), "prior covariance")?;
     let weights = transform.weights::<T>(N)?;
@@ -349,27 +377,56 @@ where
     let mut d_bar = SVector::<T, N>::zeros();
     let mut second = SMatrix::<T, N, N>::zeros();
     let mut spread = SMatrix::<T, N, N>::zeros(); // G, column j = g_j
-    for i in 0..N {
+    let mut mapped = [[SVector::<T, N>::zeros(); 2]; N];
+    for (i, images) in mapped.iter_mut().enumerate() {
         let mut pair = [SVector::<T, N>::zeros(); 2];
         for (k, sign) in [T::one(), -T::one()].into_iter().enumerate() {
             let point = x + s.column(i) * (gamma * sign);
-            let d = propagate(&point)? - centre;
+            let y = propagate(&point)?;
+            let d = residual(&y, &centre);
             check_finite(d.as_slice(), "propagated sigma point")?;
             d_bar += d * wi;
             add_outer(&mut second, &d, &d, wi);
             pair[k] = d;
+            images[k] = y;
         }
         spread.set_column(i, &((pair[0] - pair[1]) * (wi * gamma)));
     }
-    let mean = centre + d_bar;
-    let mut p = second;
-    add_outer(&mut p, &d_bar, &d_bar, weights.mean_correction());
-    let p = symmetric_sum(&p, process_noise);
+    let points = SigmaPoints {
+        centre: &centre,
+        centre_weight: weights.mean_centre,
+        weight: wi,
+        pairs: [&mapped, &[]],
+    };
+    let mean = mean(&points)?;
     check_finite(mean.as_slice(), "predicted state")?;
+    let mut p = second;
+    if mean == centre + d_bar {
+        add_outer(&mut p, &d_bar, &d_bar, weights.mean_correction());
+    } else if !weights.centre_modified {
+        let e = residual(&mean, &centre);
+        check_finite(e.as_slice(), "predicted state")?;
+        add_about_mean(&mut p, &weights, &d_bar, &e);
+    }
+    let p = symmetric_sum(&p, process_noise);
     check_finite(p.as_slice(), "predicted covariance")?;
     let transition = solve_right_lower(&spread, &s);
     check_finite(transition.as_slice(), "statistically linearised transition")?;
     Ok((StateAndCovariance::from_step(mean, p)?, transition))
+}
+
+/// sum_{i>0} W d_i d_i' (in `second`) to sum_i Wc_i (d_i - e)(d_i - e)' (d_0 = 0) for
+/// s = sum_{i>0} W d_i: add -s e' - e s' + (Wc_0 + 1 - Wm_0) e e'.
+fn add_about_mean<T: Scalar, const D: usize>(
+    second: &mut SMatrix<T, D, D>,
+    weights: &Weights<T>,
+    s: &SVector<T, D>,
+    e: &SVector<T, D>,
+) {
+    let total = weights.covariance_centre + T::one() - weights.mean_centre;
+    add_outer(second, s, e, -T::one());
+    add_outer(second, e, s, -T::one());
+    add_outer(second, e, e, total);
 }
 
 /// The statistical linearisation H~ = P_xy' P^-1 of `model`'s h about `prior`, from
@@ -671,10 +728,7 @@ where
     } else if !weights.centre_modified {
         let e = model.residual(&predicted, &centre);
         check_finite(e.as_slice(), "predicted measurement")?;
-        let total = weights.covariance_centre + T::one() - weights.mean_centre;
-        add_outer(&mut pyy, &d_bar, &e, -T::one());
-        add_outer(&mut pyy, &e, &d_bar, -T::one());
-        add_outer(&mut pyy, &e, &e, total);
+        add_about_mean(&mut pyy, &weights, &d_bar, &e);
     }
     if transform.update == SigmaPointUpdate::Additive {
         pyy += linearised_cross + linearised_cross.transpose() + measurement_noise;

@@ -351,10 +351,15 @@ pub trait LearnedMeasurement<T: Scalar, const M: usize> {
 /// linearisation of `propagate` from the same sigma points (see
 /// [`crate::UnscentedKalmanFilter`]).
 ///
+/// For a state with angles (a heading), [`SigmaPointProcess::residual`] and
+/// [`SigmaPointProcess::mean`] say how states differ and how sigma points average
+/// (defaults: the plain difference and the weighted mean); `propagate` should wrap
+/// its result, the update's x + K nu is not wrapped.
+///
 /// Every [`ProcessModel`] whose state is `SVector<T, N>` is one (blanket
-/// implementation, its Jacobian unused); implement this trait directly for a model
-/// that has no Jacobian (a type that implements [`ProcessModel`] cannot also
-/// implement this one).
+/// implementation, its Jacobian unused, the default hooks); implement this trait
+/// directly for a model that has no Jacobian or has angles (a type that implements
+/// [`ProcessModel`] cannot also implement this one).
 ///
 /// ```
 /// use estim_core::nalgebra::{Matrix2, Vector2};
@@ -393,6 +398,24 @@ pub trait SigmaPointProcess<T: Scalar, const N: usize> {
         input: &Self::Input,
         dt: T,
     ) -> Result<SMatrix<T, N, N>>;
+
+    /// a - b, the difference of two states (a propagated sigma point and the
+    /// predicted mean). Override it to wrap angle components (a heading) into
+    /// (-pi, pi]. Default: `a - b`.
+    fn residual(&self, a: &SVector<T, N>, b: &SVector<T, N>) -> SVector<T, N> {
+        a - b
+    }
+
+    /// The mean of the propagated sigma points with their mean weights (see
+    /// [`SigmaPointMeasurement::mean`]). Override it to take the circular mean of
+    /// angle components. Default:
+    /// [`SigmaPoints::weighted_mean`](crate::sigma_point::SigmaPoints::weighted_mean).
+    ///
+    /// # Errors
+    /// The model's.
+    fn mean(&self, points: &crate::sigma_point::SigmaPoints<'_, T, N>) -> Result<SVector<T, N>> {
+        Ok(points.weighted_mean())
+    }
 }
 
 impl<T, P, const N: usize> SigmaPointProcess<T, N> for P

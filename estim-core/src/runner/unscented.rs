@@ -19,8 +19,7 @@ use crate::gaussian::check_finite;
 use crate::linalg::mul_static;
 use crate::observer::{NoObserver, Observer};
 use crate::sigma_point::{
-    measurement_linearisation, sigma_statistics, unscented_predict_linearised, ModelHooks,
-    UnscentedTransform,
+    measurement_linearisation, predict_with_hooks, sigma_statistics, ModelHooks, UnscentedTransform,
 };
 use crate::update::innovation_log_likelihood;
 use crate::{
@@ -37,7 +36,8 @@ use crate::{
 /// also one of these (its Jacobian unused).
 ///
 /// - **Predict**: [`unscented_predict`], sigma points of (x, P) through
-///   [`SigmaPointProcess::propagate`], plus Q_d.
+///   [`SigmaPointProcess::propagate`], plus Q_d, with the process model's
+///   [`SigmaPointProcess::residual`] and [`SigmaPointProcess::mean`] (a heading).
 /// - **Update**: [`unscented_update`] with R, M from the [`CrossCovariance`] (or, for
 ///   [`UnscentedKalmanFilter::update_windowed`], Var(v | ...), the exact windowed M and
 ///   the innovation y - y_hat - E[v | ...]), with the model's
@@ -210,10 +210,12 @@ where
         let qd = self.process.process_noise(x, input, dt)?;
         check_finite(qd.as_slice(), "process noise covariance")?;
         let process = &self.process;
-        let (predicted, phi) = unscented_predict_linearised(
+        let (predicted, phi) = predict_with_hooks(
             &self.transform,
             &self.estimate,
             |s| process.propagate(s, input, dt),
+            |a, b| process.residual(a, b),
+            |points| process.mean(points),
             &qd,
         )?;
         let before = std::mem::replace(&mut self.estimate, predicted);
