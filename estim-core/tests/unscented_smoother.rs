@@ -286,3 +286,33 @@ fn smoothed_result_does_not_depend_on_the_jacobians() {
         "smoothed {smoothed} filtered {filtered}"
     );
 }
+
+#[test]
+fn one_call_gives_filtered_and_smoothed_and_plain_update_is_zero_cross() {
+    let (steps, _) = swing(11, 40);
+    let transform = UnscentedTransform::default();
+    let ukf = UnscentedKalmanFilter::new(PendulumNoJacobian, transform, initial());
+    let both = ukf
+        .smooth_batch(&steps, &HorizontalNoJacobian, &Zero)
+        .unwrap();
+    let mut forward = ukf.clone();
+    let filtered = forward
+        .filter_batch(&steps, &HorizontalNoJacobian, &Zero)
+        .unwrap();
+    // The same forward pass, bit for bit.
+    assert_eq!(both.filtered, filtered.estimates);
+    assert_eq!(both.log_likelihood, filtered.log_likelihood);
+
+    // step_uncorrelated is step with Zero, bit for bit.
+    let (mut plain, mut zero) = (ukf.clone(), ukf);
+    for (_, dt, y) in &steps {
+        let a = plain
+            .step_uncorrelated(&(), *dt, &HorizontalNoJacobian, y.as_ref())
+            .unwrap();
+        let b = zero
+            .step(&(), *dt, &HorizontalNoJacobian, y.as_ref(), &Zero)
+            .unwrap();
+        assert_eq!(a, b);
+        assert_eq!(plain.estimate(), zero.estimate());
+    }
+}
