@@ -111,9 +111,11 @@
 //! [`ProcessModel`] on `SVector<T, N>`), [`ErrorStateKalmanFilter`] (nominal state
 //! propagated by the model, error covariance, inject then reset),
 //! [`SquareRootKalmanFilter`] (F, H, Q, R, a factor of P) and [`UnscentedKalmanFilter`]
-//! (any [`ProcessModel`] on `SVector<T, N>`, sigma points) share one runner core and
+//! (any [`SigmaPointProcess`] and [`SigmaPointMeasurement`]: no Jacobian; every
+//! [`ProcessModel`] / [`MeasurementModel`] on `SVector<T, N>` is one) share one runner core and
 //! the same `predict` / `update` / `update_windowed` / `step(.., Option<&measurement>, ..)`
-//! shape, configuration, gate and observer events. Every update
+//! shape (and `update_uncorrelated` / `step_uncorrelated`, the same with M = 0: no
+//! cross-covariance argument), configuration, gate and observer events. Every update
 //! attempt returns an [`UpdateReport`] (NIS, S, M, the joint eigenvalue, the gain);
 //! an innovation [`Gate`] (chi-square quantile of the measurement size) can reject a
 //! measurement, which leaves the state untouched and is reported as
@@ -276,7 +278,7 @@ pub use runner::{
 pub use scalar::Scalar;
 pub use traits::{
     CrossCovariance, CrossCovarianceContext, ErrorStateModel, InputSpec, LearnedMeasurement,
-    MeasurementModel, ProcessModel,
+    MeasurementModel, ProcessModel, SigmaPointMeasurement, SigmaPointProcess,
 };
 pub use update::CovarianceUpdate;
 pub use window::WindowedCrossCovariance;

@@ -67,18 +67,24 @@
 //! ```
 //!
 //! The joint covariance must have a square root: an indefinite [[P, M], [M', R]]
-//! is refused with [`Error::InvalidJointCovariance`], never factored around. No
-//! sigma point is stored: sums are accumulated from deviations to the centre point,
-//! so nothing is allocated.
+//! is refused with [`Error::InvalidJointCovariance`], never factored around. Sums
+//! are accumulated from deviations to the centre point; the mapped points are kept on
+//! the stack for the mean hooks ([`SigmaPoints`]), so nothing is allocated.
 
 use nalgebra::{SMatrix, SVector};
+
+mod points;
+
+use points::PlainMeasurement;
+pub use points::SigmaPoints;
+pub(crate) use points::{MeasurementHooks, ModelHooks};
 
 use crate::gaussian::check_finite;
 use crate::linalg::{joint_factor, mul_static, spd_inverse_log_det};
 use crate::scalar::{lit, to_f64};
 use crate::square_root::covariance_factor;
 use crate::update::check_innovation_conditioning;
-use crate::{Error, Result, Scalar, StateAndCovariance};
+use crate::{Error, Result, Scalar, SigmaPointMeasurement, StateAndCovariance};
 
 /// Which sigma-point update [`unscented_update`] runs. Both reduce to
 /// [`crate::update::correlated_update`] on a linear measurement, with and without M.
@@ -313,6 +319,58 @@ where
     T: Scalar,
     F: Fn(&SVector<T, N>) -> Result<SVector<T, N>>,
 {
+    Ok(unscented_predict_linearised(transform, prior, propagate, process_noise)?.0)
+}
+
+/// [`unscented_predict`], and the statistical linearisation of `propagate` from the
+/// same sigma points: Phi~ = D' P^-1 with D = sum Wc_i (chi_i - x)(f(chi_i) - mean)'
+/// the cross-covariance of prior and propagated points (Saerkkae 2013, *Bayesian
+/// Filtering and Smoothing*, sec. 9.1 and alg. 9.6's D_{k+1}), so that P Phi~' = D
+/// exactly: the RTS smoother of the linearised model is then the unscented RTS
+/// smoother. With S S' = P and g_j = W gamma (f(chi_j+) - f(chi_j-)), D = S G' and
+/// Phi~ = G S^-1 (no inverse of P; a zero column of a singular S gives a zero
+/// column of Phi~, and still P Phi~' = D). On a linear map Phi~ = Phi.
+///
+/// # Errors
+/// Those of [`unscented_predict`].
+pub fn unscented_predict_linearised<T, F, const N: usize>(
+    transform: &UnscentedTransform,
+    prior: &StateAndCovariance<T, N>,
+    propagate: F,
+    process_noise: &SMatrix<T, N, N>,
+) -> Result<(StateAndCovariance<T, N>, SMatrix<T, N, N>)>
+where
+    T: Scalar,
+    F: Fn(&SVector<T, N>) -> Result<SVector<T, N>>,
+{
+    predict_with_hooks(
+        transform,
+        prior,
+        propagate,
+        |a, b| a - b,
+        |points| Ok(points.weighted_mean()),
+        process_noise,
+    )
+}
+
+/// [`unscented_predict_linearised`] with a state residual and mean (the hooks of
+/// [`crate::SigmaPointProcess`]): deviations d_i = residual(f(chi_i), f(chi_0)), the
+/// mean from the hook, e = residual(mean, f(chi_0)) and the covariance about it as in
+/// [`sigma_statistics`].
+pub(crate) fn predict_with_hooks<T, F, D, A, const N: usize>(
+    transform: &UnscentedTransform,
+    prior: &StateAndCovariance<T, N>,
+    propagate: F,
+    residual: D,
+    mean: A,
+    process_noise: &SMatrix<T, N, N>,
+) -> Result<(StateAndCovariance<T, N>, SMatrix<T, N, N>)>
+where
+    T: Scalar,
+    F: Fn(&SVector<T, N>) -> Result<SVector<T, N>>,
+    D: Fn(&SVector<T, N>, &SVector<T, N>) -> SVector<T, N>,
+    A: Fn(&SigmaPoints<'_, T, N>) -> Result<SVector<T, N>>,
+{
     check_finite(process_noise.as_slice(), "process noise")?;
     let s = covariance_factor(prior.covariance(), "prior covariance")?;
     let weights = transform.weights::<T>(N)?;
@@ -324,22 +382,118 @@ where
     // sum_{i>0} W_i d_i d_i' + (Weights::mean_correction) d_bar d_bar'.
     let mut d_bar = SVector::<T, N>::zeros();
     let mut second = SMatrix::<T, N, N>::zeros();
-    for i in 0..N {
-        for sign in [T::one(), -T::one()] {
+    let mut spread = SMatrix::<T, N, N>::zeros(); // G, column j = g_j
+    let mut mapped = [[SVector::<T, N>::zeros(); 2]; N];
+    for (i, images) in mapped.iter_mut().enumerate() {
+        let mut pair = [SVector::<T, N>::zeros(); 2];
+        for (k, sign) in [T::one(), -T::one()].into_iter().enumerate() {
             let point = x + s.column(i) * (gamma * sign);
-            let d = propagate(&point)? - centre;
+            let y = propagate(&point)?;
+            let d = residual(&y, &centre);
             check_finite(d.as_slice(), "propagated sigma point")?;
             d_bar += d * wi;
             add_outer(&mut second, &d, &d, wi);
+            pair[k] = d;
+            images[k] = y;
+        }
+        spread.set_column(i, &((pair[0] - pair[1]) * (wi * gamma)));
+    }
+    let points = SigmaPoints {
+        centre: &centre,
+        centre_weight: weights.mean_centre,
+        weight: wi,
+        pairs: [&mapped, &[]],
+    };
+    let mean = mean(&points)?;
+    check_finite(mean.as_slice(), "predicted state")?;
+    let mut p = second;
+    if mean == centre + d_bar {
+        add_outer(&mut p, &d_bar, &d_bar, weights.mean_correction());
+    } else if !weights.centre_modified {
+        let e = residual(&mean, &centre);
+        check_finite(e.as_slice(), "predicted state")?;
+        add_about_mean(&mut p, &weights, &d_bar, &e);
+    }
+    let p = symmetric_sum(&p, process_noise);
+    check_finite(p.as_slice(), "predicted covariance")?;
+    let transition = solve_right_lower(&spread, &s);
+    check_finite(transition.as_slice(), "statistically linearised transition")?;
+    Ok((StateAndCovariance::from_step(mean, p)?, transition))
+}
+
+/// sum_{i>0} W d_i d_i' (in `second`) to sum_i Wc_i (d_i - e)(d_i - e)' (d_0 = 0) for
+/// s = sum_{i>0} W d_i: add -s e' - e s' + (Wc_0 + 1 - Wm_0) e e'.
+fn add_about_mean<T: Scalar, const D: usize>(
+    second: &mut SMatrix<T, D, D>,
+    weights: &Weights<T>,
+    s: &SVector<T, D>,
+    e: &SVector<T, D>,
+) {
+    let total = weights.covariance_centre + T::one() - weights.mean_centre;
+    add_outer(second, s, e, -T::one());
+    add_outer(second, e, s, -T::one());
+    add_outer(second, e, e, total);
+}
+
+/// The statistical linearisation H~ = P_xy' P^-1 of `model`'s h about `prior`, from
+/// the 2N + 1 sigma points over x of `transform`'s weights at L = N (P_xy of those
+/// points alone, before R and M): with S S' = P and g_j = W gamma (h(chi_j+) -
+/// h(chi_j-)) (differences through [`SigmaPointMeasurement::residual`]),
+/// H~ = G S^-1. On a linear h, H~ = H. What the unscented runner uses in place of a
+/// Jacobian (its bookkeeping, never the estimate).
+///
+/// # Errors
+/// [`Error::InvalidCovariance`] if P has no square root, [`Error::InvalidParameter`]
+/// if N + kappa <= 0, [`Error::NonFinite`], the errors of `model.predict`.
+pub fn measurement_linearisation<T, Mm, const N: usize, const M: usize>(
+    transform: &UnscentedTransform,
+    prior: &StateAndCovariance<T, N>,
+    model: &Mm,
+) -> Result<SMatrix<T, M, N>>
+where
+    T: Scalar,
+    Mm: SigmaPointMeasurement<T, N, M> + ?Sized,
+{
+    let s = covariance_factor(prior.covariance(), "prior covariance")?;
+    let weights = transform.weights::<T>(N)?;
+    let (gamma, wi) = (weights.gamma, weights.other);
+    let x = prior.state();
+    let centre = model.predict(x)?;
+    check_finite(centre.as_slice(), "predicted measurement")?;
+    let mut spread = SMatrix::<T, M, N>::zeros();
+    for j in 0..N {
+        let plus = model.predict(&(x + s.column(j) * gamma))?;
+        let minus = model.predict(&(x - s.column(j) * gamma))?;
+        let g = (model.residual(&plus, &centre) - model.residual(&minus, &centre)) * (wi * gamma);
+        spread.set_column(j, &g);
+    }
+    let h = solve_right_lower(&spread, &s);
+    check_finite(h.as_slice(), "statistically linearised measurement")?;
+    Ok(h)
+}
+
+/// X with X S = G for a lower-triangular S whose zero pivots come with zero columns
+/// (a semidefinite Cholesky factor): back substitution, X's column j zero where S_jj
+/// is (G's column j is then zero too: the sigma points along it coincide).
+fn solve_right_lower<T: Scalar, const R: usize, const N: usize>(
+    g: &SMatrix<T, R, N>,
+    s: &SMatrix<T, N, N>,
+) -> SMatrix<T, R, N> {
+    let mut x = SMatrix::<T, R, N>::zeros();
+    for j in (0..N).rev() {
+        let pivot = s[(j, j)];
+        if pivot.is_zero() {
+            continue;
+        }
+        for r in 0..R {
+            let mut v = g[(r, j)];
+            for k in j + 1..N {
+                v -= x[(r, k)] * s[(k, j)];
+            }
+            x[(r, j)] = v / pivot;
         }
     }
-    let mean = centre + d_bar;
-    let mut p = second;
-    add_outer(&mut p, &d_bar, &d_bar, weights.mean_correction());
-    let p = symmetric_sum(&p, process_noise);
-    check_finite(mean.as_slice(), "predicted state")?;
-    check_finite(p.as_slice(), "predicted covariance")?;
-    StateAndCovariance::from_step(mean, p)
+    x
 }
 
 /// Everything a sigma-point update produced.
@@ -391,7 +545,7 @@ where
     let stats = sigma_statistics(
         transform,
         prior,
-        &predict_measurement,
+        &PlainMeasurement(predict_measurement),
         measurement_noise,
         cross_covariance,
     )?;
@@ -470,17 +624,22 @@ impl<T: Scalar, const N: usize, const M: usize> SigmaStatistics<T, N, M> {
 
 /// The sigma-point statistics of an update of `prior` with noise covariance
 /// `measurement_noise` and cross-covariance M = `cross_covariance`, in the form of
-/// [`UnscentedTransform::update`] (see [`unscented_update`]).
-pub(crate) fn sigma_statistics<T, H, const N: usize, const M: usize>(
+/// [`UnscentedTransform::update`] (see [`unscented_update`]), with `model`'s h and
+/// its residual and mean hooks: deviations d_i = residual(Y_i, Y_0) from the centre
+/// point, y_hat = mean(Y), e = residual(y_hat, Y_0) and, in the plain form,
+/// P_yy = sum_i Wc_i (d_i - e)(d_i - e)' (d_0 = 0), summed as
+/// sum_{i>0} W d_i d_i' - s e' - e s' + (Wc_0 + 1 - Wm_0) e e' with s = sum_{i>0} W d_i
+/// (for the weighted mean e = s, and this is the form with `mean_correction`).
+pub(crate) fn sigma_statistics<T, Mm, const N: usize, const M: usize>(
     transform: &UnscentedTransform,
     prior: &StateAndCovariance<T, N>,
-    predict_measurement: &H,
+    model: &Mm,
     measurement_noise: &SMatrix<T, M, M>,
     cross_covariance: &SMatrix<T, N, M>,
 ) -> Result<SigmaStatistics<T, N, M>>
 where
     T: Scalar,
-    H: Fn(&SVector<T, N>) -> Result<SVector<T, M>> + ?Sized,
+    Mm: MeasurementHooks<T, N, M>,
 {
     check_finite(measurement_noise.as_slice(), "measurement noise covariance")?;
     check_finite(cross_covariance.as_slice(), "cross-covariance")?;
@@ -497,11 +656,15 @@ where
         });
     };
     let x = prior.state();
-    let centre = predict_measurement(x)?;
+    let centre = model.predict(x)?;
     check_finite(centre.as_slice(), "predicted measurement")?;
     let mut d_bar = SVector::<T, M>::zeros();
     let mut second = SMatrix::<T, M, M>::zeros();
     let mut cross = SMatrix::<T, N, M>::zeros();
+    // The mapped points, kept for the mean hook: pairs along the state columns, then
+    // (augmented) along the noise columns.
+    let mut state_points = [[SVector::<T, M>::zeros(); 2]; N];
+    let mut noise_points = [[SVector::<T, M>::zeros(); 2]; M];
     let columns = match transform.update {
         SigmaPointUpdate::Additive => N,
         SigmaPointUpdate::Augmented => N + M,
@@ -521,21 +684,28 @@ where
             SigmaPointUpdate::Augmented => (SVector::zeros(), l.d.column(j - N).into_owned()),
         };
         let mut pair = [SVector::<T, M>::zeros(); 2];
+        let mut mapped = [SVector::<T, M>::zeros(); 2];
         for (k, sign) in [T::one(), -T::one()].into_iter().enumerate() {
             let g = gamma * sign;
-            let y = predict_measurement(&(x + dx * g))? + dv * g;
-            let d = y - centre;
+            let y = model.predict(&(x + dx * g))? + dv * g;
+            let d = model.residual(&y, &centre);
             check_finite(d.as_slice(), "predicted measurement")?;
             d_bar += d * wi;
             add_outer(&mut second, &d, &d, wi);
-            // sum W_i (X_i - x)(Y_i - y_hat)' = sum W_i g dx (d_i - d_bar)'; the
-            // d_bar part vanishes because the dx of each +/- pair cancel.
+            // sum W_i (X_i - x)(Y_i - y_hat)' = sum W_i g dx (d_i - e)'; the e part
+            // vanishes because the dx of each +/- pair cancel.
             for c in 0..M {
                 for r in 0..N {
                     cross[(r, c)] += dx[r] * g * d[c] * wi;
                 }
             }
             pair[k] = d;
+            mapped[k] = y;
+        }
+        if j < N {
+            state_points[j] = mapped;
+        } else {
+            noise_points[j - N] = mapped;
         }
         if transform.update == SigmaPointUpdate::Additive {
             // P_xy = sum_j S_j g_j' with g_j = W_i gamma (d_j+ - d_j-), so
@@ -545,16 +715,33 @@ where
             add_outer(&mut linearised_cross, &g, &l21, T::one());
         }
     }
-    let predicted = centre + d_bar;
+    let points = SigmaPoints {
+        centre: &centre,
+        centre_weight: weights.mean_centre,
+        weight: wi,
+        pairs: [
+            &state_points[..columns.min(N)],
+            &noise_points[..columns - columns.min(N)],
+        ],
+    };
+    let predicted = model.mean(&points)?;
+    check_finite(predicted.as_slice(), "predicted measurement")?;
     let mut pyy = second;
-    add_outer(&mut pyy, &d_bar, &d_bar, weights.mean_correction());
+    if predicted == centre + d_bar {
+        // The weighted mean: e = s, taken as is (not by a subtraction that loses
+        // digits when |Y_0| is large against the spread).
+        add_outer(&mut pyy, &d_bar, &d_bar, weights.mean_correction());
+    } else if !weights.centre_modified {
+        let e = model.residual(&predicted, &centre);
+        check_finite(e.as_slice(), "predicted measurement")?;
+        add_about_mean(&mut pyy, &weights, &d_bar, &e);
+    }
     if transform.update == SigmaPointUpdate::Additive {
         pyy += linearised_cross + linearised_cross.transpose() + measurement_noise;
         cross += cross_covariance;
     }
     let pyy = symmetric_sum(&pyy, &SMatrix::zeros());
     check_finite(pyy.as_slice(), "innovation covariance")?;
-    check_finite(predicted.as_slice(), "predicted measurement")?;
     Ok(SigmaStatistics {
         predicted,
         innovation_covariance: pyy,

@@ -6,8 +6,8 @@
 //! A [`ForwardRecorder`] is an [`Observer`]: attach it to any runner
 //! ([`crate::KalmanFilter`], [`crate::ExtendedKalmanFilter`],
 //! [`crate::ErrorStateKalmanFilter`], [`crate::SquareRootKalmanFilter`],
-//! [`crate::UnscentedKalmanFilter`]; for the last, the linearised smoother around the
-//! unscented forward pass, exact on linear models) and it keeps, per *epoch*, the filtered state and
+//! [`crate::UnscentedKalmanFilter`]; for the last, whose events carry the statistical
+//! linearisations of its sigma points, the unscented RTS smoother) and it keeps, per *epoch*, the filtered state and
 //! covariance and three quantities that link the epoch to the previous one (below). An
 //! epoch is a moment of the forward pass: with [`RecordAt::EveryStep`] every predict
 //! opens one (the updates that follow belong to it); with [`RecordAt::Updates`] the

@@ -342,3 +342,195 @@ pub trait LearnedMeasurement<T: Scalar, const M: usize> {
         Ok(false)
     }
 }
+
+/// The process model of the sigma-point filter ([`crate::UnscentedKalmanFilter`]):
+/// x_k = f(x_{k-1}, u) + G w_{k-1} with Cov(G w) = `process_noise`, and **no
+/// Jacobian**. The filter pushes sigma points through `propagate`; where its
+/// bookkeeping needs a transition matrix (Q_acc, the window of a windowed
+/// cross-covariance, the observer's events, the smoother) it uses the statistical
+/// linearisation of `propagate` from the same sigma points (see
+/// [`crate::UnscentedKalmanFilter`]).
+///
+/// For a state with angles (a heading), [`SigmaPointProcess::residual`] and
+/// [`SigmaPointProcess::mean`] say how states differ and how sigma points average
+/// (defaults: the plain difference and the weighted mean); `propagate` should wrap
+/// its result, the update's x + K nu is not wrapped.
+///
+/// Every [`ProcessModel`] whose state is `SVector<T, N>` is one (blanket
+/// implementation, its Jacobian unused, the default hooks); implement this trait
+/// directly for a model that has no Jacobian or has angles (a type that implements
+/// [`ProcessModel`] cannot also implement this one).
+///
+/// ```
+/// use estim_core::nalgebra::{Matrix2, Vector2};
+/// use estim_core::{Result, SigmaPointProcess};
+///
+/// /// A pendulum's angle and rate, explicit Euler; no Jacobian written.
+/// struct Pendulum { q: f64 }
+///
+/// impl SigmaPointProcess<f64, 2> for Pendulum {
+///     type Input = ();
+///     fn propagate(&self, x: &Vector2<f64>, _: &(), dt: f64) -> Result<Vector2<f64>> {
+///         Ok(Vector2::new(x[0] + dt * x[1], x[1] - dt * 9.81 * x[0].sin()))
+///     }
+///     fn process_noise(&self, _: &Vector2<f64>, _: &(), dt: f64) -> Result<Matrix2<f64>> {
+///         Ok(Matrix2::new(0.0, 0.0, 0.0, self.q * dt))
+///     }
+/// }
+///
+/// let x = Pendulum { q: 1e-3 }.propagate(&Vector2::new(0.0, 1.0), &(), 0.1)?;
+/// assert_eq!(x, Vector2::new(0.1, 1.0));
+/// # Ok::<(), estim_core::Error>(())
+/// ```
+pub trait SigmaPointProcess<T: Scalar, const N: usize> {
+    /// The input driving the process (control, IMU sample, `()` if none).
+    type Input;
+
+    /// x_k = f(x_{k-1}, u) over `dt`, for any sigma point.
+    fn propagate(&self, state: &SVector<T, N>, input: &Self::Input, dt: T)
+        -> Result<SVector<T, N>>;
+
+    /// Discrete process-noise covariance in state space, Cov(G w) over `dt`, at the
+    /// state before propagation.
+    fn process_noise(
+        &self,
+        state: &SVector<T, N>,
+        input: &Self::Input,
+        dt: T,
+    ) -> Result<SMatrix<T, N, N>>;
+
+    /// a - b, the difference of two states (a propagated sigma point and the
+    /// predicted mean). Override it to wrap angle components (a heading) into
+    /// (-pi, pi]. Default: `a - b`.
+    fn residual(&self, a: &SVector<T, N>, b: &SVector<T, N>) -> SVector<T, N> {
+        a - b
+    }
+
+    /// The mean of the propagated sigma points with their mean weights (see
+    /// [`SigmaPointMeasurement::mean`]). Override it to take the circular mean of
+    /// angle components. Default:
+    /// [`SigmaPoints::weighted_mean`](crate::sigma_point::SigmaPoints::weighted_mean).
+    ///
+    /// # Errors
+    /// The model's.
+    fn mean(&self, points: &crate::sigma_point::SigmaPoints<'_, T, N>) -> Result<SVector<T, N>> {
+        Ok(points.weighted_mean())
+    }
+}
+
+impl<T, P, const N: usize> SigmaPointProcess<T, N> for P
+where
+    T: Scalar,
+    P: ProcessModel<T, N, State = SVector<T, N>> + ?Sized,
+{
+    type Input = P::Input;
+
+    fn propagate(
+        &self,
+        state: &SVector<T, N>,
+        input: &Self::Input,
+        dt: T,
+    ) -> Result<SVector<T, N>> {
+        ProcessModel::propagate(self, state, input, dt)
+    }
+
+    fn process_noise(
+        &self,
+        state: &SVector<T, N>,
+        input: &Self::Input,
+        dt: T,
+    ) -> Result<SMatrix<T, N, N>> {
+        ProcessModel::process_noise(self, state, input, dt)
+    }
+}
+
+/// The measurement model of the sigma-point filter: y = h(x) + v with Cov(v) = R,
+/// **no Jacobian**, and two hooks for measurements that live on a circle (bearings,
+/// headings): how two measurements differ ([`SigmaPointMeasurement::residual`]) and
+/// how sigma points average ([`SigmaPointMeasurement::mean`]). The defaults are the
+/// plain difference and the weighted mean.
+///
+/// Where the filter's bookkeeping needs H (the [`CrossCovarianceContext`], the window
+/// of a windowed cross-covariance, the observer's events, the smoother) it uses the
+/// statistical linearisation H~ = P_xy' P^-1 of `predict` about the prior (see
+/// [`crate::UnscentedKalmanFilter`]).
+///
+/// Every [`MeasurementModel`] whose state is `SVector<T, N>` is one (blanket
+/// implementation, its Jacobian unused, the default hooks); implement this trait
+/// directly for a model without a Jacobian or with angles (a type that implements
+/// [`MeasurementModel`] cannot also implement this one).
+///
+/// ```
+/// use std::f64::consts::PI;
+/// use estim_core::nalgebra::{Matrix1, Vector1, Vector2};
+/// use estim_core::sigma_point::SigmaPoints;
+/// use estim_core::{Result, SigmaPointMeasurement};
+///
+/// fn wrap(a: f64) -> f64 { (a + PI).rem_euclid(2.0 * PI) - PI }
+///
+/// /// The bearing (rad, in (-pi, pi]) of a 2-D position seen from the origin.
+/// struct Bearing { sigma: f64 }
+///
+/// impl SigmaPointMeasurement<f64, 2, 1> for Bearing {
+///     fn predict(&self, x: &Vector2<f64>) -> Result<Vector1<f64>> {
+///         Ok(Vector1::new(x[1].atan2(x[0])))
+///     }
+///     fn noise_covariance(&self, _: &Vector2<f64>) -> Result<Matrix1<f64>> {
+///         Ok(Matrix1::new(self.sigma * self.sigma))
+///     }
+///     fn residual(&self, a: &Vector1<f64>, b: &Vector1<f64>) -> Vector1<f64> {
+///         Vector1::new(wrap(a[0] - b[0]))
+///     }
+///     fn mean(&self, points: &SigmaPoints<'_, f64, 1>) -> Result<Vector1<f64>> {
+///         // Circular mean: the direction of the weighted sum of unit vectors.
+///         let (s, c) = points.iter().fold((0.0, 0.0), |(s, c), (w, y)| {
+///             (s + w * y[0].sin(), c + w * y[0].cos())
+///         });
+///         Ok(Vector1::new(s.atan2(c)))
+///     }
+/// }
+///
+/// let bearing = Bearing { sigma: 0.01 };
+/// let r = bearing.residual(&Vector1::new(3.1), &Vector1::new(-3.1));
+/// assert!((r[0] - (6.2 - 2.0 * PI)).abs() < 1e-12); // across the cut, not 6.2
+/// # Ok::<(), estim_core::Error>(())
+/// ```
+pub trait SigmaPointMeasurement<T: Scalar, const N: usize, const M: usize> {
+    /// h(x), for any sigma point.
+    fn predict(&self, state: &SVector<T, N>) -> Result<SVector<T, M>>;
+
+    /// Measurement-noise covariance R, at the prior mean.
+    fn noise_covariance(&self, state: &SVector<T, N>) -> Result<SMatrix<T, M, M>>;
+
+    /// a - b, the difference of two measurements (a sigma point and the predicted
+    /// measurement, or the measurement and the predicted one: the innovation).
+    /// Override it to wrap angle components into (-pi, pi]. Default: `a - b`.
+    fn residual(&self, a: &SVector<T, M>, b: &SVector<T, M>) -> SVector<T, M> {
+        a - b
+    }
+
+    /// The mean of the sigma points mapped through `predict`, with their mean weights
+    /// (which sum to one; the centre's may be negative). Override it to take the
+    /// circular mean of angle components. Default:
+    /// [`SigmaPoints::weighted_mean`](crate::sigma_point::SigmaPoints::weighted_mean).
+    ///
+    /// # Errors
+    /// The model's (e.g. a circular mean whose resultant vanishes).
+    fn mean(&self, points: &crate::sigma_point::SigmaPoints<'_, T, M>) -> Result<SVector<T, M>> {
+        Ok(points.weighted_mean())
+    }
+}
+
+impl<T, Mm, const N: usize, const M: usize> SigmaPointMeasurement<T, N, M> for Mm
+where
+    T: Scalar,
+    Mm: MeasurementModel<T, N, M, State = SVector<T, N>> + ?Sized,
+{
+    fn predict(&self, state: &SVector<T, N>) -> Result<SVector<T, M>> {
+        MeasurementModel::predict(self, state)
+    }
+
+    fn noise_covariance(&self, state: &SVector<T, N>) -> Result<SMatrix<T, M, M>> {
+        MeasurementModel::noise_covariance(self, state)
+    }
+}

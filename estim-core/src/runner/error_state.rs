@@ -290,7 +290,7 @@ where
     update_methods! {
         state: P::State,
         input: P::Input,
-        model: [model: Mm],
+        model: [model: Mm: MeasurementModel<T, N, M, State = P::State>],
         size: [M],
         predict: [input: &P::Input, dt: T],
         /// Estimate the error from measurement y (prior error zero), inject it into the
@@ -311,5 +311,12 @@ where
         /// # Errors
         /// Those of [`ErrorStateKalmanFilter::predict`] and [`ErrorStateKalmanFilter::update`].
         step;
+        /// Update with `model` and measurement y whose noise is uncorrelated with the
+        /// process noise (M = 0): [`ErrorStateKalmanFilter::update`] with
+        /// [`crate::Zero`].
+        ///
+        /// # Errors
+        /// As [`ErrorStateKalmanFilter::update`].
+        update_uncorrelated;
     }
 }

@@ -306,7 +306,7 @@ where
     update_methods! {
         state: SVector<T, N>,
         input: P::Input,
-        model: [model: Mm],
+        model: [model: Mm: MeasurementModel<T, N, M, State = SVector<T, N>>],
         size: [M],
         predict: [input: &P::Input, dt: T],
         /// Update with `model`, measurement y and the one-step cross-covariance `cross`.
@@ -325,5 +325,12 @@ where
         /// # Errors
         /// Those of [`ExtendedKalmanFilter::predict`] and [`ExtendedKalmanFilter::update`].
         step;
+        /// Update with `model` and measurement y whose noise is uncorrelated with the
+        /// process noise (M = 0): [`ExtendedKalmanFilter::update`] with
+        /// [`crate::Zero`], the textbook EKF update.
+        ///
+        /// # Errors
+        /// As [`ExtendedKalmanFilter::update`].
+        update_uncorrelated;
     }
 }

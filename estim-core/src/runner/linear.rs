@@ -486,5 +486,27 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         /// # Errors
         /// Those of [`KalmanFilter::predict`] and [`KalmanFilter::update`].
         step;
+        /// Update with measurement y whose noise is uncorrelated with the process
+        /// noise (M = 0): [`KalmanFilter::update`] with [`crate::Zero`], the textbook
+        /// Kalman update.
+        ///
+        /// ```
+        /// use estim_core::nalgebra::{Matrix1, Matrix1x2, Matrix2, Vector1, Vector2};
+        /// use estim_core::{KalmanFilter, StateAndCovariance};
+        ///
+        /// let initial = StateAndCovariance::new(Vector2::zeros(), Matrix2::identity())?;
+        /// let mut kf = KalmanFilter::new(Matrix2::new(1.0, 1.0, 0.0, 1.0),
+        ///     Matrix2::identity() * 0.01, Matrix1x2::new(1.0, 0.0), Matrix1::new(1.0), initial)?;
+        /// let report = kf.update_uncorrelated(&Vector1::new(2.0))?;
+        /// // P = I, H = [1 0], R = 1: S = 2, K = [1/2, 0]'.
+        /// assert_eq!(report.innovation_covariance[0], 2.0);
+        /// assert_eq!(kf.estimate().state()[0], 1.0);
+        /// kf.step_uncorrelated(None)?; // predict only
+        /// # Ok::<(), estim_core::Error>(())
+        /// ```
+        ///
+        /// # Errors
+        /// As [`KalmanFilter::update`].
+        update_uncorrelated;
     }
 }

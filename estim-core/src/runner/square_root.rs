@@ -491,5 +491,11 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         /// Those of [`SquareRootKalmanFilter::predict`] and
         /// [`SquareRootKalmanFilter::update`].
         step;
+        /// Update with measurement y whose noise is uncorrelated with the process
+        /// noise (M = 0): [`SquareRootKalmanFilter::update`] with [`crate::Zero`].
+        ///
+        /// # Errors
+        /// As [`SquareRootKalmanFilter::update`].
+        update_uncorrelated;
     }
 }

@@ -1,51 +1,67 @@
 //! The unscented Kalman filter: sigma-point prediction through the nonlinear
-//! [`ProcessModel::propagate`] and the sigma-point correlated update
-//! ([`crate::sigma_point`]), on the shared runner core.
+//! [`SigmaPointProcess::propagate`] and the sigma-point correlated update
+//! ([`crate::sigma_point`]), on the shared runner core. No Jacobian of the model
+//! is used anywhere: the bookkeeping's matrices are statistical linearisations.
 
 #[cfg(doc)]
 use crate::sigma_point::{unscented_predict, unscented_update, SigmaPointUpdate};
 #[cfg(doc)]
-use crate::{CovarianceUpdate, Error, ExtendedKalmanFilter, GateRecovery, KalmanFilter};
+use crate::{
+    CovarianceUpdate, Error, ExtendedKalmanFilter, GateRecovery, KalmanFilter, MeasurementModel,
+    ProcessModel,
+};
 use nalgebra::{SMatrix, SVector};
 
 use super::batch::{filter_steps, fork_shared, smooth_steps, smoothed_estimate};
 use super::shared::{bisect_inflation, check_dt, Attempt, CrossSource, GateVerdict, Shared};
 use super::{FilteredBatch, SmoothedBatch, UpdateReport};
 use crate::gaussian::check_finite;
+use crate::linalg::mul_static;
 use crate::observer::{NoObserver, Observer};
-use crate::sigma_point::{sigma_statistics, UnscentedTransform};
+use crate::sigma_point::{
+    measurement_linearisation, predict_with_hooks, sigma_statistics, ModelHooks, UnscentedTransform,
+};
 use crate::update::innovation_log_likelihood;
 use crate::{
-    CrossCovariance, FilterConfig, MeasurementModel, ProcessModel, Result, Scalar,
+    CrossCovariance, FilterConfig, Result, Scalar, SigmaPointMeasurement, SigmaPointProcess,
     StateAndCovariance, WindowedCrossCovariance,
 };
 
-/// Unscented Kalman filter over a [`ProcessModel`] whose state is `SVector<T, N>`,
-/// updated with any [`MeasurementModel`] and [`CrossCovariance`] (one-step) or
+/// Unscented Kalman filter over a [`SigmaPointProcess`], updated with any
+/// [`SigmaPointMeasurement`] and [`CrossCovariance`] (one-step) or
 /// [`WindowedCrossCovariance`] (exact over a window), with the weights and the update
 /// form ([`SigmaPointUpdate::Additive`] by default, or
-/// [`SigmaPointUpdate::Augmented`]) of its [`UnscentedTransform`].
+/// [`SigmaPointUpdate::Augmented`]) of its [`UnscentedTransform`]. Neither model needs
+/// a Jacobian; every [`ProcessModel`] and [`MeasurementModel`] on `SVector<T, N>` is
+/// also one of these (its Jacobian unused).
 ///
 /// - **Predict**: [`unscented_predict`], sigma points of (x, P) through
-///   [`ProcessModel::propagate`], plus Q_d.
+///   [`SigmaPointProcess::propagate`], plus Q_d, with the process model's
+///   [`SigmaPointProcess::residual`] and [`SigmaPointProcess::mean`] (a heading).
 /// - **Update**: [`unscented_update`] with R, M from the [`CrossCovariance`] (or, for
 ///   [`UnscentedKalmanFilter::update_windowed`], Var(v | ...), the exact windowed M and
-///   the innovation y - y_hat - E[v | ...]). The [`UpdateReport`] holds
-///   `innovation_covariance` = P_yy, `gain` = P_xy P_yy^-1, `nis` from P_yy, and
-///   `correction` = K (y - y_hat - E\[v\]). The posterior covariance is always
-///   P - K P_yy K' (the sigma-point form): [`FilterConfig::covariance_update`] does not
-///   apply (its forms are written in terms of H).
-/// - **Linearisation, only in the bookkeeping**: the model's Phi
-///   ([`ProcessModel::transition`]) and H ([`MeasurementModel::jacobian`], at the prior
-///   mean) are evaluated as by the [`ExtendedKalmanFilter`], but used only where the
-///   shared core needs a matrix: Q_acc / Phi_acc, the [`crate::CrossCovarianceContext`],
-///   the window's carried cross-covariance (C <- Phi C + D, C <- (I - K H) C) and the
-///   observer's events. The state's mean and covariance never use them. On linear
-///   models everything is exact: the filter equals [`KalmanFilter`] to round-off, with
-///   and without M (tested to 1e-10).
-/// - **Smoothing** ([`UnscentedKalmanFilter::smooth_batch`]): the RTS pass of the
-///   linearised model (Phi, H) around this filter's forward pass, not the unscented RTS
-///   smoother; exact on linear models.
+///   the innovation y - y_hat - E[v | ...]), with the model's
+///   [`SigmaPointMeasurement::residual`] and [`SigmaPointMeasurement::mean`] (angles:
+///   the innovation and the sigma points' deviations wrapped, their circular mean).
+///   The [`UpdateReport`] holds `innovation_covariance` = P_yy, `gain` = P_xy P_yy^-1,
+///   `nis` from P_yy, and `correction` = K (y - y_hat - E\[v\]). The posterior
+///   covariance is always P - K P_yy K' (the sigma-point form):
+///   [`FilterConfig::covariance_update`] does not apply (its forms are written in terms
+///   of H).
+/// - **Statistical linearisation, only in the bookkeeping**: where the shared core
+///   needs a matrix (Q_acc / Phi_acc, the [`crate::CrossCovarianceContext`], the
+///   window's carried cross-covariance C <- Phi C + D, C <- (I - K H) C, the
+///   observer's events and so the smoother) the filter uses Phi~ = D' P^-1 from the
+///   prediction's sigma points (D = Cov(x_{k-1}, f(x_{k-1})) of the points,
+///   [`crate::sigma_point::unscented_predict_linearised`]) and H~ = P_xy' P^-1 from
+///   2N + 1 sigma points of the prior through h
+///   ([`crate::sigma_point::measurement_linearisation`]; the update evaluates h at
+///   those points once more for it). The state's mean and covariance never use them.
+///   On linear models Phi~ = Phi and H~ = H, and the filter equals [`KalmanFilter`]
+///   to round-off, with and without M (tested to 1e-10).
+/// - **Smoothing** ([`UnscentedKalmanFilter::smooth_batch`]): the unscented RTS
+///   smoother (Saerkkae 2008), through the recorder's RTS pass over Phi~ and H~ (exact:
+///   P Phi~' is the sigma points' cross-covariance D).
 /// - **Gate recovery** ([`GateRecovery::Inflate`]): P -> lambda P moves the sigma
 ///   points, so each trial factor recomputes the sigma-point statistics (the NIS is
 ///   that of y - y_hat(lambda P), not necessarily monotone in lambda: the factor
@@ -60,22 +76,20 @@ use crate::{
 /// [`KalmanFilter`].
 ///
 /// ```
-/// use estim_core::nalgebra::{Matrix1, Matrix1x2, Matrix2, Vector1, Vector2};
+/// use estim_core::nalgebra::{Matrix1, Matrix2, Vector1, Vector2};
 /// use estim_core::sigma_point::UnscentedTransform;
 /// use estim_core::{
-///     MeasurementModel, ProcessModel, Result, StateAndCovariance, UnscentedKalmanFilter, Zero,
+///     Result, SigmaPointMeasurement, SigmaPointProcess, StateAndCovariance,
+///     UnscentedKalmanFilter,
 /// };
 ///
-/// /// A pendulum's angle and rate, explicit Euler.
+/// /// A pendulum's angle and rate, explicit Euler (no Jacobian).
+/// #[derive(Clone)]
 /// struct Pendulum;
-/// impl ProcessModel<f64, 2> for Pendulum {
-///     type State = Vector2<f64>;
+/// impl SigmaPointProcess<f64, 2> for Pendulum {
 ///     type Input = ();
 ///     fn propagate(&self, x: &Vector2<f64>, _: &(), dt: f64) -> Result<Vector2<f64>> {
 ///         Ok(Vector2::new(x[0] + dt * x[1], x[1] - dt * 9.81 * x[0].sin()))
-///     }
-///     fn transition(&self, x: &Vector2<f64>, _: &(), dt: f64) -> Result<Matrix2<f64>> {
-///         Ok(Matrix2::new(1.0, dt, -dt * 9.81 * x[0].cos(), 1.0))
 ///     }
 ///     fn process_noise(&self, _: &Vector2<f64>, _: &(), dt: f64) -> Result<Matrix2<f64>> {
 ///         Ok(Matrix2::new(0.0, 0.0, 0.0, 1e-3 * dt))
@@ -84,13 +98,9 @@ use crate::{
 ///
 /// /// The horizontal position of the bob, sin(angle).
 /// struct Horizontal;
-/// impl MeasurementModel<f64, 2, 1> for Horizontal {
-///     type State = Vector2<f64>;
+/// impl SigmaPointMeasurement<f64, 2, 1> for Horizontal {
 ///     fn predict(&self, x: &Vector2<f64>) -> Result<Vector1<f64>> {
 ///         Ok(Vector1::new(x[0].sin()))
-///     }
-///     fn jacobian(&self, x: &Vector2<f64>) -> Result<Matrix1x2<f64>> {
-///         Ok(Matrix1x2::new(x[0].cos(), 0.0))
 ///     }
 ///     fn noise_covariance(&self, _: &Vector2<f64>) -> Result<Matrix1<f64>> {
 ///         Ok(Matrix1::new(1e-2))
@@ -99,14 +109,20 @@ use crate::{
 ///
 /// let initial = StateAndCovariance::new(Vector2::new(0.3, 0.0), Matrix2::identity() * 0.1)?;
 /// let mut ukf = UnscentedKalmanFilter::new(Pendulum, UnscentedTransform::default(), initial);
-/// let report = ukf.step(&(), 0.01, &Horizontal, Some(&Vector1::new(0.29)), &Zero)?;
+/// let report = ukf.step_uncorrelated(&(), 0.01, &Horizontal, Some(&Vector1::new(0.29)))?;
 /// assert!(report.is_some_and(|r| r.is_accepted()));
+///
+/// // Filtered and smoothed estimates of a series in one call.
+/// let steps: Vec<_> = [0.28, 0.26, 0.23].iter().map(|&y| ((), 0.01, Some(Vector1::new(y)))).collect();
+/// let both = ukf.smooth_batch(&steps, &Horizontal, &estim_core::Zero)?;
+/// assert_eq!((both.filtered.len(), both.estimates.len()), (3, 3));
+/// assert_eq!(both.filtered[2], both.estimates[2]); // the last smoothed is the filtered
 /// # Ok::<(), estim_core::Error>(())
 /// ```
 #[derive(Debug, Clone)]
 pub struct UnscentedKalmanFilter<T: Scalar, P, const N: usize, O = NoObserver>
 where
-    P: ProcessModel<T, N>,
+    P: SigmaPointProcess<T, N>,
 {
     process: P,
     transform: UnscentedTransform,
@@ -120,7 +136,7 @@ where
 impl<T, P, const N: usize> UnscentedKalmanFilter<T, P, N, NoObserver>
 where
     T: Scalar,
-    P: ProcessModel<T, N, State = SVector<T, N>>,
+    P: SigmaPointProcess<T, N>,
 {
     /// A filter for `process` with the sigma points of `transform`, starting from
     /// `initial`; default configuration.
@@ -139,7 +155,7 @@ where
     }
 }
 
-impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> UnscentedKalmanFilter<T, P, N, O> {
+impl<T: Scalar, P: SigmaPointProcess<T, N>, const N: usize, O> UnscentedKalmanFilter<T, P, N, O> {
     shared_accessors!(step_window: SVector<T, N>, P::Input);
 
     /// Replace the observer.
@@ -173,14 +189,16 @@ impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> UnscentedKalmanFilter<
 impl<T, P, const N: usize, O> UnscentedKalmanFilter<T, P, N, O>
 where
     T: Scalar,
-    P: ProcessModel<T, N, State = SVector<T, N>>,
+    P: SigmaPointProcess<T, N>,
     P::Input: Clone,
     O: Observer<T, SVector<T, N>, N>,
 {
     /// Prior over `dt` by [`unscented_predict`]: sigma points of (x, P) through
-    /// [`ProcessModel::propagate`], plus Q_d. Phi (the model's Jacobian, at the state
-    /// before propagation) goes only to Q_acc / Phi_acc, the recorded window and the
-    /// observer.
+    /// [`SigmaPointProcess::propagate`], plus Q_d. The statistical linearisation
+    /// Phi~ = D' P^-1 of the same sigma points
+    /// ([`crate::sigma_point::unscented_predict_linearised`]) goes only to
+    /// Q_acc / Phi_acc, the recorded window and the observer (the event's
+    /// `transition`).
     ///
     /// # Errors
     /// [`Error::InvalidParameter`] for dt not positive and finite (or N + kappa <= 0),
@@ -189,14 +207,15 @@ where
     pub fn predict(&mut self, input: &P::Input, dt: T) -> Result<()> {
         check_dt(dt)?;
         let x = self.estimate.state();
-        let (phi, qd) = self.process.transition_and_noise(x, input, dt)?;
-        check_finite(phi.as_slice(), "transition matrix")?;
+        let qd = self.process.process_noise(x, input, dt)?;
         check_finite(qd.as_slice(), "process noise covariance")?;
         let process = &self.process;
-        let predicted = crate::sigma_point::unscented_predict(
+        let (predicted, phi) = predict_with_hooks(
             &self.transform,
             &self.estimate,
             |s| process.propagate(s, input, dt),
+            |a, b| process.residual(a, b),
+            |points| process.mean(points),
             &qd,
         )?;
         let before = std::mem::replace(&mut self.estimate, predicted);
@@ -207,8 +226,8 @@ where
             Some(dt),
             &phi,
             &qd,
-            |q, phi, qd| process.propagate_covariance(q, phi, qd),
-            |later, earlier| process.compose_transitions(later, earlier),
+            |q, phi, qd| phi * q * phi.transpose() + qd,
+            |later, earlier| mul_static(later, earlier),
         );
         self.shared.notify_predict(
             Some(dt),
@@ -226,14 +245,14 @@ where
         source: CrossSource<'_, C, W>,
     ) -> Result<UpdateReport<T, N, M>>
     where
-        Mm: MeasurementModel<T, N, M, State = SVector<T, N>> + ?Sized,
+        Mm: SigmaPointMeasurement<T, N, M> + ?Sized,
         C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
         W: WindowedCrossCovariance<T, SVector<T, N>, P::Input, N, M> + ?Sized,
     {
         check_finite(measurement.as_slice(), "measurement")?;
         let prior = &self.estimate;
         let x = prior.state();
-        let jacobian = model.jacobian(x)?;
+        let jacobian = measurement_linearisation(&self.transform, prior, model)?;
         let noise = model.noise_covariance(x)?;
         let window_model = match source {
             CrossSource::Windowed(w) => Some(w),
@@ -251,8 +270,8 @@ where
             None,
             &mut report,
         )?;
-        let h = |s: &SVector<T, N>| model.predict(s);
         let transform = &self.transform;
+        let hooks = ModelHooks(model);
         let (noise_covariance, cross, noise_mean) = (
             report.noise_covariance,
             report.cross_covariance,
@@ -261,8 +280,8 @@ where
         // The sigma-point statistics of a prior, its innovation y - y_hat - E[v], P_yy^-1
         // and the NIS.
         let statistics = |prior: &StateAndCovariance<T, N>| {
-            let stats = sigma_statistics(transform, prior, &h, &noise_covariance, &cross)?;
-            let innovation = measurement - stats.predicted - noise_mean;
+            let stats = sigma_statistics(transform, prior, &hooks, &noise_covariance, &cross)?;
+            let innovation = model.residual(measurement, &stats.predicted) - noise_mean;
             let (inverse, nis, log_det) = stats.factor(&innovation)?;
             Ok::<_, crate::Error>((stats, innovation, inverse, nis, log_det))
         };
@@ -341,7 +360,7 @@ where
         cross: &C,
     ) -> Result<FilteredBatch<T, N, M>>
     where
-        Mm: MeasurementModel<T, N, M, State = SVector<T, N>> + ?Sized,
+        Mm: SigmaPointMeasurement<T, N, M> + ?Sized,
         C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
     {
         filter_steps(steps, |(input, dt, y)| {
@@ -356,13 +375,23 @@ where
     /// ([`crate::smoother::ForwardRecorder`] with
     /// [`crate::smoother::RecordAt::EveryStep`]) and its fixed-interval smoothing.
     ///
-    /// The smoother reads what the forward pass reported: the sigma-point gain and
-    /// P_yy, and the model's Jacobians Phi and H (which this filter evaluates for its
-    /// bookkeeping, struct docs). Its backward pass uses the linearised
-    /// Cov(x_k, x_{k+1}) = P_k Phi', not sigma-point cross-covariances: it is the
-    /// RTS smoother of the linearised model around the unscented forward pass, not the
-    /// unscented RTS smoother (Saerkkae 2008). On a linear model both are exact and
-    /// equal the [`KalmanFilter`]'s.
+    /// It is the unscented RTS smoother (Saerkkae, "Unscented Rauch-Tung-Striebel
+    /// smoother", IEEE TAC 53(3), 2008; *Bayesian Filtering and Smoothing*, 2013,
+    /// alg. 9.6):
+    ///
+    /// ```text
+    /// D_{k+1} = sum Wc_i (X_i,k - m_k)(f(X_i,k) - m-_{k+1})'    (prediction's points)
+    /// G_k = D_{k+1} (P-_{k+1})^-1
+    /// m^s_k = m_k + G_k (m^s_{k+1} - m-_{k+1}),  P^s_k = P_k + G_k (P^s_{k+1} - P-_{k+1}) G_k'
+    /// ```
+    ///
+    /// The smoother reads what the forward pass reported: the sigma-point gain, P_yy
+    /// and the innovation, and the statistical linearisations Phi~ and H~ (struct
+    /// docs), never a Jacobian of the model. With P_k Phi~' = D_{k+1} and, for an
+    /// update, P+ = (I - K H~) P-, its RTS step over Phi~ and H~ is the one above
+    /// (tested against a separately written URTS to 1e-10). On a linear model it equals
+    /// the [`KalmanFilter`]'s. The returned [`SmoothedBatch`] also holds the filtered
+    /// estimates of the same forward pass ([`SmoothedBatch::filtered`]).
     /// This filter and its observer are left untouched; the copy needs a `Clone` process
     /// model.
     ///
@@ -378,7 +407,7 @@ where
     ) -> Result<SmoothedBatch<T, N>>
     where
         P: Clone,
-        Mm: MeasurementModel<T, N, M, State = SVector<T, N>> + ?Sized,
+        Mm: SigmaPointMeasurement<T, N, M> + ?Sized,
         C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
     {
         smooth_steps(
@@ -402,7 +431,7 @@ where
     update_methods! {
         state: SVector<T, N>,
         input: P::Input,
-        model: [model: Mm],
+        model: [model: Mm: SigmaPointMeasurement<T, N, M>],
         size: [M],
         predict: [input: &P::Input, dt: T],
         /// Update with `model`, measurement y and the one-step cross-covariance `cross`:
@@ -427,5 +456,12 @@ where
         /// # Errors
         /// Those of [`UnscentedKalmanFilter::predict`] and [`UnscentedKalmanFilter::update`].
         step;
+        /// Update with `model` and measurement y whose noise is uncorrelated with the
+        /// process noise (M = 0): [`UnscentedKalmanFilter::update`] with
+        /// [`crate::Zero`], the textbook UKF update (filterpy's `update(z)`).
+        ///
+        /// # Errors
+        /// As [`UnscentedKalmanFilter::update`].
+        update_uncorrelated;
     }
 }

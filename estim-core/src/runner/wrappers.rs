@@ -117,21 +117,23 @@ macro_rules! shared_accessors {
 /// `update_from(model?, measurement, CrossSource)` and `predict(args)`.
 ///
 /// `state` / `input`: the state models see and the process input; `model`: the
-/// measurement-model argument (`model: Mm`) of the EKF-shaped runners, empty for the
-/// linear one (whose H is fixed); `size`: `M` when the measurement size is a generic
-/// of the methods (EKF-shaped runners), empty when it is the runner's; `predict`:
-/// the arguments `step` passes to `predict`. The three docs follow, each before its
-/// method's name.
+/// measurement-model argument and its bound (`model: Mm: Bound<..>`) of the
+/// EKF-shaped runners, empty for the linear one (whose H is fixed); `size`: `M` when
+/// the measurement size is a generic of the methods (EKF-shaped runners), empty when
+/// it is the runner's; `predict`: the arguments `step` passes to `predict`. The four
+/// docs follow, each before its method's name (`update_uncorrelated`'s also serves
+/// `step_uncorrelated`, with a line of its own).
 macro_rules! update_methods {
     (
         state: $S:ty,
         input: $U:ty,
-        model: [$($model:ident: $Mm:ident)?],
+        model: [$($model:ident: $Mm:ident: $($bound:tt)+)?],
         size: [$($size:ident)?],
         predict: [$($arg:ident: $arg_ty:ty),*],
         $(#[$update_doc:meta])* update;
         $(#[$windowed_doc:meta])* update_windowed;
         $(#[$step_doc:meta])* step;
+        $(#[$uncorrelated_doc:meta])* update_uncorrelated;
     ) => {
         $(#[$update_doc])*
         pub fn update<$($Mm,)? C $(, const $size: usize)?>(
@@ -141,7 +143,7 @@ macro_rules! update_methods {
             cross: &C,
         ) -> Result<UpdateReport<T, N, M>>
         where
-            $($Mm: MeasurementModel<T, N, M, State = $S> + ?Sized,)?
+            $($Mm: $($bound)+ + ?Sized,)?
             C: CrossCovariance<T, $S, N, M> + ?Sized,
         {
             self.update_from(
@@ -159,7 +161,7 @@ macro_rules! update_methods {
             cross: &W,
         ) -> Result<UpdateReport<T, N, M>>
         where
-            $($Mm: MeasurementModel<T, N, M, State = $S> + ?Sized,)?
+            $($Mm: $($bound)+ + ?Sized,)?
             W: WindowedCrossCovariance<T, $S, $U, N, M> + ?Sized,
         {
             self.update_from(
@@ -178,13 +180,43 @@ macro_rules! update_methods {
             cross: &C,
         ) -> Result<Option<UpdateReport<T, N, M>>>
         where
-            $($Mm: MeasurementModel<T, N, M, State = $S> + ?Sized,)?
+            $($Mm: $($bound)+ + ?Sized,)?
             C: CrossCovariance<T, $S, N, M> + ?Sized,
         {
             self.predict($($arg),*)?;
             measurement
                 .map(|y| self.update($($model,)? y, cross))
                 .transpose()
+        }
+
+        $(#[$uncorrelated_doc])*
+        pub fn update_uncorrelated<$($Mm,)? $(const $size: usize)?>(
+            &mut self,
+            $($model: &$Mm,)?
+            measurement: &SVector<T, M>,
+        ) -> Result<UpdateReport<T, N, M>>
+        where
+            $($Mm: $($bound)+ + ?Sized,)?
+        {
+            self.update($($model,)? measurement, &crate::Zero)
+        }
+
+        /// One time step with a measurement whose noise is uncorrelated with the
+        /// process noise: `step` with the cross-covariance [`crate::Zero`] (as
+        /// `update_uncorrelated` is `update` with it).
+        ///
+        /// # Errors
+        /// Those of `step`.
+        pub fn step_uncorrelated<$($Mm,)? $(const $size: usize)?>(
+            &mut self,
+            $($arg: $arg_ty,)*
+            $($model: &$Mm,)?
+            measurement: Option<&SVector<T, M>>,
+        ) -> Result<Option<UpdateReport<T, N, M>>>
+        where
+            $($Mm: $($bound)+ + ?Sized,)?
+        {
+            self.step($($arg,)* $($model,)? measurement, &crate::Zero)
         }
     };
 }
