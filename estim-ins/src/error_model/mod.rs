@@ -9,11 +9,11 @@ use crate::earth::{
     radii_of_curvature, EARTH_RATE, ECCENTRICITY_SQUARED, SEMI_MAJOR_AXIS,
 };
 use crate::imu_spec::ImuSpec;
-#[cfg(target_arch = "x86_64")]
-use crate::kernel::Fused;
-use crate::kernel::{Kernel, MultiplyAdd, Separate};
+use crate::kernel::{MultiplyAdd, Separate};
 use crate::mechanization::{ImuSample, Mechanization};
 use crate::state::{InsState, ACC_BIAS, ATT, ERROR_STATES, GYRO_BIAS, POS, VEL};
+
+mod builds;
 
 type M3 = Matrix3<f64>;
 /// 15 x 15 matrix of the error state.
@@ -261,92 +261,12 @@ impl InsErrorModel {
         imu: &ImuSample,
         dt: f64,
     ) -> (ErrorMatrix, ErrorMatrix) {
-        // The build of `predict_covariance`'s kernel, so that both give the same Phi.
-        match Kernel::detect() {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: `Kernel::detect` checked that the CPU has the features.
-            Kernel::Avx512Fma => unsafe { self.transition_and_noise_avx512(state, imu, dt) },
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: as above.
-            Kernel::Avx2Fma => unsafe { self.transition_and_noise_avx2(state, imu, dt) },
-            Kernel::Portable => self.transition_and_noise_body::<Separate>(state, imu, dt),
-        }
-    }
-
-    /// [`InsErrorModel::transition_and_noise`] compiled for AVX-512 with FMA.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f,fma")]
-    unsafe fn transition_and_noise_avx512(
-        &self,
-        state: &InsState,
-        imu: &ImuSample,
-        dt: f64,
-    ) -> (ErrorMatrix, ErrorMatrix) {
-        self.transition_and_noise_body::<Fused>(state, imu, dt)
-    }
-
-    /// [`InsErrorModel::transition_and_noise`] compiled for AVX2 with FMA.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    unsafe fn transition_and_noise_avx2(
-        &self,
-        state: &InsState,
-        imu: &ImuSample,
-        dt: f64,
-    ) -> (ErrorMatrix, ErrorMatrix) {
-        self.transition_and_noise_body::<Fused>(state, imu, dt)
-    }
-
-    #[inline(always)]
-    fn transition_and_noise_body<M: MultiplyAdd>(
-        &self,
-        state: &InsState,
-        imu: &ImuSample,
-        dt: f64,
-    ) -> (ErrorMatrix, ErrorMatrix) {
-        let a = ScaledBlocks::new(&self.system_blocks::<M>(state, imu), dt);
-        // Both written in place into the returned pair: no 15 x 15 temporaries to copy.
-        let mut out = (ErrorMatrix::zeros(), ErrorMatrix::zeros());
-        a.write_transition::<M>(&mut out.0.data.0);
-        self.write_noise(&a, dt, &mut out.1.data.0);
-        out
+        builds::transition_and_noise(self, state, imu, dt)
     }
 
     /// Phi alone, from the build of [`InsErrorModel::transition_and_noise`] (same bits).
     fn transition_matrix(&self, state: &InsState, imu: &ImuSample, dt: f64) -> ErrorMatrix {
-        match Kernel::detect() {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: `Kernel::detect` checked that the CPU has the features.
-            Kernel::Avx512Fma => unsafe { self.transition_avx512(state, imu, dt) },
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: as above.
-            Kernel::Avx2Fma => unsafe { self.transition_avx2(state, imu, dt) },
-            Kernel::Portable => self.transition_body::<Separate>(state, imu, dt),
-        }
-    }
-
-    /// [`InsErrorModel::transition_matrix`] compiled for AVX-512 with FMA.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f,fma")]
-    unsafe fn transition_avx512(&self, state: &InsState, imu: &ImuSample, dt: f64) -> ErrorMatrix {
-        self.transition_body::<Fused>(state, imu, dt)
-    }
-
-    /// [`InsErrorModel::transition_matrix`] compiled for AVX2 with FMA.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    unsafe fn transition_avx2(&self, state: &InsState, imu: &ImuSample, dt: f64) -> ErrorMatrix {
-        self.transition_body::<Fused>(state, imu, dt)
-    }
-
-    #[inline(always)]
-    fn transition_body<M: MultiplyAdd>(
-        &self,
-        state: &InsState,
-        imu: &ImuSample,
-        dt: f64,
-    ) -> ErrorMatrix {
-        ScaledBlocks::new(&self.system_blocks::<M>(state, imu), dt).transition::<M>()
+        builds::transition(self, state, imu, dt)
     }
 
     /// One covariance step in place: P <- Phi P Phi' + Q_d with Phi and Q_d of
@@ -356,8 +276,8 @@ impl InsErrorModel {
     /// given CPU). For a loop that needs only P: nothing 15 x 15 is returned or copied (Phi
     /// stays on the stack, Q_d's blocks go straight into P's upper triangle), and the whole
     /// step runs the AVX-512 or AVX2 build with fused multiply-adds when the CPU has them
-    /// (`predict_covariance_avx512`, `predict_covariance_avx2`; the trait path's
-    /// propagation picks the same kernel). A CPU without FMA runs the portable build, whose
+    /// (chosen through estim-core's dispatch; the trait path's propagation picks the
+    /// same build). A CPU without FMA runs the portable build, whose
     /// products and sums are rounded separately: its P differs from an FMA CPU's by
     /// rounding only (both are within 1e-12 of the dense reference over a 400 s mission,
     /// `tests/error_model.rs`).
@@ -368,73 +288,7 @@ impl InsErrorModel {
         dt: f64,
         covariance: &mut ErrorMatrix,
     ) {
-        match Kernel::detect() {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: the only requirement of a `target_feature` function is that the CPU
-            // has the features, which `Kernel::detect` checked.
-            Kernel::Avx512Fma => unsafe {
-                self.predict_covariance_avx512(state, imu, dt, covariance);
-            },
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: as above.
-            Kernel::Avx2Fma => unsafe { self.predict_covariance_avx2(state, imu, dt, covariance) },
-            Kernel::Portable => {
-                self.predict_covariance_body::<Separate>(state, imu, dt, covariance);
-            }
-        }
-    }
-
-    /// [`InsErrorModel::predict_covariance`] compiled for AVX-512 with FMA (8 lanes;
-    /// measured faster than the AVX2 build on the development machine's AMD EPYC).
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f,fma")]
-    unsafe fn predict_covariance_avx512(
-        &self,
-        state: &InsState,
-        imu: &ImuSample,
-        dt: f64,
-        covariance: &mut ErrorMatrix,
-    ) {
-        self.predict_covariance_body::<Fused>(state, imu, dt, covariance);
-    }
-
-    /// [`InsErrorModel::predict_covariance`] compiled for AVX2 with FMA (4 lanes).
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    unsafe fn predict_covariance_avx2(
-        &self,
-        state: &InsState,
-        imu: &ImuSample,
-        dt: f64,
-        covariance: &mut ErrorMatrix,
-    ) {
-        self.predict_covariance_body::<Fused>(state, imu, dt, covariance);
-    }
-
-    #[inline(always)]
-    fn predict_covariance_body<M: MultiplyAdd>(
-        &self,
-        state: &InsState,
-        imu: &ImuSample,
-        dt: f64,
-        covariance: &mut ErrorMatrix,
-    ) {
-        let a = ScaledBlocks::new(&self.system_blocks::<M>(state, imu), dt);
-        let mut phi = [[0.0f64; ERROR_STATES]; ERROR_STATES];
-        a.write_transition::<M>(&mut phi);
-        let p = &mut covariance.data.0;
-        propagate_upper::<M>(p, &phi);
-        // Q_d's blocks added to the upper triangle only. Q_d is exactly symmetric, so this
-        // equals the trait path's mean of its two triangles ((q + q) / 2 = q exactly).
-        self.noise_blocks(&a, dt, |r, c, b| {
-            for j in 0..3 {
-                let rows = if r == c { j + 1 } else { 3 };
-                for i in 0..rows {
-                    p[3 * c + j][3 * r + i] += b[(i, j)];
-                }
-            }
-        });
-        mirror_upper(p);
+        builds::predict_covariance(self, state, imu, dt, covariance);
     }
 
     /// Q_d = dt \[Q_1 + (A Q_1 + Q_1 A')/2 + A Q_1 A'/3\], A = F dt, Q_1 = G Σ G' =
@@ -535,6 +389,62 @@ impl InsErrorModel {
         let q = phi * e.fixed_view::<15, 15>(0, 15);
         (phi, q)
     }
+}
+
+/// Phi and Q_d over `dt` (the math of [`InsErrorModel::transition_and_noise`]), for
+/// the builds of [`builds`].
+#[inline(always)]
+fn transition_and_noise_body<M: MultiplyAdd>(
+    model: &InsErrorModel,
+    state: &InsState,
+    imu: &ImuSample,
+    dt: f64,
+) -> (ErrorMatrix, ErrorMatrix) {
+    let a = ScaledBlocks::new(&model.system_blocks::<M>(state, imu), dt);
+    // Both written in place into the returned pair: no 15 x 15 temporaries to copy.
+    let mut out = (ErrorMatrix::zeros(), ErrorMatrix::zeros());
+    a.write_transition::<M>(&mut out.0.data.0);
+    model.write_noise(&a, dt, &mut out.1.data.0);
+    out
+}
+
+/// Phi alone (the math of `transition_matrix`), for the builds of [`builds`].
+#[inline(always)]
+fn transition_body<M: MultiplyAdd>(
+    model: &InsErrorModel,
+    state: &InsState,
+    imu: &ImuSample,
+    dt: f64,
+) -> ErrorMatrix {
+    ScaledBlocks::new(&model.system_blocks::<M>(state, imu), dt).transition::<M>()
+}
+
+/// One covariance step in place (the math of [`InsErrorModel::predict_covariance`]),
+/// for the builds of [`builds`].
+#[inline(always)]
+fn predict_covariance_body<M: MultiplyAdd>(
+    model: &InsErrorModel,
+    state: &InsState,
+    imu: &ImuSample,
+    dt: f64,
+    covariance: &mut ErrorMatrix,
+) {
+    let a = ScaledBlocks::new(&model.system_blocks::<M>(state, imu), dt);
+    let mut phi = [[0.0f64; ERROR_STATES]; ERROR_STATES];
+    a.write_transition::<M>(&mut phi);
+    let p = &mut covariance.data.0;
+    propagate_upper::<M>(p, &phi);
+    // Q_d's blocks added to the upper triangle only. Q_d is exactly symmetric, so this
+    // equals the trait path's mean of its two triangles ((q + q) / 2 = q exactly).
+    model.noise_blocks(&a, dt, |r, c, b| {
+        for j in 0..3 {
+            let rows = if r == c { j + 1 } else { 3 };
+            for i in 0..rows {
+                p[3 * c + j][3 * r + i] += b[(i, j)];
+            }
+        }
+    });
+    mirror_upper(p);
 }
 
 /// The nonzero blocks of A = F dt (F from [`InsErrorModel::system_blocks`]), by name.
@@ -922,16 +832,8 @@ impl ProcessModel<f64, ERROR_STATES> for InsErrorModel {
         }
         let mut out = *covariance;
         let (p, phi, q) = (&mut out.data.0, &transition.data.0, &process_noise.data.0);
-        // The kernel of `predict_covariance`, so that both give the same bits.
-        match Kernel::detect() {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: `Kernel::detect` checked that the CPU has the features.
-            Kernel::Avx512Fma => unsafe { propagate_structured_avx512(p, phi, q) },
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: as above.
-            Kernel::Avx2Fma => unsafe { propagate_structured_avx2(p, phi, q) },
-            Kernel::Portable => propagate_structured::<Separate>(p, phi, q),
-        }
+        // The builds of `predict_covariance`, so that both give the same bits.
+        builds::propagate_covariance(p, phi, q);
         out
     }
 
@@ -942,12 +844,7 @@ impl ProcessModel<f64, ERROR_STATES> for InsErrorModel {
         if !has_model_structure(later) {
             return later * earlier;
         }
-        #[cfg(target_arch = "x86_64")]
-        if !crate::kernel::portable_forced() && std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2 (checked on the line above).
-            return unsafe { compose_structured_avx2(&later.data.0, &earlier.data.0) };
-        }
-        compose_structured(&later.data.0, &earlier.data.0)
+        builds::compose_transitions(&later.data.0, &earlier.data.0)
     }
 }
 
@@ -955,55 +852,22 @@ impl ProcessModel<f64, ERROR_STATES> for InsErrorModel {
 /// [`has_model_structure`]): its bias rows are diagonal, so the bias rows of the product
 /// are those of `earlier` scaled (6 x 15 multiplies), and its position x gyro-bias block
 /// is zero. The navigation rows are the dense sums, term by term in the order of the
-/// dense product (so the same values): 1,980 multiply-adds instead of 3,375.
+/// dense product (so the same values): 1,980 multiply-adds instead of 3,375. Its builds
+/// ([`builds`]) use [`Separate`] only, for those values.
 #[inline(always)]
-fn compose_structured(
+fn compose_structured<M: MultiplyAdd>(
     later: &[[f64; ERROR_STATES]; ERROR_STATES],
     earlier: &[[f64; ERROR_STATES]; ERROR_STATES],
 ) -> ErrorMatrix {
     let mut out = ErrorMatrix::zeros();
     for (column, earlier_column) in out.data.0.iter_mut().zip(earlier) {
-        let navigation = navigation_column::<Separate, NAV>(later, |k| earlier_column[k]);
+        let navigation = navigation_column::<M, NAV>(later, |k| earlier_column[k]);
         column[..NAV].copy_from_slice(&navigation);
         for r in NAV..ERROR_STATES {
             column[r] = later[r][r] * earlier_column[r];
         }
     }
     out
-}
-
-/// [`compose_structured`] compiled for AVX2, without FMA: every lane does the portable
-/// build's separately rounded multiply and add, so the values are the same to the last bit.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn compose_structured_avx2(
-    later: &[[f64; ERROR_STATES]; ERROR_STATES],
-    earlier: &[[f64; ERROR_STATES]; ERROR_STATES],
-) -> ErrorMatrix {
-    compose_structured(later, earlier)
-}
-
-/// [`propagate_structured`] compiled for AVX-512 with FMA (the kernel of
-/// [`InsErrorModel::predict_covariance`]'s AVX-512 build).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,fma")]
-unsafe fn propagate_structured_avx512(
-    covariance: &mut [[f64; ERROR_STATES]; ERROR_STATES],
-    phi: &[[f64; ERROR_STATES]; ERROR_STATES],
-    q: &[[f64; ERROR_STATES]; ERROR_STATES],
-) {
-    propagate_structured::<Fused>(covariance, phi, q);
-}
-
-/// [`propagate_structured`] compiled for AVX2 with FMA.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn propagate_structured_avx2(
-    covariance: &mut [[f64; ERROR_STATES]; ERROR_STATES],
-    phi: &[[f64; ERROR_STATES]; ERROR_STATES],
-    q: &[[f64; ERROR_STATES]; ERROR_STATES],
-) {
-    propagate_structured::<Fused>(covariance, phi, q);
 }
 
 /// Navigation rows (position, velocity, misalignment) of the error state.
@@ -1226,6 +1090,32 @@ pub fn inject(nominal: &InsState, error: &SVector<f64, ERROR_STATES>) -> InsStat
 mod tests {
     use super::*;
     use crate::{Mission, MissionConfig};
+    use estim_core::dispatch::{cpu, with_features, Features};
+
+    /// The builds to compare, as the dispatch features that select them: the portable
+    /// one, and those this CPU has (AVX2 + FMA, AVX-512 + FMA).
+    fn builds() -> Vec<(&'static str, Features)> {
+        let cpu = cpu();
+        let mut out = vec![("portable", Features::PORTABLE)];
+        if cpu.avx2 && cpu.fma {
+            let avx2 = Features {
+                avx2: true,
+                avx512f: false,
+                fma: true,
+            };
+            out.push(("avx2+fma", avx2));
+            if cpu.avx512f {
+                out.push((
+                    "avx512+fma",
+                    Features {
+                        avx512f: true,
+                        ..avx2
+                    },
+                ));
+            }
+        }
+        out
+    }
 
     /// Phi P Phi' + Q by explicit loops, products and sums rounded separately (an
     /// independent reference: no structure, no kernel code).
@@ -1252,34 +1142,15 @@ mod tests {
     /// against I + A + A²/2 formed from `system_matrix` with dense nalgebra products (no
     /// zero patterns, no column kernel): every entry within 16 ε of the sum of its terms'
     /// magnitudes (an exact zero where every term is zero), at every 97th state of the
-    /// default mission. The public entry points run only the build the CPU selects, so this
-    /// is where a machine with FMA checks the portable Phi (and the other way round).
+    /// default mission. Each build runs through the dispatch's in-process override, so
+    /// this is where a machine with FMA checks the portable Phi (and the other way round).
     #[test]
     fn every_transition_build_equals_the_dense_formula() {
         let mission = Mission::generate(&MissionConfig::default(), 7).unwrap();
         let model = InsErrorModel::new(ImuSpec::akit_observed());
         let dt = mission.imu_dt;
-        type Build = fn(&InsErrorModel, &InsState, &ImuSample, f64) -> ErrorMatrix;
-        let mut builds: Vec<(&str, Build)> = vec![("portable", |m, s, u, dt| {
-            m.transition_body::<Separate>(s, u, dt)
-        })];
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("fma") {
-            if std::arch::is_x86_feature_detected!("avx2") {
-                // SAFETY: the CPU has AVX2 and FMA (checked above).
-                builds.push(("avx2+fma", |m, s, u, dt| unsafe {
-                    m.transition_avx2(s, u, dt)
-                }));
-            }
-            if std::arch::is_x86_feature_detected!("avx512f") {
-                // SAFETY: the CPU has AVX-512F and FMA (checked above).
-                builds.push(("avx512+fma", |m, s, u, dt| unsafe {
-                    m.transition_avx512(s, u, dt)
-                }));
-            }
-        }
         let identity = ErrorMatrix::identity();
-        for (name, build) in builds {
+        for (name, build) in builds() {
             let mut worst = 0.0f64;
             for (state, imu) in mission.truth.iter().zip(&mission.imu).step_by(97) {
                 let a = model.system_matrix(state, imu) * dt;
@@ -1287,7 +1158,7 @@ mod tests {
                 let magnitude = a.abs();
                 let bound =
                     (identity + magnitude + magnitude * magnitude * 0.5) * (16.0 * f64::EPSILON);
-                let phi = build(&model, state, imu, dt);
+                let phi = with_features(build, || model.transition_matrix(state, imu, dt));
                 for i in 0..15 {
                     for j in 0..15 {
                         let error = (phi[(i, j)] - reference[(i, j)]).abs();
@@ -1309,10 +1180,10 @@ mod tests {
     /// The portable kernel (products and sums rounded separately) and, when this CPU has
     /// them, the fused-multiply-add builds: each as a chain over the first 60 s of the
     /// default mission, every step within 1e-12 of the dense reference on the same
-    /// prior, the chains within 1e-12 of a dense chain, and exactly symmetric. The
-    /// public entry points run only the one kernel the CPU selects, so this is where
-    /// the others are checked on a machine that has FMA (and the FMA ones where it
-    /// has not: they are skipped there). The kernels differ from one another by the
+    /// prior, the chains within 1e-12 of a dense chain, and exactly symmetric. Each build
+    /// runs through the dispatch's in-process override, so this is where the others are
+    /// checked on a machine that has FMA (and the FMA ones where it has not: they are
+    /// skipped there). The kernels differ from one another by the
     /// rounding of a fused multiply-add (one rounding fewer per term).
     #[test]
     fn every_covariance_kernel_equals_the_dense_reference() {
@@ -1322,31 +1193,16 @@ mod tests {
         let p0 = ErrorMatrix::from_diagonal(&SVector::<f64, 15>::from_fn(|i, _| {
             [1.0, 1e-2, 1e-6, 1e-6, 1e-10][i / 3]
         }));
-        type Kernel = fn(&mut [[f64; 15]; 15], &[[f64; 15]; 15], &[[f64; 15]; 15]);
-        let mut kernels: Vec<(&str, Kernel)> = vec![("portable", propagate_structured::<Separate>)];
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("fma") {
-            if std::arch::is_x86_feature_detected!("avx2") {
-                // SAFETY: the CPU has AVX2 and FMA (checked above).
-                kernels.push(("avx2+fma", |p, phi, q| unsafe {
-                    propagate_structured_avx2(p, phi, q)
-                }));
-            }
-            if std::arch::is_x86_feature_detected!("avx512f") {
-                // SAFETY: the CPU has AVX-512F and FMA (checked above).
-                kernels.push(("avx512+fma", |p, phi, q| unsafe {
-                    propagate_structured_avx512(p, phi, q)
-                }));
-            }
-        }
         let mut finals: Vec<ErrorMatrix> = Vec::new();
-        for (name, kernel) in kernels {
+        for (name, build) in builds() {
             let (mut s, mut p, mut dense) = (mission.truth[0], p0, p0);
             let (mut worst_step, mut worst_chain) = (0.0f64, 0.0f64);
             for imu in mission.imu.iter().take(6000) {
                 let (phi, q) = model.transition_and_noise(&s, imu, dt);
                 let mut next = p;
-                kernel(&mut next.data.0, &phi.data.0, &q.data.0);
+                with_features(build, || {
+                    builds::propagate_covariance(&mut next.data.0, &phi.data.0, &q.data.0);
+                });
                 assert_eq!(next, next.transpose(), "{name}");
                 worst_step = worst_step.max(scaled_error(&next, &dense_reference(&p, &phi, &q)));
                 p = next;
