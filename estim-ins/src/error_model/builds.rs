@@ -10,9 +10,9 @@
 //! - The composition of transitions: AVX2 without FMA, separately rounded multiply and
 //!   add in every lane, so the same values as the portable build.
 
+use super::covariance::{compose_structured, propagate_structured};
 use super::{
-    compose_structured, predict_covariance_body, propagate_structured, transition_and_noise_body,
-    transition_body, ErrorMatrix, InsErrorModel,
+    predict_covariance_body, transition_and_noise_body, transition_body, ErrorMatrix, InsErrorModel,
 };
 use crate::kernel::hand_tuned;
 use crate::mechanization::ImuSample;
