@@ -12,6 +12,7 @@ use crate::state::{ACC_BIAS, ERROR_STATES, GYRO_BIAS, POS, VEL};
 /// diagonal and its position x gyro-bias block is zero (both hold for
 /// [`InsErrorModel::transition_and_noise`](super::InsErrorModel::transition_and_noise);
 /// anything else takes the dense path).
+#[inline]
 pub(super) fn has_model_structure(phi: &ErrorMatrix) -> bool {
     for r in ACC_BIAS..ERROR_STATES {
         for c in 0..ERROR_STATES {

@@ -28,6 +28,7 @@ pub type ErrorMatrix = SMatrix<f64, ERROR_STATES, ERROR_STATES>;
 /// 15 x 12 noise-input matrix.
 pub type NoiseInput = SMatrix<f64, ERROR_STATES, 12>;
 
+#[inline]
 fn skew(v: &Vector3<f64>) -> M3 {
     M3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
 }

@@ -29,6 +29,7 @@ pub(super) struct ScaledBlocks {
 }
 
 impl ScaledBlocks {
+    #[inline]
     pub(super) fn new(f: &SystemBlocks, dt: f64) -> Self {
         let rotation = -f.c_bn * dt;
         Self {
@@ -285,6 +286,7 @@ pub(super) fn has_pattern(m: &M3, pattern: u16) -> bool {
 
 /// Write block `b` at block position (r, c) of a column-array matrix and, when r != c,
 /// its transpose at (c, r).
+#[inline]
 pub(super) fn put_symmetric_block(
     out: &mut [[f64; ERROR_STATES]; ERROR_STATES],
     r: usize,
