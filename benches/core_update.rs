@@ -433,7 +433,7 @@ mod floor {
 
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = "avx2")]
-        unsafe fn step_avx2<const LDL: bool, const CHECKED: bool>(
+        fn step_avx2<const LDL: bool, const CHECKED: bool>(
             &mut self,
             y: &[f64; 2],
             report: &mut Report<N>,
@@ -441,7 +441,8 @@ mod floor {
             self.step_body::<LDL, CHECKED>(y, report)
         }
 
-        /// `step_body`, compiled for AVX2 where the CPU has it (as estim's runners are).
+        /// `step_body`, compiled for AVX2 where estim's dispatch allows it (as estim's
+        /// runners are; `ESTIM_FORCE_PORTABLE=1` turns it off for both).
         fn dispatch<const LDL: bool, const CHECKED: bool>(
             &mut self,
             y: &[f64; 2],
@@ -449,8 +450,9 @@ mod floor {
         ) -> Result<f64, &'static str> {
             #[cfg(target_arch = "x86_64")]
             {
-                if std::arch::is_x86_feature_detected!("avx2") {
-                    // SAFETY: the CPU has the feature (checked on the line above).
+                if estim_core::dispatch::features().avx2 {
+                    // SAFETY: a safe `#[target_feature]` function requires only that the
+                    // CPU has AVX2, which the dispatch reports on the line above.
                     return unsafe { self.step_avx2::<LDL, CHECKED>(y, report) };
                 }
             }

@@ -157,9 +157,10 @@
 //! (the same values to round-off), and the joint factor of 8 or more states compiled
 //! for AVX-512F (the same bits). Setting the environment variable
 //! `ESTIM_FORCE_PORTABLE=1` before the first filter runs forces the portable path
-//! everywhere in estim-core (`ESTIM_FORCE_PORTABLE=1 cargo test` runs the suite on
-//! it); unit tests compare each hand-tuned build with the portable one in the same
-//! process.
+//! everywhere in estim-core and in the crates that dispatch through it (estim-ins's
+//! kernels: module [`dispatch`] is the one switch; `ESTIM_FORCE_PORTABLE=1 cargo test`
+//! runs the suite on it); unit tests compare each hand-tuned build with the portable
+//! one in the same process (`dispatch::with_features`, feature `testing`).
 //!
 //! ## Consistency
 //!
@@ -224,6 +225,7 @@
 mod config;
 pub mod consistency;
 mod cross;
+pub use linalg::dispatch;
 pub mod dynamic;
 mod error;
 mod gaussian;

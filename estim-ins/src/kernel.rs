@@ -1,45 +1,14 @@
-//! The builds of the hot loops chosen at run time from the CPU's features, and how each
-//! build forms a multiply-add (shared by the covariance kernels of `error_model` and the
-//! mechanization).
-
-/// The builds of the hot kernels (the covariance step, the mechanization), chosen once
-/// per call from the CPU's features (`is_x86_feature_detected!` caches its answer, so
-/// the check costs a load).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Kernel {
-    /// AVX-512 (8 lanes) with fused multiply-adds.
-    #[cfg(target_arch = "x86_64")]
-    Avx512Fma,
-    /// AVX2 (4 lanes) with fused multiply-adds.
-    #[cfg(target_arch = "x86_64")]
-    Avx2Fma,
-    /// The baseline build: products and sums rounded separately.
-    Portable,
-}
-
-/// Whether `ESTIM_FORCE_PORTABLE=1` asks for the portable build everywhere (read once;
-/// estim-core honours the same variable), so tests can run the portable path on a CPU
-/// that has the hand-tuned ones.
-pub(crate) fn portable_forced() -> bool {
-    static FORCED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *FORCED.get_or_init(|| std::env::var("ESTIM_FORCE_PORTABLE").is_ok_and(|v| v == "1"))
-}
-
-impl Kernel {
-    #[inline(always)]
-    pub(crate) fn detect() -> Self {
-        #[cfg(target_arch = "x86_64")]
-        if !portable_forced() && std::arch::is_x86_feature_detected!("fma") {
-            if std::arch::is_x86_feature_detected!("avx512f") {
-                return Self::Avx512Fma;
-            }
-            if std::arch::is_x86_feature_detected!("avx2") {
-                return Self::Avx2Fma;
-            }
-        }
-        Self::Portable
-    }
-}
+//! The hand-tuned builds of estim-ins's hot loops (the covariance kernels and the
+//! transition of the error model, the mechanization step), and how each build forms a
+//! multiply-add.
+//!
+//! The math is written once, as functions generic over [`MultiplyAdd`]; the
+//! [`hand_tuned!`] macro generates from such a function its builds compiled for the
+//! CPU features listed and the dispatching function that picks one. Which build may run
+//! is asked of estim-core's dispatch ([`estim_core::dispatch::features`]), the one CPU
+//! dispatch of the workspace: `ESTIM_FORCE_PORTABLE=1` turns these builds off as it
+//! turns off estim-core's, and tests run both paths in one process with
+//! `estim_core::dispatch::with_features` (feature `testing`).
 
 /// How a kernel forms a b + c. Rust never contracts `a * b + c` into a fused
 /// multiply-add by itself, and `f64::mul_add` on a CPU without FMA is a slow library
@@ -70,3 +39,86 @@ impl MultiplyAdd for Fused {
         a.mul_add(b, c)
     }
 }
+
+/// `fn name(args) -> R`, which runs `body::<M>(args)` in the first build of the list
+/// that estim-core's dispatch allows on this CPU, else `body::<Separate>(args)` (the
+/// portable build). `body` must be generic over one [`MultiplyAdd`] and should be
+/// `#[inline(always)]`, so that each build compiles it with its own features.
+///
+/// The builds (each a safe `#[target_feature]` function nested in `name`, run when the
+/// dispatch reports every feature it is compiled with):
+///
+/// | build | compiled with | multiply-add |
+/// |---|---|---|
+/// | `avx512_fma` | `avx512f`, `avx2`, `fma` | [`Fused`] |
+/// | `avx2_fma` | `avx2`, `fma` | [`Fused`] |
+/// | `avx2` | `avx2` | [`Separate`] (the portable build's bits, wider registers) |
+///
+/// ```text
+/// hand_tuned! {
+///     /// docs
+///     fn propagate(p: &mut Cov, phi: &Cov) = propagate_body in [avx512_fma, avx2_fma];
+/// }
+/// ```
+macro_rules! hand_tuned {
+    (
+        $(#[$attr:meta])*
+        $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)?
+            = $body:ident in [$($build:ident),+ $(,)?];
+    ) => {
+        $(#[$attr])*
+        $vis fn $name($($arg: $ty),*) $(-> $ret)? {
+            // The signature and the call as single token trees, to be repeated per build.
+            $crate::kernel::hand_tuned!(
+                @dispatch [$($arg: $ty),*], ($($arg),*), [$(-> $ret)?], $body, [$($build),+]
+            )
+        }
+    };
+    (@dispatch $signature:tt, $call:tt, $ret:tt, $body:ident, [$($build:ident),+]) => {{
+        #[cfg(target_arch = "x86_64")]
+        {
+            let features = ::estim_core::dispatch::features();
+            $(
+                if $crate::kernel::hand_tuned!(@runs $build, features) {
+                    $crate::kernel::hand_tuned!(@build $build, $signature, $ret, $body);
+                    // SAFETY: a safe `#[target_feature]` function requires only that the
+                    // CPU has the features it is compiled with; estim-core's dispatch
+                    // reports each of them present (the `@runs` arm of the build, beside
+                    // its `@build` arm), and it never reports a feature the CPU lacks,
+                    // even under a test override.
+                    return unsafe { $build $call };
+                }
+            )+
+        }
+        $body::<$crate::kernel::Separate> $call
+    }};
+    (@runs avx512_fma, $features:ident) => {
+        $features.avx512f && $features.avx2 && $features.fma
+    };
+    (@build avx512_fma, [$($arg:ident: $ty:ty),*], [$($ret:tt)*], $body:ident) => {
+        #[target_feature(enable = "avx512f,avx2,fma")]
+        fn avx512_fma($($arg: $ty),*) $($ret)* {
+            $body::<$crate::kernel::Fused>($($arg),*)
+        }
+    };
+    (@runs avx2_fma, $features:ident) => {
+        $features.avx2 && $features.fma
+    };
+    (@build avx2_fma, [$($arg:ident: $ty:ty),*], [$($ret:tt)*], $body:ident) => {
+        #[target_feature(enable = "avx2,fma")]
+        fn avx2_fma($($arg: $ty),*) $($ret)* {
+            $body::<$crate::kernel::Fused>($($arg),*)
+        }
+    };
+    (@runs avx2, $features:ident) => {
+        $features.avx2
+    };
+    (@build avx2, [$($arg:ident: $ty:ty),*], [$($ret:tt)*], $body:ident) => {
+        #[target_feature(enable = "avx2")]
+        fn avx2($($arg: $ty),*) $($ret)* {
+            $body::<$crate::kernel::Separate>($($arg),*)
+        }
+    };
+}
+
+pub(crate) use hand_tuned;

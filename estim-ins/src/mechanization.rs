@@ -8,9 +8,7 @@ use crate::earth::{
     GRAVITY_EQUATOR, SEMI_MAJOR_AXIS, SOMIGLIANA_K,
 };
 use crate::error::{Error, Result};
-#[cfg(target_arch = "x86_64")]
-use crate::kernel::Fused;
-use crate::kernel::{Kernel, MultiplyAdd, Separate};
+use crate::kernel::{hand_tuned, MultiplyAdd};
 use crate::InsState;
 
 /// One IMU sample: raw (bias-including) mean specific force and angular rate over the
@@ -163,22 +161,16 @@ impl Mechanization {
     /// only (`tests::both_builds_agree_to_rounding`).
     #[must_use]
     pub fn step_unchecked(&self, state: &InsState, imu: &ImuSample, dt: f64) -> InsState {
-        match Kernel::detect() {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: the only requirement of a `target_feature` function is that the CPU
-            // has the features, which `Kernel::detect` checked (both variants have FMA and
-            // AVX2).
-            Kernel::Avx512Fma | Kernel::Avx2Fma => unsafe { step_fused(state, imu, dt) },
-            Kernel::Portable => step_body::<Separate>(state, imu, dt),
-        }
+        step_dispatched(state, imu, dt)
     }
 }
 
-/// [`Mechanization::step_unchecked`] compiled with FMA (and AVX2's three-operand forms).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn step_fused(state: &InsState, imu: &ImuSample, dt: f64) -> InsState {
-    step_body::<Fused>(state, imu, dt)
+hand_tuned! {
+    /// [`Mechanization::step_unchecked`]: the build compiled with FMA (and AVX2's
+    /// three-operand forms) where the dispatch allows it (AVX-512 CPUs run it too), else
+    /// the portable one.
+    fn step_dispatched(state: &InsState, imu: &ImuSample, dt: f64) -> InsState
+        = step_body in [avx2_fma];
 }
 
 /// A vector's components (the body works on plain arrays so that every multiply-add is
@@ -493,7 +485,9 @@ impl LocalEarth {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kernel::{Fused, Separate};
     use crate::{Mission, MissionConfig};
+    use estim_core::dispatch::{cpu, with_features, Features};
 
     /// Largest differences (position \[m\], velocity \[m/s\], attitude \[rad\]) between two
     /// states.
@@ -543,6 +537,32 @@ mod tests {
         assert!(
             next == step_body::<Separate>(&s, &mission.imu[0], dt)
                 || next == step_body::<Fused>(&s, &mission.imu[0], dt)
+        );
+    }
+
+    /// The dispatched step in one process under the portable path and under the
+    /// builds this CPU has (estim-core's override): the portable path is the portable
+    /// build to the last bit, and the CPU's path is the FMA build where the CPU has AVX2
+    /// and FMA (the portable build elsewhere).
+    #[test]
+    fn the_dispatch_runs_the_build_it_reports() {
+        let mission = Mission::generate(&MissionConfig::default(), 7).expect("mission");
+        let (s, imu, dt) = (mission.truth[0], mission.imu[0], mission.imu_dt);
+        let mechanization = Mechanization::new();
+        let portable = step_body::<Separate>(&s, &imu, dt);
+        let on_portable = with_features(Features::PORTABLE, || {
+            mechanization.step_unchecked(&s, &imu, dt)
+        });
+        assert!(on_portable == portable);
+        let on_cpu = with_features(cpu(), || mechanization.step_unchecked(&s, &imu, dt));
+        let fma = cfg!(target_arch = "x86_64") && cpu().avx2 && cpu().fma;
+        assert!(
+            on_cpu
+                == if fma {
+                    step_body::<Fused>(&s, &imu, dt)
+                } else {
+                    portable
+                }
         );
     }
 }

@@ -501,6 +501,7 @@ mod tests {
             Features {
                 avx2: true,
                 avx512f: false,
+                fma: false,
             },
             crate::linalg::dispatch::cpu(),
         ];

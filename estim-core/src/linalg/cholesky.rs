@@ -319,13 +319,11 @@ pub(crate) fn joint_factor_into<T: Scalar, const N: usize, const M: usize>(
 }
 
 /// [`joint_factor_body`] compiled for AVX-512F (wider registers for the loops; no
-/// fused operations, so the same bits).
-///
-/// # Safety
-/// The CPU must have AVX-512F.
+/// fused operations, so the same bits). Safe to call where AVX-512F is enabled; other
+/// callers need an `unsafe` block that justifies the CPU has it.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-unsafe fn joint_factor_avx512<T: Scalar, const N: usize, const M: usize>(
+fn joint_factor_avx512<T: Scalar, const N: usize, const M: usize>(
     covariance: &SMatrix<T, N, N>,
     cross_covariance: &SMatrix<T, N, M>,
     measurement_noise: &SMatrix<T, M, M>,

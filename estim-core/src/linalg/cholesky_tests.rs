@@ -191,6 +191,7 @@ fn the_vector_build_of_the_joint_factor_equals_the_portable_one() {
         let all = Features {
             avx2: true,
             avx512f: true,
+            fma: false,
         };
         let vector = with_features(all, || joint_factor(&p, &m, &r));
         if same_factor(vector, portable, case) {

@@ -733,6 +733,7 @@ mod tests {
         let all = Features {
             avx2: true,
             avx512f: true,
+            fma: false,
         };
         let (fused_ax, fused_axt, gram) = with_features(all, || {
             let mut gram = SMatrix::<f64, 15, 15>::zeros();

@@ -18,7 +18,7 @@
 //! it with the portable path in the same process.
 
 pub(crate) mod cholesky;
-pub(crate) mod dispatch;
+pub mod dispatch;
 pub(crate) mod fused_product;
 pub(crate) mod givens;
 pub(crate) mod inverse;

@@ -233,12 +233,11 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
     }
 
     /// [`KalmanFilter::predict`]'s body compiled for AVX2.
-    ///
-    /// # Safety
-    /// The CPU must have AVX2.
+    /// (A safe `#[target_feature]` function: callers without AVX2 enabled need an
+    /// `unsafe` block that justifies the CPU has it.)
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn predict_avx2(&mut self) -> Result<()> {
+    fn predict_avx2(&mut self) -> Result<()> {
         self.predict_body()
     }
 
@@ -266,12 +265,11 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
     }
 
     /// [`KalmanFilter::predict_with_input`]'s body compiled for AVX2.
-    ///
-    /// # Safety
-    /// The CPU must have AVX2.
+    /// (A safe `#[target_feature]` function: callers without AVX2 enabled need an
+    /// `unsafe` block that justifies the CPU has it.)
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn predict_input_avx2<const U: usize>(
+    fn predict_input_avx2<const U: usize>(
         &mut self,
         control: &SMatrix<T, N, U>,
         input: &SVector<T, U>,
@@ -392,12 +390,11 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
     }
 
     /// The update's body compiled for AVX2.
-    ///
-    /// # Safety
-    /// The CPU must have AVX2.
+    /// (A safe `#[target_feature]` function: callers without AVX2 enabled need an
+    /// `unsafe` block that justifies the CPU has it.)
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn update_avx2<C, W>(
+    fn update_avx2<C, W>(
         &mut self,
         measurement: &SVector<T, M>,
         source: CrossSource<'_, C, W>,

@@ -632,10 +632,12 @@ fn hand_tuned_builds_of_the_linear_runner_equal_the_portable_one() {
         let avx2 = Features {
             avx2: true,
             avx512f: false,
+            fma: false,
         };
         let all = Features {
             avx2: true,
             avx512f: true,
+            fma: false,
         };
         let portable = run::<N, M>(seed, Features::PORTABLE);
         assert_eq!(run::<N, M>(seed, avx2), portable, "({N}, {M}) AVX2");
