@@ -138,6 +138,9 @@ impl PairedInterval {
 pub struct CellRun {
     /// A-KIT trajectory.
     pub trajectory: u32,
+    /// Which IMU the run integrated (`synthesized`: `compare` runs on the IMU
+    /// synthesized from the reference on every trajectory).
+    pub imu_source: super::ImuSource,
     /// Seed (IMU synthesis, beam noise, initial error).
     pub seed: u64,
     /// Filter id.
@@ -339,6 +342,7 @@ fn cell(
                 run_variant(id, &scenario, &config, set, cross, seed)?.map(|run: FilterRun| {
                     CellRun {
                         trajectory,
+                        imu_source: scenario.imu_source,
                         seed,
                         id: id.to_string(),
                         nees: finite_mean(&run.nees),
