@@ -266,6 +266,9 @@ fn the_fifteen_state_comparison_is_reproduce_paired_by_seed() {
             &root,
             "--trajectory",
             "13",
+            // evaluate's runs are on the synthesized IMU, whatever IMU files exist.
+            "--imu",
+            "synthesized",
             "--config",
             config.to_str().expect("utf-8 path"),
             "--json",

@@ -153,6 +153,9 @@ fn converted_trajectory_gives_the_unconverted_result() {
         root.to_str().unwrap(),
         "--trajectory",
         "4",
+        // The converted files run on the synthesized IMU, whatever IMU files exist.
+        "--imu",
+        "synthesized",
         "--json",
     ]));
     // Names and units in the header, as docs/cli.md's "Your own data" lists them.

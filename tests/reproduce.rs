@@ -190,4 +190,25 @@ fn reproduce_uses_the_recorded_imu_where_there_is_one() {
     assert_eq!(out.status.code(), Some(2));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("IMU_trajectory2.csv"), "{stderr}");
+
+    // What runs only on a synthesized IMU is refused on a recorded one, naming why.
+    for (extra, says) in [
+        (
+            &["--scenario", "two-beams", "--imu", "recorded"][..],
+            "--scenario",
+        ),
+        (&["--smooth"][..], "--smooth"),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_estim"))
+            .args(["reproduce", "--data", d, "--trajectory", "2"])
+            .args(extra)
+            .output()
+            .expect("run estim");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{extra:?}: {stderr}");
+        assert!(
+            stderr.contains(says) && stderr.contains("synthesized"),
+            "{stderr}"
+        );
+    }
 }

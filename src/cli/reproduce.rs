@@ -54,7 +54,8 @@ pub struct Args {
     scenario: crate::learned_scenarios::ScenarioKind,
     /// Which IMU an A-KIT trajectory uses: `auto` (the recorded `IMU_trajectoryN.csv`
     /// where the folder holds one, else synthesized from the reference), `recorded`
-    /// (an error where there is none) or `synthesized`.
+    /// (an error where there is none) or `synthesized`. `--scenario two-beams` and
+    /// `outage` always synthesize (`recorded` is refused with them).
     #[arg(long = "imu", value_enum, default_value = "auto")]
     imu: crate::study::ImuChoice,
     /// Vehicle file a recorded IMU is read with (axes, clocks, offsets, lever arms);
@@ -89,6 +90,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .map(std::path::PathBuf::as_path),
         );
     }
+    // The two-beams and outage studies run the study's own 15-state filter, which is
+    // not defined on a recorded IMU: they keep the synthesized one.
+    let learned_event = args.scenario != crate::learned_scenarios::ScenarioKind::Paper;
+    let imu = match (learned_event, args.imu) {
+        (true, crate::study::ImuChoice::Recorded) => anyhow::bail!(
+            "--imu recorded: --scenario two-beams and outage run on the IMU synthesized \
+             from the reference only (use --imu synthesized or auto)"
+        ),
+        (true, _) => crate::study::ImuChoice::Synthesized,
+        (false, choice) => choice,
+    };
     let (scenarios, trajectories): (Vec<Scenario>, Option<Vec<u32>>) =
         match (&args.data, &args.gt, &args.dvl) {
             (_, Some(gt), Some(dvl)) => (
@@ -122,7 +134,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                             &config,
                             config.seed,
                             args.allow_partial,
-                            args.imu,
+                            imu,
                             args.vehicle.as_deref(),
                         )
                     })
@@ -131,6 +143,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             }
             _ => (vec![Scenario::simulated(&config, config.seed)?], None),
         };
+    if args.smooth {
+        if let Some(s) = scenarios.iter().find(|s| s.recorded.is_some()) {
+            anyhow::bail!(
+                "--smooth: {} is on its recorded IMU, and the study's smoother runs on the \
+                 synthesized one only (add --imu synthesized; a recorded log is smoothed by \
+                 `estim smooth --imu IMU --dvl DVL --vehicle vehicles/akit.toml`)",
+                s.name
+            );
+        }
+    }
     for s in &scenarios {
         if let Some(span) = s.span.filter(|span| !span.agrees()) {
             let [a, b] = span.overlap_s().unwrap_or(span.gt_s);

@@ -414,7 +414,9 @@ fn run_on<E: NavigationModel<N>, const N: usize>(
                       _: &Vector4<f64>|
      -> estim::navigator::Result<Option<estim_core::UpdateReport<f64, N, 3>>> {
         let Some(&k) = epoch_at.get(&time.to_bits()) else {
-            return Ok(None);
+            return Err(NavigatorError::Inputs(format!(
+                "a DVL row at t = {time} s is not one of the scenario's DVL epochs"
+            )));
         };
         updates.epoch = k;
         // Rows without this variant's measurement are no-lock rows (see below).
@@ -463,13 +465,16 @@ fn run_on<E: NavigationModel<N>, const N: usize>(
         updates.accepted[k] = Some(report.is_accepted());
         Ok(Some(report))
     };
-    // An epoch without this variant's measurement gets no update at all (not least
-    // squares on its beams): its row is a no-lock row.
+    // Every row with this variant's measurement reaches the update above, whatever
+    // beams a scripted loss removed (the velocity comes from `measurements`: least
+    // squares on the beams left, or a network's); a row without one gets no update at
+    // all (not least squares on its beams): it is a no-lock row.
     let mut inputs = recorded.inputs.clone();
     for (row, velocity) in inputs.dvl.iter_mut().zip(&measurements.velocities) {
-        if velocity.is_none() {
-            row.input = DvlInput::NoLock;
-        }
+        row.input = match velocity {
+            Some(_) => DvlInput::Beams([Some(0.0); 4]),
+            None => DvlInput::NoLock,
+        };
     }
     let mut observer = Scorer::new(id, recorded, n);
     let outcome = navigate_beams_with(

@@ -310,6 +310,13 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
     seed: u64,
     observer: &mut O,
 ) -> Result<FilterRun> {
+    if scenario.recorded.is_some() {
+        return Err(PipelineError::Invalid(format!(
+            "{}: this study run takes an IMU synthesized from the reference; on a recorded \
+             IMU the variants run through the navigator (run_recorded)",
+            scenario.name
+        )));
+    }
     check_imu_timestamps(scenario)?;
     let truth0 = scenario
         .truth
