@@ -295,15 +295,23 @@ impl Truth {
         &self,
         time: f64,
     ) -> anyhow::Result<Option<(InsState, estim::core::nalgebra::Vector3<f64>)>> {
-        let Some(state) = self.at(time)? else {
+        if !(time >= self.span[0] && time <= self.span[1]) {
             return Ok(None);
-        };
-        let k = self.trajectory.evaluate(time)?;
+        }
+        let kinematics = self.trajectory.evaluate(time)?;
+        let w = kinematics.angular_rate;
+        let mut state = kinematics.state;
+        // The reference's velocity is its point's: the IMU's lacks omega x l.
+        state.velocity_ned -= state.attitude * w.cross(&self.lever_arm);
+        if let Some((times, biases)) = &self.biases {
+            let i = times.partition_point(|&t| t < time).min(biases.len() - 1);
+            state.acc_bias = biases[i].0;
+            state.gyro_bias = biases[i].1;
+        }
         // The specific force at the IMU: the reference point's less the lever arm's
         // centripetal term (the angular acceleration's term is below the spline's
         // resolution at 1 Hz and left out).
-        let w = k.angular_rate;
-        let force = k.specific_force - w.cross(&w.cross(&self.lever_arm));
+        let force = kinematics.specific_force - w.cross(&w.cross(&self.lever_arm));
         Ok(Some((state, force)))
     }
 
@@ -313,20 +321,9 @@ impl Truth {
         &self.time_offset
     }
 
+    /// The truth at `time` (`None` outside the reference's span).
     pub(crate) fn at(&self, time: f64) -> anyhow::Result<Option<InsState>> {
-        if !(time >= self.span[0] && time <= self.span[1]) {
-            return Ok(None);
-        }
-        let kinematics = self.trajectory.evaluate(time)?;
-        let mut state = kinematics.state;
-        // The reference's velocity is its point's: the IMU's lacks omega x l.
-        state.velocity_ned -= state.attitude * kinematics.angular_rate.cross(&self.lever_arm);
-        if let Some((times, biases)) = &self.biases {
-            let i = times.partition_point(|&t| t < time).min(biases.len() - 1);
-            state.acc_bias = biases[i].0;
-            state.gyro_bias = biases[i].1;
-        }
-        Ok(Some(state))
+        Ok(self.kinematics(time)?.map(|(state, _)| state))
     }
 }
 

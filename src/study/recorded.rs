@@ -87,7 +87,8 @@ pub struct RecordedSurvey {
     /// The navigator settings from it (the initial state from the reference).
     pub settings: NavigatorSettings,
     /// The IMU (on the navigator's clock, trimmed to the reference's span) and the
-    /// DVL rows; the study replaces the rows' inputs per variant.
+    /// DVL rows' stamps, one per [`Scenario::dvl`] epoch (their inputs are set per
+    /// variant by [`run_recorded`]).
     pub inputs: SurveyInputs,
     /// The reference's epochs inside the run with the truth there.
     pub truth_epochs: Vec<(f64, InsState)>,
@@ -209,6 +210,7 @@ impl Scenario {
             let (mut state, _) = reference(sample.time)?;
             state.time = sample.time;
             states.push(state);
+            // The error-free sample over [t_k, t_k+1]: the reference at its middle.
             let next = imu.get(k + 1).map_or(end, |s| s.time);
             let (middle, force) = reference(0.5 * (sample.time + next))?;
             clean.push(ImuSample {
@@ -278,10 +280,9 @@ impl Scenario {
             imu: imu.clone(),
             dvl: rows
                 .iter()
-                .zip(&dvl)
-                .map(|(&time, d)| DvlRecord {
+                .map(|&time| DvlRecord {
                     time,
-                    input: DvlInput::Beams(beams_option(&d.beams)),
+                    input: DvlInput::NoLock,
                 })
                 .collect(),
             depth: Vec::new(),
@@ -335,11 +336,6 @@ impl RecordedSurvey {
             ..self.clone()
         })
     }
-}
-
-/// Beams as the navigator's rows hold them (`None` = missing).
-fn beams_option(beams: &Vector4<f64>) -> [Option<f64>; 4] {
-    std::array::from_fn(|i| beams[i].is_finite().then_some(beams[i]))
 }
 
 /// Run one variant on a recorded survey (see the module documentation).
