@@ -124,8 +124,20 @@ fn akit_trajectory_2_has_its_y_axes_reversed_and_a_stretched_clock() {
             "axes",
             "clock_scale",
             "gyroscope_bias",
+            "gyroscope_scale",
             "time_offset_s"
         ]
     );
     assert!((imu["clock_scale"].as_float().unwrap() - scale).abs() < 1e-5);
+    // Trajectory 2 turns about z (327 deg net): the gyroscope's scale there is fitted,
+    // and reads the clock's 1.0025 (the rates are per second of the IMU's clock).
+    let z = &doc["gyroscope_scale"];
+    let (k, sigma) = (
+        z["estimate"][2].as_f64().unwrap(),
+        z["standard_error"][2].as_f64().unwrap(),
+    );
+    assert!((k - 1.0025).abs() < 5.0 * sigma, "{k} +- {sigma}");
+    assert!(sigma < 1e-4, "{sigma}");
+    let written = imu["gyroscope_scale"].as_array().expect("three numbers");
+    assert!((written[2].as_float().unwrap() - k).abs() < 1e-5);
 }

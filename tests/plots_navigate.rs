@@ -25,7 +25,7 @@ fn estim(args: &[&str], dir: &Path) -> Output {
 /// The inputs in `dir`: trajectory 2's IMU cut to `seconds` (rows of 0.01 s), its DVL
 /// and GT, and vehicle files: `akit.toml`, `start.toml` (that with an initial
 /// position, for a run without `--truth`), `raw.toml` (IMU axes as recorded),
-/// `raw_relaxed.toml` (that and the health checks relaxed) and `smooth.toml`
+/// `raw_relaxed.toml` (IMU axes wrong, z reversed too, and the health checks relaxed) and `smooth.toml`
 /// (without `[dvl_states]`, which `smooth` refuses).
 fn inputs(dir: &Path, seconds: usize) -> Option<()> {
     let root = common::data_root()?;
@@ -52,8 +52,14 @@ fn inputs(dir: &Path, seconds: usize) -> Option<()> {
         "axes = [\"x\", \"y\", \"z\"]",
     );
     std::fs::write(dir.join("raw.toml"), &raw).expect("write");
+    // Relaxed: the health checks off, and the IMU's z axis reversed too, so that the
+    // run diverges by hundreds of km whatever the vehicle's noise settings.
+    let flipped = akit.replace(
+        "axes = [\"x\", \"-y\", \"z\"]",
+        "axes = [\"x\", \"y\", \"-z\"]",
+    );
     let relaxed = format!(
-        "{raw}\n[health]\nnis_window = 0\nfix_nis_window = 0\nmax_speed_mps = 1e9\n\
+        "{flipped}\n[health]\nnis_window = 0\nfix_nis_window = 0\nmax_speed_mps = 1e9\n\
          max_position_sigma_m = 1e12\nmax_velocity_sigma_mps = 1e9\nmin_depth_m = -1e9\n\
          max_depth_m = 1e9\n"
     );

@@ -19,8 +19,9 @@ pub struct Args {
 enum Command {
     /// Estimate the IMU's axis convention (a signed permutation, IMU -> body x forward,
     /// y right, z down), clock scale s and time offset tau (a sample stamped t is at
-    /// reference time s t - tau) and initial accelerometer and gyroscope biases against a
-    /// reference trajectory, each with its 1-sigma. Prints the `[imu]` table of a vehicle
+    /// reference time s t - tau), initial accelerometer and gyroscope biases and the
+    /// gyroscope's scale factor per body axis (on axes the reference turns about)
+    /// against a reference trajectory, each with its 1-sigma. Prints the `[imu]` table of a vehicle
     /// file (or `--json`).
     ///
     /// The IMU file is read as `estim navigate --imu` reads it, the reference as
@@ -200,6 +201,19 @@ fn table(args: &CalibrateArgs, log: &ImuLog, c: &ImuCalibration) -> String {
         triple(&c.gyroscope_bias, value),
         triple(&c.gyroscope_bias, sigma)
     );
+    // A scale the motion did not excite is written as 1 (not fitted).
+    let scale_value = |e: &Option<Estimate>| e.as_ref().map_or("1.0".into(), value);
+    let scale_sigma = |e: &Option<Estimate>| e.as_ref().map_or("not fitted".into(), sigma);
+    let _ = writeln!(
+        out,
+        "gyroscope_scale = [{}, {}, {}]    # 1-sigma [{}, {}, {}]",
+        scale_value(&c.gyroscope_scale[0]),
+        scale_value(&c.gyroscope_scale[1]),
+        scale_value(&c.gyroscope_scale[2]),
+        scale_sigma(&c.gyroscope_scale[0]),
+        scale_sigma(&c.gyroscope_scale[1]),
+        scale_sigma(&c.gyroscope_scale[2]),
+    );
     out
 }
 
@@ -215,6 +229,15 @@ fn json(args: &CalibrateArgs, log: &ImuLog, c: &ImuCalibration) -> anyhow::Resul
             "standard_error": e.iter().map(|x| x.standard_error).collect::<Vec<_>>(),
         })
     };
+    // Not fitted (the motion does not excite that axis): null.
+    let scale = json!({
+        "estimate": c.gyroscope_scale.iter().map(|e| e.map(|x| x.value)).collect::<Vec<_>>(),
+        "standard_error": c
+            .gyroscope_scale
+            .iter()
+            .map(|e| e.map(|x| x.standard_error))
+            .collect::<Vec<_>>(),
+    });
     let runner_up = c.runner_up.map_or(
         Value::Null,
         |(axes, cost)| json!({ "axes": axes.labels(), "cost": cost }),
@@ -239,6 +262,7 @@ fn json(args: &CalibrateArgs, log: &ImuLog, c: &ImuCalibration) -> anyhow::Resul
             "time_offset_s": scalar(&c.time_offset_s),
             "accelerometer_bias_mps2": vector(&c.accelerometer_bias),
             "gyroscope_bias_radps": vector(&c.gyroscope_bias),
+            "gyroscope_scale": scale,
             "cost": c.cost,
             "runner_up": runner_up,
             "cost_ratio": c.cost_ratio.is_finite().then_some(c.cost_ratio),

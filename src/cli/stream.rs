@@ -21,7 +21,6 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use estim::core::nalgebra::Vector3;
-use estim::ins::ImuSample;
 use estim::navigator::{
     Admission, DepthSample, DvlInput, DvlRecord, FinalSolution, ImuFrame, MeasurementTiming,
     NavSolution, NavigatorConfig, NavigatorError, PositionFix, Refusal, SolutionKind, StreamConfig,
@@ -215,12 +214,9 @@ impl Run {
             Record::Imu { time, acc, gyro } => {
                 let t = time - epoch;
                 let t0 = *self.first_imu.get_or_insert(t);
-                let r = self.frame.rotation;
-                let sample = ImuSample::new(
-                    self.frame.time(t0, t),
-                    r * Vector3::from(acc),
-                    r * Vector3::from(gyro),
-                );
+                let sample = self
+                    .frame
+                    .sample(t0, t, Vector3::from(acc), Vector3::from(gyro));
                 nav.push_imu(sample)
             }
             Record::Dvl { time, input } => nav.push_dvl(DvlRecord {

@@ -115,6 +115,12 @@ pub struct ImuConfig {
     /// Initial gyroscope bias in body axes \[rad/s\] (default zero).
     #[serde(deserialize_with = "super::fixed::three")]
     pub gyroscope_bias: [f64; 3],
+    /// Gyroscope scale factor per body axis (dimensionless, default `[1, 1, 1]`): the
+    /// gyroscope reads this many times the true rate, and the navigator divides each
+    /// body-axis rate by it before anything else sees the sample (`estim imu
+    /// calibrate`'s `gyroscope_scale`).
+    #[serde(deserialize_with = "super::fixed::three")]
+    pub gyroscope_scale: [f64; 3],
 }
 
 fn identity_axes() -> [String; 3] {
@@ -134,6 +140,7 @@ impl Default for ImuConfig {
             time_offset_s: 0.0,
             accelerometer_bias: [0.0; 3],
             gyroscope_bias: [0.0; 3],
+            gyroscope_scale: [1.0; 3],
         }
     }
 }
@@ -510,7 +517,8 @@ fn positive(name: &str, value: f64) -> Result<()> {
 }
 
 /// How the IMU's samples map onto the body frame and the navigator's clock
-/// (`[imu]` keys `axes`, `mounting_rpy_deg`, `clock_scale`, `time_offset_s`).
+/// (`[imu]` keys `axes`, `mounting_rpy_deg`, `clock_scale`, `time_offset_s`,
+/// `gyroscope_scale`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ImuFrame {
     /// Rotation from the IMU's axes to the body frame (a signed permutation times the
@@ -520,12 +528,17 @@ pub struct ImuFrame {
     pub clock_scale: f64,
     /// Time offset tau \[s\].
     pub time_offset_s: f64,
+    /// Gyroscope scale factor per body axis: body rates are divided by it.
+    pub gyroscope_scale: Vector3<f64>,
 }
 
 impl ImuFrame {
     /// True when the samples pass unchanged.
     pub fn is_identity(&self) -> bool {
-        self.rotation == Matrix3::identity() && self.clock_scale == 1.0 && self.time_offset_s == 0.0
+        self.rotation == Matrix3::identity()
+            && self.clock_scale == 1.0
+            && self.time_offset_s == 0.0
+            && self.gyroscope_scale == Vector3::repeat(1.0)
     }
 
     /// The navigator time of a stamp `t`, for a log whose first stamp is `t0`:
@@ -534,18 +547,33 @@ impl ImuFrame {
         t0 + self.clock_scale * (t - t0) - self.time_offset_s
     }
 
-    /// Rotate every sample into the body frame and put its stamp on the navigator's
-    /// clock (relative to the first sample's stamp).
+    /// Rotate every sample into the body frame, correct the gyroscope's scale and put
+    /// its stamp on the navigator's clock (relative to the first sample's stamp).
     pub fn apply(&self, samples: &mut [estim_ins::ImuSample]) {
         if self.is_identity() {
             return;
         }
         let t0 = samples.first().map_or(0.0, |s| s.time);
         for s in samples {
-            s.time = self.time(t0, s.time);
-            s.specific_force = self.rotation * s.specific_force;
-            s.angular_rate = self.rotation * s.angular_rate;
+            *s = self.sample(t0, s.time, s.specific_force, s.angular_rate);
         }
+    }
+
+    /// One sample as the IMU logged it (stamp `t`, the log's first stamp `t0`, IMU
+    /// axes), in the body frame on the navigator's clock with the gyroscope's scale
+    /// corrected.
+    pub fn sample(
+        &self,
+        t0: f64,
+        t: f64,
+        specific_force: Vector3<f64>,
+        angular_rate: Vector3<f64>,
+    ) -> estim_ins::ImuSample {
+        estim_ins::ImuSample::new(
+            self.time(t0, t),
+            self.rotation * specific_force,
+            (self.rotation * angular_rate).component_div(&self.gyroscope_scale),
+        )
     }
 }
 
@@ -599,6 +627,13 @@ impl NavigatorConfig {
         finite("imu.time_offset_s", &[imu.time_offset_s])?;
         finite("imu.accelerometer_bias", &imu.accelerometer_bias)?;
         finite("imu.gyroscope_bias", &imu.gyroscope_bias)?;
+        for (axis, scale) in ["x", "y", "z"].iter().zip(imu.gyroscope_scale) {
+            if !(scale.is_finite() && (scale - 1.0).abs() <= 0.1) {
+                return Err(NavigatorError::Config(format!(
+                    "imu.gyroscope_scale: {scale} on body {axis} is not within 10 % of 1"
+                )));
+            }
+        }
         if !(imu.clock_scale.is_finite() && (imu.clock_scale - 1.0).abs() <= 0.1) {
             return Err(NavigatorError::Config(format!(
                 "imu.clock_scale: {} is not within 10 % of 1",
@@ -611,6 +646,7 @@ impl NavigatorConfig {
             rotation: mounting * permutation,
             clock_scale: imu.clock_scale,
             time_offset_s: imu.time_offset_s,
+            gyroscope_scale: Vector3::from(imu.gyroscope_scale),
         })
     }
 

@@ -35,6 +35,7 @@ mod tests {
         }
         assert!(parse("[initial]\nattitude_deg = [1.0, 2.0, 3.0, 4.0]\n").is_err());
         assert!(parse("[imu]\ngyroscope_bias = [1e-5, 0.0]\n").is_err());
+        assert!(parse("[imu]\ngyroscope_scale = [1.0, 1.0]\n").is_err());
         assert!(parse("[truth]\nlever_arm_m = [1.0, 2.0, 3.0, 4.0]\n").is_err());
     }
 
@@ -81,5 +82,37 @@ mod tests {
             samples[1].specific_force,
             nalgebra::Vector3::new(0.1, -0.2, -9.8)
         );
+        // No gyroscope scale: the rates are only re-signed.
+        assert_eq!(
+            samples[1].angular_rate,
+            nalgebra::Vector3::new(0.001, -0.002, -0.098)
+        );
+    }
+
+    #[test]
+    fn the_gyroscope_scale_divides_body_rates() {
+        // y reversed, then the body rates divided per body axis (the scale is given in
+        // body axes, as `estim imu calibrate` prints it).
+        let config = parse(
+            "[imu]\naxes = [\"x\", \"-y\", \"z\"]\ngyroscope_scale = [1.0025, 0.998, 1.01]\n",
+        )
+        .unwrap();
+        let frame = config.imu_frame().unwrap();
+        let s = frame.sample(
+            0.0,
+            1.0,
+            nalgebra::Vector3::new(0.1, 0.2, -9.8),
+            nalgebra::Vector3::new(0.01, 0.02, 0.3),
+        );
+        assert_eq!(s.specific_force, nalgebra::Vector3::new(0.1, -0.2, -9.8));
+        let want = [0.01 / 1.0025, -0.02 / 0.998, 0.3 / 1.01];
+        for (got, want) in s.angular_rate.iter().zip(want) {
+            assert!((got - want).abs() <= 1e-16, "{got} vs {want}");
+        }
+        for bad in ["[1.2, 1.0, 1.0]", "[1.0, 0.0, 1.0]", "[1.0, 1.0, nan]"] {
+            let config = parse(&format!("[imu]\ngyroscope_scale = {bad}\n")).unwrap();
+            let e = config.check().unwrap_err().to_string();
+            assert!(e.contains("imu.gyroscope_scale"), "{bad}: {e}");
+        }
     }
 }

@@ -186,6 +186,7 @@ pub(super) struct Refined {
     axes: AxisMap,
     parameters: ParameterVector,
     covariance: ParameterMatrix,
+    free_scale: [bool; 3],
     residual_rms: [Vector3<f64>; 2],
     autocorrelation: f64,
     variance_ratio: f64,
@@ -203,11 +204,13 @@ fn residuals(
     let (force, rate) = reference.imu_integrals(prefix, clock, p[0], p[1]);
     let acc_bias = Vector3::new(p[2], p[3], p[4]);
     let gyro_bias = Vector3::new(p[5], p[6], p[7]);
+    let gyro_scale = Vector3::new(1.0 + p[8], 1.0 + p[9], 1.0 + p[10]);
     let mut r = DVector::zeros(6 * reference.len());
     for j in 0..reference.len() {
         let dt = reference.duration(j);
         let f = axes.apply(&force[j]) - acc_bias * dt - reference.force[j];
-        let w = axes.apply(&rate[j]) - gyro_bias * dt - reference.rate[j];
+        let w =
+            axes.apply(&rate[j]) - gyro_bias * dt - reference.rate[j].component_mul(&gyro_scale);
         r.fixed_rows_mut::<3>(6 * j).copy_from(&f);
         r.fixed_rows_mut::<3>(6 * j + 3).copy_from(&w);
     }
@@ -235,6 +238,10 @@ fn channel_weights(r: &DVector<f64>) -> [f64; 6] {
 
 /// J'WJ and J'Wr at `p`: the (s, τ_c) columns by central differences, the bias columns
 /// exact (-ΔT_j on their channel).
+/// Index of the first gyroscope scale-factor error k_g in the parameter vector.
+const SCALE: usize = 8;
+
+#[allow(clippy::too_many_arguments)]
 fn normal_equations(
     axes: &AxisMap,
     prefix: &ImuPrefix<'_>,
@@ -243,6 +250,7 @@ fn normal_equations(
     p: &ParameterVector,
     r: &DVector<f64>,
     weights: &[f64; 6],
+    free_scale: &[bool; 3],
 ) -> NormalEquations {
     let steps = [
         clock.offset_step / clock.half_span.max(1.0),
@@ -270,10 +278,20 @@ fn normal_equations(
             row[0] = columns[0][i];
             row[1] = columns[1][i];
             row[2 + c] = -dt;
+            if c >= 3 && free_scale[c - 3] {
+                row[SCALE + c - 3] = -reference.rate[j][c - 3];
+            }
             jtj += row * row.transpose() * weights[c];
             score += row * (r[i] * weights[c]);
         }
         scores.push(score);
+    }
+    // A scale held at 1 has a zero column: a unit diagonal keeps the system solvable
+    // and its step zero (its gradient is zero).
+    for (a, free) in free_scale.iter().enumerate() {
+        if !free {
+            jtj[(SCALE + a, SCALE + a)] = 1.0;
+        }
     }
     NormalEquations {
         jtj,
@@ -309,6 +327,7 @@ fn score_covariance(scores: &[ParameterVector]) -> ParameterMatrix {
 }
 
 /// Levenberg-Marquardt from `p` with fixed weights; returns the point and iterations.
+#[allow(clippy::too_many_arguments)]
 fn levenberg_marquardt(
     settings: &ImuCalibrator,
     axes: &AxisMap,
@@ -317,6 +336,7 @@ fn levenberg_marquardt(
     clock: &ClockBox,
     mut p: ParameterVector,
     weights: &[f64; 6],
+    free_scale: &[bool; 3],
 ) -> (ParameterVector, usize) {
     let mut r = residuals(axes, prefix, reference, clock, &p);
     let mut cost = weighted_cost(&r, weights);
@@ -325,7 +345,7 @@ fn levenberg_marquardt(
     while iterations < settings.max_iterations {
         iterations += 1;
         let NormalEquations { jtj, jtr, .. } =
-            normal_equations(axes, prefix, reference, clock, &p, &r, weights);
+            normal_equations(axes, prefix, reference, clock, &p, &r, weights, free_scale);
         let mut improved = false;
         while lambda < 1e12 {
             let mut damped = jtj;
@@ -379,17 +399,36 @@ pub(super) fn refine(
         let sum: f64 = (0..reference.len()).map(|j| r0[6 * j + c]).sum();
         p[2 + c] = sum / total;
     }
+    let free_scale = scale_excited(reference, settings.min_scale_rate);
     let mut iterations = 0;
     for _round in 0..3 {
         let r = residuals(&axes, prefix, reference, clock, &p);
         let weights = channel_weights(&r);
-        let (next, n) = levenberg_marquardt(settings, &axes, prefix, reference, clock, p, &weights);
+        let (next, n) = levenberg_marquardt(
+            settings,
+            &axes,
+            prefix,
+            reference,
+            clock,
+            p,
+            &weights,
+            &free_scale,
+        );
         p = next;
         iterations += n;
     }
     let r = residuals(&axes, prefix, reference, clock, &p);
     let weights = channel_weights(&r);
-    let normal = normal_equations(&axes, prefix, reference, clock, &p, &r, &weights);
+    let normal = normal_equations(
+        &axes,
+        prefix,
+        reference,
+        clock,
+        &p,
+        &r,
+        &weights,
+        &free_scale,
+    );
     let inverse = normal
         .jtj
         .cholesky()
@@ -400,6 +439,7 @@ pub(super) fn refine(
         })?;
     let covariance = inverse * score_covariance(&normal.scores) * inverse;
     let variance_ratio = (0..IMU_CALIBRATION_PARAMETERS)
+        .filter(|&k| k < SCALE || free_scale[k - SCALE])
         .map(|k| covariance[(k, k)] / inverse[(k, k)])
         .fold(0.0, f64::max);
     let autocorrelation = lag1_autocorrelation(&r, &weights);
@@ -416,10 +456,27 @@ pub(super) fn refine(
         axes,
         parameters: p,
         covariance,
+        free_scale,
         residual_rms,
         autocorrelation,
         variance_ratio,
         iterations,
+    })
+}
+
+/// Which body axes' reference rate varies enough (RMS about its time-weighted mean at
+/// least `min_rate`) for the gyroscope's scale factor on that axis to be fitted.
+fn scale_excited(reference: &ReferenceIncrements, min_rate: f64) -> [bool; 3] {
+    let total: f64 = (0..reference.len()).map(|j| reference.duration(j)).sum();
+    let mean: Vector3<f64> = reference.rate.iter().sum::<Vector3<f64>>() / total.max(1e-300);
+    std::array::from_fn(|a| {
+        let square: f64 = (0..reference.len())
+            .map(|j| {
+                let dt = reference.duration(j);
+                (reference.rate[j][a] / dt - mean[a]).powi(2) * dt
+            })
+            .sum();
+        (square / total.max(1e-300)).sqrt() >= min_rate
     })
 }
 
@@ -465,6 +522,9 @@ impl Refined {
             time_offset_s: estimate(1, p[1] + (p[0] - 1.0) * center),
             accelerometer_bias: std::array::from_fn(|i| estimate(2 + i, p[2 + i])),
             gyroscope_bias: std::array::from_fn(|i| estimate(5 + i, p[5 + i])),
+            gyroscope_scale: std::array::from_fn(|i| {
+                self.free_scale[i].then(|| estimate(SCALE + i, 1.0 + p[SCALE + i]))
+            }),
             covariance,
             residual_rms_accelerometer: self.residual_rms[0],
             residual_rms_gyroscope: self.residual_rms[1],

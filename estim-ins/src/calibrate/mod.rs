@@ -17,9 +17,11 @@ pub use axes::AxisMap;
 use fit::{coarse_search, refine};
 use increments::{ClockBox, ImuPrefix, ReferenceIncrements};
 
-/// Number of fitted parameters: clock scale, time offset, accelerometer bias (3),
-/// gyroscope bias (3), in that order in [`ImuCalibration::covariance`].
-pub const IMU_CALIBRATION_PARAMETERS: usize = 8;
+/// Number of parameters: clock scale, time offset, accelerometer bias (3), gyroscope
+/// bias (3), gyroscope scale factor (3), in that order in
+/// [`ImuCalibration::covariance`] (a scale factor the motion does not excite is held at
+/// 1 and has zero rows and columns there).
+pub const IMU_CALIBRATION_PARAMETERS: usize = 11;
 
 type ParameterVector = SVector<f64, IMU_CALIBRATION_PARAMETERS>;
 type ParameterMatrix = SMatrix<f64, IMU_CALIBRATION_PARAMETERS, IMU_CALIBRATION_PARAMETERS>;
@@ -45,7 +47,11 @@ pub struct ImuCalibration {
     pub accelerometer_bias: [Estimate; 3],
     /// Gyroscope bias, body axes \[rad/s\].
     pub gyroscope_bias: [Estimate; 3],
-    /// Covariance of (s, τ, b_a, b_g), the standard errors' source (the Newey-West
+    /// Gyroscope scale factor 1 + k per body axis (the gyroscope reads (1 + k) times
+    /// the true rate); `None` on an axis whose reference rate varies too little
+    /// ([`ImuCalibratorBuilder::min_scale_rate`]), where k is held at 0.
+    pub gyroscope_scale: [Option<Estimate>; 3],
+    /// Covariance of (s, τ, b_a, b_g, k_g), the standard errors' source (the Newey-West
     /// sandwich of [`ImuCalibrator`]'s method, step 3).
     pub covariance: ParameterMatrix,
     /// RMS of the residual mean specific force per interval, body axes \[m/s^2\].
@@ -54,7 +60,7 @@ pub struct ImuCalibration {
     pub residual_rms_gyroscope: Vector3<f64>,
     /// Pooled lag-1 autocorrelation of the weighted residuals (0 when white).
     pub residual_lag1_autocorrelation: f64,
-    /// Largest ratio, over the eight parameters, of the variance in `covariance` to the
+    /// Largest ratio, over the fitted parameters, of the variance in `covariance` to the
     /// white-residual variance (J'WJ)^-1: how much the residuals' autocorrelation widens
     /// the sigmas (about 1 when they are white).
     pub max_variance_ratio: f64,
@@ -83,8 +89,12 @@ pub struct ImuCalibration {
 /// signed permutation P, the same for both triads, and
 ///
 /// ```text
-/// P f_imu(T) = f^b(T) + b_a + noise,     P ω_imu(T) = ω_ib^b(T) + b_g + noise.
+/// P f_imu(T) = f^b(T) + b_a + noise,     P ω_imu(T) = (1 + k_g) ∘ ω_ib^b(T) + b_g + noise,
 /// ```
+///
+/// with k_g the gyroscope's scale-factor error per body axis (∘: per component). k_g is
+/// fitted on an axis whose reference rate varies enough to tell a scale from a bias
+/// ([`ImuCalibratorBuilder::min_scale_rate`]); elsewhere it is held at 0.
 ///
 /// The IMU values are read as piecewise-constant rates on the reference clock (both
 /// sides are integrated in reference seconds, so a stretched IMU clock does not show up
@@ -92,7 +102,7 @@ pub struct ImuCalibration {
 /// the residual is
 ///
 /// ```text
-/// r_j = P ∫ (f_imu, ω_imu) dT - (b_a, b_g) (T_{j+1} - T_j) - ∫ (f^b, ω_ib^b) dT,
+/// r_j = P ∫ (f_imu, ω_imu) dT - (b_a, b_g) (T_{j+1} - T_j) - (∫ f^b dT, (1 + k_g) ∘ ∫ ω_ib^b dT),
 /// ```
 ///
 /// where the reference integrals come from the inverse mechanization of
@@ -119,7 +129,7 @@ pub struct ImuCalibration {
 ///    [`ImuCalibratorBuilder::max_gyroscope_bias`] is not admitted there: free biases
 ///    would otherwise absorb gravity mapped onto a wrong axis.
 /// 2. The best permutation's grid optimum is refined by Levenberg-Marquardt (Nocedal &
-///    Wright, *Numerical Optimization*, 2nd ed., 2006, sec. 10.3) over (s, τ, b_a, b_g),
+///    Wright, *Numerical Optimization*, 2nd ed., 2006, sec. 10.3) over (s, τ, b_a, b_g, k_g),
 ///    each of the six channels weighted by the inverse of its residual variance,
 ///    re-estimated over three rounds; the (s, τ) columns of the Jacobian are central
 ///    differences spanning a few IMU samples (the integrals are piecewise linear in τ).
@@ -187,6 +197,7 @@ pub struct ImuCalibrator {
     min_intervals: usize,
     min_reference_interval: f64,
     max_iterations: usize,
+    min_scale_rate: f64,
 }
 
 /// Builder of an [`ImuCalibrator`]; `build()` validates.
@@ -209,6 +220,7 @@ impl Default for ImuCalibratorBuilder {
                 min_intervals: 30,
                 min_reference_interval: 0.5,
                 max_iterations: 50,
+                min_scale_rate: 0.01,
             },
         }
     }
@@ -268,6 +280,15 @@ impl ImuCalibratorBuilder {
         self
     }
 
+    /// Smallest RMS, about its mean, of the reference's angular rate on a body axis for
+    /// the gyroscope's scale factor on that axis to be fitted \[rad/s\] (default 0.01,
+    /// about 0.6 deg/s: a vehicle that turns, as opposed to one that holds its heading,
+    /// where a scale cannot be told from a bias). Infinite: never fit a scale.
+    pub fn min_scale_rate(mut self, radps: f64) -> Self {
+        self.settings.min_scale_rate = radps;
+        self
+    }
+
     /// Iteration limit of each Levenberg-Marquardt round (default 50).
     pub fn max_iterations(mut self, n: usize) -> Self {
         self.settings.max_iterations = n;
@@ -289,6 +310,12 @@ impl ImuCalibratorBuilder {
         positive("max_accelerometer_bias", s.max_accelerometer_bias)?;
         positive("max_gyroscope_bias", s.max_gyroscope_bias)?;
         positive("min_reference_interval", s.min_reference_interval)?;
+        if s.min_scale_rate.is_nan() || s.min_scale_rate <= 0.0 {
+            return Err(Error::InvalidParameter {
+                name: "min_scale_rate",
+                reason: format!("{} is not a positive number", s.min_scale_rate),
+            });
+        }
         let invalid =
             |name: &'static str, reason: String| Err(Error::InvalidParameter { name, reason });
         if s.time_offset_grid_step > s.max_time_offset {
