@@ -276,15 +276,15 @@ impl UnscentedTransform {
 /// The weights of one use of the transform.
 pub(crate) struct Weights<T> {
     /// sqrt(L + lambda).
-    gamma: T,
+    pub(crate) gamma: T,
     /// Wm_0.
-    mean_centre: T,
+    pub(crate) mean_centre: T,
     /// Wc_0.
-    covariance_centre: T,
+    pub(crate) covariance_centre: T,
     /// Wm_i = Wc_i, i > 0.
-    other: T,
+    pub(crate) other: T,
     /// Covariances in the centre-point-modified form (module docs).
-    centre_modified: bool,
+    pub(crate) centre_modified: bool,
 }
 
 impl<T: Scalar> Weights<T> {
@@ -292,7 +292,7 @@ impl<T: Scalar> Weights<T> {
     /// d_bar = sum_{i>0} W_i d_i = y_hat - Y_0) into the covariance: Wc_0 - Wm_0 - 1 in
     /// the plain form (sum_i Wc_i (d_i - d_bar)(d_i - d_bar)', with sum_{i>0} W_i =
     /// 1 - Wm_0), zero in the centre-point-modified form.
-    fn mean_correction(&self) -> T {
+    pub(crate) fn mean_correction(&self) -> T {
         if self.centre_modified {
             T::zero()
         } else {

@@ -11,7 +11,9 @@ A Rust core (the ``estim-core`` crate) with sizes taken from the arrays:
 - :func:`joint_check` -- is ``[[Q, M], [M', R]]`` a covariance at all?
 - :func:`nees`, :func:`nis` -- consistency statistics;
 - :mod:`estim.filterpy` -- ``from estim.filterpy import KalmanFilter``: filterpy's
-  ``KalmanFilter`` API on the same core.
+  ``KalmanFilter`` API on the same core, and its ``UnscentedKalmanFilter`` with
+  ``MerweScaledSigmaPoints`` / ``JulierSigmaPoints`` (Python ``fx``, ``hx`` and hooks
+  called from the Rust sigma-point filter).
 
 Errors are :class:`EstimError` (a ``ValueError``) naming the quantity at fault.
 

@@ -177,3 +177,46 @@ class FilterpyKalmanFilter:
     def likelihood(self) -> float: ...
     @property
     def mahalanobis(self) -> float: ...
+
+class _UnscentedCore:
+    """The Rust half of estim.filterpy.UnscentedKalmanFilter (estim-core's
+    DynUnscentedKalmanFilter): sigma points, sums and update, calling the Python fx / hx
+    and hooks once per sigma point. An exception a callable raises propagates as it is."""
+
+    def __init__(self, dim_x: int, dim_z: int, alpha: float, beta: float, kappa: float) -> None: ...
+    def predict(
+        self,
+        x: ArrayLike,
+        P: ArrayLike,
+        Q: ArrayLike,
+        dt: float,
+        fx: Any,
+        kwargs: Optional[dict],
+        residual_x: Optional[Any],
+        x_mean_fn: Optional[Any],
+        Wm: ArrayLike,
+    ) -> Tuple[FloatArray, FloatArray]: ...
+    def update(
+        self,
+        x: ArrayLike,
+        P: ArrayLike,
+        z: ArrayLike,
+        R: ArrayLike,
+        hx: Any,
+        kwargs: Optional[dict],
+        residual_z: Optional[Any],
+        z_mean_fn: Optional[Any],
+        Wm: ArrayLike,
+    ) -> dict: ...
+    def rts_smoother(
+        self,
+        Xs: ArrayLike,
+        Ps: ArrayLike,
+        Q: ArrayLike,
+        Qs: Optional[ArrayLike],
+        dts: Sequence[float],
+        fx: Any,
+        residual_x: Optional[Any],
+        x_mean_fn: Optional[Any],
+        Wm: ArrayLike,
+    ) -> Tuple[FloatArray, FloatArray, FloatArray]: ...

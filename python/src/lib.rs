@@ -9,6 +9,7 @@
 mod convert;
 mod filterpy;
 mod native;
+mod unscented;
 
 use pyo3::prelude::*;
 
@@ -31,5 +32,6 @@ fn _estim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("EstimError", m.py().get_type::<EstimError>())?;
     native::register(m)?;
     filterpy::register(m)?;
+    unscented::register(m)?;
     Ok(())
 }

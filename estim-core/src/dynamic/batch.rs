@@ -113,7 +113,7 @@ pub struct Trajectory {
 }
 
 impl Trajectory {
-    fn zeros(size: usize, steps: usize) -> Self {
+    pub(super) fn zeros(size: usize, steps: usize) -> Self {
         Self {
             size,
             states: vec![0.0; size * steps],
@@ -121,7 +121,7 @@ impl Trajectory {
         }
     }
 
-    fn set(&mut self, k: usize, state: &DVector<f64>, covariance: &DMatrix<f64>) {
+    pub(super) fn set(&mut self, k: usize, state: &DVector<f64>, covariance: &DMatrix<f64>) {
         let n = self.size;
         self.states[k * n..(k + 1) * n].copy_from_slice(state.as_slice());
         self.covariances[k * n * n..(k + 1) * n * n].copy_from_slice(covariance.as_slice());
@@ -202,12 +202,181 @@ pub struct FilteredAndSmoothed {
 }
 
 /// Per-step quantities of the forward pass the backward pass needs: nu, S^-1, K'.
-struct UpdateRecord {
-    m: usize,
-    n: usize,
-    innovation: Vec<f64>,
-    inverse: Vec<f64>,
-    gain_t: Vec<f64>,
+pub(super) struct UpdateRecord {
+    pub(super) m: usize,
+    pub(super) n: usize,
+    pub(super) innovation: Vec<f64>,
+    pub(super) inverse: Vec<f64>,
+    pub(super) gain_t: Vec<f64>,
+}
+
+impl UpdateRecord {
+    /// Room for `steps` updates of m measurements and n states.
+    pub(super) fn new(n: usize, m: usize, steps: usize) -> Self {
+        Self {
+            m,
+            n,
+            innovation: vec![0.0; steps * m],
+            inverse: vec![0.0; steps * m * m],
+            gain_t: vec![0.0; steps * m * n],
+        }
+    }
+
+    /// Keep step k's innovation, S^-1 and K'.
+    pub(super) fn set(
+        &mut self,
+        k: usize,
+        innovation: &DVector<f64>,
+        inverse: &DMatrix<f64>,
+        gain_t: &DMatrix<f64>,
+    ) {
+        let (m, n) = (self.m, self.n);
+        self.innovation[k * m..(k + 1) * m].copy_from_slice(innovation.as_slice());
+        self.inverse[k * m * m..(k + 1) * m * m].copy_from_slice(inverse.as_slice());
+        self.gain_t[k * m * n..(k + 1) * m * n].copy_from_slice(gain_t.as_slice());
+    }
+}
+
+/// The fixed-interval smoother's backward pass over a recorded forward pass (the
+/// formulas of [`DynKalmanFilter::filter_and_smooth`]), with the transition and the
+/// observation of each step given transposed: `transition_t(k)` is F' of the predict
+/// into series step k (index k), `observation_t(k)` H' of its update. A linear filter
+/// gives its constant F' and H'; the unscented filter its statistical linearisations.
+pub(super) fn smooth_backward<'a>(
+    x0: &DVector<f64>,
+    p0: &DMatrix<f64>,
+    filtered: FilteredSeries,
+    record: &UpdateRecord,
+    transition_t: impl Fn(usize) -> Operand<'a>,
+    observation_t: impl Fn(usize) -> Operand<'a>,
+) -> Result<FilteredAndSmoothed> {
+    let (n, m, steps) = (record.n, record.m, filtered.accepted.len());
+    // Backward buffers, allocated once.
+    let mut correction = DVector::<f64>::zeros(n);
+    let mut next_correction = DVector::<f64>::zeros(n);
+    let mut smoothed_cov = DMatrix::<f64>::zeros(n, n);
+    let mut previous_cov = DMatrix::<f64>::zeros(n, n);
+    let mut cross_cov = DMatrix::<f64>::zeros(n, n);
+    let mut gain_t = DMatrix::<f64>::zeros(n, n);
+    let mut gain = DMatrix::<f64>::zeros(n, n);
+    let mut ch_t = DMatrix::<f64>::zeros(m, n);
+    let mut factor = DMatrix::<f64>::zeros(n, n);
+    let mut inverse_factor = DMatrix::<f64>::zeros(n, n);
+    let mut inverse_factor_t = DMatrix::<f64>::zeros(n, n);
+    let mut scratch = DMatrix::<f64>::zeros(n, n);
+    let mut difference = DMatrix::<f64>::zeros(n, n);
+    let mut product = DMatrix::<f64>::zeros(n, n);
+    let mut ch = DMatrix::<f64>::zeros(n, m);
+    let mut a = DMatrix::<f64>::zeros(n, m);
+    let mut shift = DVector::<f64>::zeros(n);
+    let mut filtered_k = DMatrix::<f64>::zeros(n, n);
+    let mut smoothed = Trajectory::zeros(n, steps);
+    if steps > 0 {
+        let last = steps - 1;
+        smoothed.states[last * n..].copy_from_slice(&filtered.estimates.states[last * n..]);
+        smoothed.covariances[last * n * n..]
+            .copy_from_slice(&filtered.estimates.covariances[last * n * n..]);
+        smoothed_cov.copy_from(&filtered.estimates.covariance(last));
+    } else {
+        smoothed_cov.copy_from(p0);
+    }
+    // Epoch k = 0 is x_0, epoch k >= 1 the estimate after step k (index k - 1).
+    for k in (0..steps).rev() {
+        let (state_k, cov_k): (DVectorView<'_, f64>, DMatrixView<'_, f64>) = if k == 0 {
+            (x0.as_view(), p0.as_view())
+        } else {
+            (
+                filtered.estimates.state(k - 1),
+                filtered.estimates.covariance(k - 1),
+            )
+        };
+        filtered_k.copy_from(&cov_k);
+        // C = P_k F'.
+        gemm(&mut cross_cov, 1.0, &filtered_k, transition_t(k), 0.0);
+        previous_cov.copy_from(&filtered_k);
+        shift.fill(0.0);
+        if filtered.accepted[k] {
+            let innovation = DVectorView::from_slice(&record.innovation[k * m..(k + 1) * m], m);
+            let inverse = Operand::new(&record.inverse[k * m * m..(k + 1) * m * m], m, m);
+            let kt = Operand::new(&record.gain_t[k * m * n..(k + 1) * m * n], m, n);
+            gemm(&mut ch, 1.0, &cross_cov, observation_t(k), 0.0);
+            ch.transpose_to(&mut ch_t);
+            gemm(&mut a, 1.0, &ch, inverse, 0.0);
+            shift.gemv(1.0, &a, &innovation, 0.0);
+            gemm_upper(&mut previous_cov, -1.0, &a, &ch_t, 1.0);
+            gemm(&mut cross_cov, -1.0, &ch, kt, 1.0);
+        }
+        // G' = P_{k+1}^-1 C' = W' (W C'), P_{k+1} = L L' (the filtered covariance
+        // after step k + 1), W = L^-1: two blocked products instead of two
+        // triangular solves with n right-hand sides.
+        factor.copy_from(&filtered.estimates.covariance(k));
+        let not_positive_definite = || Error::InvalidCovariance {
+            what: "filtered covariance (smoother gain)",
+            reason: format!("not positive definite after step {}", k + 1),
+        };
+        let chol = Cholesky::new(std::mem::replace(&mut factor, DMatrix::zeros(0, 0)))
+            .ok_or_else(not_positive_definite)?;
+        factor = chol.unpack_dirty();
+        if !lower_inverse_into(&factor, &mut inverse_factor) {
+            return Err(not_positive_definite());
+        }
+        inverse_factor.transpose_to(&mut inverse_factor_t);
+        cross_cov.transpose_to(&mut gain_t);
+        gemm_triangular(
+            &mut scratch,
+            1.0,
+            &inverse_factor,
+            Triangle::Lower,
+            &gain_t,
+            0.0,
+        );
+        gemm_triangular(
+            &mut gain_t,
+            1.0,
+            &inverse_factor_t,
+            Triangle::Upper,
+            &scratch,
+            0.0,
+        );
+        // e^s_k = shift + G e^s_{k+1}.
+        next_correction.copy_from(&shift);
+        next_correction.gemv_tr(1.0, &gain_t, &correction, 1.0);
+        std::mem::swap(&mut correction, &mut next_correction);
+        // P^s_k = P_k|k+1 + G (P^s_{k+1} - P_{k+1}) G'.
+        difference.copy_from(&smoothed_cov);
+        difference -= &filtered.estimates.covariance(k);
+        gain_t.transpose_to(&mut gain);
+        gemm(&mut product, 1.0, &gain, &difference, 0.0);
+        smoothed_cov.copy_from(&previous_cov);
+        // Symmetric: the upper triangle of each term, mirrored.
+        gemm_upper(&mut smoothed_cov, 1.0, &product, &gain_t, 1.0);
+        mirror_upper(&mut smoothed_cov);
+        if !(correction.iter().all(|v| v.is_finite()) && smoothed_cov.iter().all(|v| v.is_finite()))
+        {
+            return Err(Error::NonFinite {
+                what: "smoothed estimate (overflow)",
+            });
+        }
+        shift.copy_from(&state_k);
+        shift += &correction;
+        if k > 0 {
+            smoothed.set(k - 1, &shift, &smoothed_cov);
+        } else {
+            return Ok(FilteredAndSmoothed {
+                filtered,
+                smoothed,
+                smoothed_initial_state: shift,
+                smoothed_initial_covariance: smoothed_cov,
+            });
+        }
+    }
+    // No steps: x_0 is its own smoothed estimate.
+    Ok(FilteredAndSmoothed {
+        filtered,
+        smoothed,
+        smoothed_initial_state: x0.clone(),
+        smoothed_initial_covariance: p0.clone(),
+    })
 }
 
 impl DynKalmanFilter {
@@ -284,144 +453,18 @@ impl DynKalmanFilter {
             measurements.len(),
         );
         let mut forward = self.clone();
-        let mut record = UpdateRecord {
-            m,
-            n,
-            innovation: vec![0.0; steps * m],
-            inverse: vec![0.0; steps * m * m],
-            gain_t: vec![0.0; steps * m * n],
-        };
+        let mut record = UpdateRecord::new(n, m, steps);
         let filtered = forward.run_series(measurements, cross, Some(&mut record))?;
-        let (x0, p0) = (self.state(), self.covariance());
-        let f_t = self.transition_transposed();
-        let h_t = self.observation_transposed();
-        // Backward buffers, allocated once.
-        let mut correction = DVector::<f64>::zeros(n);
-        let mut next_correction = DVector::<f64>::zeros(n);
-        let mut smoothed_cov = DMatrix::<f64>::zeros(n, n);
-        let mut previous_cov = DMatrix::<f64>::zeros(n, n);
-        let mut cross_cov = DMatrix::<f64>::zeros(n, n);
-        let mut gain_t = DMatrix::<f64>::zeros(n, n);
-        let mut gain = DMatrix::<f64>::zeros(n, n);
-        let mut ch_t = DMatrix::<f64>::zeros(m, n);
-        let mut factor = DMatrix::<f64>::zeros(n, n);
-        let mut inverse_factor = DMatrix::<f64>::zeros(n, n);
-        let mut inverse_factor_t = DMatrix::<f64>::zeros(n, n);
-        let mut scratch = DMatrix::<f64>::zeros(n, n);
-        let mut difference = DMatrix::<f64>::zeros(n, n);
-        let mut product = DMatrix::<f64>::zeros(n, n);
-        let mut ch = DMatrix::<f64>::zeros(n, m);
-        let mut a = DMatrix::<f64>::zeros(n, m);
-        let mut shift = DVector::<f64>::zeros(n);
-        let mut filtered_k = DMatrix::<f64>::zeros(n, n);
-        let mut smoothed = Trajectory::zeros(n, steps);
-        if steps > 0 {
-            let last = steps - 1;
-            smoothed.states[last * n..].copy_from_slice(&filtered.estimates.states[last * n..]);
-            smoothed.covariances[last * n * n..]
-                .copy_from_slice(&filtered.estimates.covariances[last * n * n..]);
-            smoothed_cov.copy_from(&filtered.estimates.covariance(last));
-        } else {
-            smoothed_cov.copy_from(p0);
-        }
-        // Epoch k = 0 is x_0, epoch k >= 1 the estimate after step k (index k - 1).
-        for k in (0..steps).rev() {
-            let (state_k, cov_k): (DVectorView<'_, f64>, DMatrixView<'_, f64>) = if k == 0 {
-                (x0.as_view(), p0.as_view())
-            } else {
-                (
-                    filtered.estimates.state(k - 1),
-                    filtered.estimates.covariance(k - 1),
-                )
-            };
-            filtered_k.copy_from(&cov_k);
-            // C = P_k F'.
-            gemm(&mut cross_cov, 1.0, &filtered_k, f_t, 0.0);
-            previous_cov.copy_from(&filtered_k);
-            shift.fill(0.0);
-            if filtered.accepted[k] {
-                let innovation = DVectorView::from_slice(&record.innovation[k * m..(k + 1) * m], m);
-                let inverse = Operand::new(&record.inverse[k * m * m..(k + 1) * m * m], m, m);
-                let kt = Operand::new(&record.gain_t[k * m * n..(k + 1) * m * n], m, n);
-                gemm(&mut ch, 1.0, &cross_cov, h_t, 0.0);
-                ch.transpose_to(&mut ch_t);
-                gemm(&mut a, 1.0, &ch, inverse, 0.0);
-                shift.gemv(1.0, &a, &innovation, 0.0);
-                gemm_upper(&mut previous_cov, -1.0, &a, &ch_t, 1.0);
-                gemm(&mut cross_cov, -1.0, &ch, kt, 1.0);
-            }
-            // G' = P_{k+1}^-1 C' = W' (W C'), P_{k+1} = L L' (the filtered covariance
-            // after step k + 1), W = L^-1: two blocked products instead of two
-            // triangular solves with n right-hand sides.
-            factor.copy_from(&filtered.estimates.covariance(k));
-            let not_positive_definite = || Error::InvalidCovariance {
-                what: "filtered covariance (smoother gain)",
-                reason: format!("not positive definite after step {}", k + 1),
-            };
-            let chol = Cholesky::new(std::mem::replace(&mut factor, DMatrix::zeros(0, 0)))
-                .ok_or_else(not_positive_definite)?;
-            factor = chol.unpack_dirty();
-            if !lower_inverse_into(&factor, &mut inverse_factor) {
-                return Err(not_positive_definite());
-            }
-            inverse_factor.transpose_to(&mut inverse_factor_t);
-            cross_cov.transpose_to(&mut gain_t);
-            gemm_triangular(
-                &mut scratch,
-                1.0,
-                &inverse_factor,
-                Triangle::Lower,
-                &gain_t,
-                0.0,
-            );
-            gemm_triangular(
-                &mut gain_t,
-                1.0,
-                &inverse_factor_t,
-                Triangle::Upper,
-                &scratch,
-                0.0,
-            );
-            // e^s_k = shift + G e^s_{k+1}.
-            next_correction.copy_from(&shift);
-            next_correction.gemv_tr(1.0, &gain_t, &correction, 1.0);
-            std::mem::swap(&mut correction, &mut next_correction);
-            // P^s_k = P_k|k+1 + G (P^s_{k+1} - P_{k+1}) G'.
-            difference.copy_from(&smoothed_cov);
-            difference -= &filtered.estimates.covariance(k);
-            gain_t.transpose_to(&mut gain);
-            gemm(&mut product, 1.0, &gain, &difference, 0.0);
-            smoothed_cov.copy_from(&previous_cov);
-            // Symmetric: the upper triangle of each term, mirrored.
-            gemm_upper(&mut smoothed_cov, 1.0, &product, &gain_t, 1.0);
-            mirror_upper(&mut smoothed_cov);
-            if !(correction.iter().all(|v| v.is_finite())
-                && smoothed_cov.iter().all(|v| v.is_finite()))
-            {
-                return Err(Error::NonFinite {
-                    what: "smoothed estimate (overflow)",
-                });
-            }
-            shift.copy_from(&state_k);
-            shift += &correction;
-            if k > 0 {
-                smoothed.set(k - 1, &shift, &smoothed_cov);
-            } else {
-                return Ok(FilteredAndSmoothed {
-                    filtered,
-                    smoothed,
-                    smoothed_initial_state: shift,
-                    smoothed_initial_covariance: smoothed_cov,
-                });
-            }
-        }
-        // No steps: x_0 is its own smoothed estimate.
-        Ok(FilteredAndSmoothed {
+        let f_t = Operand::from(self.transition_transposed());
+        let h_t = Operand::from(self.observation_transposed());
+        smooth_backward(
+            self.state(),
+            self.covariance(),
             filtered,
-            smoothed,
-            smoothed_initial_state: x0.clone(),
-            smoothed_initial_covariance: p0.clone(),
-        })
+            &record,
+            |_| f_t,
+            |_| h_t,
+        )
     }
 
     fn run_series(
@@ -466,13 +509,12 @@ impl DynKalmanFilter {
                 if report.accepted {
                     out.log_likelihood += report.log_likelihood;
                     if let Some(record) = record.as_deref_mut() {
-                        let (m, n) = (record.m, record.n);
-                        record.innovation[k * m..(k + 1) * m]
-                            .copy_from_slice(self.innovation().as_slice());
-                        record.inverse[k * m * m..(k + 1) * m * m]
-                            .copy_from_slice(self.innovation_covariance_inverse().as_slice());
-                        record.gain_t[k * m * n..(k + 1) * m * n]
-                            .copy_from_slice(self.gain_transposed().as_slice());
+                        record.set(
+                            k,
+                            self.innovation(),
+                            self.innovation_covariance_inverse(),
+                            self.gain_transposed(),
+                        );
                     }
                 }
             }

@@ -25,7 +25,14 @@
 //!   (portable, AVX2 and AVX-512F builds through the crate's one CPU dispatch),
 //!   single threaded.
 //!
-//! On the same problems its estimates equal [`crate::KalmanFilter`]'s and
+//! [`DynUnscentedKalmanFilter`] is the unscented filter for run-time sizes: f and h as
+//! [`DynSigmaPointProcess`] / [`DynSigmaPointMeasurement`] (closures, or types with
+//! residual and mean hooks for angles), no Jacobian, the correlated update with the same
+//! joint check, the filtered and URTS-smoothed estimates of one forward pass, no
+//! allocation per step; it equals the static [`crate::UnscentedKalmanFilter`] to 1e-12
+//! (`tests/dynamic_unscented.rs`).
+//!
+//! On the same problems [`DynKalmanFilter`]'s estimates equal [`crate::KalmanFilter`]'s and
 //! `smooth_batch`'s to 1e-12 (`tests/dynamic.rs`), with and without M. EM and the
 //! log-likelihood of a linear-Gaussian model with run-time sizes are in
 //! [`crate::noise::em`] (`log_likelihood`, `em`).
@@ -41,8 +48,12 @@ mod filter;
 mod linalg;
 mod macros;
 mod product;
+mod sigma;
 mod tools;
+mod unscented;
 
 pub use batch::{FilteredAndSmoothed, FilteredSeries, MeasurementSeries, Trajectory};
 pub use filter::{DynKalmanFilter, DynUpdateReport};
+pub use sigma::{DynSigmaPointMeasurement, DynSigmaPointProcess, DynSigmaPoints};
 pub use tools::{joint_validity_margin, normalised_squared_error};
+pub use unscented::DynUnscentedKalmanFilter;
