@@ -195,6 +195,25 @@ fn shards_merge_exactly_and_bad_shards_are_refused() {
             "[[5000, 5001]]",
         ],
     );
+    // "ok" beside a failure: variant ls's run moved to its failures, status kept.
+    let mut doc: Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(doc["status"], "ok");
+    let ls = &mut doc["sufficient_statistics"]["variants"][0];
+    let run = ls["runs"].as_array_mut().unwrap().remove(0);
+    ls["failures"] = serde_json::json!([{
+        "id": ls["id"].clone(),
+        "label": ls["label"].clone(),
+        "seed": run["seed"].clone(),
+        "epoch": 3,
+        "time_s": 3.0,
+        "reason": "diverged",
+    }]);
+    std::fs::write(cwd.join("ok.json"), doc.to_string()).unwrap();
+    refused(
+        &["montecarlo", "merge", "ok.json", "b.json"],
+        cwd,
+        &["ok.json: key `status`", "\"ok\" with 1 filter failures"],
+    );
     refused(
         &["montecarlo", "merge", "missing.json"],
         cwd,

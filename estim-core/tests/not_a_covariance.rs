@@ -385,3 +385,51 @@ fn em_stop_is_typed() {
     assert_eq!(fit.log_likelihoods, vec![start]);
     assert_eq!(fit.model, model);
 }
+
+/// A maximum-likelihood fit whose every Newton trial point is refused by the model
+/// (here: a likelihood that rises toward theta = 2 but is only defined for
+/// theta <= 1, as a filter's joint check refuses parameters where M is no longer a
+/// covariance) stops with the typed `FitStop::Refused` naming the model's error, at the
+/// last point the model accepted, not converged; not with an error, not as converged.
+#[test]
+fn ml_stop_on_refused_steps_is_typed() {
+    use estim_core::nalgebra::SVector;
+    use estim_core::noise::ml::{maximize, Bounds, FitOptions, FitStop, LogLikelihood};
+    use estim_core::Scalar;
+
+    struct Edge;
+    impl LogLikelihood<1> for Edge {
+        fn log_likelihood<T: Scalar>(&self, theta: &SVector<T, 1>) -> estim_core::Result<T> {
+            let t = theta[0];
+            if t > estim_core::nalgebra::convert(1.0) {
+                return Err(Error::InnovationNotPositiveDefinite);
+            }
+            let d = t - estim_core::nalgebra::convert(2.0);
+            Ok(-(d * d))
+        }
+    }
+    let unbounded = Bounds::new(
+        SVector::from([f64::NEG_INFINITY]),
+        SVector::from([f64::INFINITY]),
+    )
+    .unwrap();
+    // At the edge theta = 1 the gradient is 2: a gradient tolerance above it ends the
+    // L-BFGS phase where it starts, so the Newton phase makes the first move.
+    let options = FitOptions {
+        gradient_tolerance: 10.0,
+        ..FitOptions::default()
+    };
+    let fit = maximize(&Edge, &SVector::from([1.0]), &unbounded, &options).unwrap();
+    match &fit.stop {
+        FitStop::Refused { error } => {
+            assert!(
+                matches!(error, Error::InnovationNotPositiveDefinite),
+                "{error:?}"
+            )
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(!fit.converged);
+    assert_eq!(fit.theta[0], 1.0);
+    assert_eq!(fit.log_likelihood, -1.0);
+}

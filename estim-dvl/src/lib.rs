@@ -18,8 +18,9 @@ pub use error_model::{BeamsNetProtocol, BeamsNetScripts, DvlErrorModel, DvlError
 pub use geometry::{BeamGeometry, BeamGeometryBuilder, BeamSolution};
 pub use measurement::{dvl_frame_velocity, DvlVelocityModel, DvlVelocityModelBuilder};
 pub use pd0::{
-    read_pd0, read_pd0_file, write_pd0_csv, BottomTrack, CoordinateSystem, CoordinateTransform,
-    FixedLeader, Pd0Ensemble, Pd0Issue, Pd0Read, Pd0Report, Pd0Skip, RealTimeClock, PD0_CSV_HEADER,
+    read_pd0, read_pd0_file, read_pd0_from, write_pd0_csv, BottomTrack, CoordinateSystem,
+    CoordinateTransform, FixedLeader, Pd0Ensemble, Pd0Issue, Pd0Read, Pd0Report, Pd0Skip,
+    RealTimeClock, PD0_CSV_HEADER,
 };
 
 pub use nalgebra;

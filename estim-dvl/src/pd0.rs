@@ -1,7 +1,7 @@
 //! Teledyne RDI PD0 binary ensembles: reader, report of what was skipped, CSV writer.
 
 use std::fmt;
-use std::io::Write;
+use std::io::{Read, Write};
 use std::path::Path;
 
 use crate::error::{Error, Result};
@@ -466,8 +466,7 @@ impl Pd0Read {
 /// verifies, its fixed and variable leaders are present and long enough, and its clock
 /// is valid. Anything else (a truncated or corrupt ensemble, bytes between ensembles) is
 /// skipped up to the next good ensemble and recorded in the report with its byte offset
-/// and reason. Never panics; allocates the output and one 16-bit prefix sum per input
-/// byte (so that every resynchronisation candidate is checked in constant time).
+/// and reason. Never panics. `bytes` is read as [`read_pd0_from`] reads a stream.
 ///
 /// Format reference (cited as WH below, with the section name): Teledyne RD
 /// Instruments, *WorkHorse Commands and Output Data Format*, P/N 957-6156-00 (March
@@ -479,7 +478,29 @@ impl Pd0Read {
 /// Y2K clock), so every field beyond the minimum this reader needs is read only when
 /// present. Public readers consulted for these differences: dolfyn's `io/rdi.py`.
 pub fn read_pd0(bytes: &[u8]) -> Pd0Read {
-    let sums = prefix_sums(bytes);
+    match read_pd0_from(bytes) {
+        Ok(read) => read,
+        // `Read` for a byte slice never fails.
+        Err(e) => unreachable!("reading a byte slice failed: {e}"),
+    }
+}
+
+/// Bytes read from the stream at a time by [`read_pd0_from`].
+const READ_CHUNK: usize = 1 << 20;
+/// The most bytes a candidate ensemble can span from its header: the 16-bit declared
+/// length plus the checksum.
+const MAX_ENSEMBLE_BYTES: usize = u16::MAX as usize + CHECKSUM_BYTES;
+
+/// Reads every good PD0 ensemble from a stream, as [`read_pd0`] does on the whole
+/// input, in bounded memory: the reader holds a window of the input (a chunk of 1 MiB
+/// plus the longest ensemble a header can declare, 65,537 bytes) with one 16-bit
+/// prefix sum per byte of the window, so that every resynchronisation candidate is
+/// checked in constant time; what it keeps is the decoded ensembles and the report.
+///
+/// # Errors
+/// The reader's error (an `Interrupted` read is retried).
+pub fn read_pd0_from<R: Read>(reader: R) -> std::io::Result<Pd0Read> {
+    let mut window = Window::new(reader, READ_CHUNK);
     let mut ensembles = Vec::new();
     let mut skipped = Vec::new();
     // End of the last framed ensemble (length and checksum verified): where the reader
@@ -488,10 +509,30 @@ pub fn read_pd0(bytes: &[u8]) -> Pd0Read {
     // The problem of the candidate at `sync_end`, if it was rejected.
     let mut first_issue: Option<Rejection> = None;
     let mut search = 0;
-    while let Some(start) = find_header(bytes, search) {
-        let candidate = match frame(bytes, &sums, start) {
-            Ok(length) => match decode(bytes, start, length) {
-                Ok(ensemble) => Candidate::Good(ensemble),
+    loop {
+        // Every candidate is examined with its longest possible ensemble in the window
+        // (or the whole rest of the input), as if the input were whole.
+        window.cover(search, MAX_ENSEMBLE_BYTES)?;
+        let Some(relative) = find_header(&window.bytes, search - window.base) else {
+            if window.eof {
+                break;
+            }
+            // The window's last byte may begin a header.
+            search = window.end().saturating_sub(1).max(search);
+            window.cover(search, window.bytes.len() + 1)?;
+            continue;
+        };
+        let start = window.base + relative;
+        if !window.eof && start + MAX_ENSEMBLE_BYTES > window.end() {
+            search = start;
+            continue;
+        }
+        let candidate = match frame(&window.bytes, &window.sums, relative) {
+            Ok(length) => match decode(&window.bytes, relative, length) {
+                Ok(mut ensemble) => {
+                    ensemble.offset = start;
+                    Candidate::Good(ensemble)
+                }
                 Err(issue) => Candidate::Undecodable(issue, length),
             },
             Err(rejection) => Candidate::Rejected(rejection),
@@ -528,33 +569,100 @@ pub fn read_pd0(bytes: &[u8]) -> Pd0Read {
             }
         }
     }
-    if bytes.len() > sync_end {
-        skipped.push(skip_span(sync_end, bytes.len(), first_issue));
+    let input_bytes = window.end();
+    if input_bytes > sync_end {
+        skipped.push(skip_span(sync_end, input_bytes, first_issue));
     }
     let with_bottom_track = ensembles
         .iter()
         .filter(|e| e.bottom_track.is_some())
         .count();
-    Pd0Read {
+    Ok(Pd0Read {
         report: Pd0Report {
-            input_bytes: bytes.len(),
+            input_bytes,
             decoded: ensembles.len(),
             with_bottom_track,
             skipped,
         },
         ensembles,
+    })
+}
+
+/// The part of a PD0 stream the reader looks at: `bytes` from input offset `base`,
+/// their wrapping 16-bit prefix sums (`sums[i]` = sum of `bytes[..i]`), and whether
+/// the stream has ended.
+struct Window<R> {
+    reader: R,
+    chunk: usize,
+    /// What one read fills before it is appended to `bytes`.
+    scratch: Vec<u8>,
+    bytes: Vec<u8>,
+    sums: Vec<u16>,
+    base: usize,
+    eof: bool,
+}
+
+impl<R: Read> Window<R> {
+    fn new(reader: R, chunk: usize) -> Self {
+        Self {
+            reader,
+            chunk,
+            scratch: vec![0; chunk.min(1 << 16)],
+            bytes: Vec::new(),
+            sums: vec![0],
+            base: 0,
+            eof: false,
+        }
+    }
+
+    /// Input offset one past the window's last byte (the input's length once `eof`).
+    fn end(&self) -> usize {
+        self.base + self.bytes.len()
+    }
+
+    /// Make the window hold input `[from, from + need)`, or everything from `from` to
+    /// the end of the input; bytes before `from` are dropped. Reads a chunk beyond
+    /// what is needed, so that the window moves (and its sums are recomputed) once per
+    /// chunk of progress.
+    fn cover(&mut self, from: usize, need: usize) -> std::io::Result<()> {
+        if self.eof || self.end() >= from + need {
+            return Ok(());
+        }
+        let drop = from.saturating_sub(self.base).min(self.bytes.len());
+        self.bytes.drain(..drop);
+        self.base += drop;
+        let target = need + self.chunk;
+        while !self.eof && self.bytes.len() < target {
+            let want = (target - self.bytes.len()).min(self.scratch.len());
+            match self.reader.read(&mut self.scratch[..want]) {
+                Ok(0) => self.eof = true,
+                Ok(n) => self.bytes.extend_from_slice(&self.scratch[..n]),
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e),
+            }
+        }
+        self.sums.clear();
+        self.sums.push(0);
+        let mut sum = 0u16;
+        for &b in &self.bytes {
+            sum = sum.wrapping_add(u16::from(b));
+            self.sums.push(sum);
+        }
+        Ok(())
     }
 }
 
-/// Reads a PD0 file with [`read_pd0`]. Fails only when the file cannot be read.
+/// Reads a PD0 file with [`read_pd0_from`] (in bounded memory). Fails only when the
+/// file cannot be read.
 pub fn read_pd0_file(path: impl AsRef<Path>) -> Result<Pd0Read> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|e| Error::Io {
+    let io = |e: std::io::Error| Error::Io {
         path: path.to_path_buf(),
         kind: e.kind(),
         message: e.to_string(),
-    })?;
-    Ok(read_pd0(&bytes))
+    };
+    let file = std::fs::File::open(path).map_err(io)?;
+    read_pd0_from(file).map_err(io)
 }
 
 /// Writes the ensembles as CSV: the [`PD0_CSV_HEADER`] line, then one row per ensemble
@@ -579,18 +687,6 @@ pub fn write_pd0_csv<W: Write>(ensembles: &[Pd0Ensemble], mut out: W) -> std::io
         writeln!(out, ",{}", e.coordinate_system())?;
     }
     out.flush()
-}
-
-/// Wrapping 16-bit sums: `sums[i]` is the sum of `bytes[..i]` modulo 65536.
-fn prefix_sums(bytes: &[u8]) -> Vec<u16> {
-    let mut sums = Vec::with_capacity(bytes.len() + 1);
-    let mut sum = 0u16;
-    sums.push(sum);
-    for &b in bytes {
-        sum = sum.wrapping_add(u16::from(b));
-        sums.push(sum);
-    }
-    sums
 }
 
 fn find_header(bytes: &[u8], from: usize) -> Option<usize> {

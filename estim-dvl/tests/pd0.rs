@@ -839,6 +839,82 @@ proptest! {
     }
 }
 
+/// A reader that hands out at most 1-7 bytes per call, and says `Interrupted` now and
+/// then, as a pipe or a socket may.
+struct Trickle<'a> {
+    bytes: &'a [u8],
+    at: usize,
+    calls: u64,
+}
+
+impl std::io::Read for Trickle<'_> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        self.calls += 1;
+        if self.calls.is_multiple_of(97) {
+            return Err(std::io::ErrorKind::Interrupted.into());
+        }
+        let n = (1 + (self.calls % 7) as usize)
+            .min(buf.len())
+            .min(self.bytes.len() - self.at);
+        buf[..n].copy_from_slice(&self.bytes[self.at..self.at + n]);
+        self.at += n;
+        Ok(n)
+    }
+}
+
+/// A 3.3 MB stream (more than three of the streaming reader's 1 MiB windows): 12,000
+/// ensembles with garbage runs between some (0x7F bytes, a lone header, a false header
+/// with a long declared length) and every 50th ensemble corrupted. Read from a trickling
+/// stream, every untouched ensemble is found at its own offset and the report tiles
+/// the input, across every window boundary; and the stream gives what the whole input
+/// gives.
+#[test]
+fn a_long_stream_read_in_trickles_finds_every_ensemble_at_its_offset() {
+    let mut rng = ChaCha8Rng::seed_from_u64(31);
+    let mut bytes = Vec::new();
+    let mut expected = Vec::new();
+    for k in 0..12_000u32 {
+        match k % 37 {
+            0 => bytes.extend([0x7F; 13]),
+            1 => bytes.extend([0x7F, 0x7F]),
+            // A false header declaring 60,000 bytes: the reader must look that far
+            // ahead (into the next window) before rejecting it.
+            2 => bytes.extend([0x7F, 0x7F, 0x60, 0xEA, 0x00, 0x01]),
+            _ => {}
+        }
+        let spec = random_spec(&mut rng, k + 1);
+        let mut ensemble = encode(&spec);
+        if k % 50 == 7 {
+            let at = 8 + (k as usize % (ensemble.len() - 10));
+            ensemble[at] ^= 0x5A;
+        } else {
+            expected.push((bytes.len(), k + 1));
+        }
+        bytes.extend(ensemble);
+    }
+    assert!(bytes.len() > 3 * (1 << 20), "{} bytes", bytes.len());
+    let streamed = estim_dvl::read_pd0_from(Trickle {
+        bytes: &bytes,
+        at: 0,
+        calls: 0,
+    })
+    .expect("a trickle never fails");
+    assert_tiles(&streamed, bytes.len());
+    let found: std::collections::HashMap<usize, u32> = streamed
+        .ensembles
+        .iter()
+        .map(|e| (e.offset, e.ensemble_number))
+        .collect();
+    for &(offset, number) in &expected {
+        assert_eq!(
+            found.get(&offset),
+            Some(&number),
+            "ensemble {number} at {offset}"
+        );
+    }
+    assert_eq!(streamed, read_pd0(&bytes));
+}
+
 // ---------------------------------------------------------------------------------------
 // A real recording, compared with dolfyn's decode
 // ---------------------------------------------------------------------------------------

@@ -178,8 +178,7 @@ fn pd0(args: &Pd0Args) -> anyhow::Result<String> {
     let name = args.input.display();
     // Binary input, read up to the input-size limit of every loader (an endless
     // stream such as /dev/zero stops there).
-    let bytes = estim::datasets::read_binary_file(&args.input, estim::datasets::MAX_INPUT_BYTES)?;
-    let read = estim_dvl::read_pd0(&bytes);
+    let read = estim::datasets::read_pd0_input(&args.input, estim::datasets::MAX_INPUT_BYTES)?;
     for skip in &read.report.skipped {
         eprintln!("warning: {name}: {skip}");
     }

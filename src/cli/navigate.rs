@@ -475,11 +475,9 @@ fn load_pd0(
     epoch: f64,
     settings: NavigatorSettings,
 ) -> anyhow::Result<(Vec<DvlRecord>, NavigatorSettings, Value)> {
-    // Read with the limit of every input (`dvl pd0`'s): a sparse 2 GiB file or
-    // /dev/zero is refused, naming the file, instead of exhausting memory.
-    let bytes = estim::datasets::read_binary_file(path, estim::datasets::MAX_INPUT_BYTES)?;
-    let read = estim::dvl::read_pd0(&bytes);
-    drop(bytes);
+    // Streamed, with the limit of every input (`dvl pd0`'s): a sparse 2 GiB file is
+    // refused before reading and /dev/zero at the limit, naming the file.
+    let read = estim::datasets::read_pd0_input(path, estim::datasets::MAX_INPUT_BYTES)?;
     anyhow::ensure!(
         !read.ensembles.is_empty(),
         "{}: no good PD0 ensemble in {} bytes ({} spans skipped)",

@@ -16,7 +16,7 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use super::columns::{flipped, same, Alias, Kind, Quantity};
-use super::input::{open_text, Lines};
+use super::input::open_text;
 use super::table::{for_each_row, MapSection};
 use super::{ColumnMap, DatasetError, Result, MIN_INTERVAL_FRACTION};
 
@@ -300,27 +300,6 @@ fn dvl_from(input: impl Read, path: &Path, map: &ColumnMap) -> Result<Vec<DvlSam
             velocity_body: [r[1], r[2], r[3]],
         })
         .collect())
-}
-
-/// A file cut inside its last line: something other than blanks after the last
-/// newline. Returns the 1-based number of that line.
-pub(crate) fn truncated_line(bytes: &[u8]) -> Option<u64> {
-    let tail_start = bytes.iter().rposition(|&c| c == b'\n').map_or(0, |i| i + 1);
-    let tail = &bytes[tail_start..];
-    if tail.iter().all(|&c| c == b' ' || c == b'\t') {
-        return None;
-    }
-    Some(1 + bytes[..tail_start].iter().filter(|&&c| c == b'\n').count() as u64)
-}
-
-pub(crate) fn csv_error(bytes: &[u8], path: &Path, e: &csv::Error) -> DatasetError {
-    DatasetError::Csv {
-        path: path.to_path_buf(),
-        line: e
-            .position()
-            .map_or(1, |p| Lines::new(bytes).line_at(p.byte())),
-        message: e.to_string(),
-    }
 }
 
 /// Read a table, streamed record by record (see [`super::table`]): the header names

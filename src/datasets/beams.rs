@@ -8,10 +8,11 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use super::akit::{csv_error, truncated_line, MAX_ABS_SPEED_MPS};
-use super::columns::{resolve, same, Kind, Quantity, Resolved};
-use super::input::{check_text, read_file, Lines};
-use super::{DatasetError, Result};
+use super::akit::MAX_ABS_SPEED_MPS;
+use super::columns::{same, Kind, Quantity};
+use super::input::open_text;
+use super::table::{for_each_row, MapSection};
+use super::Result;
 
 /// Beam velocities of one row \[m/s\]; `None` = missing beam.
 pub type BeamRow = [Option<f64>; 4];
@@ -83,9 +84,9 @@ const TIME: &[Quantity; 1] = &[Quantity {
 /// Read and parse a beam file (see [`parse_beams`]).
 ///
 /// # Errors
-/// [`DatasetError::Io`] when the file cannot be read, then those of [`parse_beams`].
+/// [`DatasetError::Io`](super::DatasetError::Io) when the file cannot be read, then those of [`parse_beams`].
 pub fn load_beams(path: &Path) -> Result<Vec<BeamRow>> {
-    parse_beams(&read_file(path)?, path)
+    BeamFile::load(path).map(|f| f.rows)
 }
 
 /// Parse the beams of every data row of a beam file; `path` names it in errors.
@@ -97,138 +98,85 @@ pub fn parse_beams(bytes: &[u8], path: &Path) -> Result<Vec<BeamRow>> {
 }
 
 impl BeamFile {
-    /// Read and parse a beam file.
+    /// Read and parse a beam file, streamed record by record (memory holds the rows,
+    /// not the file).
     ///
     /// # Errors
-    /// [`DatasetError::Io`], then those of [`BeamFile::parse`].
+    /// [`DatasetError::Io`](super::DatasetError::Io), then those of [`BeamFile::read`].
     pub fn load(path: &Path) -> Result<Self> {
-        Self::parse(&read_file(path)?, path)
+        Self::read(open_text(path)?, path)
     }
 
-    /// Parse a beam file; `path` names it in errors. Blank lines are skipped; every
-    /// error names the file and the 1-based line.
+    /// Parse a beam file held in memory (see [`BeamFile::read`]).
     ///
     /// # Errors
-    /// [`DatasetError::NotText`] (UTF-16, CR-only line ends, binary data),
-    /// [`DatasetError::Header`] (empty file), [`DatasetError::Truncated`],
-    /// [`DatasetError::MissingColumn`], [`DatasetError::AmbiguousColumn`],
-    /// [`DatasetError::Unit`], [`DatasetError::Csv`], [`DatasetError::FieldCount`]
-    /// (a row too short to hold a needed column), [`DatasetError::Parse`],
-    /// [`DatasetError::NonFinite`], [`DatasetError::OutOfRange`],
-    /// [`DatasetError::TimeNotIncreasing`].
+    /// As [`BeamFile::read`].
     pub fn parse(bytes: &[u8], path: &Path) -> Result<Self> {
-        check_text(bytes, path, true)?;
-        if let Some(line) = truncated_line(bytes).filter(|_| !bytes.is_empty()) {
-            return Err(DatasetError::Truncated {
-                path: path.to_path_buf(),
-                line,
-            });
-        }
-        let mut reader = csv::ReaderBuilder::new()
-            .has_headers(false)
-            .flexible(true)
-            .from_reader(bytes);
-        let mut records = reader.records();
-        let header = match records.next() {
-            Some(r) => r.map_err(|e| csv_error(bytes, path, &e))?,
-            None => {
-                return Err(DatasetError::Header {
-                    path: path.to_path_buf(),
-                    expected: "a header row naming beam1..beam4 (the file is empty)".into(),
-                    found: String::new(),
-                })
-            }
-        };
-        let header: Vec<String> = header.iter().map(str::to_string).collect();
+        Self::read(bytes, path)
+    }
+
+    /// Read a beam file from a stream (a file, stdin), record by record, at most
+    /// [`super::MAX_INPUT_BYTES`]; `path` names it in errors. Blank lines are skipped;
+    /// every row has the header's number of cells; every error names the file and the
+    /// 1-based line.
+    ///
+    /// # Errors
+    /// [`DatasetError::NotText`](super::DatasetError::NotText) (UTF-16, CR-only line ends, binary data),
+    /// [`DatasetError::TooFewRows`](super::DatasetError::TooFewRows) (an empty file), [`DatasetError::Truncated`](super::DatasetError::Truncated),
+    /// [`DatasetError::MissingColumn`](super::DatasetError::MissingColumn), [`DatasetError::AmbiguousColumn`](super::DatasetError::AmbiguousColumn),
+    /// [`DatasetError::Unit`](super::DatasetError::Unit), [`DatasetError::Csv`](super::DatasetError::Csv), [`DatasetError::FieldCount`](super::DatasetError::FieldCount),
+    /// [`DatasetError::Parse`](super::DatasetError::Parse), [`DatasetError::NonFinite`](super::DatasetError::NonFinite),
+    /// [`DatasetError::OutOfRange`](super::DatasetError::OutOfRange), [`DatasetError::TimeNotIncreasing`](super::DatasetError::TimeNotIncreasing),
+    /// [`DatasetError::TooLarge`](super::DatasetError::TooLarge).
+    pub fn read(input: impl std::io::Read, path: &Path) -> Result<Self> {
         let none = BTreeMap::new();
-        let beams = resolve(path, &header, BEAMS, &none, "beams")?;
-        let time: Option<Resolved> = match resolve(path, &header, TIME, &none, "beams") {
-            Ok(mut t) => t.pop(),
-            Err(DatasetError::MissingColumn { .. }) => None,
-            Err(e) => return Err(e),
+        let section = MapSection {
+            map: &none,
+            section: "beams",
+            quantities: &[],
         };
-        let mut times = time.as_ref().map(|_| Vec::new());
+        let has_time = std::cell::Cell::new(false);
+        let mut times = Vec::new();
         let mut rows = Vec::new();
-        let mut lines = Lines::new(bytes);
-        for record in records {
-            let record = record.map_err(|e| csv_error(bytes, path, &e))?;
-            let line = record.position().map_or(0, |p| lines.line_at(p.byte()));
-            if record.iter().all(|c| c.trim().is_empty()) && record.len() <= 1 {
-                continue; // blank line
-            }
-            let cell = |column: &Resolved| {
-                record
-                    .get(column.index)
-                    .map(str::trim)
-                    .ok_or_else(|| DatasetError::FieldCount {
-                        path: path.to_path_buf(),
-                        line,
-                        expected: column.index + 1,
-                        found: record.len(),
-                    })
-            };
-            let number = |column: &Resolved, text: &str, max_abs: f64| -> Result<f64> {
-                let read: f64 = text.parse().map_err(|_| DatasetError::Parse {
-                    path: path.to_path_buf(),
-                    line,
-                    column: column.header.clone(),
-                    value: text.chars().take(40).collect(),
-                })?;
-                if !read.is_finite() {
-                    return Err(DatasetError::NonFinite {
-                        path: path.to_path_buf(),
-                        line,
-                        column: column.header.clone(),
-                    });
+        for_each_row(
+            input,
+            path,
+            section,
+            |h| {
+                let beams = h.require(BEAMS)?;
+                let time = h.optional(TIME[0])?;
+                has_time.set(time.is_some());
+                Ok((beams, time))
+            },
+            |(beams, time), row| {
+                let mut beam_row = [None; 4];
+                for ((slot, column), quantity) in beam_row.iter_mut().zip(beams).zip(BEAMS) {
+                    *slot = row.maybe_number(column, quantity)?;
                 }
-                let value = read * column.factor;
-                if value.abs() >= max_abs {
-                    return Err(DatasetError::OutOfRange {
-                        path: path.to_path_buf(),
-                        line,
-                        column: column.header.clone(),
-                        value,
-                        limit: max_abs,
-                        unit: if max_abs == MAX_ABS_SPEED_MPS {
-                            "m/s"
-                        } else {
-                            "s"
-                        },
-                    });
-                }
-                Ok(value)
-            };
-            let mut row = [None; 4];
-            for (b, column) in beams.iter().enumerate() {
-                let text = cell(column)?;
-                if text.is_empty() || text.eq_ignore_ascii_case("nan") {
-                    continue;
-                }
-                row[b] = Some(number(column, text, MAX_ABS_SPEED_MPS)?);
-            }
-            if let (Some(column), Some(times)) = (&time, times.as_mut()) {
-                let t = number(column, cell(column)?, TIME[0].max_abs)?;
-                if let Some(&previous) = times.last() {
-                    if t <= previous {
-                        return Err(DatasetError::TimeNotIncreasing {
-                            path: path.to_path_buf(),
-                            line,
-                            time: t,
-                            previous,
-                        });
+                if let Some(column) = time {
+                    let t = row.number(column, &TIME[0])?;
+                    if let Some(&previous) = times.last() {
+                        if t <= previous {
+                            return Err(row.not_increasing(t, previous));
+                        }
                     }
+                    times.push(t);
                 }
-                times.push(t);
-            }
-            rows.push(row);
-        }
-        Ok(Self { times, rows })
+                rows.push(beam_row);
+                Ok(())
+            },
+        )?;
+        Ok(Self {
+            times: has_time.get().then_some(times),
+            rows,
+        })
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::datasets::DatasetError;
 
     #[test]
     fn columns_by_name_missing_cells_and_line_numbers() {
@@ -250,7 +198,7 @@ mod tests {
             "{e}"
         );
         let e = parse_beams(b"", p).unwrap_err();
-        assert!(e.to_string().contains("b.csv:1:"), "{e}");
+        assert!(e.to_string().starts_with("b.csv: 0 data rows"), "{e}");
         let e = parse_beams(b"beam1,beam2,beam3,beam4\n1,2,3,4", p).unwrap_err();
         assert!(e.to_string().starts_with("b.csv:2: truncated"), "{e}");
     }

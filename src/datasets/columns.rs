@@ -465,6 +465,7 @@ fn identify<'q>(cell: &str, q: &'q Quantity) -> Option<(&'q Alias, Option<String
 /// # Errors
 /// [`DatasetError::MissingColumn`], [`DatasetError::AmbiguousColumn`],
 /// [`DatasetError::Unit`], and [`DatasetError::ColumnMap`] for an invalid map.
+#[cfg(test)]
 pub(crate) fn resolve(
     path: &Path,
     header: &[String],
@@ -475,7 +476,7 @@ pub(crate) fn resolve(
     resolve_with(path, header, quantities, map, section, true)
 }
 
-/// [`resolve`] for a subset of a file's quantities: map keys of the file's other
+/// Resolve every quantity to one header column, for a subset of a file's quantities: map keys of the file's other
 /// quantities are passed over (the whole map is checked once, before the header is
 /// read: [`check_section`]).
 pub(crate) fn resolve_some(

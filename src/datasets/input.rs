@@ -94,13 +94,14 @@ pub fn read_text_file(path: &Path) -> Result<String> {
     })
 }
 
-/// Open and read a binary file (a PD0 recording) of at most `limit` bytes: a
-/// regular file larger than that is refused before reading, an endless stream
+/// Read a PD0 recording of at most `limit` bytes with [`estim_dvl::read_pd0_from`],
+/// in bounded memory (the reader's window, the decoded ensembles and the report): a
+/// regular file larger than `limit` is refused before reading, an endless stream
 /// (`/dev/zero`) once `limit` bytes were read.
 ///
 /// # Errors
 /// [`DatasetError::Io`], [`DatasetError::TooLarge`].
-pub fn read_binary_file(path: &Path, limit: u64) -> Result<Vec<u8>> {
+pub fn read_pd0_input(path: &Path, limit: u64) -> Result<estim_dvl::Pd0Read> {
     let io = |error| DatasetError::Io {
         path: path.to_path_buf(),
         error,
@@ -116,14 +117,11 @@ pub fn read_binary_file(path: &Path, limit: u64) -> Result<Vec<u8>> {
     {
         return Err(too_large());
     }
-    let mut bytes = Vec::new();
-    file.take(limit.saturating_add(1))
-        .read_to_end(&mut bytes)
-        .map_err(io)?;
-    if bytes.len() as u64 > limit {
+    let read = estim_dvl::read_pd0_from(file.take(limit.saturating_add(1))).map_err(io)?;
+    if read.report.input_bytes as u64 > limit {
         return Err(too_large());
     }
-    Ok(bytes)
+    Ok(read)
 }
 
 /// A text input read block by block, with the checks of [`read_limited`] made as it
@@ -492,44 +490,6 @@ fn count_newlines(bytes: &[u8]) -> u64 {
     bytes.iter().filter(|&&c| c == b'\n').count() as u64
 }
 
-/// 1-based line numbers of byte offsets asked in increasing order, found in one pass
-/// over the file (the csv crate's own line counter skips blank lines, and a record's
-/// offset may point at the blank lines before it).
-pub(crate) struct Lines<'a> {
-    bytes: &'a [u8],
-    /// Offset up to which newlines are counted.
-    at: usize,
-    /// Newlines before `at`.
-    newlines: u64,
-}
-
-impl<'a> Lines<'a> {
-    pub(crate) fn new(bytes: &'a [u8]) -> Self {
-        Self {
-            bytes,
-            at: 0,
-            newlines: 0,
-        }
-    }
-
-    /// The line of the record starting at byte offset `byte` (blank lines before it
-    /// skipped). Offsets smaller than an earlier one are counted from the start.
-    pub(crate) fn line_at(&mut self, byte: u64) -> u64 {
-        let bytes = self.bytes;
-        let mut start = usize::try_from(byte).unwrap_or(usize::MAX).min(bytes.len());
-        while start < bytes.len() && matches!(bytes[start], b'\n' | b'\r') {
-            start += 1;
-        }
-        if start < self.at {
-            self.at = 0;
-            self.newlines = 0;
-        }
-        self.newlines += count_newlines(&bytes[self.at..start]);
-        self.at = start;
-        1 + self.newlines
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -599,22 +559,5 @@ mod tests {
             "{e}"
         );
         assert!(e.to_string().contains("1048576"), "{e}");
-    }
-
-    #[test]
-    fn line_numbers_in_one_pass_match_counting_from_the_start() {
-        let text = b"h\n\n1\r\n\n\n2\n3\n";
-        let naive = |byte: usize| {
-            let mut s = byte;
-            while s < text.len() && matches!(text[s], b'\n' | b'\r') {
-                s += 1;
-            }
-            1 + text[..s].iter().filter(|&&c| c == b'\n').count() as u64
-        };
-        let mut lines = Lines::new(text);
-        for byte in 0..text.len() {
-            assert_eq!(lines.line_at(byte as u64), naive(byte), "offset {byte}");
-        }
-        assert_eq!(lines.line_at(0), 1, "an earlier offset restarts the count");
     }
 }

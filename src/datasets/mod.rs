@@ -35,7 +35,7 @@ pub use imu::{
     ImuLog, IMPLAUSIBLE_RATE_DURATION_S, MAX_ABS_ANGULAR_RATE_RADPS, MAX_ABS_SPECIFIC_FORCE_MPS2,
     PLAUSIBLE_ANGULAR_RATE_RADPS,
 };
-pub use input::{read_binary_file, read_input, read_limited, read_text_file, MAX_INPUT_BYTES};
+pub use input::{read_input, read_limited, read_pd0_input, read_text_file, MAX_INPUT_BYTES};
 pub use locate::{
     akit_dir, data_root, trajectories_in, trajectory_files, TrajectoryFiles, DATA_DIR_ENV,
 };
