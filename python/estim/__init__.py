@@ -10,6 +10,8 @@ A Rust core (the ``estim-core`` crate) with sizes taken from the arrays:
   arrays; the smoother returns the filtered and the smoothed estimates of one pass;
 - :func:`joint_check` -- is ``[[Q, M], [M', R]]`` a covariance at all?
 - :func:`nees`, :func:`nis` -- consistency statistics;
+- :func:`em` -- expectation-maximisation of F, H, Q, R, x0, P0 and the offsets of a
+  linear-Gaussian model (pykalman's ``em``), returning an :class:`EmResult`;
 - :mod:`estim.filterpy` -- ``from estim.filterpy import KalmanFilter``: filterpy's
   ``KalmanFilter`` API on the same core, and its ``UnscentedKalmanFilter`` with
   ``MerweScaledSigmaPoints`` / ``JulierSigmaPoints`` (Python ``fx``, ``hx`` and hooks
@@ -27,11 +29,13 @@ and the joint covariance ``[[Q_acc, M], [M', R]]`` is checked before it is used
 """
 
 from ._estim import (
+    EmResult,
     EstimError,
     FilterResult,
     KalmanFilter,
     SmootherResult,
     UpdateReport,
+    em,
     joint_check,
     kalman_filter,
     kalman_smoother,
@@ -40,11 +44,13 @@ from ._estim import (
 )
 
 __all__ = [
+    "EmResult",
     "EstimError",
     "FilterResult",
     "KalmanFilter",
     "SmootherResult",
     "UpdateReport",
+    "em",
     "joint_check",
     "kalman_filter",
     "kalman_smoother",

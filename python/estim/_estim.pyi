@@ -121,6 +121,53 @@ def joint_check(Q: ArrayLike, M: ArrayLike, R: ArrayLike) -> float: ...
 def nees(x_true: ArrayLike, x_est: ArrayLike, P: ArrayLike) -> Union[float, FloatArray]: ...
 def nis(innovation: ArrayLike, S: ArrayLike) -> Union[float, FloatArray]: ...
 
+class EmResult:
+    """The model fitted by em and its log-likelihood per iteration."""
+    @property
+    def F(self) -> FloatArray: ...
+    @property
+    def H(self) -> FloatArray: ...
+    @property
+    def Q(self) -> FloatArray: ...
+    @property
+    def R(self) -> FloatArray: ...
+    @property
+    def x0(self) -> FloatArray: ...
+    @property
+    def P0(self) -> FloatArray: ...
+    @property
+    def b(self) -> FloatArray:
+        """(n,) constant, or (T - 1, n) per step (kept as given when b is not learned)."""
+    @property
+    def d(self) -> FloatArray: ...
+    @property
+    def log_likelihoods(self) -> FloatArray:
+        """After k iterations, k = 0 .. iterations; element 0 is the given model's."""
+    @property
+    def iterations(self) -> int: ...
+    @property
+    def stopped(self) -> Optional[str]:
+        """None when every iteration ran; else the iteration and the check that refused it."""
+
+def em(
+    zs: ArrayLike,
+    F: Optional[ArrayLike] = None,
+    H: Optional[ArrayLike] = None,
+    Q: Optional[ArrayLike] = None,
+    R: Optional[ArrayLike] = None,
+    x0: Optional[ArrayLike] = None,
+    P0: Optional[ArrayLike] = None,
+    b: Optional[ArrayLike] = None,
+    d: Optional[ArrayLike] = None,
+    em_vars: Optional[Union[str, Sequence[str]]] = None,
+    n_iter: int = 10,
+    dim_x: Optional[int] = None,
+) -> EmResult:
+    """EM of a linear-Gaussian model (pykalman's em): x_0 ~ N(x0, P0),
+    x_{t+1} = F x_t + b_t + w_t, z_t = H x_t + d + v_t; epoch 0 measured at x_0; NaN
+    rows missing (a row only partly NaN is an error). Defaults: F, H, Q, R, P0
+    identity, x0, b, d zero; em_vars Q, R, x0, P0."""
+
 class FilterpyKalmanFilter:
     """The Rust base of estim.filterpy.KalmanFilter."""
 

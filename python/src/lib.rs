@@ -7,6 +7,7 @@
 #![deny(missing_docs)]
 
 mod convert;
+mod em;
 mod filterpy;
 mod native;
 mod unscented;
@@ -31,6 +32,7 @@ pub(crate) fn estim_err(e: estim_core::Error) -> PyErr {
 fn _estim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("EstimError", m.py().get_type::<EstimError>())?;
     native::register(m)?;
+    em::register(m)?;
     filterpy::register(m)?;
     unscented::register(m)?;
     Ok(())
