@@ -12,6 +12,8 @@ A Rust core (the ``estim-core`` crate) with sizes taken from the arrays:
 - :func:`nees`, :func:`nis` -- consistency statistics;
 - :func:`em` -- expectation-maximisation of F, H, Q, R, x0, P0 and the offsets of a
   linear-Gaussian model (pykalman's ``em``), returning an :class:`EmResult`;
+- :func:`fit_noise` -- maximum-likelihood scales (or diagonals) of Q and R with
+  standard errors from the observed information, returning a :class:`NoiseFit`;
 - :mod:`estim.filterpy` -- ``from estim.filterpy import KalmanFilter``: filterpy's
   ``KalmanFilter`` API on the same core, and its ``UnscentedKalmanFilter`` with
   ``MerweScaledSigmaPoints`` / ``JulierSigmaPoints`` (Python ``fx``, ``hx`` and hooks
@@ -33,9 +35,11 @@ from ._estim import (
     EstimError,
     FilterResult,
     KalmanFilter,
+    NoiseFit,
     SmootherResult,
     UpdateReport,
     em,
+    fit_noise,
     joint_check,
     kalman_filter,
     kalman_smoother,
@@ -48,9 +52,11 @@ __all__ = [
     "EstimError",
     "FilterResult",
     "KalmanFilter",
+    "NoiseFit",
     "SmootherResult",
     "UpdateReport",
     "em",
+    "fit_noise",
     "joint_check",
     "kalman_filter",
     "kalman_smoother",

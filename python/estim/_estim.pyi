@@ -168,6 +168,49 @@ def em(
     rows missing (a row only partly NaN is an error). Defaults: F, H, Q, R, P0
     identity, x0, b, d zero; em_vars Q, R, x0, P0."""
 
+class NoiseFit:
+    """The maximum-likelihood noise of fit_noise."""
+    @property
+    def Q(self) -> FloatArray: ...
+    @property
+    def R(self) -> FloatArray: ...
+    @property
+    def theta(self) -> FloatArray:
+        """[q, r] (scales) or [diag Q; diag R] (diagonals)."""
+    @property
+    def standard_errors(self) -> Optional[FloatArray]:
+        """From the observed information; None when it is not positive definite."""
+    @property
+    def covariance(self) -> Optional[FloatArray]: ...
+    @property
+    def information(self) -> FloatArray: ...
+    @property
+    def gradient(self) -> FloatArray: ...
+    @property
+    def log_likelihood(self) -> float: ...
+    @property
+    def converged(self) -> bool: ...
+    @property
+    def stop(self) -> str: ...
+    @property
+    def parameters(self) -> str:
+        """'scales' or 'diagonals'."""
+
+def fit_noise(
+    F: ArrayLike,
+    Q: ArrayLike,
+    H: ArrayLike,
+    R: ArrayLike,
+    x0: ArrayLike,
+    P0: ArrayLike,
+    zs: ArrayLike,
+    diagonal: bool = False,
+) -> NoiseFit:
+    """Maximum-likelihood noise of x_k = F x_{k-1} + w_k, z_k = H x_k + v_k (predict,
+    then update, as kalman_filter): Q = q Q0, R = r R0 with q, r > 0, or with
+    diagonal=True the diagonals of Q and R (off-diagonal terms zero). NaN rows of zs
+    are missing. Standard errors from the exact observed information."""
+
 class FilterpyKalmanFilter:
     """The Rust base of estim.filterpy.KalmanFilter."""
 

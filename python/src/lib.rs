@@ -10,6 +10,7 @@ mod convert;
 mod em;
 mod filterpy;
 mod native;
+mod noise;
 mod unscented;
 
 use pyo3::prelude::*;
@@ -33,6 +34,7 @@ fn _estim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("EstimError", m.py().get_type::<EstimError>())?;
     native::register(m)?;
     em::register(m)?;
+    noise::register(m)?;
     filterpy::register(m)?;
     unscented::register(m)?;
     Ok(())
