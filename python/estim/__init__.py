@@ -5,6 +5,9 @@ A Rust core (the ``estim-core`` crate) with sizes taken from the arrays:
 - :class:`KalmanFilter` -- ``KalmanFilter(F, Q, H, R, x0, P0)`` with ``predict()`` and
   ``update(z, M=None)`` returning an :class:`UpdateReport` (accepted, innovation, S,
   K, nis, log_likelihood, joint_min_eigenvalue);
+- :class:`ExtendedKalmanFilter` -- ``ExtendedKalmanFilter(Q, R, x0, P0)`` with
+  ``predict(f, F, dt)`` and ``update(z, h, H, M=None)`` taking Python callables for f,
+  its Jacobian F(x, dt), h and H(x); ``filter`` and ``smooth`` over a series;
 - :func:`kalman_filter` and :func:`kalman_smoother` over a whole series (``zs`` of
   shape (T, m), NaN rows or ``mask=False`` for missing measurements), returning NumPy
   arrays; the smoother returns the filtered and the smoothed estimates of one pass;
@@ -33,6 +36,7 @@ and the joint covariance ``[[Q_acc, M], [M', R]]`` is checked before it is used
 from ._estim import (
     EmResult,
     EstimError,
+    ExtendedKalmanFilter,
     FilterResult,
     KalmanFilter,
     NoiseFit,
@@ -50,6 +54,7 @@ from ._estim import (
 __all__ = [
     "EmResult",
     "EstimError",
+    "ExtendedKalmanFilter",
     "FilterResult",
     "KalmanFilter",
     "NoiseFit",

@@ -1,6 +1,6 @@
 """Type stubs of the extension module estim._estim (re-exported by estim)."""
 
-from typing import Any, Optional, Sequence, Tuple, Union, overload
+from typing import Any, Callable, Optional, Sequence, Tuple, Union, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -120,6 +120,59 @@ def kalman_smoother(
 def joint_check(Q: ArrayLike, M: ArrayLike, R: ArrayLike) -> float: ...
 def nees(x_true: ArrayLike, x_est: ArrayLike, P: ArrayLike) -> Union[float, FloatArray]: ...
 def nis(innovation: ArrayLike, S: ArrayLike) -> Union[float, FloatArray]: ...
+
+class ExtendedKalmanFilter:
+    """Extended Kalman filter: x_k = f(x_{k-1}, dt) + w, z_k = h(x_k) + v; f, its
+    Jacobian F(x, dt), h and its Jacobian H(x) are callables given to each call;
+    optional M = Cov(w, v) per update (the correlated update, joint check first)."""
+    def __init__(
+        self,
+        Q: ArrayLike,
+        R: ArrayLike,
+        x0: ArrayLike,
+        P0: ArrayLike,
+        joint_check: str = "reject",
+        nis_gate: Optional[float] = None,
+    ) -> None: ...
+    def predict(
+        self,
+        f: Callable[[FloatArray, float], ArrayLike],
+        F: Callable[[FloatArray, float], ArrayLike],
+        dt: float = 1.0,
+    ) -> None: ...
+    def update(
+        self,
+        z: ArrayLike,
+        h: Callable[[FloatArray], ArrayLike],
+        H: Callable[[FloatArray], ArrayLike],
+        M: Optional[ArrayLike] = None,
+    ) -> UpdateReport: ...
+    def filter(
+        self,
+        zs: ArrayLike,
+        f: Callable[[FloatArray, float], ArrayLike],
+        F: Callable[[FloatArray, float], ArrayLike],
+        h: Callable[[FloatArray], ArrayLike],
+        H: Callable[[FloatArray], ArrayLike],
+        dt: Optional[Union[float, ArrayLike]] = None,
+        M: Optional[ArrayLike] = None,
+    ) -> FilterResult: ...
+    def smooth(
+        self,
+        zs: ArrayLike,
+        f: Callable[[FloatArray, float], ArrayLike],
+        F: Callable[[FloatArray, float], ArrayLike],
+        h: Callable[[FloatArray], ArrayLike],
+        H: Callable[[FloatArray], ArrayLike],
+        dt: Optional[Union[float, ArrayLike]] = None,
+        M: Optional[ArrayLike] = None,
+    ) -> SmootherResult: ...
+    @property
+    def x(self) -> FloatArray: ...
+    @property
+    def P(self) -> FloatArray: ...
+    @property
+    def log_likelihood(self) -> float: ...
 
 class EmResult:
     """The model fitted by em and its log-likelihood per iteration."""

@@ -8,6 +8,7 @@
 
 mod convert;
 mod em;
+mod extended;
 mod filterpy;
 mod native;
 mod noise;
@@ -34,6 +35,7 @@ fn _estim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("EstimError", m.py().get_type::<EstimError>())?;
     native::register(m)?;
     em::register(m)?;
+    extended::register(m)?;
     noise::register(m)?;
     filterpy::register(m)?;
     unscented::register(m)?;
