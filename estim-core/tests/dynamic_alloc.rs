@@ -1,4 +1,5 @@
-//! `DynKalmanFilter` and `DynUnscentedKalmanFilter` allocate at construction only: their
+//! `DynKalmanFilter`, `DynUnscentedKalmanFilter` and `DynExtendedKalmanFilter` allocate
+//! at construction only: their
 //! predict, plain update and correlated update (valid M, certified without the eigen fallback) allocate
 //! nothing, at (4, 2), (6, 3) and (50, 10). Counted as in `tests/no_allocation.rs` (the
 //! `estim` package): a global allocator that counts the allocations of the calling
@@ -9,7 +10,7 @@ use std::cell::Cell;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
-use estim_core::dynamic::{DynKalmanFilter, DynUnscentedKalmanFilter};
+use estim_core::dynamic::{DynExtendedKalmanFilter, DynKalmanFilter, DynUnscentedKalmanFilter};
 use estim_core::nalgebra::{DMatrix, DVector};
 use estim_core::sigma_point::UnscentedTransform;
 
@@ -164,6 +165,83 @@ fn unscented_predict_and_updates_allocate_nothing() {
                     ukf.update(&h, y).unwrap()
                 } else {
                     ukf.update_correlated(&h, y, &cross).unwrap()
+                };
+                reports += usize::from(report.accepted);
+            }
+        });
+        assert_eq!(count, 0, "({n}, {m}): {count} allocations");
+        assert_eq!(reports, 24);
+    }
+}
+
+/// The extended filter with closures that allocate nothing: f, F(x), h and H(x) write
+/// into the filter's buffers, so predict, update and the correlated update allocate
+/// nothing.
+#[test]
+fn extended_predict_and_updates_allocate_nothing() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    for (n, m) in [(4, 2), (6, 3), (50, 10)] {
+        let f = |x: &DVector<f64>, dt: f64, out: &mut DVector<f64>| {
+            for i in 0..x.len() {
+                out[i] = 0.98 * x[i] + dt * (x[(i + 1) % x.len()]).sin();
+            }
+            Ok(())
+        };
+        let jf = |x: &DVector<f64>, dt: f64, out: &mut DMatrix<f64>| {
+            out.fill(0.0);
+            for i in 0..x.len() {
+                out[(i, i)] = 0.98;
+                out[(i, (i + 1) % x.len())] += dt * (x[(i + 1) % x.len()]).cos();
+            }
+            Ok(())
+        };
+        let h = move |x: &DVector<f64>, out: &mut DVector<f64>| {
+            for i in 0..m {
+                out[i] = x[i].hypot(x[(i + 1) % x.len()] + 2.0);
+            }
+            Ok(())
+        };
+        let jh = move |x: &DVector<f64>, out: &mut DMatrix<f64>| {
+            out.fill(0.0);
+            for i in 0..m {
+                let (a, b) = (x[i], x[(i + 1) % x.len()] + 2.0);
+                let r = a.hypot(b);
+                out[(i, i)] += a / r;
+                out[(i, (i + 1) % x.len())] += b / r;
+            }
+            Ok(())
+        };
+        let mut ekf = DynExtendedKalmanFilter::new(
+            DMatrix::identity(n, n) * 0.04,
+            DMatrix::identity(m, m) * 0.5,
+            DVector::from_element(n, 0.1),
+            DMatrix::identity(n, n),
+        )
+        .unwrap();
+        let cross = DMatrix::from_fn(n, m, |i, j| {
+            if i == j {
+                0.2 * (0.04f64 * 0.5).sqrt()
+            } else {
+                0.0
+            }
+        });
+        let ys: Vec<DVector<f64>> = (0..30)
+            .map(|k| DVector::from_fn(m, |i, _| 2.0 + ((k * m + i) as f64 * 0.7).sin()))
+            .collect();
+        let (process, model) = ((f, jf), (h, jh));
+        ekf.predict(&process, 0.1).unwrap();
+        ekf.update(&model, &ys[0]).unwrap();
+        let mut reports = 0;
+        let count = allocations_during(|| {
+            for (k, y) in ys.iter().enumerate() {
+                ekf.predict(&process, 0.1).unwrap();
+                if k % 5 == 4 {
+                    continue;
+                }
+                let report = if k % 2 == 0 {
+                    ekf.update(&model, y).unwrap()
+                } else {
+                    ekf.update_correlated(&model, y, &cross).unwrap()
                 };
                 reports += usize::from(report.accepted);
             }

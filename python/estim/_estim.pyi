@@ -1,6 +1,6 @@
 """Type stubs of the extension module estim._estim (re-exported by estim)."""
 
-from typing import Any, Optional, Sequence, Tuple, Union, overload
+from typing import Any, Callable, Optional, Sequence, Tuple, Union, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -120,6 +120,149 @@ def kalman_smoother(
 def joint_check(Q: ArrayLike, M: ArrayLike, R: ArrayLike) -> float: ...
 def nees(x_true: ArrayLike, x_est: ArrayLike, P: ArrayLike) -> Union[float, FloatArray]: ...
 def nis(innovation: ArrayLike, S: ArrayLike) -> Union[float, FloatArray]: ...
+
+class ExtendedKalmanFilter:
+    """Extended Kalman filter: x_k = f(x_{k-1}, dt) + w, z_k = h(x_k) + v; f, its
+    Jacobian F(x, dt), h and its Jacobian H(x) are callables given to each call;
+    optional M = Cov(w, v) per update (the correlated update, joint check first)."""
+    def __init__(
+        self,
+        Q: ArrayLike,
+        R: ArrayLike,
+        x0: ArrayLike,
+        P0: ArrayLike,
+        joint_check: str = "reject",
+        nis_gate: Optional[float] = None,
+    ) -> None: ...
+    def predict(
+        self,
+        f: Callable[[FloatArray, float], ArrayLike],
+        F: Callable[[FloatArray, float], ArrayLike],
+        dt: float = 1.0,
+    ) -> None: ...
+    def update(
+        self,
+        z: ArrayLike,
+        h: Callable[[FloatArray], ArrayLike],
+        H: Callable[[FloatArray], ArrayLike],
+        M: Optional[ArrayLike] = None,
+    ) -> UpdateReport: ...
+    def filter(
+        self,
+        zs: ArrayLike,
+        f: Callable[[FloatArray, float], ArrayLike],
+        F: Callable[[FloatArray, float], ArrayLike],
+        h: Callable[[FloatArray], ArrayLike],
+        H: Callable[[FloatArray], ArrayLike],
+        dt: Optional[Union[float, ArrayLike]] = None,
+        M: Optional[ArrayLike] = None,
+    ) -> FilterResult: ...
+    def smooth(
+        self,
+        zs: ArrayLike,
+        f: Callable[[FloatArray, float], ArrayLike],
+        F: Callable[[FloatArray, float], ArrayLike],
+        h: Callable[[FloatArray], ArrayLike],
+        H: Callable[[FloatArray], ArrayLike],
+        dt: Optional[Union[float, ArrayLike]] = None,
+        M: Optional[ArrayLike] = None,
+    ) -> SmootherResult: ...
+    @property
+    def x(self) -> FloatArray: ...
+    @property
+    def P(self) -> FloatArray: ...
+    @property
+    def log_likelihood(self) -> float: ...
+
+class EmResult:
+    """The model fitted by em and its log-likelihood per iteration."""
+    @property
+    def F(self) -> FloatArray: ...
+    @property
+    def H(self) -> FloatArray: ...
+    @property
+    def Q(self) -> FloatArray: ...
+    @property
+    def R(self) -> FloatArray: ...
+    @property
+    def x0(self) -> FloatArray: ...
+    @property
+    def P0(self) -> FloatArray: ...
+    @property
+    def b(self) -> FloatArray:
+        """(n,) constant, or (T - 1, n) per step (kept as given when b is not learned)."""
+    @property
+    def d(self) -> FloatArray: ...
+    @property
+    def log_likelihoods(self) -> FloatArray:
+        """After k iterations, k = 0 .. iterations; element 0 is the given model's."""
+    @property
+    def iterations(self) -> int: ...
+    @property
+    def stopped(self) -> Optional[str]:
+        """None when every iteration ran; else the iteration and the check that refused it."""
+
+def em(
+    zs: ArrayLike,
+    F: Optional[ArrayLike] = None,
+    H: Optional[ArrayLike] = None,
+    Q: Optional[ArrayLike] = None,
+    R: Optional[ArrayLike] = None,
+    x0: Optional[ArrayLike] = None,
+    P0: Optional[ArrayLike] = None,
+    b: Optional[ArrayLike] = None,
+    d: Optional[ArrayLike] = None,
+    em_vars: Optional[Union[str, Sequence[str]]] = None,
+    n_iter: int = 10,
+    dim_x: Optional[int] = None,
+) -> EmResult:
+    """EM of a linear-Gaussian model (pykalman's em): x_0 ~ N(x0, P0),
+    x_{t+1} = F x_t + b_t + w_t, z_t = H x_t + d + v_t; epoch 0 measured at x_0; NaN
+    rows missing (a row only partly NaN is an error). Defaults: F, H, Q, R, P0
+    identity, x0, b, d zero; em_vars Q, R, x0, P0."""
+
+class NoiseFit:
+    """The maximum-likelihood noise of fit_noise."""
+    @property
+    def Q(self) -> FloatArray: ...
+    @property
+    def R(self) -> FloatArray: ...
+    @property
+    def theta(self) -> FloatArray:
+        """[q, r] (scales) or [diag Q; diag R] (diagonals)."""
+    @property
+    def standard_errors(self) -> Optional[FloatArray]:
+        """From the observed information; None when it is not positive definite."""
+    @property
+    def covariance(self) -> Optional[FloatArray]: ...
+    @property
+    def information(self) -> FloatArray: ...
+    @property
+    def gradient(self) -> FloatArray: ...
+    @property
+    def log_likelihood(self) -> float: ...
+    @property
+    def converged(self) -> bool: ...
+    @property
+    def stop(self) -> str: ...
+    @property
+    def parameters(self) -> str:
+        """'scales' or 'diagonals'."""
+
+def fit_noise(
+    F: ArrayLike,
+    Q: ArrayLike,
+    H: ArrayLike,
+    R: ArrayLike,
+    x0: ArrayLike,
+    P0: ArrayLike,
+    zs: ArrayLike,
+    diagonal: bool = False,
+) -> NoiseFit:
+    """Maximum-likelihood noise of x_k = F x_{k-1} + w_k, z_k = H x_k + v_k (predict,
+    then update, as kalman_filter): Q = q Q0, R = r R0 with q, r > 0, or with
+    diagonal=True the diagonals of Q and R (off-diagonal terms zero). NaN rows of zs
+    are missing. Standard errors from the exact observed information."""
 
 class FilterpyKalmanFilter:
     """The Rust base of estim.filterpy.KalmanFilter."""

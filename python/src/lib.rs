@@ -7,8 +7,11 @@
 #![deny(missing_docs)]
 
 mod convert;
+mod em;
+mod extended;
 mod filterpy;
 mod native;
+mod noise;
 mod unscented;
 
 use pyo3::prelude::*;
@@ -31,6 +34,9 @@ pub(crate) fn estim_err(e: estim_core::Error) -> PyErr {
 fn _estim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("EstimError", m.py().get_type::<EstimError>())?;
     native::register(m)?;
+    em::register(m)?;
+    extended::register(m)?;
+    noise::register(m)?;
     filterpy::register(m)?;
     unscented::register(m)?;
     Ok(())

@@ -6,7 +6,7 @@
 
 use estim_core::dynamic::{
     joint_validity_margin, normalised_squared_error, DynKalmanFilter, DynUpdateReport,
-    FilteredSeries, MeasurementSeries,
+    FilteredAndSmoothed, FilteredSeries, MeasurementSeries,
 };
 use estim_core::nalgebra::{DMatrix, DVector};
 use estim_core::JointCheck;
@@ -33,7 +33,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
 }
 
 /// Parse the joint-check policy name.
-fn joint_policy(name: &str) -> PyResult<JointCheck> {
+pub(crate) fn joint_policy(name: &str) -> PyResult<JointCheck> {
     match name {
         "reject" => Ok(JointCheck::Reject),
         "report" => Ok(JointCheck::Report),
@@ -162,14 +162,30 @@ impl UpdateReport {
 }
 
 fn report(py: Python<'_>, kf: &DynKalmanFilter, r: DynUpdateReport) -> UpdateReport {
+    update_report(
+        py,
+        r,
+        kf.innovation(),
+        kf.innovation_covariance(),
+        kf.gain(),
+    )
+}
+
+/// The report of an update attempt from its innovation, S and gain (the gain shown
+/// only when accepted).
+pub(crate) fn update_report(
+    py: Python<'_>,
+    r: DynUpdateReport,
+    innovation: &DVector<f64>,
+    s: &DMatrix<f64>,
+    gain: &DMatrix<f64>,
+) -> UpdateReport {
     UpdateReport {
         accepted: r.accepted,
-        innovation: vector_to_py(py, kf.innovation(), false).unbind(),
-        s: matrix_to_py(py, kf.innovation_covariance())
-            .into_any()
-            .unbind(),
+        innovation: vector_to_py(py, innovation, false).unbind(),
+        s: matrix_to_py(py, s).into_any().unbind(),
         k: r.accepted
-            .then(|| matrix_to_py(py, kf.gain()).into_any().unbind()),
+            .then(|| matrix_to_py(py, gain).into_any().unbind()),
         nis: r.nis,
         log_likelihood: r.log_likelihood,
         joint_min_eigenvalue: r.joint_min_eigenvalue,
@@ -336,7 +352,7 @@ impl FilterResult {
     }
 }
 
-fn filter_result(py: Python<'_>, out: FilteredSeries) -> PyResult<FilterResult> {
+pub(crate) fn filter_result(py: Python<'_>, out: FilteredSeries) -> PyResult<FilterResult> {
     let n = out.estimates.state_size();
     let (states, covariances) = out.estimates.into_parts();
     Ok(FilterResult {
@@ -396,7 +412,15 @@ fn smooth_with(
     let out = with_series(kf, &values, mask.as_deref(), |s| {
         kf.filter_and_smooth(s, m.as_ref())
     })?;
-    let n = kf.state_size();
+    smoother_result(py, kf.state_size(), out)
+}
+
+/// A SmootherResult from one call's filtered and smoothed estimates (n states).
+pub(crate) fn smoother_result(
+    py: Python<'_>,
+    n: usize,
+    out: FilteredAndSmoothed,
+) -> PyResult<SmootherResult> {
     let log_likelihood = out.filtered.log_likelihood;
     let filtered = filter_result(py, out.filtered)?;
     let (states, covariances) = out.smoothed.into_parts();

@@ -467,7 +467,7 @@ impl DynKalmanFilter {
     /// [`Error::NonFinite`] if the prediction overflows (the filter is then
     /// unchanged).
     pub fn predict(&mut self) -> Result<()> {
-        self.predict_inner(None)
+        self.predict_inner(None, None)
     }
 
     /// Prior with control input: x <- F x + B u, P <- F P F' + Q.
@@ -484,12 +484,25 @@ impl DynKalmanFilter {
         };
         check_size("control input u", b.ncols(), input.len())?;
         check_finite(input.as_slice(), "control input u")?;
-        self.predict_inner(Some(input))
+        self.predict_inner(Some(input), None)
     }
 
-    fn predict_inner(&mut self, input: Option<&DVector<f64>>) -> Result<()> {
+    /// The prior of an extended filter: x <- `propagated` (f(x), n entries, finite:
+    /// checked by the caller), P <- F P F' + Q with F the Jacobian set before.
+    pub(crate) fn predict_propagated(&mut self, propagated: &DVector<f64>) -> Result<()> {
+        self.predict_inner(None, Some(propagated))
+    }
+
+    fn predict_inner(
+        &mut self,
+        input: Option<&DVector<f64>>,
+        propagated: Option<&DVector<f64>>,
+    ) -> Result<()> {
         let ws = &mut self.ws;
-        ws.state.gemv(1.0, &self.transition, &self.state, 0.0);
+        match propagated {
+            Some(x) => ws.state.copy_from(x),
+            None => ws.state.gemv(1.0, &self.transition, &self.state, 0.0),
+        }
         if let (Some(b), Some(u)) = (&self.control, input) {
             ws.state.gemv(1.0, b, u, 1.0);
         }
@@ -534,7 +547,7 @@ impl DynKalmanFilter {
     /// # Errors
     /// As [`Self::update_correlated`].
     pub fn update(&mut self, measurement: &DVector<f64>) -> Result<DynUpdateReport> {
-        self.update_inner(measurement.as_slice(), None)
+        self.update_inner(measurement.as_slice(), None, None)
     }
 
     /// Update with y and the cross-covariance M = Cov(G w, v) (n x m) of the noise
@@ -552,7 +565,7 @@ impl DynKalmanFilter {
         measurement: &DVector<f64>,
         cross_covariance: &DMatrix<f64>,
     ) -> Result<DynUpdateReport> {
-        self.update_inner(measurement.as_slice(), Some(cross_covariance))
+        self.update_inner(measurement.as_slice(), Some(cross_covariance), None)
     }
 
     /// [`Self::update_correlated`] from a slice (no vector needed), M optional.
@@ -564,7 +577,18 @@ impl DynKalmanFilter {
         measurement: &[f64],
         cross_covariance: Option<&DMatrix<f64>>,
     ) -> Result<DynUpdateReport> {
-        self.update_inner(measurement, cross_covariance)
+        self.update_inner(measurement, cross_covariance, None)
+    }
+
+    /// The update of an extended filter: innovation y - `predicted` (h(x), m entries,
+    /// finite: checked by the caller) with H the Jacobian set before.
+    pub(crate) fn update_predicted(
+        &mut self,
+        measurement: &[f64],
+        predicted: &DVector<f64>,
+        cross_covariance: Option<&DMatrix<f64>>,
+    ) -> Result<DynUpdateReport> {
+        self.update_inner(measurement, cross_covariance, Some(predicted))
     }
 
     /// The joint check of the next update with `cross` (None: M = 0), by the policy.
@@ -598,6 +622,7 @@ impl DynKalmanFilter {
         &mut self,
         measurement: &[f64],
         cross: Option<&DMatrix<f64>>,
+        predicted: Option<&DVector<f64>>,
     ) -> Result<DynUpdateReport> {
         let (n, m) = (self.state.len(), self.measurement_size());
         check_size("measurement y", m, measurement.len())?;
@@ -608,10 +633,14 @@ impl DynKalmanFilter {
         }
         let joint_min_eigenvalue = self.joint_margin(cross)?;
         let ws = &mut self.ws;
-        // nu = y - H x.
+        // nu = y - H x (y - h(x) in an extended filter).
         ws.innovation.copy_from_slice(measurement);
-        ws.innovation
-            .gemv(-1.0, &self.observation, &self.state, 1.0);
+        match predicted {
+            Some(h) => ws.innovation -= h,
+            None => ws
+                .innovation
+                .gemv(-1.0, &self.observation, &self.state, 1.0),
+        }
         // A' = H P + M' (P symmetric), S = H P H' + H M + M' H' + R.
         gemm(&mut ws.a_t, 1.0, &self.observation, &self.covariance, 0.0);
         ws.s.copy_from(&self.measurement_noise);

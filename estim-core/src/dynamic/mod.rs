@@ -32,6 +32,14 @@
 //! allocation per step; it equals the static [`crate::UnscentedKalmanFilter`] to 1e-12
 //! (`tests/dynamic_unscented.rs`).
 //!
+//! [`DynExtendedKalmanFilter`] is the extended filter for run-time sizes: f, F(x), h,
+//! H(x) from [`DynProcessModel`] / [`DynMeasurementModel`] (types or pairs of
+//! closures) writing into the filter's buffers, [`DynKalmanFilter`]'s core (the
+//! correlated update, its joint check, the gate) at each step's linearisation, the
+//! filtered and smoothed estimates of one forward pass, no allocation per step; it
+//! equals the static [`crate::ExtendedKalmanFilter`] to 1e-12
+//! (`tests/dynamic_extended.rs`).
+//!
 //! On the same problems [`DynKalmanFilter`]'s estimates equal [`crate::KalmanFilter`]'s and
 //! `smooth_batch`'s to 1e-12 (`tests/dynamic.rs`), with and without M. EM and the
 //! log-likelihood of a linear-Gaussian model with run-time sizes are in
@@ -44,6 +52,7 @@
 //! bindings (`python/`, no nalgebra dependency of their own) compile with them.
 
 mod batch;
+mod extended;
 mod filter;
 mod linalg;
 mod macros;
@@ -53,6 +62,7 @@ mod tools;
 mod unscented;
 
 pub use batch::{FilteredAndSmoothed, FilteredSeries, MeasurementSeries, Trajectory};
+pub use extended::{DynExtendedKalmanFilter, DynMeasurementModel, DynProcessModel};
 pub use filter::{DynKalmanFilter, DynUpdateReport};
 pub use sigma::{DynSigmaPointMeasurement, DynSigmaPointProcess, DynSigmaPoints};
 pub use tools::{joint_validity_margin, normalised_squared_error};

@@ -7,7 +7,9 @@
 //!   discretization of (F, G Qc G').
 //! - `ml` (feature `fit`, default on): maximum-likelihood Q(theta), R(theta) and
 //!   M(theta) for any runner, with exact gradients and observed information from dual
-//!   numbers, standard errors and the likelihood-ratio test (e.g. of M = 0).
+//!   numbers, standard errors and the likelihood-ratio test (e.g. of M = 0); also
+//!   for parameter counts known at run time (`maximize_dyn`), with a ready
+//!   linear-Gaussian model whose Q and R scales or diagonals are fitted.
 //! - [`em`]: EM of Q, R, mu_0, Sigma_0 and also F, H and the offsets b, d of a
 //!   linear-Gaussian model (pykalman's `em`, up to `em_vars='all'`), and its
 //!   log-likelihood.
