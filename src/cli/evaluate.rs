@@ -134,6 +134,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "states_file": path_json(args.states.as_deref()),
             "rate_noise": args.rate_noise,
             "adaptive_noise": args.adaptive_noise,
+            // Every trajectory's IMU is synthesized from its ground truth (the text says so).
+            "imu_source": "synthesized",
             "config": config,
         });
         let body = serde_json::json!({ "evaluation": evaluation, "failures": evaluation.failures });

@@ -172,6 +172,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "rho": args.rho,
             "out": path_json(args.out.as_deref()),
             "seed": config.seed,
+            // The study's smoother runs on an IMU synthesized from the ground truth.
+            "imu_source": "synthesized",
             "config": config,
         });
         let doc = document(
@@ -347,7 +349,8 @@ pub fn print_reports(out: &mut String, reports: &[SmoothReport]) -> std::fmt::Re
     for r in reports {
         writeln!(
             out,
-            "== {} (LS DVL, {}, {} epochs): filtered vs smoothed against ground truth",
+            "== {} (IMU synthesized from the ground truth, LS DVL, {}, {} epochs): filtered \
+             vs smoothed against ground truth",
             r.name,
             r.cross,
             r.time.len()

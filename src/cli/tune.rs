@@ -144,6 +144,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "seed": seed,
             "linearizations": args.linearizations,
             "imu": "synthesized from the ground truth with the configured error model",
+            // Every trajectory's IMU, as `reproduce` says it per trajectory.
+            "imu_source": "synthesized",
         });
         json(inputs, &report)?
     } else {

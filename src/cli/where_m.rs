@@ -59,6 +59,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "first_seed": args.first_seed,
             "seeds": [args.first_seed, args.first_seed + args.runs as u64 - 1],
             "mission_duration_s": MISSION_DURATION_S,
+            // Simulated missions: the IMU is synthesized from each mission's truth.
+            "imu_source": "synthesized",
         });
         let doc = document("where-m", inputs, 0, serde_json::to_value(&report)?);
         emit(&format!("{}\n", serde_json::to_string_pretty(&doc)?))?;
