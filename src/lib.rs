@@ -11,20 +11,23 @@
 //! - [`dvl`]: DVL beams, least squares, DVL measurement model, calibration;
 //! - [`learned`]: ONNX learned measurements, BeamsNet, network-derived cross-covariance;
 //!
-//! and holds the [`navigator`] (the INS/DVL error-state filter fed with real logs),
-//! the readers of A-KIT and users' log files ([`datasets`]) and the committed learned
-//! models, embedded ([`models`]).
+//! - [`navigator`] (estim-nav): the INS/DVL error-state filter fed with real logs;
+//!
+//! and holds the readers of A-KIT and users' log files ([`datasets`], estim-nav's with
+//! the rows shared between A-KIT trajectories) and the committed learned models,
+//! embedded ([`models`]).
 #![deny(missing_docs)]
 #![deny(rustdoc::broken_intra_doc_links, rustdoc::private_intra_doc_links)]
 
 pub mod datasets;
 pub mod models;
-pub mod navigator;
 
 pub use estim_core as core;
 pub use estim_dvl as dvl;
 pub use estim_ins as ins;
 pub use estim_learned as learned;
+pub use estim_nav::navigator;
+pub use estim_nav::{LoadedSurvey, Pd0Load, SurveyError, SurveyFiles};
 
 /// The README's Rust code blocks, compiled and run as doc-tests (`cargo test` runs
 /// them; nothing of it is part of the API).
