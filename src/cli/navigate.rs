@@ -9,15 +9,13 @@ use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use estim::datasets::{
-    load_depth_with, load_fixes_with, load_gt_with, load_times_with, DvlLog, ImuLog,
-};
+use estim::datasets::{load_gt_with, load_times_with};
 use estim::ins::{ErrorMatrix, InsState, Trajectory, ATT, ERROR_STATES, POS, VEL};
 use estim::navigator::{
-    format_heading, navigate, navigate_learned, pd0_records, rdi_beam_geometry, DvlRecord,
-    NavSolution, NavigationObserver, NavigationRun, NavigatorConfig, NavigatorError,
-    NavigatorSettings, SolutionKind, SurveyInputs,
+    format_heading, navigate, navigate_learned, NavSolution, NavigationObserver, NavigationRun,
+    NavigatorConfig, NavigatorError, NavigatorSettings, SolutionKind, SurveyInputs,
 };
+use estim::{LoadedSurvey, Pd0Load, SurveyError};
 use serde_json::{json, Value};
 
 use crate::output::StagedDir;
@@ -468,43 +466,19 @@ pub struct Survey {
     pub warnings: Vec<Value>,
 }
 
-/// Read a PD0 file into DVL rows; skipped spans are warned about on stderr with
-/// their byte offsets and listed in the returned summary block.
-fn load_pd0(
-    path: &Path,
-    epoch: f64,
-    settings: NavigatorSettings,
-) -> anyhow::Result<(Vec<DvlRecord>, NavigatorSettings, Value)> {
-    // Streamed, with the limit of every input (`dvl pd0`'s): a sparse 2 GiB file is
-    // refused before reading and /dev/zero at the limit, naming the file.
-    let read = estim::datasets::read_pd0_input(path, estim::datasets::MAX_INPUT_BYTES)?;
-    anyhow::ensure!(
-        !read.ensembles.is_empty(),
-        "{}: no good PD0 ensemble in {} bytes ({} spans skipped)",
-        path.display(),
-        read.report.input_bytes,
-        read.report.skipped.len()
-    );
-    for skip in &read.report.skipped {
-        eprintln!("warning: {}: {skip}", path.display());
-    }
-    let (records, conversion) = pd0_records(&read.ensembles, epoch)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    let angle = conversion
-        .beam_angle_deg
-        .unwrap_or(settings.config().dvl.beam_angle_deg);
-    let geometry = rdi_beam_geometry(angle, conversion.convex)?;
-    let skipped: Vec<Value> = read
-        .report
+/// What the PD0 reader and conversion did, as the summary's `pd0` block.
+fn pd0_json(load: &Pd0Load) -> Value {
+    let (report, conversion) = (&load.report, &load.conversion);
+    let skipped: Vec<Value> = report
         .skipped
         .iter()
         .map(|s| json!({ "offset": s.offset, "length": s.length, "reason": s.issue.to_string() }))
         .collect();
-    let summary = json!({
-        "input_bytes": read.report.input_bytes,
-        "ensembles": read.report.decoded,
-        "with_bottom_track": read.report.with_bottom_track,
-        "warnings": read.report.skipped.len(),
+    json!({
+        "input_bytes": report.input_bytes,
+        "ensembles": report.decoded,
+        "with_bottom_track": report.with_bottom_track,
+        "warnings": report.skipped.len(),
         "skipped": skipped,
         "coordinate_systems": {
             "beam": conversion.beam,
@@ -514,12 +488,11 @@ fn load_pd0(
         },
         "without_bottom_track": conversion.without_bottom_track,
         "bad_velocity_values": conversion.bad_velocity_values,
-        "beam_angle_deg": angle,
+        "beam_angle_deg": load.beam_angle_deg,
         "beam_angle_from": if conversion.beam_angle_deg.is_some() { "fixed_leader" } else { "vehicle" },
         "head": if conversion.convex { "convex" } else { "concave" },
         "earth_frame": "rotated into the body frame with the filter's attitude at each update",
-    });
-    Ok((records, settings.with_beam_geometry(geometry), summary))
+    })
 }
 
 /// Read and check every input of a survey (errors name the file and line).
@@ -547,54 +520,28 @@ pub fn load_survey_with(files: SurveyFiles, columns: Option<&Path>) -> anyhow::R
 /// [`load_survey`] with the vehicle configuration already read (`files.vehicle` only
 /// names it in messages): the study reads the embedded A-KIT vehicle this way.
 pub fn load_survey_from(files: SurveyFiles, config: NavigatorConfig) -> anyhow::Result<Survey> {
-    let in_vehicle = |e: NavigatorError| match &files.vehicle {
-        Some(p) => anyhow::anyhow!("{}: {e}", p.display()),
-        None => anyhow::anyhow!("{e}"),
+    let sensors = estim::SurveyFiles {
+        imu: files.imu.clone(),
+        dvl: files.dvl.clone(),
+        beams: files.beams.clone(),
+        pd0: files.pd0.clone(),
+        depth: files.depth.clone(),
+        fixes: files.fixes.clone(),
+        vehicle: files.vehicle.clone(),
     };
-    let mut settings = config.check().map_err(in_vehicle)?;
-    let map = &config.columns;
-    let mut imu = ImuLog::load_with(&files.imu, None, map)?;
-    config
-        .imu_frame()
-        .map_err(in_vehicle)?
-        .apply(&mut imu.samples);
-    let epoch = imu.epoch_s;
-    let mut pd0 = None;
-    let dvl = match (&files.dvl, &files.beams, &files.pd0) {
-        (Some(p), _, _) => DvlLog::load_velocity_with(p, Some(epoch), map)?.records,
-        (None, Some(p), _) => DvlLog::load_beams_with(p, Some(epoch), map)?.records,
-        (None, None, Some(p)) => {
-            let (records, with_geometry, summary) = load_pd0(p, epoch, settings)?;
-            settings = with_geometry;
-            let (first, last) = (
-                imu.samples.first().map_or(0.0, |s| s.time),
-                imu.samples.last().map_or(0.0, |s| s.time),
-            );
-            anyhow::ensure!(
-                records.iter().any(|r| r.time >= first && r.time <= last),
-                "{}: no ensemble time ({:.2}..{:.2} s, Unix) falls in the IMU's span \
-                 ({:.2}..{:.2} s); PD0 times are the instrument's clock read as UTC",
-                p.display(),
-                epoch + records.first().map_or(0.0, |r| r.time),
-                epoch + records.last().map_or(0.0, |r| r.time),
-                epoch + first,
-                epoch + last
-            );
-            pd0 = Some(summary);
-            records
-        }
-        (None, None, None) => anyhow::bail!("give --dvl, --beams or --pd0"),
-    };
-    let depth = match &files.depth {
-        Some(p) => load_depth_with(p, Some(epoch), map)?.0,
-        None => Vec::new(),
-    };
-    let fixes = match &files.fixes {
-        Some(p) => load_fixes_with(p, Some(epoch), map)?.0,
-        None => Vec::new(),
-    };
+    // Skipped PD0 spans are warned about on stderr with their byte offsets as they are
+    // found, and listed in the summary's `pd0` block.
+    let mut loaded = sensors
+        .read(&config, &mut |path, skip| {
+            eprintln!("warning: {}: {skip}", path.display());
+        })
+        .map_err(|e| match e {
+            SurveyError::NoDvl => anyhow::anyhow!("give --dvl, --beams or --pd0"),
+            e => e.into(),
+        })?;
+    let epoch = loaded.epoch;
     let truth = match &files.truth {
-        Some(p) => Some(load_truth(p, epoch, &imu, &config)?),
+        Some(p) => Some(load_truth(p, &loaded, &config)?),
         None => None,
     };
     let mut config = config;
@@ -602,7 +549,7 @@ pub fn load_survey_from(files: SurveyFiles, config: NavigatorConfig) -> anyhow::
         let truth = truth.as_ref().context("--init-from-truth needs --truth")?;
         // The run starts at the first of the truth's own epochs inside the IMU's span
         // (the truth is exact there, interpolated between).
-        let imu_start = imu.samples.first().map_or(0.0, |s| s.time);
+        let imu_start = loaded.inputs.imu.first().map_or(0.0, |s| s.time);
         let first = truth
             .epochs
             .iter()
@@ -627,24 +574,11 @@ pub fn load_survey_from(files: SurveyFiles, config: NavigatorConfig) -> anyhow::
         i.velocity_ned_mps = state.velocity_ned.into();
         i.attitude_deg = Some([roll, pitch, yaw].map(f64::to_degrees));
     }
-    if config.initial.time_s.is_some() {
-        // `initial.time_s` is in the inputs' own time; the navigator's clock runs from
-        // the IMU file's epoch.
-        let mut relative = config.clone();
-        relative.initial.time_s = config.initial.time_s.map(|t| t - epoch);
-        let geometry = settings.beam_geometry().clone();
-        settings = relative
-            .check()
-            .map_err(|e| anyhow::anyhow!("initial.time_s: {e}"))?
-            .with_beam_geometry(geometry);
-    }
-    let inputs = SurveyInputs {
-        imu: imu.samples,
-        dvl,
-        depth,
-        fixes,
-        output_epochs: Vec::new(),
-    };
+    // `initial.time_s` is in the inputs' own time; the navigator's clock runs from the
+    // IMU file's epoch.
+    loaded.settle_initial(&config)?;
+    let pd0 = loaded.pd0.as_ref().map(pd0_json);
+    let (settings, inputs) = (loaded.settings, loaded.inputs);
     crate::aiding_span::check_survey(&files, &config, &inputs, epoch)?;
     let warnings = crate::survey_checks::check_dvl_lock(&files, &inputs)?;
     Ok(Survey {
@@ -663,12 +597,8 @@ pub fn load_survey_from(files: SurveyFiles, config: NavigatorConfig) -> anyhow::
 /// by `truth.clock_scale`, shifted by `truth.time_offset_s` (else by the offset
 /// estimated against the IMU's angular rate), and its positions carried from the
 /// reference's point to the IMU by `truth.lever_arm_m`.
-fn load_truth(
-    p: &Path,
-    epoch: f64,
-    imu: &ImuLog,
-    config: &NavigatorConfig,
-) -> anyhow::Result<Truth> {
+fn load_truth(p: &Path, loaded: &LoadedSurvey, config: &NavigatorConfig) -> anyhow::Result<Truth> {
+    let (epoch, imu) = (loaded.epoch, &loaded.inputs.imu);
     {
         {
             let gt = load_gt_with(p, &config.columns)?;
@@ -702,7 +632,7 @@ fn load_truth(
             let time_offset = match c.time_offset_s {
                 Some(tau) => json!({ "source": "vehicle", "offset_s": tau }),
                 None => {
-                    let est = estim::navigator::reference_time_offset(&imu.samples, &samples, 5.0)
+                    let est = estim::navigator::reference_time_offset(imu, &samples, 5.0)
                         .with_context(|| {
                             format!("{}: cannot align its clock to the IMU's", p.display())
                         })?;
@@ -726,10 +656,10 @@ fn load_truth(
             let epochs = samples.iter().map(|s| s.time).collect();
             let trajectory =
                 Trajectory::new(samples).with_context(|| format!("{}", p.display()))?;
-            let biases = imu
+            let biases = loaded
                 .true_biases
                 .clone()
-                .map(|b| (imu.samples.iter().map(|s| s.time).collect(), b));
+                .map(|b| (imu.iter().map(|s| s.time).collect(), b));
             Ok(Truth {
                 trajectory,
                 lever_arm: lever,

@@ -27,14 +27,14 @@ pub enum Tail {
 /// applies the epoch's measurements, and can stop the run with its own typed error.
 ///
 /// ```
-/// use estim::navigator::{run_epochs, EpochHook, Navigator, NavigatorConfig, NavigatorError, Tail};
-/// use estim::core::Zero;
-/// use estim::ins::{ErrorMatrix, ImuSample, InsState};
-/// use estim::core::nalgebra::{UnitQuaternion, Vector3};
+/// use estim_nav::navigator::{run_epochs, EpochHook, Navigator, NavigatorConfig, NavigatorError, Tail};
+/// use estim_core::Zero;
+/// use estim_ins::{ErrorMatrix, ImuSample, InsState};
+/// use estim_core::nalgebra::{UnitQuaternion, Vector3};
 ///
 /// /// DVL velocities at their epochs; counts the accepted updates.
 /// struct Dvl(usize);
-/// impl EpochHook<estim::ins::InsErrorModel, estim::core::NoObserver, 15> for Dvl {
+/// impl EpochHook<estim_ins::InsErrorModel, estim_core::NoObserver, 15> for Dvl {
 ///     type Measurement = Vector3<f64>;
 ///     type Error = NavigatorError;
 ///     fn on_epoch(&mut self, nav: &mut Navigator, time: f64, v: Vector3<f64>)
@@ -48,7 +48,7 @@ pub enum Tail {
 /// let start = InsState::new(0.0, 0.57, 0.61, -20.0, Vector3::new(1.0, 0.0, 0.0),
 ///     UnitQuaternion::identity());
 /// let mut nav = Navigator::new(&settings, start, ErrorMatrix::identity() * 1e-4, 0.01)?;
-/// let g = estim::ins::earth::normal_gravity(0.57, -20.0);
+/// let g = estim_ins::earth::normal_gravity(0.57, -20.0);
 /// let imu: Vec<ImuSample> = (0..200)
 ///     .map(|k| ImuSample::new(k as f64 * 0.01, Vector3::new(0.0, 0.0, -g), Vector3::zeros()))
 ///     .collect();

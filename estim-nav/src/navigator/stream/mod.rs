@@ -84,11 +84,11 @@ macro_rules! dispatch {
 /// The streaming INS/DVL navigator (module docs).
 ///
 /// ```
-/// use estim::navigator::{
+/// use estim_nav::navigator::{
 ///     DvlInput, DvlRecord, NavigatorConfig, StreamConfig, StreamNavigator,
 /// };
-/// use estim::ins::ImuSample;
-/// use estim::core::nalgebra::Vector3;
+/// use estim_ins::ImuSample;
+/// use estim_core::nalgebra::Vector3;
 ///
 /// let mut config = NavigatorConfig::default();
 /// config.initial.latitude_deg = Some(32.0);
@@ -98,7 +98,7 @@ macro_rules! dispatch {
 /// config.imu.rate_hz = Some(100.0);
 /// let stream = StreamConfig::builder().history_s(2.0).build()?;
 /// let mut nav = StreamNavigator::new(config.check()?, stream);
-/// let g = estim::ins::earth::normal_gravity(32f64.to_radians(), 0.0);
+/// let g = estim_ins::earth::normal_gravity(32f64.to_radians(), 0.0);
 /// for k in 0..300 {
 ///     let t = k as f64 * 0.01;
 ///     nav.push_imu(ImuSample::new(t, Vector3::new(0.0, 0.0, -g), Vector3::zeros()))?;

@@ -37,8 +37,8 @@ pub type DvlCross<'a, S = InsState, const N: usize = ERROR_STATES> =
 /// the adaptive DVL noise level; the model says what differs with its states.
 ///
 /// ```
-/// use estim::navigator::{AugmentedErrorModel, NavigationModel, AUGMENTED_STATES};
-/// use estim::ins::{InsErrorModel, ERROR_STATES};
+/// use estim_nav::navigator::{AugmentedErrorModel, NavigationModel, AUGMENTED_STATES};
+/// use estim_ins::{InsErrorModel, ERROR_STATES};
 ///
 /// fn states<E: NavigationModel<N>, const N: usize>() -> usize { N }
 /// assert_eq!(states::<InsErrorModel, ERROR_STATES>(), 15);
@@ -139,16 +139,16 @@ impl NavigationModel<ERROR_STATES> for InsErrorModel {
 /// This is the integration of `estim reproduce`'s filter runs, which are built on it.
 ///
 /// ```
-/// use estim::navigator::{Navigator, NavigatorConfig};
-/// use estim::core::Zero;
-/// use estim::ins::{ErrorMatrix, ImuSample, InsState};
-/// use estim::core::nalgebra::{UnitQuaternion, Vector3};
+/// use estim_nav::navigator::{Navigator, NavigatorConfig};
+/// use estim_core::Zero;
+/// use estim_ins::{ErrorMatrix, ImuSample, InsState};
+/// use estim_core::nalgebra::{UnitQuaternion, Vector3};
 ///
 /// let settings = NavigatorConfig::default().check()?;
 /// let start = InsState::new(0.0, 0.57, 0.61, -20.0, Vector3::new(1.0, 0.0, 0.0),
 ///     UnitQuaternion::identity());
 /// let mut nav = Navigator::new(&settings, start, ErrorMatrix::identity() * 1e-4, 0.01)?;
-/// let g = estim::ins::earth::normal_gravity(0.57, -20.0);
+/// let g = estim_ins::earth::normal_gravity(0.57, -20.0);
 /// for k in 0..=100 {
 ///     nav.imu(&ImuSample::new(k as f64 * 0.01, Vector3::new(0.0, 0.0, -g), Vector3::zeros()))?;
 /// }

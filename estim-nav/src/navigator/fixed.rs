@@ -17,8 +17,8 @@ pub(crate) fn three_opt<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 
     three(d).map(Some)
 }
 
-// The vehicle file's TOML reader is the CLI's (feature `cli`).
-#[cfg(all(test, feature = "cli"))]
+// The vehicle file's TOML reader is the CLI's; toml is a dev-dependency here.
+#[cfg(test)]
 mod tests {
     use crate::navigator::NavigatorConfig;
 

@@ -165,7 +165,7 @@ impl Default for StreamConfig {
 /// [`StreamConfigBuilder::build`]).
 ///
 /// ```
-/// use estim::navigator::{MeasurementTiming, StreamConfig};
+/// use estim_nav::navigator::{MeasurementTiming, StreamConfig};
 /// let config = StreamConfig::builder().history_s(5.0).timing(MeasurementTiming::Exact).build()?;
 /// assert_eq!(config.history_s(), 5.0);
 /// assert!(StreamConfig::builder().history_s(-1.0).build().is_err());

@@ -15,7 +15,6 @@ mod fixes;
 mod imu;
 mod input;
 mod locate;
-mod overlaps;
 mod span;
 mod table;
 
@@ -39,7 +38,6 @@ pub use input::{read_input, read_limited, read_pd0_input, read_text_file, MAX_IN
 pub use locate::{
     akit_dir, data_root, trajectories_in, trajectory_files, TrajectoryFiles, DATA_DIR_ENV,
 };
-pub use overlaps::{akit_overlaps, akit_row_keys, touches_held_out, WINDOW_MARGIN_ROWS};
 pub use span::{check_spans, span_tolerance, SpanCheck, SPAN_TIME_OFFSET_ALLOWANCE_S};
 pub use table::{load_times, load_times_with};
 

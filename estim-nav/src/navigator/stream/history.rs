@@ -42,7 +42,7 @@ impl EventKey {
 /// and replays.
 ///
 /// ```
-/// use estim::navigator::{EventKey, History, HistoryLimits, Replay};
+/// use estim_nav::navigator::{EventKey, History, HistoryLimits, Replay};
 ///
 /// /// A running sum: the outputs are the partial sums.
 /// #[derive(Clone, Default)]

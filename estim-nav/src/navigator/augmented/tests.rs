@@ -644,7 +644,6 @@ fn bad_state_settings_are_typed_errors_naming_the_key() {
     let mut c = DvlStatesConfig::none();
     c.time_offset.prior_std_s = -1.0;
     assert!(c.check().is_ok());
-    #[cfg(feature = "cli")]
     {
         let e = toml::from_str::<DvlStatesConfig>("[bias]\nestimate = true\nstd = 1\n")
             .unwrap_err()
@@ -675,7 +674,6 @@ fn per_axis_priors_give_per_axis_variances() {
     for (i, e) in expected.iter().enumerate() {
         assert!((v[i] - e).abs() <= 1e-18, "state {i}: {} vs {e}", v[i]);
     }
-    #[cfg(feature = "cli")]
     {
         let parsed: DvlStatesConfig = toml::from_str(
             "[misalignment]\nestimate = true\nprior_std_rad = [0.002, 0, 0.003]\n\
