@@ -7,8 +7,7 @@ use estim_dvl::{Pd0Report, Pd0Skip};
 use nalgebra::Vector3;
 
 use crate::datasets::{
-    load_depth_with, load_fixes_with, read_pd0_input, DatasetError, DvlLog, ImuLog,
-    MAX_INPUT_BYTES,
+    load_depth_with, load_fixes_with, read_pd0_input, DatasetError, DvlLog, ImuLog, MAX_INPUT_BYTES,
 };
 use crate::navigator::{
     pd0_records, rdi_beam_geometry, DvlRecord, NavigatorConfig, NavigatorError, NavigatorSettings,
