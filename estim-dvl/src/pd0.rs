@@ -500,6 +500,11 @@ const MAX_ENSEMBLE_BYTES: usize = u16::MAX as usize + CHECKSUM_BYTES;
 /// # Errors
 /// The reader's error (an `Interrupted` read is retried).
 pub fn read_pd0_from<R: Read>(reader: R) -> std::io::Result<Pd0Read> {
+    read_pd0_window(reader).map(|(read, _)| read)
+}
+
+/// [`read_pd0_from`], and the most input bytes its window held at once.
+fn read_pd0_window<R: Read>(reader: R) -> std::io::Result<(Pd0Read, usize)> {
     let mut window = Window::new(reader, READ_CHUNK);
     let mut ensembles = Vec::new();
     let mut skipped = Vec::new();
@@ -517,9 +522,9 @@ pub fn read_pd0_from<R: Read>(reader: R) -> std::io::Result<Pd0Read> {
             if window.eof {
                 break;
             }
-            // The window's last byte may begin a header.
+            // The window's last byte may begin a header; the loop's `cover` moves the
+            // window there.
             search = window.end().saturating_sub(1).max(search);
-            window.cover(search, window.bytes.len() + 1)?;
             continue;
         };
         let start = window.base + relative;
@@ -577,7 +582,7 @@ pub fn read_pd0_from<R: Read>(reader: R) -> std::io::Result<Pd0Read> {
         .iter()
         .filter(|e| e.bottom_track.is_some())
         .count();
-    Ok(Pd0Read {
+    let read = Pd0Read {
         report: Pd0Report {
             input_bytes,
             decoded: ensembles.len(),
@@ -585,7 +590,8 @@ pub fn read_pd0_from<R: Read>(reader: R) -> std::io::Result<Pd0Read> {
             skipped,
         },
         ensembles,
-    })
+    };
+    Ok((read, window.peak))
 }
 
 /// The part of a PD0 stream the reader looks at: `bytes` from input offset `base`,
@@ -600,6 +606,8 @@ struct Window<R> {
     sums: Vec<u16>,
     base: usize,
     eof: bool,
+    /// The most bytes `bytes` held at once.
+    peak: usize,
 }
 
 impl<R: Read> Window<R> {
@@ -612,6 +620,7 @@ impl<R: Read> Window<R> {
             sums: vec![0],
             base: 0,
             eof: false,
+            peak: 0,
         }
     }
 
@@ -641,6 +650,7 @@ impl<R: Read> Window<R> {
                 Err(e) => return Err(e),
             }
         }
+        self.peak = self.peak.max(self.bytes.len());
         self.sums.clear();
         self.sums.push(0);
         let mut sum = 0u16;
@@ -977,6 +987,31 @@ fn decode_bottom_track(bottom: &[u8]) -> BottomTrack {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The window stays within one chunk plus the longest ensemble, whatever the
+    /// input's length: 40 MiB of zeros (no header), of 0x7F bytes (a header candidate
+    /// at every byte, each declaring 32,639 bytes) and of a repeated false header.
+    #[test]
+    fn the_window_is_bounded_on_long_inputs() {
+        let bound = READ_CHUNK + MAX_ENSEMBLE_BYTES;
+        let len = 40 << 20;
+        for (name, byte) in [("zeros", 0u8), ("0x7F", 0x7F)] {
+            let (read, peak) =
+                read_pd0_window(std::io::repeat(byte).take(len as u64)).expect("read");
+            assert_eq!(read.report.input_bytes, len, "{name}");
+            assert!(read.ensembles.is_empty(), "{name}");
+            assert!(peak <= bound, "{name}: window of {peak} bytes");
+        }
+        let header: Vec<u8> = [0x7F, 0x7F, 0x60, 0xEA, 0x00, 0x01]
+            .iter()
+            .copied()
+            .cycle()
+            .take(len / 8)
+            .collect();
+        let (read, peak) = read_pd0_window(header.as_slice()).expect("read");
+        assert_eq!(read.report.input_bytes, len / 8);
+        assert!(peak <= bound, "false headers: window of {peak} bytes");
+    }
 
     #[test]
     fn days_from_civil_matches_known_dates() {

@@ -236,11 +236,12 @@ fn channel_weights(r: &DVector<f64>) -> [f64; 6] {
     })
 }
 
-/// J'WJ and J'Wr at `p`: the (s, τ_c) columns by central differences, the bias columns
-/// exact (-ΔT_j on their channel).
 /// Index of the first gyroscope scale-factor error k_g in the parameter vector.
 const SCALE: usize = 8;
 
+/// J'WJ and J'Wr at `p`: the (s, τ_c) columns by central differences, the bias columns
+/// exact (-ΔT_j on their channel), the gyroscope scale columns exact (minus the
+/// reference's rate integral on their axis; zero for a scale held at 1).
 #[allow(clippy::too_many_arguments)]
 fn normal_equations(
     axes: &AxisMap,
