@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The long runs docs/results.md quotes, one log per run in results/:
-# - src/study/tests/fuzz_parsers.rs, 1,000,000 cases, one property at a time (about 6-7 min in all);
-# - src/study/tests/long_mission.rs, the 10-hour mission (ignored test; about 4 min) and the 1-hour one.
-# - src/study/tests/square_root_ins.rs, the 10-hour mission in square-root form (ignored test).
+# - estim-cli/src/study/tests/fuzz_parsers.rs, 1,000,000 cases, one property at a time (about 6-7 min in all);
+# - estim-cli/src/study/tests/long_mission.rs, the 10-hour mission (ignored test; about 4 min) and the 1-hour one.
+# - estim-cli/src/study/tests/square_root_ins.rs, the 10-hour mission in square-root form (ignored test).
 # Each log's first line is the commit it ran on and the command. Run from the repository
 # root on a clean work tree (the commit must be the code that ran), then
 # `cargo run --release -- report --write docs/results.md` to quote the logs there.

@@ -111,7 +111,7 @@ fn trajectory_2(root: &Path, dir: &Path, seconds: f64) -> (PathBuf, PathBuf, Pat
         .collect();
     let vehicle = dir.join("vehicle.toml");
     let akit = std::fs::read_to_string(
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("vehicles/akit.toml"),
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../vehicles/akit.toml"),
     )
     .unwrap();
     let initial = format!(

@@ -18,9 +18,9 @@ mod common;
 
 /// The pages whose examples run, with their text.
 const PAGES: &[(&str, &str)] = &[
-    ("README.md", include_str!("../README.md")),
-    ("docs/cli.md", include_str!("../docs/cli.md")),
-    ("docs/results.md", include_str!("../docs/results.md")),
+    ("README.md", include_str!("../../README.md")),
+    ("docs/cli.md", include_str!("../../docs/cli.md")),
+    ("docs/results.md", include_str!("../../docs/results.md")),
 ];
 
 /// Commands not run here, each with its reason (matched as a substring).

@@ -1,12 +1,14 @@
 //! The README's two commands compile every dependency once.
 //!
-//! `cargo run --release -- reproduce` resolves the features of the `estim` binary
-//! alone; `cargo test --workspace --release` adds every dev-dependency of the
-//! workspace, which turns on more features in some shared dependencies (serde in
-//! nalgebra, say). A dependency whose features differ between the two is compiled
-//! twice, and with it everything that depends on it (tract included). The `estim`
-//! feature `build-once` turns those features on for the binary too (Cargo.toml); this
-//! test fails when a change of dependencies makes the two sets drift apart again.
+//! `cargo run --release -- reproduce` at the root resolves the features of the `estim`
+//! binary's package (estim-cli, whose binary `cargo run` picks) alone; `cargo test
+//! --workspace --release` adds every dev-dependency of the workspace and the default
+//! features of every member, which turns on more features in some shared dependencies
+//! (serde in nalgebra, say). A dependency whose features differ between the two is
+//! compiled twice, and with it everything that depends on it (tract included). The
+//! estim-cli feature `build-once` turns those features on for the binary too
+//! (estim-cli/Cargo.toml); this test fails when a change of dependencies makes the two
+//! sets drift apart again.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::process::Command;
@@ -53,7 +55,7 @@ fn features(args: &[&str]) -> BTreeMap<String, BTreeSet<String>> {
 
 #[test]
 fn run_and_test_commands_resolve_the_same_features() {
-    let run = features(&["-p", "estim", "-e", "normal,build"]);
+    let run = features(&["-p", "estim-cli", "-e", "normal,build"]);
     let test = features(&["--workspace", "-e", "normal,build,dev"]);
     assert!(
         run.keys().any(|k| k.starts_with("tract-onnx ")),
@@ -72,7 +74,7 @@ fn run_and_test_commands_resolve_the_same_features() {
     assert!(
         differing.is_empty(),
         "dependencies compiled twice by the README's two commands (add the features to \
-         `build-once` in Cargo.toml):\n{}",
+         `build-once` in estim-cli/Cargo.toml):\n{}",
         differing.join("\n")
     );
 }

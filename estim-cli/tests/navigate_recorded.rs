@@ -25,7 +25,7 @@ fn estim(args: &[&str]) -> Output {
 }
 
 fn vehicle() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("vehicles/akit.toml")
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../vehicles/akit.toml")
 }
 
 /// IMU, DVL and GT files of training trajectory `n`.

@@ -122,10 +122,11 @@ fn region_range(text: &str, name: &str) -> Result<std::ops::Range<usize>> {
     Ok(start..end)
 }
 
-/// The content of region `name` in `text`.
+/// The content of region `name` in `text` (the study's tests compare regions).
 ///
 /// # Errors
 /// A missing, repeated or misordered marker.
+#[cfg(test)]
 pub fn region<'a>(text: &'a str, name: &str) -> Result<&'a str> {
     Ok(&text[region_range(text, name)?])
 }

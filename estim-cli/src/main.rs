@@ -31,7 +31,6 @@ mod where_m;
 
 /// The paper study (reproduce, montecarlo, report): private to the binary, not
 /// library API. See docs/design.md.
-#[path = "../study/mod.rs"]
 mod study;
 
 /// estim: state estimation with correlated process and measurement noise.

@@ -178,7 +178,7 @@ fn inputs(d: &Path) -> Option<()> {
         .collect();
     w("renamed/imu_deg.csv", deg);
     let akit = std::fs::read_to_string(
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("vehicles/akit.toml"),
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../vehicles/akit.toml"),
     )
     .expect("vehicles/akit.toml");
     w("std.toml", akit.clone());

@@ -2,7 +2,7 @@
 //! a failing filter variant reported as data (exit 3) while the others complete, a
 //! closed stdout, `--out` checks, progress on stderr, `--print-config`.
 //!
-//! Exit statuses (src/cli/schema.rs): 0 ok, 2 bad input, 3 some filter variant
+//! Exit statuses (estim-cli/src/schema.rs): 0 ok, 2 bad input, 3 some filter variant
 //! failed, 141 stdout closed by the reader.
 
 use std::io::Read;
@@ -14,7 +14,7 @@ use serde_json::Value;
 mod common;
 
 /// The page holding the `[faults]` example.
-const RESULTS: &str = include_str!("../docs/results.md");
+const RESULTS: &str = include_str!("../../docs/results.md");
 
 fn estim(args: &[&str], cwd: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_estim"))

@@ -200,7 +200,7 @@ fn converted_trajectory_gives_the_unconverted_result() {
 /// The TOML block of the "Your own data" section of docs/cli.md (list-item indent
 /// removed).
 fn readme_column_map() -> String {
-    let readme = include_str!("../docs/cli.md");
+    let readme = include_str!("../../docs/cli.md");
     let section = &readme[readme
         .find("## Your own data")
         .expect("docs/cli.md section")..];

@@ -21,8 +21,9 @@ use crate::study::Config;
 
 use super::common;
 
+/// The repository root (estim-cli's parent).
 fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
 fn readme() -> String {

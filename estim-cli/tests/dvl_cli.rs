@@ -261,7 +261,7 @@ fn calibrate_prints_estimates_on_akit_13() {
     let root = std::env::var_os("ESTIM_DATA_DIR")
         .map(std::path::PathBuf::from)
         .unwrap_or_else(|| {
-            std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data")
+            std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data")
         });
     let Ok(files) = estim::datasets::trajectory_files(&root, 13) else {
         assert!(

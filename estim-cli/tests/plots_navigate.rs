@@ -40,7 +40,7 @@ fn inputs(dir: &Path, seconds: usize) -> Option<()> {
     std::fs::copy(t.join("DVL_trajectory2.csv"), dir.join("dvl.csv")).expect("dvl");
     std::fs::copy(t.join("GT_trajectory2.csv"), dir.join("gt.csv")).expect("gt");
     let akit = std::fs::read_to_string(
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("vehicles/akit.toml"),
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../vehicles/akit.toml"),
     )
     .expect("vehicles/akit.toml");
     std::fs::write(dir.join("akit.toml"), &akit).expect("write");

@@ -162,7 +162,7 @@ fn recorded_survey(n: u32) -> Option<(tempfile::TempDir, [String; 4])> {
     let dir = tempfile::tempdir().unwrap();
     let vehicle = dir.path().join("akit15.toml");
     let text = std::fs::read_to_string(
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("vehicles/akit.toml"),
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../vehicles/akit.toml"),
     )
     .unwrap();
     let (head, tail) = text.split_once("[dvl_states]").unwrap();

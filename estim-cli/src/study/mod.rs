@@ -2,11 +2,6 @@
 //! scenarios (simulated or A-KIT), filter variants, their summaries and the result
 //! tables of docs/results.md. Private to the binary (docs/design.md): not library API.
 
-// What the study offers is what the CLI and the study's own tests use. Items only the
-// tests use are dead in the plain binary build, so dead code is checked in the test
-// build (`cargo clippy --all-targets`), where both users are compiled.
-#![cfg_attr(not(test), allow(dead_code, unused_imports))]
-
 mod config;
 mod evaluate;
 mod faults;
@@ -30,21 +25,20 @@ pub use config::{AkitTruth, Config, PaperMBasis, MAX_SEED};
 pub use evaluate::{
     check_fit_trajectories, evaluate, fit_training, markdown as evaluation_markdown,
 };
-pub use faults::{apply_faults, DvlOutage, FaultConfig, ImuGap};
+pub use faults::{apply_faults, DvlOutage, FaultConfig};
 pub use learned::{beamsnet_inputs, committed_beamsnet};
 pub use learned_scenarios::{
-    learned_monte_carlo, learned_study, max_correlation, two_beams_measurements, LearnedEvent,
-    LearnedMonteCarlo, LearnedStudy, MeanInterval, STUDY_EMPIRICAL_REALIZATIONS,
+    learned_monte_carlo, learned_study, max_correlation, LearnedEvent, LearnedMonteCarlo,
+    LearnedStudy, MeanInterval, STUDY_EMPIRICAL_REALIZATIONS,
 };
-pub use mismatch::{fit_reference_mismatch, AKIT_TEST_TRAJECTORIES, CHI_SQUARE_1_MEDIAN};
+pub use mismatch::{fit_reference_mismatch, AKIT_TEST_TRAJECTORIES};
 pub use montecarlo::{
     monte_carlo, LearnedSource, MergeError, MonteCarloReport, MonteCarloSums, ORACLE_NEGLECTED,
     ORACLE_SCALED, ORACLE_TRUE_M,
 };
 pub use oracle::{oracle_measurements, OracleSensor};
 pub use paired::{
-    beamsnet_without_sensitivity, markdown as paired_markdown, paired_study, CellRun, Gate,
-    PairedInterval, PairedStudy, BEAMSNET_PER_STEP,
+    beamsnet_without_sensitivity, markdown as paired_markdown, paired_study, Gate, PairedInterval,
 };
 pub use recorded::{
     run_recorded, ImuChoice, ImuSource, RecordedSurvey, AKIT_VEHICLE, RECORDED_NEES_STATES,
@@ -60,7 +54,7 @@ pub use run::{
     MeasurementSet,
 };
 pub use scenario::{synthesize_imu, BeamLoss, DvlEpoch, Scenario};
-pub use smooth::{least_squares_measurements, smooth_scenario, SmoothReport};
+pub use smooth::{smooth_scenario, SmoothReport};
 pub use tune::{tune_akit, TuneReport};
 pub use where_m::{GRADES, MISSION_DURATION_S};
 
@@ -117,6 +111,18 @@ pub enum PipelineError {
 
 /// `Result` of the pipeline.
 pub type Result<T> = std::result::Result<T, PipelineError>;
+
+// Names only the study's tests use (the tests, and dataset.rs's, import them from here).
+#[cfg(test)]
+pub use faults::ImuGap;
+#[cfg(test)]
+pub use learned_scenarios::two_beams_measurements;
+#[cfg(test)]
+pub use mismatch::CHI_SQUARE_1_MEDIAN;
+#[cfg(test)]
+pub use paired::{CellRun, PairedStudy, BEAMSNET_PER_STEP};
+#[cfg(test)]
+pub use smooth::least_squares_measurements;
 
 #[cfg(test)]
 mod tests;

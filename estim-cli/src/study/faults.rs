@@ -16,6 +16,7 @@
 //! - an IMU gap removes samples: the runner takes dt from the IMU timestamps and holds
 //!   the last sample over the gap (zero-order hold).
 
+#[cfg(test)]
 use std::path::Path;
 
 use rand::{RngExt, SeedableRng};
@@ -203,10 +204,12 @@ impl FaultConfig {
     }
 
     /// Parse and validate TOML text (a `[faults]`-less file of these keys); `path`
-    /// names the source in errors.
+    /// names the source in errors. The study's tests (and fuzzing) only: the binary reads
+    /// `[faults]` inside a study configuration.
     ///
     /// # Errors
     /// [`PipelineError::Config`] naming the file (and line for a syntax error).
+    #[cfg(test)]
     pub fn from_toml(text: &str, path: &Path) -> Result<Self> {
         let config: FaultConfig = toml::from_str(text).map_err(|e| {
             let line = e.span().map(|s| {

@@ -107,7 +107,7 @@ fn check_trajectory(t: &Value, expect_learned: bool) {
 
 fn learned_available() -> bool {
     Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("models/beamsnet.onnx")
+        .join("../models/beamsnet.onnx")
         .is_file()
 }
 

@@ -282,8 +282,8 @@ fn montecarlo_hostile_config() {
 #[test]
 fn wrong_model_file_is_one_line_naming_it() {
     let dir = tempfile::tempdir().unwrap();
-    let meta =
-        std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("models/beamsnet.json")).unwrap();
+    let meta = std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/beamsnet.json"))
+        .unwrap();
     let cases: [(&str, &[u8]); 3] = [
         ("empty", b""),
         ("garbage", &[0xde, 0xad, 0xbe, 0xef, 0, 1, 2, 3]),

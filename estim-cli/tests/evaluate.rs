@@ -174,7 +174,7 @@ fn evaluation_on_the_test_trajectories_reports_every_run() {
 /// gets as far as looking for the data.
 #[test]
 fn the_documented_states_file_is_accepted() {
-    let page = include_str!("../docs/cli.md");
+    let page = include_str!("../../docs/cli.md");
     let section = &page[page
         .find("## Evaluate the DVL error states")
         .expect("docs/cli.md section")..];

@@ -42,7 +42,7 @@ use super::{
 use estim::datasets::trajectory_files;
 
 /// The A-KIT vehicle file the study reads a recorded IMU with, unless another is given.
-pub const AKIT_VEHICLE: &str = include_str!("../../vehicles/akit.toml");
+pub const AKIT_VEHICLE: &str = include_str!("../../../vehicles/akit.toml");
 
 /// The states with truth on a recorded IMU: position, velocity, attitude.
 pub const RECORDED_NEES_STATES: usize = 9;

@@ -97,7 +97,9 @@ mod tests;
 pub use report::markdown;
 use runs::{fifteen_state_rmse, Run};
 
-/// The A-KIT training trajectories (all but 4 and 13).
+/// The A-KIT training trajectories (all but 4 and 13); the study's tests check
+/// `check_fit_trajectories` against them.
+#[cfg(test)]
 pub const AKIT_TRAINING_TRAJECTORIES: [u32; 11] = [1, 2, 3, 5, 6, 7, 8, 9, 10, 11, 12];
 
 /// The variants evaluated.
