@@ -761,7 +761,7 @@ fn fuzz_table(logs: &[Log]) -> Result<Table> {
     })
 }
 
-/// docs/results.md wording of a cross-covariance model named in `src/study/tests/long_mission.rs`.
+/// docs/results.md wording of a cross-covariance model named in `estim-cli/src/study/tests/long_mission.rs`.
 fn long_mission_model(name: &str) -> String {
     match name {
         "Zero" => "`Zero` (M neglected)".into(),
@@ -770,7 +770,7 @@ fn long_mission_model(name: &str) -> String {
         }
         "ScaledCorrelation{0.42}" => "`ScaledCorrelation { rho: 0.42 }` (the paper)".into(),
         "SquareRoot Fixed(valid M)" => {
-            "the same valid `Fixed(M)`, square-root form (Cholesky factor held; src/study/tests/square_root_ins.rs; run time includes the covariance-form filter run beside it)".into()
+            "the same valid `Fixed(M)`, square-root form (Cholesky factor held; estim-cli/src/study/tests/square_root_ins.rs; run time includes the covariance-form filter run beside it)".into()
         }
         other => format!("`{other}`"),
     }
