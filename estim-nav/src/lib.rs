@@ -1,8 +1,8 @@
 //! # estim-nav: the INS/DVL navigator and the readers of its log files
 //!
 //! The navigator is the error-state filter assembled from estim-ins (mechanization,
-//! the 15-state error model), estim-dvl (the DVL velocity model) and estim-learned
-//! (BeamsNet as the DVL sensor), fed with a survey's own logs and producing a
+//! the 15-state error model), estim-dvl (the DVL velocity model) and, with the default
+//! feature `learned`, estim-learned (BeamsNet as the DVL sensor), fed with a survey's own logs and producing a
 //! navigation solution with its uncertainty; no ground truth is needed.
 //!
 //! - [`navigator`]: the navigator, its one IMU loop, the batch and streaming runs,

@@ -48,6 +48,7 @@ use std::path::PathBuf;
 #[non_exhaustive]
 pub enum DatasetError {
     /// The rows shared between trajectories could not be matched.
+    #[cfg(feature = "learned")]
     #[error(transparent)]
     Overlap(#[from] estim_learned::Error),
     /// The file could not be opened or read.

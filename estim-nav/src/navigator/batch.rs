@@ -3,8 +3,12 @@
 //! error states), by the one loop of [`super::run_epochs`].
 
 use estim_core::{NoObserver, Observer, Zero};
-use estim_ins::{ErrorMatrix, ImuSample, InsErrorModel, InsState, ERROR_STATES};
-use nalgebra::{Vector3, Vector4};
+#[cfg(feature = "learned")]
+use estim_ins::InsErrorModel;
+use estim_ins::{ErrorMatrix, ImuSample, InsState, ERROR_STATES};
+#[cfg(feature = "learned")]
+use nalgebra::Vector3;
+use nalgebra::Vector4;
 use serde::Serialize;
 
 use super::initial::{first_imu_index, imu_period, initial_state};
@@ -261,6 +265,7 @@ pub(super) fn navigate_augmented_with<
 /// (`dvl.beam_angle_deg`, `dvl.beam1_azimuth_deg`) is not the one the network was
 /// trained on; [`NavigatorError::Config`] for an IMU period other than the network's
 /// 0.01 s, or settings with DVL error states (`dvl_states`); as [`navigate`].
+#[cfg(feature = "learned")]
 pub fn navigate_learned(
     inputs: &SurveyInputs,
     settings: &NavigatorSettings,

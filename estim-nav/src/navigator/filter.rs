@@ -579,6 +579,7 @@ impl<E: NavigationModel<N>, O: Observer<f64, E::State, N>, const N: usize> Navig
     }
 }
 
+#[cfg(feature = "learned")]
 impl<O: Observer<f64, InsState, ERROR_STATES>> Navigator<InsErrorModel, O, ERROR_STATES> {
     /// BeamsNet update at `time`: the embedded network's velocity on the last
     /// [`estim_learned::BEAMSNET_WINDOW`] IMU steps the filter integrated and the four

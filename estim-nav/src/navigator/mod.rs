@@ -59,9 +59,10 @@ pub use augmented::{
     TimeOffsetState, ACCELERATION_HISTORY_S, AUGMENTED_STATES, DVL_BIAS, DVL_LEVER_ARM,
     DVL_MISALIGNMENT, DVL_SCALE, DVL_STATES, DVL_TIME_OFFSET,
 };
+#[cfg(feature = "learned")]
+pub use batch::navigate_learned;
 pub use batch::{
-    navigate, navigate_beams_with, navigate_learned, navigate_with, BeamUpdate, LearnedCounts,
-    NavigationRun,
+    navigate, navigate_beams_with, navigate_with, BeamUpdate, LearnedCounts, NavigationRun,
 };
 pub use clock::IMU_PERIOD_SNAP;
 pub use config::{

@@ -2,6 +2,7 @@ use super::*;
 use crate::navigator::*;
 use crate::navigator::{DvlStatesConfig, NavigatorConfig};
 use estim_core::MeasurementModel;
+use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 
