@@ -34,6 +34,8 @@ pub use estim_learned as learned;
 #[cfg(feature = "nav")]
 pub use estim_nav::navigator;
 #[cfg(feature = "nav")]
+pub use estim_nav::truth;
+#[cfg(feature = "nav")]
 pub use estim_nav::{LoadedSurvey, Pd0Load, SurveyError, SurveyFiles};
 
 /// The README's Rust code blocks, compiled and run as doc-tests (`cargo test` runs

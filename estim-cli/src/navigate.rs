@@ -9,13 +9,13 @@ use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use estim::datasets::{load_gt_with, load_times_with};
-use estim::ins::{ErrorMatrix, InsState, Trajectory, ATT, ERROR_STATES, POS, VEL};
+use estim::ins::{ErrorMatrix, InsState};
 use estim::navigator::{
     format_heading, navigate, navigate_learned, NavSolution, NavigationObserver, NavigationRun,
     NavigatorConfig, NavigatorError, NavigatorSettings, SolutionKind, SurveyInputs,
 };
-use estim::{LoadedSurvey, Pd0Load, SurveyError};
+use estim::truth::{Truth, TruthTimeOffset};
+use estim::{Pd0Load, SurveyError};
 use serde_json::{json, Value};
 
 use crate::output::StagedDir;
@@ -176,152 +176,21 @@ impl Args {
 
 /// Read and check a vehicle TOML; errors name the file and line.
 pub fn vehicle_config(path: &Path) -> anyhow::Result<NavigatorConfig> {
-    let text = estim::datasets::read_text_file(path)?;
-    toml::from_str::<NavigatorConfig>(&text).map_err(|e| {
-        let line = e
-            .span()
-            .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
-        match line {
-            Some(l) => anyhow::anyhow!("{}:{l}: {}", path.display(), e.message()),
-            None => anyhow::anyhow!("{}: {}", path.display(), e.message()),
-        }
-    })
+    Ok(estim::truth::read_vehicle(path)?)
 }
 
-/// True accelerometer and gyroscope biases of one simulated IMU sample.
-type TrueBiases = (
-    estim::core::nalgebra::Vector3<f64>,
-    estim::core::nalgebra::Vector3<f64>,
-);
-
-/// Truth for the evaluation: the GT spline and, when the IMU file carries them, the
-/// simulation's true biases.
-#[derive(Clone)]
-pub struct Truth {
-    trajectory: Trajectory,
-    /// The reference's point relative to the IMU, body frame \[m\].
-    lever_arm: estim::core::nalgebra::Vector3<f64>,
-    epochs: Vec<f64>,
-    span: [f64; 2],
-    biases: Option<(Vec<f64>, Vec<TrueBiases>)>,
-    time_offset: Value,
-    position_error: Vec<f64>,
-    horizontal_error: Vec<f64>,
-    nees: Vec<f64>,
-    group_nees: [Vec<f64>; 3],
-    /// Per scored epoch: time, the 9 errors (position N, E, D \[m\], velocity
-    /// \[m/s\], misalignment \[deg\]) and their 9 1-sigmas.
-    rows: Vec<[f64; 19]>,
-    not_positive_definite: usize,
-    outside: usize,
-}
-
-impl Truth {
-    /// The reference's own epochs on the navigator's clock.
-    pub fn epochs(&self) -> Vec<f64> {
-        self.epochs.clone()
-    }
-
-    /// Score a solution against the truth at `time` (counted apart when outside the
-    /// reference's span).
-    fn score(
-        &mut self,
-        time: f64,
-        state: &InsState,
-        covariance: &ErrorMatrix,
-    ) -> anyhow::Result<()> {
-        let Some(t) = self.at(time)? else {
-            self.outside += 1;
-            return Ok(());
-        };
-        let e = estim::navigator::error_state(&t, state);
-        self.position_error.push(e.fixed_rows::<3>(POS).norm());
-        self.horizontal_error.push(e.fixed_rows::<2>(POS).norm());
-        // NEES over the states the truth has: 15 with the simulation's true biases,
-        // else position, velocity and attitude.
-        let states = if self.biases.is_some() {
-            ERROR_STATES
-        } else {
-            9
-        };
-        match estim::navigator::nees_of_block(&e, covariance, 0, states) {
-            Some(v) => self.nees.push(v),
-            None => {
-                self.nees.push(f64::NAN);
-                self.not_positive_definite += 1;
-            }
-        }
-        let mut row = [0.0; 19];
-        row[0] = time;
-        for i in 0..9 {
-            let degrees = if i >= ATT {
-                180.0 / std::f64::consts::PI
-            } else {
-                1.0
-            };
-            row[1 + i] = e[i] * degrees;
-            row[10 + i] = covariance[(i, i)].max(0.0).sqrt() * degrees;
-        }
-        self.rows.push(row);
-        for (g, start) in [POS, VEL, ATT].into_iter().enumerate() {
-            let v = estim::navigator::nees_of_block(&e, covariance, start, 3);
-            self.group_nees[g].push(v.unwrap_or(f64::NAN));
-        }
-        Ok(())
-    }
-
-    /// The reference's track for the plots: latitude, longitude \[deg\] (carried to the
-    /// IMU's point) at its own epochs within `[from, to]` (the navigator's clock).
-    pub fn track_deg(&self, from: f64, to: f64) -> Vec<[f64; 2]> {
-        self.epochs
-            .iter()
-            .filter(|&&t| t >= from && t <= to)
-            .filter_map(|&t| self.trajectory.evaluate(t).ok())
-            .map(|k| {
-                [
-                    k.state.latitude.to_degrees(),
-                    k.state.longitude.to_degrees(),
-                ]
-            })
-            .collect()
-    }
-
-    /// The truth at `time`, `None` outside the reference's span.
-    /// The truth at `time` with its error-free specific force and angular rate at the
-    /// IMU (`None` outside the reference's span): the study's reference IMU.
-    pub fn kinematics(
-        &self,
-        time: f64,
-    ) -> anyhow::Result<Option<(InsState, estim::core::nalgebra::Vector3<f64>)>> {
-        if !(time >= self.span[0] && time <= self.span[1]) {
-            return Ok(None);
-        }
-        let kinematics = self.trajectory.evaluate(time)?;
-        let w = kinematics.angular_rate;
-        let mut state = kinematics.state;
-        // The reference's velocity is its point's: the IMU's lacks omega x l.
-        state.velocity_ned -= state.attitude * w.cross(&self.lever_arm);
-        if let Some((times, biases)) = &self.biases {
-            let i = times.partition_point(|&t| t < time).min(biases.len() - 1);
-            state.acc_bias = biases[i].0;
-            state.gyro_bias = biases[i].1;
-        }
-        // The specific force at the IMU: the reference point's less the lever arm's
-        // centripetal term (the angular acceleration's term is below the spline's
-        // resolution at 1 Hz and left out).
-        let force = kinematics.specific_force - w.cross(&w.cross(&self.lever_arm));
-        Ok(Some((state, force)))
-    }
-
-    /// The reference's clock offset in effect (`source`, `offset_s`, and for an
-    /// estimate its `sigma_s`, `residual_rad`, `intervals`).
-    pub fn time_offset(&self) -> &Value {
-        &self.time_offset
-    }
-
-    /// The truth at `time` (`None` outside the reference's span).
-    pub(crate) fn at(&self, time: f64) -> anyhow::Result<Option<InsState>> {
-        Ok(self.kinematics(time)?.map(|(state, _)| state))
+/// The reference's clock offset in effect, as the summary gives it (`source`,
+/// `offset_s`, and for an estimate its `sigma_s`, `residual_rad`, `intervals`).
+pub fn time_offset_json(offset: &TruthTimeOffset) -> Value {
+    match offset {
+        TruthTimeOffset::Vehicle(tau) => json!({ "source": "vehicle", "offset_s": tau }),
+        TruthTimeOffset::Estimated(est) => json!({
+            "source": "estimated",
+            "offset_s": est.offset_s,
+            "sigma_s": est.sigma_s,
+            "residual_rad": est.residual_rad,
+            "intervals": est.intervals,
+        }),
     }
 }
 
@@ -541,7 +410,7 @@ pub fn load_survey_from(files: SurveyFiles, config: NavigatorConfig) -> anyhow::
         })?;
     let epoch = loaded.epoch;
     let truth = match &files.truth {
-        Some(p) => Some(load_truth(p, &loaded, &config)?),
+        Some(p) => Some(Truth::load(p, &loaded, &config)?),
         None => None,
     };
     let mut config = config;
@@ -549,30 +418,7 @@ pub fn load_survey_from(files: SurveyFiles, config: NavigatorConfig) -> anyhow::
         let truth = truth.as_ref().context("--init-from-truth needs --truth")?;
         // The run starts at the first of the truth's own epochs inside the IMU's span
         // (the truth is exact there, interpolated between).
-        let imu_start = loaded.inputs.imu.first().map_or(0.0, |s| s.time);
-        let first = truth
-            .epochs
-            .iter()
-            .copied()
-            .find(|&t| t >= imu_start)
-            .unwrap_or(imu_start);
-        let state = truth.at(first)?.with_context(|| {
-            format!(
-                "--init-from-truth: the first IMU sample (t = {:.3} s) is outside the truth's \
-                 span ({:.3}..{:.3} s)",
-                epoch + first,
-                epoch + truth.span[0],
-                epoch + truth.span[1]
-            )
-        })?;
-        let (roll, pitch, yaw) = state.roll_pitch_yaw();
-        let i = &mut config.initial;
-        i.time_s = Some(epoch + first);
-        i.latitude_deg = Some(state.latitude.to_degrees());
-        i.longitude_deg = Some(state.longitude.to_degrees());
-        i.depth_m = Some(-state.height);
-        i.velocity_ned_mps = state.velocity_ned.into();
-        i.attitude_deg = Some([roll, pitch, yaw].map(f64::to_degrees));
+        truth.set_initial(&loaded, &mut config)?;
     }
     // `initial.time_s` is in the inputs' own time; the navigator's clock runs from the
     // IMU file's epoch.
@@ -591,92 +437,6 @@ pub fn load_survey_from(files: SurveyFiles, config: NavigatorConfig) -> anyhow::
         pd0,
         warnings,
     })
-}
-
-/// Read a truth CSV onto the navigator's clock: its times relative to `epoch`, scaled
-/// by `truth.clock_scale`, shifted by `truth.time_offset_s` (else by the offset
-/// estimated against the IMU's angular rate), and its positions carried from the
-/// reference's point to the IMU by `truth.lever_arm_m`.
-fn load_truth(p: &Path, loaded: &LoadedSurvey, config: &NavigatorConfig) -> anyhow::Result<Truth> {
-    let (epoch, imu) = (loaded.epoch, &loaded.inputs.imu);
-    {
-        {
-            let gt = load_gt_with(p, &config.columns)?;
-            // The GT times on the navigator's clock, read on their digits.
-            let times = load_times_with(p, epoch, &config.columns)?;
-            anyhow::ensure!(
-                times.len() == gt.len(),
-                "{}: {} time cells for {} rows",
-                p.display(),
-                times.len(),
-                gt.len()
-            );
-            let c = &config.truth;
-            let t0 = times.first().copied().unwrap_or(0.0);
-            let lever = estim::core::nalgebra::Vector3::from(c.lever_arm_m);
-            let mut samples: Vec<estim::ins::TrajectorySample> = gt
-                .iter()
-                .zip(&times)
-                .map(|(g, &t)| {
-                    let mut s = g.trajectory_sample();
-                    s.time = t0 + c.clock_scale * (t - t0);
-                    // The IMU is at the reference's point minus C_b^n l.
-                    let offset = s.attitude * lever;
-                    let (rn, re) = estim::ins::earth::radii_of_curvature(s.latitude);
-                    s.latitude -= offset.x / (rn + s.height);
-                    s.longitude -= offset.y / ((re + s.height) * s.latitude.cos());
-                    s.height += offset.z;
-                    s
-                })
-                .collect();
-            let time_offset = match c.time_offset_s {
-                Some(tau) => json!({ "source": "vehicle", "offset_s": tau }),
-                None => {
-                    let est = estim::navigator::reference_time_offset(imu, &samples, 5.0)
-                        .with_context(|| {
-                            format!("{}: cannot align its clock to the IMU's", p.display())
-                        })?;
-                    json!({
-                        "source": "estimated",
-                        "offset_s": est.offset_s,
-                        "sigma_s": est.sigma_s,
-                        "residual_rad": est.residual_rad,
-                        "intervals": est.intervals,
-                    })
-                }
-            };
-            let tau = time_offset["offset_s"].as_f64().unwrap_or(0.0);
-            for s in &mut samples {
-                s.time -= tau;
-            }
-            let span = [
-                samples.first().map_or(0.0, |s| s.time),
-                samples.last().map_or(0.0, |s| s.time),
-            ];
-            let epochs = samples.iter().map(|s| s.time).collect();
-            let trajectory =
-                Trajectory::new(samples).with_context(|| format!("{}", p.display()))?;
-            let biases = loaded
-                .true_biases
-                .clone()
-                .map(|b| (imu.iter().map(|s| s.time).collect(), b));
-            Ok(Truth {
-                trajectory,
-                lever_arm: lever,
-                epochs,
-                span,
-                biases,
-                time_offset,
-                position_error: Vec::new(),
-                horizontal_error: Vec::new(),
-                nees: Vec::new(),
-                group_nees: [Vec::new(), Vec::new(), Vec::new()],
-                rows: Vec::new(),
-                not_positive_definite: 0,
-                outside: 0,
-            })
-        }
-    }
 }
 
 impl Writer {
@@ -790,7 +550,7 @@ impl Writer {
             let mut text = String::from(
                 "time_s,error_north_m,error_east_m,error_down_m,error_v_north_mps,error_v_east_mps,error_v_down_mps,error_roll_axis_deg,error_pitch_axis_deg,error_heading_deg,sigma_north_m,sigma_east_m,sigma_down_m,sigma_v_north_mps,sigma_v_east_mps,sigma_v_down_mps,sigma_roll_axis_deg,sigma_pitch_axis_deg,sigma_heading_deg\n",
             );
-            for row in &truth.rows {
+            for row in truth.rows() {
                 let _ = write!(text, "{}", self.epoch_s + row[0]);
                 for v in &row[1..] {
                     let _ = write!(text, ",{v:.6e}");
@@ -820,50 +580,31 @@ impl Writer {
 /// epochs).
 pub fn evaluation_json(truth: Option<&Truth>) -> Value {
     let Some(t) = truth else { return Value::Null };
+    let e = t.evaluation();
     // No epoch scored: every figure is null, with the reason (never an RMSE of 0).
-    let rmse = match t.position_error.len() {
-        0 => Value::Null,
-        n => json!((t.position_error.iter().map(|e| e * e).sum::<f64>() / n as f64).sqrt()),
-    };
-    let not_scored = t.position_error.is_empty().then(|| {
+    let not_scored = (e.epochs == 0).then(|| {
         format!(
             "no solution epoch was scored against the truth ({} outside its span); scored at \
              the DVL epochs, a run without a DVL update has none",
-            t.outside
+            e.epochs_outside_truth
         )
     });
-    let mean = |values: &[f64]| {
-        let finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
-        if finite.is_empty() {
-            Value::Null
-        } else {
-            json!(finite.iter().sum::<f64>() / finite.len() as f64)
-        }
-    };
-    let nees = mean(&t.nees);
-    let rms = |values: &[f64]| {
-        if values.is_empty() {
-            Value::Null
-        } else {
-            json!((values.iter().map(|e| e * e).sum::<f64>() / values.len() as f64).sqrt())
-        }
-    };
     json!({
-        "horizontal_position_rmse_m": rms(&t.horizontal_error),
+        "horizontal_position_rmse_m": e.horizontal_position_rmse_m,
         "nees_per_group": {
-            "position": mean(&t.group_nees[0]),
-            "velocity": mean(&t.group_nees[1]),
-            "attitude": mean(&t.group_nees[2]),
+            "position": e.nees_per_group[0],
+            "velocity": e.nees_per_group[1],
+            "attitude": e.nees_per_group[2],
         },
-        "epochs": t.position_error.len(),
-        "epochs_outside_truth": t.outside,
-        "truth_time_offset_s": t.time_offset["offset_s"],
-        "truth_time_offset": t.time_offset,
-        "position_rmse_m": rmse,
-        "final_position_error_m": t.position_error.last(),
-        "nees_average": nees,
-        "nees_states": if t.biases.is_some() { ERROR_STATES } else { 9 },
-        "covariance_not_positive_definite_epochs": t.not_positive_definite,
+        "epochs": e.epochs,
+        "epochs_outside_truth": e.epochs_outside_truth,
+        "truth_time_offset_s": t.time_offset().offset_s(),
+        "truth_time_offset": time_offset_json(t.time_offset()),
+        "position_rmse_m": e.position_rmse_m,
+        "final_position_error_m": e.final_position_error_m,
+        "nees_average": e.nees_average,
+        "nees_states": e.nees_states,
+        "covariance_not_positive_definite_epochs": e.covariance_not_positive_definite_epochs,
         "not_scored_reason": not_scored,
     })
 }
@@ -1204,7 +945,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let mut survey = load_survey_with(args.files(), args.columns.as_deref())?;
     if let Some(truth) = &survey.truth {
-        survey.inputs.output_epochs = truth.epochs();
+        survey.inputs.output_epochs = truth.epochs().to_vec();
     }
     let mut writer = Writer::new(staged.as_ref(), survey.epoch, survey.truth.take())?
         .with_plot_rows(args.plots)

@@ -138,6 +138,26 @@ pub enum SurveyError {
         /// Why (in the message, not chained as a source).
         error: NavigatorError,
     },
+    /// A truth file that cannot be put on the navigator's clock
+    /// ([`Truth::load`](crate::truth::Truth::load)).
+    #[error("{}: {reason}", path.display())]
+    Truth {
+        /// The truth file.
+        path: PathBuf,
+        /// Why.
+        reason: String,
+    },
+    /// A vehicle TOML that is not a vehicle configuration
+    /// ([`read_vehicle`](crate::truth::read_vehicle)).
+    #[error("{}{}: {message}", path.display(), line.map_or(String::new(), |l| format!(":{l}")))]
+    Vehicle {
+        /// The vehicle file.
+        path: PathBuf,
+        /// The line of the offending key or value, when known.
+        line: Option<usize>,
+        /// What is wrong (the TOML reader's message: the key, the expected type).
+        message: String,
+    },
 }
 
 /// `Result` of [`SurveyInputs::load`].

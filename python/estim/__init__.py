@@ -17,6 +17,9 @@ A Rust core (the ``estim-core`` crate) with sizes taken from the arrays:
   linear-Gaussian model (pykalman's ``em``), returning an :class:`EmResult`;
 - :func:`fit_noise` -- maximum-likelihood scales (or diagonals) of Q and R with
   standard errors from the observed information, returning a :class:`NoiseFit`;
+- :func:`navigate` -- the INS/DVL navigator on a survey's files (IMU, DVL velocity,
+  beams or PD0, depth, fixes, a vehicle TOML, optionally a truth CSV), its solution,
+  1-sigmas and evaluation returned as NumPy arrays;
 - :mod:`estim.filterpy` -- ``from estim.filterpy import KalmanFilter``: filterpy's
   ``KalmanFilter`` API on the same core, and its ``UnscentedKalmanFilter`` with
   ``MerweScaledSigmaPoints`` / ``JulierSigmaPoints`` (Python ``fx``, ``hx`` and hooks
@@ -47,6 +50,7 @@ from ._estim import (
     joint_check,
     kalman_filter,
     kalman_smoother,
+    navigate,
     nees,
     nis,
 )
@@ -65,6 +69,7 @@ __all__ = [
     "joint_check",
     "kalman_filter",
     "kalman_smoother",
+    "navigate",
     "nees",
     "nis",
 ]

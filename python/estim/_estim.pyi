@@ -1,5 +1,6 @@
 """Type stubs of the extension module estim._estim (re-exported by estim)."""
 
+import os
 from typing import Any, Callable, Optional, Sequence, Tuple, Union, overload
 
 import numpy as np
@@ -263,6 +264,30 @@ def fit_noise(
     then update, as kalman_filter): Q = q Q0, R = r R0 with q, r > 0, or with
     diagonal=True the diagonals of Q and R (off-diagonal terms zero). NaN rows of zs
     are missing. Standard errors from the exact observed information."""
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+def navigate(
+    imu: PathLike,
+    dvl: Optional[PathLike] = None,
+    beams: Optional[PathLike] = None,
+    pd0: Optional[PathLike] = None,
+    depth: Optional[PathLike] = None,
+    fixes: Optional[PathLike] = None,
+    vehicle: Optional[PathLike] = None,
+    truth: Optional[PathLike] = None,
+    init_from_truth: bool = False,
+    rate_hz: Optional[float] = None,
+) -> dict[str, Any]:
+    """The INS/DVL navigator on a survey's files (the loader and navigator of
+    `estim navigate`). Returns a dict of NumPy arrays, one row per solution: time_s,
+    kind, latitude_deg, longitude_deg, depth_m, velocity_ned_mps (n, 3),
+    attitude_deg (n, 3: roll, pitch, heading), acc_bias_mps2, gyro_bias_radps, the
+    1-sigmas position_sigma_m, velocity_sigma_mps, attitude_sigma_deg,
+    acc_bias_sigma_mps2, gyro_bias_sigma_radps; epoch_s; dvl, depth, fixes update
+    counts; dvl_nis, dvl_nis_time_s; with a truth, evaluation (dict) and errors
+    (time_s, error and sigma (m, 9), nees), else None. Raises EstimError for bad
+    input (file and line, or key) and for a diverged or failed run."""
 
 class FilterpyKalmanFilter:
     """The Rust base of estim.filterpy.KalmanFilter."""

@@ -11,6 +11,7 @@ mod em;
 mod extended;
 mod filterpy;
 mod native;
+mod navigate;
 mod noise;
 mod unscented;
 
@@ -39,5 +40,6 @@ fn _estim(m: &Bound<'_, PyModule>) -> PyResult<()> {
     noise::register(m)?;
     filterpy::register(m)?;
     unscented::register(m)?;
+    navigate::register(m)?;
     Ok(())
 }

@@ -45,3 +45,6 @@ def test_docs_python_md_examples_run():
     assert scope["report"].accepted
     assert scope["xs"].shape == (3, 2, 1)  # filterpy's column states
     assert "joint_min_eigenvalue=1.0" in repr(scope["report"])
+    nav = scope["nav"]
+    assert nav["status"] == "ok" and nav["dvl"]["accepted"] == 299
+    assert abs(nav["latitude_deg"][-1] - 32.5) < 1e-6

@@ -197,12 +197,15 @@ impl Scenario {
         let imu: Vec<ImuSample> = all[first..last].to_vec();
         let end = imu[imu.len() - 1].time + period;
         let reference = |t: f64| -> Result<(InsState, Vector3<f64>)> {
-            truth.kinematics(t).map_err(invalid)?.ok_or_else(|| {
-                PipelineError::Invalid(format!(
-                    "{}: t = {t:.3} s is outside the reference's span",
-                    gt_path.display()
-                ))
-            })
+            truth
+                .kinematics(t)
+                .map_err(|e| invalid(e.into()))?
+                .ok_or_else(|| {
+                    PipelineError::Invalid(format!(
+                        "{}: t = {t:.3} s is outside the reference's span",
+                        gt_path.display()
+                    ))
+                })
         };
         let mut states = Vec::with_capacity(imu.len() + 1);
         let mut clean = Vec::with_capacity(imu.len());
@@ -300,7 +303,7 @@ impl Scenario {
                 .with_beam_geometry(protocol.geometry().clone()),
             inputs,
             truth_epochs,
-            truth_time_offset: truth.time_offset().clone(),
+            truth_time_offset: crate::navigate::time_offset_json(truth.time_offset()),
         };
         Ok(Self {
             name: gt_path.display().to_string(),

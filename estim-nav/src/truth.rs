@@ -1,0 +1,414 @@
+//! A reference trajectory (ground truth) on the navigator's clock, and the evaluation
+//! of a run against it: errors and NEES at the reference's own epochs.
+//!
+//! [`Truth::load`] reads a truth CSV with the vehicle file's `[truth]` table: its
+//! clock scale, its time offset (estimated against the IMU's angular rate when not
+//! given) and its point, carried to the IMU by `truth.lever_arm_m`. A run scores its
+//! solutions with [`Truth::score`] and [`Truth::evaluation`] sums them up.
+
+use std::path::{Path, PathBuf};
+
+use estim_ins::{ErrorMatrix, InsState, Trajectory, TrajectorySample, ATT, ERROR_STATES, POS, VEL};
+use nalgebra::Vector3;
+
+use crate::datasets::{load_gt_with, load_times_with};
+use crate::navigator::{
+    error_state, nees_of_block, reference_time_offset, NavigatorConfig, ReferenceOffset,
+};
+use crate::survey::{LoadedSurvey, Result, SurveyError};
+
+/// The half-width \[s\] of the search for the reference's clock offset.
+pub const TRUTH_TIME_OFFSET_SEARCH_S: f64 = 5.0;
+
+/// True accelerometer and gyroscope biases of one simulated IMU sample.
+type TrueBiases = (Vector3<f64>, Vector3<f64>);
+
+/// The reference's clock offset in effect.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum TruthTimeOffset {
+    /// `truth.time_offset_s` of the vehicle file \[s\].
+    Vehicle(f64),
+    /// Estimated against the IMU's angular rate.
+    Estimated(ReferenceOffset),
+}
+
+impl TruthTimeOffset {
+    /// The offset \[s\]: a reference row stamped t refers to navigator time t - offset.
+    pub fn offset_s(&self) -> f64 {
+        match self {
+            Self::Vehicle(tau) => *tau,
+            Self::Estimated(e) => e.offset_s,
+        }
+    }
+}
+
+/// The evaluation of a run against the truth (every mean over the finite values).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Evaluation {
+    /// Epochs scored.
+    pub epochs: usize,
+    /// Solutions outside the reference's span (not scored).
+    pub epochs_outside_truth: usize,
+    /// RMS of the 3-D position error \[m\] (`None` with no epoch scored).
+    pub position_rmse_m: Option<f64>,
+    /// RMS of the horizontal position error \[m\].
+    pub horizontal_position_rmse_m: Option<f64>,
+    /// The last scored 3-D position error \[m\].
+    pub final_position_error_m: Option<f64>,
+    /// Mean NEES over [`Evaluation::nees_states`] states.
+    pub nees_average: Option<f64>,
+    /// The states with truth: 15 with a simulated IMU's true biases, else 9 (position,
+    /// velocity, attitude).
+    pub nees_states: usize,
+    /// Mean NEES of the position, velocity and attitude blocks (3 states each).
+    pub nees_per_group: [Option<f64>; 3],
+    /// Epochs whose covariance block was not positive definite (NEES not defined).
+    pub covariance_not_positive_definite_epochs: usize,
+}
+
+/// The truth for an evaluation: the reference's spline on the navigator's clock,
+/// carried to the IMU's point, and (for a simulated IMU) the true biases; it keeps the
+/// scores of the solutions passed to [`Truth::score`].
+#[derive(Clone)]
+pub struct Truth {
+    path: PathBuf,
+    trajectory: Trajectory,
+    /// The reference's point relative to the IMU, body frame \[m\].
+    lever_arm: Vector3<f64>,
+    epochs: Vec<f64>,
+    span: [f64; 2],
+    biases: Option<(Vec<f64>, Vec<TrueBiases>)>,
+    time_offset: TruthTimeOffset,
+    position_error: Vec<f64>,
+    horizontal_error: Vec<f64>,
+    nees: Vec<f64>,
+    group_nees: [Vec<f64>; 3],
+    rows: Vec<[f64; 19]>,
+    not_positive_definite: usize,
+    outside: usize,
+}
+
+impl std::fmt::Debug for Truth {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Truth")
+            .field("path", &self.path)
+            .field("epochs", &self.epochs.len())
+            .field("span", &self.span)
+            .field("time_offset", &self.time_offset)
+            .field("scored", &self.position_error.len())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Truth {
+    /// Read the truth CSV `path` onto the clock of `survey` (times relative to its
+    /// epoch), scaled by `truth.clock_scale`, shifted by `truth.time_offset_s` (else by
+    /// the offset estimated against the IMU's angular rate within
+    /// +-[`TRUTH_TIME_OFFSET_SEARCH_S`]), its positions carried from the reference's
+    /// point to the IMU by `truth.lever_arm_m`.
+    ///
+    /// # Errors
+    /// The reader's errors (file and line); [`SurveyError::Truth`] when its clock cannot
+    /// be aligned to the IMU's or its rows do not make a trajectory.
+    pub fn load(path: &Path, survey: &LoadedSurvey, config: &NavigatorConfig) -> Result<Self> {
+        let (epoch, imu) = (survey.epoch, &survey.inputs.imu);
+        let fail = |reason: String| SurveyError::Truth {
+            path: path.to_path_buf(),
+            reason,
+        };
+        let gt = load_gt_with(path, &config.columns)?;
+        // The GT times on the navigator's clock, read on their digits.
+        let times = load_times_with(path, epoch, &config.columns)?;
+        if times.len() != gt.len() {
+            return Err(fail(format!(
+                "{} time cells for {} rows",
+                times.len(),
+                gt.len()
+            )));
+        }
+        let c = &config.truth;
+        let t0 = times.first().copied().unwrap_or(0.0);
+        let lever = Vector3::from(c.lever_arm_m);
+        let mut samples: Vec<TrajectorySample> = gt
+            .iter()
+            .zip(&times)
+            .map(|(g, &t)| {
+                let mut s = g.trajectory_sample();
+                s.time = t0 + c.clock_scale * (t - t0);
+                // The IMU is at the reference's point minus C_b^n l.
+                let offset = s.attitude * lever;
+                let (rn, re) = estim_ins::earth::radii_of_curvature(s.latitude);
+                s.latitude -= offset.x / (rn + s.height);
+                s.longitude -= offset.y / ((re + s.height) * s.latitude.cos());
+                s.height += offset.z;
+                s
+            })
+            .collect();
+        let time_offset = match c.time_offset_s {
+            Some(tau) => TruthTimeOffset::Vehicle(tau),
+            None => TruthTimeOffset::Estimated(
+                reference_time_offset(imu, &samples, TRUTH_TIME_OFFSET_SEARCH_S)
+                    .map_err(|e| fail(format!("cannot align its clock to the IMU's: {e}")))?,
+            ),
+        };
+        let tau = time_offset.offset_s();
+        for s in &mut samples {
+            s.time -= tau;
+        }
+        let span = [
+            samples.first().map_or(0.0, |s| s.time),
+            samples.last().map_or(0.0, |s| s.time),
+        ];
+        let epochs = samples.iter().map(|s| s.time).collect();
+        let trajectory = Trajectory::new(samples).map_err(|e| fail(e.to_string()))?;
+        let biases = survey
+            .true_biases
+            .clone()
+            .map(|b| (imu.iter().map(|s| s.time).collect(), b));
+        Ok(Self {
+            path: path.to_path_buf(),
+            trajectory,
+            lever_arm: lever,
+            epochs,
+            span,
+            biases,
+            time_offset,
+            position_error: Vec::new(),
+            horizontal_error: Vec::new(),
+            nees: Vec::new(),
+            group_nees: [Vec::new(), Vec::new(), Vec::new()],
+            rows: Vec::new(),
+            not_positive_definite: 0,
+            outside: 0,
+        })
+    }
+
+    /// The file it was read from.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The reference's own epochs on the navigator's clock.
+    pub fn epochs(&self) -> &[f64] {
+        &self.epochs
+    }
+
+    /// The reference's first and last epoch on the navigator's clock.
+    pub fn span(&self) -> [f64; 2] {
+        self.span
+    }
+
+    /// The reference's clock offset in effect.
+    pub fn time_offset(&self) -> &TruthTimeOffset {
+        &self.time_offset
+    }
+
+    /// The states the truth has: 15 with a simulated IMU's true biases, else 9.
+    pub fn nees_states(&self) -> usize {
+        if self.biases.is_some() {
+            ERROR_STATES
+        } else {
+            9
+        }
+    }
+
+    /// The truth at `time` with its error-free specific force at the IMU (`None`
+    /// outside the reference's span).
+    ///
+    /// # Errors
+    /// The spline's error for a time it cannot evaluate.
+    pub fn kinematics(
+        &self,
+        time: f64,
+    ) -> std::result::Result<Option<(InsState, Vector3<f64>)>, estim_ins::Error> {
+        if !(time >= self.span[0] && time <= self.span[1]) {
+            return Ok(None);
+        }
+        let kinematics = self.trajectory.evaluate(time)?;
+        let w = kinematics.angular_rate;
+        let mut state = kinematics.state;
+        // The reference's velocity is its point's: the IMU's lacks omega x l.
+        state.velocity_ned -= state.attitude * w.cross(&self.lever_arm);
+        if let Some((times, biases)) = &self.biases {
+            let i = times
+                .partition_point(|&t| t < time)
+                .min(biases.len().saturating_sub(1));
+            if let Some(b) = biases.get(i) {
+                state.acc_bias = b.0;
+                state.gyro_bias = b.1;
+            }
+        }
+        // The specific force at the IMU: the reference point's less the lever arm's
+        // centripetal term (the angular acceleration's term is below the spline's
+        // resolution at 1 Hz and left out).
+        let force = kinematics.specific_force - w.cross(&w.cross(&self.lever_arm));
+        Ok(Some((state, force)))
+    }
+
+    /// The truth at `time` (`None` outside the reference's span).
+    ///
+    /// # Errors
+    /// As [`Truth::kinematics`].
+    pub fn at(&self, time: f64) -> std::result::Result<Option<InsState>, estim_ins::Error> {
+        Ok(self.kinematics(time)?.map(|(state, _)| state))
+    }
+
+    /// The reference's track: latitude, longitude \[deg\] (at the IMU's point) at its
+    /// own epochs within `[from, to]` (the navigator's clock).
+    pub fn track_deg(&self, from: f64, to: f64) -> Vec<[f64; 2]> {
+        self.epochs
+            .iter()
+            .filter(|&&t| t >= from && t <= to)
+            .filter_map(|&t| self.trajectory.evaluate(t).ok())
+            .map(|k| {
+                [
+                    k.state.latitude.to_degrees(),
+                    k.state.longitude.to_degrees(),
+                ]
+            })
+            .collect()
+    }
+
+    /// Score a solution (nominal `state`, error `covariance`) at `time`; counted apart
+    /// when outside the reference's span.
+    ///
+    /// # Errors
+    /// As [`Truth::kinematics`].
+    pub fn score(
+        &mut self,
+        time: f64,
+        state: &InsState,
+        covariance: &ErrorMatrix,
+    ) -> std::result::Result<(), estim_ins::Error> {
+        let Some(t) = self.at(time)? else {
+            self.outside += 1;
+            return Ok(());
+        };
+        let e = error_state(&t, state);
+        self.position_error.push(e.fixed_rows::<3>(POS).norm());
+        self.horizontal_error.push(e.fixed_rows::<2>(POS).norm());
+        match nees_of_block(&e, covariance, 0, self.nees_states()) {
+            Some(v) => self.nees.push(v),
+            None => {
+                self.nees.push(f64::NAN);
+                self.not_positive_definite += 1;
+            }
+        }
+        let mut row = [0.0; 19];
+        row[0] = time;
+        for i in 0..9 {
+            let degrees = if i >= ATT {
+                180.0 / std::f64::consts::PI
+            } else {
+                1.0
+            };
+            row[1 + i] = e[i] * degrees;
+            row[10 + i] = covariance[(i, i)].max(0.0).sqrt() * degrees;
+        }
+        self.rows.push(row);
+        for (g, start) in [POS, VEL, ATT].into_iter().enumerate() {
+            let v = nees_of_block(&e, covariance, start, 3);
+            self.group_nees[g].push(v.unwrap_or(f64::NAN));
+        }
+        Ok(())
+    }
+
+    /// Per scored epoch: the time, the 9 errors (position N, E, D \[m\], velocity
+    /// N, E, D \[m/s\], misalignment about N, E, D \[deg\]) and their 9 1-sigmas.
+    pub fn rows(&self) -> &[[f64; 19]] {
+        &self.rows
+    }
+
+    /// The NEES of each scored epoch over [`Truth::nees_states`] states (`NaN` where
+    /// the covariance block was not positive definite).
+    pub fn nees(&self) -> &[f64] {
+        &self.nees
+    }
+
+    /// The scores so far, summed up.
+    pub fn evaluation(&self) -> Evaluation {
+        let rms = |values: &[f64]| {
+            (!values.is_empty())
+                .then(|| (values.iter().map(|e| e * e).sum::<f64>() / values.len() as f64).sqrt())
+        };
+        let mean = |values: &[f64]| {
+            let finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+            (!finite.is_empty()).then(|| finite.iter().sum::<f64>() / finite.len() as f64)
+        };
+        Evaluation {
+            epochs: self.position_error.len(),
+            epochs_outside_truth: self.outside,
+            position_rmse_m: rms(&self.position_error),
+            horizontal_position_rmse_m: rms(&self.horizontal_error),
+            final_position_error_m: self.position_error.last().copied(),
+            nees_average: mean(&self.nees),
+            nees_states: self.nees_states(),
+            nees_per_group: [
+                mean(&self.group_nees[0]),
+                mean(&self.group_nees[1]),
+                mean(&self.group_nees[2]),
+            ],
+            covariance_not_positive_definite_epochs: self.not_positive_definite,
+        }
+    }
+
+    /// The state of the truth at its first epoch inside the IMU's span of `survey`
+    /// (the truth is exact there, interpolated between), written into `config`'s
+    /// `[initial]` (time in the inputs' own time, position, velocity, attitude).
+    ///
+    /// # Errors
+    /// [`SurveyError::Truth`] when the first IMU sample is outside the truth's span.
+    pub fn set_initial(&self, survey: &LoadedSurvey, config: &mut NavigatorConfig) -> Result<()> {
+        let epoch = survey.epoch;
+        let imu_start = survey.inputs.imu.first().map_or(0.0, |s| s.time);
+        let first = self
+            .epochs
+            .iter()
+            .copied()
+            .find(|&t| t >= imu_start)
+            .unwrap_or(imu_start);
+        let outside = || SurveyError::Truth {
+            path: self.path.clone(),
+            reason: format!(
+                "cannot set the initial state: the first IMU sample (t = {:.3} s) is outside \
+                 the truth's span ({:.3}..{:.3} s)",
+                epoch + first,
+                epoch + self.span[0],
+                epoch + self.span[1]
+            ),
+        };
+        let state = self
+            .at(first)
+            .map_err(|e| SurveyError::Truth {
+                path: self.path.clone(),
+                reason: e.to_string(),
+            })?
+            .ok_or_else(outside)?;
+        let (roll, pitch, yaw) = state.roll_pitch_yaw();
+        let i = &mut config.initial;
+        i.time_s = Some(epoch + first);
+        i.latitude_deg = Some(state.latitude.to_degrees());
+        i.longitude_deg = Some(state.longitude.to_degrees());
+        i.depth_m = Some(-state.height);
+        i.velocity_ned_mps = state.velocity_ned.into();
+        i.attitude_deg = Some([roll, pitch, yaw].map(f64::to_degrees));
+        Ok(())
+    }
+}
+
+/// Read a vehicle TOML into a [`NavigatorConfig`]; errors name the file and line.
+///
+/// # Errors
+/// [`SurveyError::Dataset`] when the file cannot be read; [`SurveyError::Vehicle`] for
+/// TOML that is not a vehicle configuration (an unknown key, a wrong type).
+pub fn read_vehicle(path: &Path) -> Result<NavigatorConfig> {
+    let text = crate::datasets::read_text_file(path)?;
+    toml::from_str::<NavigatorConfig>(&text).map_err(|e| SurveyError::Vehicle {
+        path: path.to_path_buf(),
+        line: e
+            .span()
+            .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1),
+        message: e.message().to_string(),
+    })
+}
+
