@@ -411,4 +411,3 @@ pub fn read_vehicle(path: &Path) -> Result<NavigatorConfig> {
         message: e.message().to_string(),
     })
 }
-
