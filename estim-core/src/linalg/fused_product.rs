@@ -208,22 +208,23 @@ fn fused<T: Scalar>(
     r * k * c >= FUSED_MIN_WORK && fused_any_size(out, a, b, (r, k, c), second, start)
 }
 
-/// The fused loop on slices of `T` read as `E`.
-///
-/// # Safety
-/// `T` must be `E` (the callers compare their `TypeId`s).
+/// The fused loop on slices of `T` read as `E`, when `T` is `E`; false (nothing
+/// written) when it is not.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-unsafe fn run_as<T: Scalar, E: avx512::Lanes>(
+fn run_as<T: Scalar, E: avx512::Lanes>(
     out: &mut [T],
     a: &[T],
     b: &[T],
     dims: (usize, usize, usize),
     strides: (usize, usize),
     start: Start<'_, T>,
-) {
-    // SAFETY: T is E (the caller's contract), so the memory holds E values of the
-    // same lengths.
+) -> bool {
+    use std::any::TypeId;
+    if TypeId::of::<T>() != TypeId::of::<E>() {
+        return false;
+    }
+    // SAFETY: T is E (checked above), so the memory holds E values of the same lengths.
     let cast = |s: &[T]| unsafe { std::slice::from_raw_parts(s.as_ptr().cast::<E>(), s.len()) };
     // SAFETY: as above; `out` is borrowed mutably for the lifetime of the cast.
     let out = unsafe { std::slice::from_raw_parts_mut(out.as_mut_ptr().cast::<E>(), out.len()) };
@@ -233,6 +234,7 @@ unsafe fn run_as<T: Scalar, E: avx512::Lanes>(
         Start::Matrix(initial) => avx512::Start::Matrix(cast(initial)),
     };
     avx512::product(out, cast(a), cast(b), dims, strides, start);
+    true
 }
 
 /// [`fused`] whatever the size.
@@ -250,23 +252,19 @@ fn fused_any_size<T: Scalar>(
     }
     #[cfg(target_arch = "x86_64")]
     {
-        use std::any::TypeId;
         let strides = match second {
             Second::Plain => (1, k),
             Second::Transposed => (c, 1),
         };
-        if TypeId::of::<T>() == TypeId::of::<f64>() && available() {
-            // SAFETY: T is f64 (checked on the line above).
-            unsafe { run_as::<T, f64>(out, a, b, (r, k, c), strides, start) };
-            return true;
-        }
-        if TypeId::of::<T>() == TypeId::of::<f32>() && available() {
-            // SAFETY: T is f32 (checked on the line above).
-            unsafe { run_as::<T, f32>(out, a, b, (r, k, c), strides, start) };
+        if available()
+            && (run_as::<T, f64>(out, a, b, (r, k, c), strides, start)
+                || run_as::<T, f32>(out, a, b, (r, k, c), strides, start))
+        {
             return true;
         }
     }
-    // Other architectures: the callers' loops (the arguments are used above only).
+    // Other architectures and scalars: the callers' loops (the arguments are used above
+    // only).
     let _ = (out, a, b, k, second, start);
     false
 }
@@ -279,143 +277,133 @@ mod avx512 {
         _mm512_set1_pd, _mm512_set1_ps, _mm512_setzero_pd, _mm512_setzero_ps,
     };
 
-    /// Whether the CPU itself has AVX-512F (its FMA is part of AVX-512F), whatever
-    /// the dispatch decided: the safety condition of `product_avx512`.
-    #[inline(always)]
-    fn cpu_has_avx512f() -> bool {
-        std::arch::is_x86_feature_detected!("avx512f")
+    /// Proof that the CPU itself has AVX-512F (its FMA is part of AVX-512F), whatever
+    /// the dispatch decided. Made only by [`Avx512::detect`], so holding one is the
+    /// safety argument of every intrinsic [`Lanes`] calls.
+    #[derive(Clone, Copy)]
+    pub(super) struct Avx512(());
+
+    impl Avx512 {
+        /// The proof, if the CPU has AVX-512F.
+        #[inline(always)]
+        fn detect() -> Option<Self> {
+            std::arch::is_x86_feature_detected!("avx512f").then_some(Self(()))
+        }
     }
 
     /// A scalar with its 512-bit register: 8 f64 or 16 f32 lanes. The methods are
-    /// only called (inlined) inside `product_avx512`, which has AVX-512F.
-    ///
-    /// Safety of every `unsafe` method: the CPU must have AVX-512F (the methods are AVX-512F intrinsics); `load` and
-    /// `store` also need every lane set in `mask` to be valid for reads (writes) of
-    /// `Self` at `from` (`to`) plus the lane's index.
-    pub(super) trait Lanes: Copy {
+    /// AVX-512F intrinsics, only called (inlined) inside `product_avx512`, which is
+    /// compiled for AVX-512F; the [`Avx512`] they take proves the CPU has it. Loads
+    /// and stores take slices and touch the first `min(len, LANES)` lanes only (the
+    /// others masked off), so they stay inside them.
+    pub(super) trait Lanes: Copy + 'static {
         type Vector: Copy;
-        type Mask: Copy;
         const LANES: usize;
-        /// The mask of the first `n` lanes (all lanes for `n >= LANES`).
-        fn mask(n: usize) -> Self::Mask;
         /// All lanes zero.
-        ///
-        /// # Safety
-        /// The CPU has AVX-512F.
-        unsafe fn zero() -> Self::Vector;
-        /// The lanes of `mask` read from `from`, the others zero.
-        ///
-        /// # Safety
-        /// The CPU has AVX-512F; `from.add(i)` is valid for reads for every lane i of
-        /// `mask`.
-        unsafe fn load(mask: Self::Mask, from: *const Self) -> Self::Vector;
+        fn zero(cpu: Avx512) -> Self::Vector;
+        /// The first `min(from.len(), LANES)` lanes read from `from`, the others zero.
+        fn load(cpu: Avx512, from: &[Self]) -> Self::Vector;
         /// `value` in every lane.
-        ///
-        /// # Safety
-        /// The CPU has AVX-512F.
-        unsafe fn splat(value: Self) -> Self::Vector;
+        fn splat(cpu: Avx512, value: Self) -> Self::Vector;
         /// a b + c, rounded once per lane.
-        ///
-        /// # Safety
-        /// The CPU has AVX-512F.
-        unsafe fn multiply_add(a: Self::Vector, b: Self::Vector, c: Self::Vector) -> Self::Vector;
-        /// The lanes of `mask` written to `to`, the others untouched.
-        ///
-        /// # Safety
-        /// The CPU has AVX-512F; `to.add(i)` is valid for writes for every lane i of
-        /// `mask`.
-        unsafe fn store(to: *mut Self, mask: Self::Mask, value: Self::Vector);
+        fn multiply_add(
+            cpu: Avx512,
+            a: Self::Vector,
+            b: Self::Vector,
+            c: Self::Vector,
+        ) -> Self::Vector;
+        /// The first `min(to.len(), LANES)` lanes of `value` written to `to`, the rest
+        /// of `to` untouched.
+        fn store(cpu: Avx512, to: &mut [Self], value: Self::Vector);
+    }
+
+    /// The mask of the first `n` of 8 lanes (all for `n >= 8`).
+    #[inline(always)]
+    fn mask8(n: usize) -> __mmask8 {
+        if n >= 8 {
+            0xff
+        } else {
+            ((1u16 << n) - 1) as __mmask8
+        }
+    }
+
+    /// The mask of the first `n` of 16 lanes (all for `n >= 16`).
+    #[inline(always)]
+    fn mask16(n: usize) -> __mmask16 {
+        if n >= 16 {
+            0xffff
+        } else {
+            ((1u32 << n) - 1) as __mmask16
+        }
     }
 
     impl Lanes for f64 {
         type Vector = __m512d;
-        type Mask = __mmask8;
         const LANES: usize = 8;
         #[inline(always)]
-        fn mask(n: usize) -> __mmask8 {
-            if n >= 8 {
-                0xff
-            } else {
-                ((1u16 << n) - 1) as __mmask8
-            }
+        fn zero(_: Avx512) -> __m512d {
+            // SAFETY: the CPU has AVX-512F (the token proves it).
+            unsafe { _mm512_setzero_pd() }
         }
-        /// # Safety
-        /// As the trait method.
         #[inline(always)]
-        unsafe fn zero() -> __m512d {
-            _mm512_setzero_pd()
+        fn load(_: Avx512, from: &[f64]) -> __m512d {
+            // SAFETY: the CPU has AVX-512F (the token proves it); the mask selects the
+            // first min(len, 8) lanes, all inside `from` (masked-off lanes are not read).
+            unsafe { _mm512_maskz_loadu_pd(mask8(from.len()), from.as_ptr()) }
         }
-        /// # Safety
-        /// As the trait method.
         #[inline(always)]
-        unsafe fn load(mask: __mmask8, from: *const f64) -> __m512d {
-            _mm512_maskz_loadu_pd(mask, from)
+        fn splat(_: Avx512, value: f64) -> __m512d {
+            // SAFETY: the CPU has AVX-512F (the token proves it).
+            unsafe { _mm512_set1_pd(value) }
         }
-        /// # Safety
-        /// As the trait method.
         #[inline(always)]
-        unsafe fn splat(value: f64) -> __m512d {
-            _mm512_set1_pd(value)
+        fn multiply_add(_: Avx512, a: __m512d, b: __m512d, c: __m512d) -> __m512d {
+            // SAFETY: the CPU has AVX-512F (the token proves it).
+            unsafe { _mm512_fmadd_pd(a, b, c) }
         }
-        /// # Safety
-        /// As the trait method.
         #[inline(always)]
-        unsafe fn multiply_add(a: __m512d, b: __m512d, c: __m512d) -> __m512d {
-            _mm512_fmadd_pd(a, b, c)
-        }
-        /// # Safety
-        /// As the trait method.
-        #[inline(always)]
-        unsafe fn store(to: *mut f64, mask: __mmask8, value: __m512d) {
-            _mm512_mask_storeu_pd(to, mask, value)
+        fn store(_: Avx512, to: &mut [f64], value: __m512d) {
+            // SAFETY: the CPU has AVX-512F (the token proves it); the mask selects the
+            // first min(len, 8) lanes, all inside `to` (masked-off lanes are not written).
+            unsafe { _mm512_mask_storeu_pd(to.as_mut_ptr(), mask8(to.len()), value) }
         }
     }
 
     impl Lanes for f32 {
         type Vector = __m512;
-        type Mask = __mmask16;
         const LANES: usize = 16;
         #[inline(always)]
-        fn mask(n: usize) -> __mmask16 {
-            if n >= 16 {
-                0xffff
-            } else {
-                ((1u32 << n) - 1) as __mmask16
-            }
+        fn zero(_: Avx512) -> __m512 {
+            // SAFETY: the CPU has AVX-512F (the token proves it).
+            unsafe { _mm512_setzero_ps() }
         }
-        /// # Safety
-        /// As the trait method.
         #[inline(always)]
-        unsafe fn zero() -> __m512 {
-            _mm512_setzero_ps()
+        fn load(_: Avx512, from: &[f32]) -> __m512 {
+            // SAFETY: the CPU has AVX-512F (the token proves it); the mask selects the
+            // first min(len, 16) lanes, all inside `from` (masked-off lanes are not read).
+            unsafe { _mm512_maskz_loadu_ps(mask16(from.len()), from.as_ptr()) }
         }
-        /// # Safety
-        /// As the trait method.
         #[inline(always)]
-        unsafe fn load(mask: __mmask16, from: *const f32) -> __m512 {
-            _mm512_maskz_loadu_ps(mask, from)
+        fn splat(_: Avx512, value: f32) -> __m512 {
+            // SAFETY: the CPU has AVX-512F (the token proves it).
+            unsafe { _mm512_set1_ps(value) }
         }
-        /// # Safety
-        /// As the trait method.
         #[inline(always)]
-        unsafe fn splat(value: f32) -> __m512 {
-            _mm512_set1_ps(value)
+        fn multiply_add(_: Avx512, a: __m512, b: __m512, c: __m512) -> __m512 {
+            // SAFETY: the CPU has AVX-512F (the token proves it).
+            unsafe { _mm512_fmadd_ps(a, b, c) }
         }
-        /// # Safety
-        /// As the trait method.
         #[inline(always)]
-        unsafe fn multiply_add(a: __m512, b: __m512, c: __m512) -> __m512 {
-            _mm512_fmadd_ps(a, b, c)
-        }
-        /// # Safety
-        /// As the trait method.
-        #[inline(always)]
-        unsafe fn store(to: *mut f32, mask: __mmask16, value: __m512) {
-            _mm512_mask_storeu_ps(to, mask, value)
+        fn store(_: Avx512, to: &mut [f32], value: __m512) {
+            // SAFETY: the CPU has AVX-512F (the token proves it); the mask selects the
+            // first min(len, 16) lanes, all inside `to` (masked-off lanes are not
+            // written).
+            unsafe { _mm512_mask_storeu_ps(to.as_mut_ptr(), mask16(to.len()), value) }
         }
     }
 
     /// What the product is added to (as the outer `Start`, for one scalar).
+    #[derive(Clone, Copy)]
     pub(super) enum Start<'a, E> {
         Zero,
         Out,
@@ -426,8 +414,28 @@ mod avx512 {
     /// B(kk, j) = b[kk * strides.0 + j * strides.1].
     ///
     /// # Panics
-    /// If a slice is shorter than the sizes say (never for the callers' static sizes).
+    /// If the CPU lacks AVX-512F (the callers asked the dispatch first), or a slice is
+    /// shorter than the sizes say (never for the callers' static sizes).
     pub(super) fn product<E: Lanes>(
+        out: &mut [E],
+        a: &[E],
+        b: &[E],
+        dims: (usize, usize, usize),
+        strides: (usize, usize),
+        start: Start<'_, E>,
+    ) {
+        let cpu = Avx512::detect().expect("the fused product runs on CPUs with AVX-512F");
+        // SAFETY: the CPU has AVX-512F (detected on the line above).
+        unsafe { product_avx512(cpu, out, a, b, dims, strides, start) }
+    }
+
+    /// The panels of [`product`], compiled for AVX-512F.
+    ///
+    /// # Panics
+    /// As [`product`], for the slices' lengths.
+    #[target_feature(enable = "avx512f")]
+    fn product_avx512<E: Lanes>(
+        cpu: Avx512,
         out: &mut [E],
         a: &[E],
         b: &[E],
@@ -435,66 +443,40 @@ mod avx512 {
         strides: (usize, usize),
         start: Start<'_, E>,
     ) {
-        assert!(cpu_has_avx512f());
-        assert!(out.len() >= r * c && a.len() >= r * k);
-        assert!(k == 0 || c == 0 || b.len() > (k - 1) * strides.0 + (c - 1) * strides.1);
-        let start = match start {
-            Start::Zero => std::ptr::null(),
-            Start::Out => out.as_ptr(),
-            Start::Matrix(initial) => {
-                assert!(initial.len() >= r * c);
-                initial.as_ptr()
-            }
-        };
-        // SAFETY: the CPU has AVX-512F (asserted), and every index the fused loop reads or
-        // writes is within the lengths asserted above (masked lanes are not accessed).
-        unsafe { product_avx512(out, a, b, (r, k, c), strides, start) }
-    }
-
-    /// The panels of [`product`], compiled for AVX-512F.
-    ///
-    /// # Safety
-    /// The CPU has AVX-512F; `out` holds r x c values, `a` r x k, `b` every
-    /// `kk * strides.0 + j * strides.1` (kk < k, j < c), and `start`, unless null,
-    /// r x c (as [`product`] asserts).
-    #[target_feature(enable = "avx512f")]
-    unsafe fn product_avx512<E: Lanes>(
-        out: &mut [E],
-        a: &[E],
-        b: &[E],
-        (r, k, c): (usize, usize, usize),
-        strides: (usize, usize),
-        start: *const E,
-    ) {
-        let (out, a, b) = (out.as_mut_ptr(), a.as_ptr(), b.as_ptr());
+        // Every panel's reads and writes are inside the slices (the invariant of
+        // `Panel`): the loop over k of `Panel::run` relies on it, unchecked (a bounds
+        // check each costs about a fifth of the product's time at N = 15).
+        let product_len = end(0, r, c, 0);
+        assert!(out.len() >= product_len && a.len() >= end(0, r, k, 0));
+        if k > 0 && c > 0 {
+            assert!(b.len() >= end(end(0, c - 1, strides.1, 0), k - 1, strides.0, 1));
+        }
+        if let Start::Matrix(initial) = start {
+            assert!(initial.len() >= product_len);
+        }
         let lanes = E::LANES;
         let mut i0 = 0;
         while i0 < r {
             // Panels of one, two or three registers of rows; the rows past r are
             // masked off.
             let rows = (r - i0).min(3 * lanes);
-            let masks = [
-                E::mask(rows),
-                E::mask(rows.saturating_sub(lanes)),
-                E::mask(rows.saturating_sub(2 * lanes)),
-            ];
             let mut j0 = 0;
             while j0 < c {
                 let width = (c - j0).min(4);
                 let job = Panel {
+                    cpu,
                     k,
-                    a: a.add(i0),
+                    rows,
+                    a,
+                    a_first: i0,
                     lda: r,
-                    masks,
-                    b: b.add(j0 * strides.1),
+                    b,
+                    b_first: j0 * strides.1,
                     strides,
-                    out: out.add(i0 + j0 * r),
+                    out: &mut *out,
+                    out_first: i0 + j0 * r,
                     ldo: r,
-                    start: if start.is_null() {
-                        start
-                    } else {
-                        start.add(i0 + j0 * r)
-                    },
+                    start,
                 };
                 match (rows.div_ceil(lanes), width) {
                     (1, 1) => job.run::<1, 1>(),
@@ -516,61 +498,100 @@ mod avx512 {
         }
     }
 
-    /// One panel of the product: rows i0.. (H registers of lanes) by W columns.
-    struct Panel<E: Lanes> {
+    /// One panel of the product: `rows` rows from i0 (H registers of lanes) by W
+    /// columns from j0. Entry (i, w) of the panel is `out[out_first + i + w * ldo]`,
+    /// A(i0 + i, kk) is `a[a_first + i + kk * lda]`, B(kk, j0 + w) is
+    /// `b[b_first + kk * strides.0 + w * strides.1]`, and the initial values (unless
+    /// `Start::Zero`) are laid out as `out`.
+    ///
+    /// Invariant: built only by `product_avx512`, whose assertions put every one of
+    /// these indices (i < rows, kk < k, w < W) inside its slice.
+    struct Panel<'s, E: Lanes> {
+        cpu: Avx512,
         k: usize,
-        a: *const E,
+        rows: usize,
+        a: &'s [E],
+        a_first: usize,
         lda: usize,
-        masks: [E::Mask; 3],
-        b: *const E,
+        b: &'s [E],
+        b_first: usize,
         strides: (usize, usize),
-        out: *mut E,
+        out: &'s mut [E],
+        out_first: usize,
         ldo: usize,
-        /// Where the panel's initial values are (laid out as `out`), or null for 0.
-        start: *const E,
+        start: Start<'s, E>,
     }
 
-    impl<E: Lanes> Panel<E> {
-        /// Inlined into `product_avx512`, whose AVX-512 code it becomes.
+    impl<E: Lanes> Panel<'_, E> {
+        /// Inlined into `product_avx512`, whose AVX-512 code it becomes. Register h of
+        /// a column holds its rows h lanes.. of the panel; the loads and stores take
+        /// the column's slice from there on, so the lanes past `rows` are masked off.
         ///
-        /// # Safety
-        /// The CPU has AVX-512F; the panel's pointers address the rows of `masks` and
-        /// the `W` columns (through the strides and leading dimensions) within the
-        /// slices of `product_avx512`'s contract.
+        /// # Panics
+        /// If the panel reaches past `out` or the start (never: see the invariant).
         #[inline(always)]
-        unsafe fn run<const H: usize, const W: usize>(&self) {
-            let lanes = E::LANES;
+        fn run<const H: usize, const W: usize>(self) {
+            let (cpu, lanes, rows, k) = (self.cpu, E::LANES, self.rows, self.k);
+            let ((down, across), lda) = (self.strides, self.lda);
+            // H registers hold `rows`, each at least one of them.
+            debug_assert!(W >= 1 && lanes * (H - 1) < rows && rows <= lanes * H);
             // acc[w][h]: column w of the panel, rows h lanes.. (h + 1) lanes.
-            let mut acc = [[E::zero(); H]; W];
-            if !self.start.is_null() {
+            let mut acc = [[E::zero(cpu); H]; W];
+            let initial = match self.start {
+                Start::Zero => None,
+                Start::Out => Some(&*self.out),
+                Start::Matrix(initial) => Some(initial),
+            };
+            if let Some(initial) = initial {
                 for (w, column) in acc.iter_mut().enumerate() {
-                    let start = self.start.add(w * self.ldo);
+                    let first = self.out_first + w * self.ldo;
+                    let from = &initial[first..first + rows];
                     for (h, vector) in column.iter_mut().enumerate() {
-                        *vector = E::load(self.masks[h], start.add(lanes * h));
+                        *vector = E::load(cpu, &from[lanes * h..]);
                     }
                 }
             }
-            for kk in 0..self.k {
-                let start = self.a.add(kk * self.lda);
-                let mut av = [E::zero(); H];
+            for kk in 0..k {
+                let first = self.a_first + kk * lda;
+                // SAFETY: rows first.. of column kk < k of A, inside `a` by the
+                // struct's invariant.
+                let from = unsafe { self.a.get_unchecked(first..first + rows) };
+                let mut av = [E::zero(cpu); H];
                 for (h, vector) in av.iter_mut().enumerate() {
-                    *vector = E::load(self.masks[h], start.add(lanes * h));
+                    *vector = E::load(cpu, &from[lanes * h..]);
                 }
-                let row = self.b.add(kk * self.strides.0);
+                let row = self.b_first + kk * down;
                 for (w, column) in acc.iter_mut().enumerate() {
-                    let bb = E::splat(*row.add(w * self.strides.1));
+                    // SAFETY: B(kk, j0 + w) for kk < k and w < W, inside `b` by the
+                    // struct's invariant.
+                    let bb = E::splat(cpu, unsafe { *self.b.get_unchecked(row + w * across) });
                     for (vector, a) in column.iter_mut().zip(&av) {
-                        *vector = E::multiply_add(*a, bb, *vector);
+                        *vector = E::multiply_add(cpu, *a, bb, *vector);
                     }
                 }
             }
             for (w, column) in acc.iter().enumerate() {
-                let start = self.out.add(w * self.ldo);
+                let first = self.out_first + w * self.ldo;
+                let to = &mut self.out[first..first + rows];
                 for (h, vector) in column.iter().enumerate() {
-                    E::store(start.add(lanes * h), self.masks[h], *vector);
+                    E::store(cpu, &mut to[lanes * h..], *vector);
                 }
             }
         }
+    }
+
+    /// `first + steps * stride + len`, the end of the last of `steps + 1` runs of `len`
+    /// values `stride` apart.
+    ///
+    /// # Panics
+    /// If it overflows.
+    #[inline(always)]
+    fn end(first: usize, steps: usize, stride: usize, len: usize) -> usize {
+        steps
+            .checked_mul(stride)
+            .and_then(|n| n.checked_add(first))
+            .and_then(|n| n.checked_add(len))
+            .expect("the panel's indices fit in usize")
     }
 }
 

@@ -1,7 +1,8 @@
 //! Batch calls: a whole sequence of steps filtered or smoothed in one call, the same
 //! as `step()` in a loop, for every runner. One implementation (the loop, the
-//! log-likelihood sum, the forward recording and its smoothing) below; each runner
-//! has two thin wrappers around it.
+//! log-likelihood sum, the forward recording and its smoothing) below; each runner's
+//! `filter_batch` and `smooth_batch` around it come from one macro
+//! (`batch_methods!` in `wrappers.rs`).
 //!
 //! Convention (as [`KalmanFilter::filter_batch`]): entry k - 1 of the slice is step k,
 //! which *predicts first* (x_{k-1} to x_k) and then updates when the step has a
@@ -169,90 +170,70 @@ pub(super) fn fork_shared<T: Scalar, S: Clone, U: Clone, const N: usize, O, O2>(
 impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>>
     KalmanFilter<T, N, M, O>
 {
-    /// Filter `measurements`, one entry per step: predict, then update with the one-step
-    /// cross-covariance model `cross` when the entry is `Some`. The same as
-    /// [`KalmanFilter::step`] in a loop, bit for bit: the filter advances and its
-    /// observer sees every event.
-    ///
-    /// Convention (filterpy's `KalmanFilter.batch_filter`): entry k - 1 of the slice is
-    /// step k of [`KalmanFilter`]'s time index, which *predicts first* (x_{k-1} to x_k)
-    /// and then updates; the filter's estimate before the call is x_0, the time before
-    /// the first entry. pykalman's `KalmanFilter.filter` instead takes the first
-    /// observation at the initial time: to get that, [`KalmanFilter::update`] with the
-    /// first observation, then pass the rest.
-    ///
-    /// Every runner has this pair: [`crate::SquareRootKalmanFilter::filter_batch`] takes
-    /// the same slice; the runners over a [`crate::ProcessModel`]
-    /// ([`crate::ExtendedKalmanFilter::filter_batch`],
-    /// [`crate::ErrorStateKalmanFilter::filter_batch`],
-    /// [`crate::UnscentedKalmanFilter::filter_batch`]) take `(input, dt, measurement)`
-    /// per step, the arguments of their `step`, and one measurement model.
-    ///
-    /// ```
-    /// use estim_core::nalgebra::{Matrix1, Matrix1x2, Matrix2, Vector1, Vector2};
-    /// use estim_core::{KalmanFilter, StateAndCovariance, Zero};
-    ///
-    /// let initial = StateAndCovariance::new(Vector2::zeros(), Matrix2::identity())?;
-    /// let mut kf = KalmanFilter::new(Matrix2::new(1.0, 1.0, 0.0, 1.0),
-    ///     Matrix2::identity() * 0.01, Matrix1x2::new(1.0, 0.0), Matrix1::new(0.1), initial)?;
-    /// let ys = [Some(1.0), None, Some(3.1), Some(3.9)].map(|y| y.map(Vector1::new));
-    /// let smoothed = kf.smooth_batch(&ys, &Zero)?; // on a copy: kf is untouched
-    /// let filtered = kf.filter_batch(&ys, &Zero)?;
-    /// assert_eq!(filtered.estimates.len(), 4);
-    /// assert_eq!(kf.log_likelihood(), filtered.log_likelihood);
-    /// // The last smoothed estimate is the filtered one.
-    /// assert_eq!(smoothed.estimates[3], filtered.estimates[3]);
-    /// # Ok::<(), estim_core::Error>(())
-    /// ```
-    ///
-    /// For a time-varying model, loop over [`KalmanFilter::predict_with`] and
-    /// [`KalmanFilter::update_with`] instead.
-    ///
-    /// # Errors
-    /// Those of [`KalmanFilter::step`]; the steps before the failing one stay committed
-    /// (as in a loop).
-    pub fn filter_batch<C>(
-        &mut self,
-        measurements: &[Option<SVector<T, M>>],
-        cross: &C,
-    ) -> Result<FilteredBatch<T, N, M>>
-    where
-        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
-    {
-        filter_steps(measurements, |y| {
-            let report = self.step(y.as_ref(), cross)?;
-            Ok((report, self.estimate().clone()))
-        })
-    }
-
-    /// Smooth `measurements` (convention as [`KalmanFilter::filter_batch`]): every estimate from
-    /// x_0 (the current one) to the last step given every measurement of the batch, by
-    /// a forward pass on a copy of this filter recorded at every step
-    /// ([`ForwardRecorder`] with [`RecordAt::EveryStep`]) and its fixed-interval
-    /// smoothing. This filter and its observer are left untouched.
-    ///
-    /// # Errors
-    /// Those of [`KalmanFilter::step`] and [`ForwardRecorder::smooth`]
-    /// ([`Error::SmootherUnsupported`] for a correlated update after an unmeasured step,
-    /// an inflated update, or a correlated first update when the filter had predicted
-    /// since its last update before the batch).
-    pub fn smooth_batch<C>(
-        &self,
-        measurements: &[Option<SVector<T, M>>],
-        cross: &C,
-    ) -> Result<SmoothedBatch<T, N>>
-    where
-        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
-    {
-        smooth_steps(
-            (*self.estimate().state(), *self.estimate().covariance()),
-            self.propagations_since_update() > 0,
-            |recorder| {
-                let mut forward = self.fork(recorder);
-                let filtered = forward.filter_batch(measurements, cross)?;
-                Ok((filtered, forward.into_observer()))
-            },
-            smoothed_estimate,
-        )
+    batch_methods! {
+        steps: measurements: Option<SVector<T, M>>,
+        step: |y| [] y.as_ref(),
+        model: [],
+        size: [],
+        state: SVector<T, N>,
+        estimate: [] |filter| filter.estimate().clone(),
+        initial: (*filter.estimate().state(), *filter.estimate().covariance()),
+        smoothed: |epoch| smoothed_estimate(epoch),
+        smooth_where: [],
+        /// Filter `measurements`, one entry per step: predict, then update with the one-step
+        /// cross-covariance model `cross` when the entry is `Some`. The same as
+        /// [`KalmanFilter::step`] in a loop, bit for bit: the filter advances and its
+        /// observer sees every event.
+        ///
+        /// Convention (filterpy's `KalmanFilter.batch_filter`): entry k - 1 of the slice is
+        /// step k of [`KalmanFilter`]'s time index, which *predicts first* (x_{k-1} to x_k)
+        /// and then updates; the filter's estimate before the call is x_0, the time before
+        /// the first entry. pykalman's `KalmanFilter.filter` instead takes the first
+        /// observation at the initial time: to get that, [`KalmanFilter::update`] with the
+        /// first observation, then pass the rest.
+        ///
+        /// Every runner has this pair: [`crate::SquareRootKalmanFilter::filter_batch`] takes
+        /// the same slice; the runners over a [`crate::ProcessModel`]
+        /// ([`crate::ExtendedKalmanFilter::filter_batch`],
+        /// [`crate::ErrorStateKalmanFilter::filter_batch`],
+        /// [`crate::UnscentedKalmanFilter::filter_batch`]) take `(input, dt, measurement)`
+        /// per step, the arguments of their `step`, and one measurement model.
+        ///
+        /// ```
+        /// use estim_core::nalgebra::{Matrix1, Matrix1x2, Matrix2, Vector1, Vector2};
+        /// use estim_core::{KalmanFilter, StateAndCovariance, Zero};
+        ///
+        /// let initial = StateAndCovariance::new(Vector2::zeros(), Matrix2::identity())?;
+        /// let mut kf = KalmanFilter::new(Matrix2::new(1.0, 1.0, 0.0, 1.0),
+        ///     Matrix2::identity() * 0.01, Matrix1x2::new(1.0, 0.0), Matrix1::new(0.1), initial)?;
+        /// let ys = [Some(1.0), None, Some(3.1), Some(3.9)].map(|y| y.map(Vector1::new));
+        /// let smoothed = kf.smooth_batch(&ys, &Zero)?; // on a copy: kf is untouched
+        /// let filtered = kf.filter_batch(&ys, &Zero)?;
+        /// assert_eq!(filtered.estimates.len(), 4);
+        /// assert_eq!(kf.log_likelihood(), filtered.log_likelihood);
+        /// // The last smoothed estimate is the filtered one.
+        /// assert_eq!(smoothed.estimates[3], filtered.estimates[3]);
+        /// # Ok::<(), estim_core::Error>(())
+        /// ```
+        ///
+        /// For a time-varying model, loop over [`KalmanFilter::predict_with`] and
+        /// [`KalmanFilter::update_with`] instead.
+        ///
+        /// # Errors
+        /// Those of [`KalmanFilter::step`]; the steps before the failing one stay committed
+        /// (as in a loop).
+        filter_batch;
+        /// Smooth `measurements` (convention as [`KalmanFilter::filter_batch`]): every estimate from
+        /// x_0 (the current one) to the last step given every measurement of the batch, by
+        /// a forward pass on a copy of this filter recorded at every step
+        /// ([`ForwardRecorder`] with [`RecordAt::EveryStep`]) and its fixed-interval
+        /// smoothing. This filter and its observer are left untouched.
+        ///
+        /// # Errors
+        /// Those of [`KalmanFilter::step`] and [`ForwardRecorder::smooth`]
+        /// ([`Error::SmootherUnsupported`] for a correlated update after an unmeasured step,
+        /// an inflated update, or a correlated first update when the filter had predicted
+        /// since its last update before the batch).
+        smooth_batch;
     }
 }

@@ -5,7 +5,7 @@
 use crate::{Error, ExtendedKalmanFilter, KalmanFilter};
 use nalgebra::{SMatrix, SVector};
 
-use super::batch::{filter_steps, fork_shared, smooth_steps};
+use super::batch::fork_shared;
 use super::shared::{check_dt, CrossSource, Shared};
 use super::{FilteredBatch, SmoothedBatch, UpdateReport};
 use crate::gaussian::{check_finite, check_symmetric, symmetrize};
@@ -73,6 +73,22 @@ impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ErrorStateKalmanFilter
             covariance: self.covariance,
             spare: self.spare,
             shared: self.shared.with_observer(observer),
+        }
+    }
+
+    /// A copy of this filter (model, estimate, accumulators, recorded window,
+    /// configuration, log-likelihood) with `observer` in place of its own.
+    pub(super) fn fork<O2>(&self, observer: O2) -> ErrorStateKalmanFilter<T, P, N, O2>
+    where
+        P: Clone,
+        P::Input: Clone,
+    {
+        ErrorStateKalmanFilter {
+            process: self.process.clone(),
+            nominal: self.nominal.clone(),
+            covariance: self.covariance,
+            spare: self.spare,
+            shared: fork_shared(&self.shared, observer),
         }
     }
 
@@ -214,77 +230,46 @@ where
         Ok(report)
     }
 
-    /// Filter a batch of steps, each `(input, dt, measurement)`: the arguments of one
-    /// [`ErrorStateKalmanFilter::step`] (the process model's input, dt in the model's
-    /// time unit, the measurement or `None`), updated with `model` and the one-step
-    /// cross-covariance model `cross`. The same as `step` in a loop, bit for bit: the
-    /// filter advances and its observer sees every event. Time index as
-    /// [`KalmanFilter::filter_batch`]: entry k - 1 is step k, which predicts first. The
-    /// estimate after each step is the pair (nominal state, error covariance).
-    ///
-    /// # Errors
-    /// Those of [`ErrorStateKalmanFilter::step`]; the steps before the failing one stay
-    /// committed (as in a loop).
-    #[allow(clippy::type_complexity)] // the step tuple and the estimate pair, spelled out
-    pub fn filter_batch<Mm, C, const M: usize>(
-        &mut self,
-        steps: &[(P::Input, T, Option<SVector<T, M>>)],
-        model: &Mm,
-        cross: &C,
-    ) -> Result<FilteredBatch<T, N, M, (P::State, SMatrix<T, N, N>)>>
-    where
-        Mm: MeasurementModel<T, N, M, State = P::State> + ?Sized,
-        C: CrossCovariance<T, P::State, N, M> + ?Sized,
-    {
-        filter_steps(steps, |(input, dt, y)| {
-            let report = self.step(input, *dt, model, y.as_ref(), cross)?;
-            Ok((report, (self.nominal.clone(), self.covariance)))
-        })
-    }
-
-    /// Smooth a batch of steps (shape as [`ErrorStateKalmanFilter::filter_batch`]):
-    /// every estimate from x_0 (the current nominal state and error covariance) to the
-    /// last step given every measurement of the batch, by a forward pass on a copy of
-    /// this filter recorded at every step ([`crate::smoother::ForwardRecorder`] with
-    /// [`crate::smoother::RecordAt::EveryStep`]) and its fixed-interval smoothing (the
-    /// linearised RTS smoother with the resets carried, see the smoother's error-state
-    /// convention; exact on a linear model with additive injection). Each smoothed
-    /// estimate is (the smoothed error injected into the recorded nominal state with
-    /// [`ErrorStateModel::inject`], the smoothed error covariance about that recorded
-    /// nominal). This filter and its observer are left untouched; the copy needs a
-    /// `Clone` process model.
-    ///
-    /// # Errors
-    /// As [`KalmanFilter::smooth_batch`], with the errors of
-    /// [`ErrorStateKalmanFilter::step`] and of the injection.
-    #[allow(clippy::type_complexity)] // the step tuple and the estimate pair, spelled out
-    pub fn smooth_batch<Mm, C, const M: usize>(
-        &self,
-        steps: &[(P::Input, T, Option<SVector<T, M>>)],
-        model: &Mm,
-        cross: &C,
-    ) -> Result<SmoothedBatch<T, N, (P::State, SMatrix<T, N, N>)>>
-    where
-        P: Clone,
-        Mm: MeasurementModel<T, N, M, State = P::State> + ?Sized,
-        C: CrossCovariance<T, P::State, N, M> + ?Sized,
-    {
-        smooth_steps(
-            (self.nominal.clone(), self.covariance),
-            self.propagations_since_update() > 0,
-            |recorder| {
-                let mut forward = ErrorStateKalmanFilter {
-                    process: self.process.clone(),
-                    nominal: self.nominal.clone(),
-                    covariance: self.covariance,
-                    spare: self.spare,
-                    shared: fork_shared(&self.shared, recorder),
-                };
-                let filtered = forward.filter_batch(steps, model, cross)?;
-                Ok((filtered, forward.into_observer()))
-            },
-            |epoch| Ok((epoch.injected(&self.process)?, epoch.covariance)),
-        )
+    batch_methods! {
+        steps: steps: (P::Input, T, Option<SVector<T, M>>),
+        step: |(input, dt, y)| [input, *dt] y.as_ref(),
+        model: [model: Mm: MeasurementModel<T, N, M, State = P::State>],
+        size: [M],
+        state: P::State,
+        estimate: [(P::State, SMatrix<T, N, N>)] |filter| (filter.nominal.clone(), filter.covariance),
+        initial: (filter.nominal.clone(), filter.covariance),
+        smoothed: |epoch| Ok((epoch.injected(&filter.process)?, epoch.covariance)),
+        smooth_where: [P: Clone,],
+        /// Filter a batch of steps, each `(input, dt, measurement)`: the arguments of one
+        /// [`ErrorStateKalmanFilter::step`] (the process model's input, dt in the model's
+        /// time unit, the measurement or `None`), updated with `model` and the one-step
+        /// cross-covariance model `cross`. The same as `step` in a loop, bit for bit: the
+        /// filter advances and its observer sees every event. Time index as
+        /// [`KalmanFilter::filter_batch`]: entry k - 1 is step k, which predicts first. The
+        /// estimate after each step is the pair (nominal state, error covariance).
+        ///
+        /// # Errors
+        /// Those of [`ErrorStateKalmanFilter::step`]; the steps before the failing one stay
+        /// committed (as in a loop).
+        #[allow(clippy::type_complexity)] // the step tuple and the estimate pair, spelled out
+        filter_batch;
+        /// Smooth a batch of steps (shape as [`ErrorStateKalmanFilter::filter_batch`]):
+        /// every estimate from x_0 (the current nominal state and error covariance) to the
+        /// last step given every measurement of the batch, by a forward pass on a copy of
+        /// this filter recorded at every step ([`crate::smoother::ForwardRecorder`] with
+        /// [`crate::smoother::RecordAt::EveryStep`]) and its fixed-interval smoothing (the
+        /// linearised RTS smoother with the resets carried, see the smoother's error-state
+        /// convention; exact on a linear model with additive injection). Each smoothed
+        /// estimate is (the smoothed error injected into the recorded nominal state with
+        /// [`ErrorStateModel::inject`], the smoothed error covariance about that recorded
+        /// nominal). This filter and its observer are left untouched; the copy needs a
+        /// `Clone` process model.
+        ///
+        /// # Errors
+        /// As [`KalmanFilter::smooth_batch`], with the errors of
+        /// [`ErrorStateKalmanFilter::step`] and of the injection.
+        #[allow(clippy::type_complexity)] // the step tuple and the estimate pair, spelled out
+        smooth_batch;
     }
 
     update_methods! {

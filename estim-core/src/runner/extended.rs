@@ -4,7 +4,7 @@
 use crate::{Error, KalmanFilter};
 use nalgebra::{SMatrix, SVector};
 
-use super::batch::{filter_steps, fork_shared, smooth_steps, smoothed_estimate};
+use super::batch::{fork_shared, smoothed_estimate};
 use super::shared::{check_dt, CrossSource, Shared};
 use super::{FilteredBatch, SmoothedBatch, UpdateReport};
 use crate::gaussian::check_finite;
@@ -60,6 +60,21 @@ impl<T: Scalar, P: ProcessModel<T, N>, const N: usize, O> ExtendedKalmanFilter<T
             estimate: self.estimate,
             spare: self.spare,
             shared: self.shared.with_observer(observer),
+        }
+    }
+
+    /// A copy of this filter (model, estimate, accumulators, recorded window,
+    /// configuration, log-likelihood) with `observer` in place of its own.
+    pub(super) fn fork<O2>(&self, observer: O2) -> ExtendedKalmanFilter<T, P, N, O2>
+    where
+        P: Clone,
+        P::Input: Clone,
+    {
+        ExtendedKalmanFilter {
+            process: self.process.clone(),
+            estimate: self.estimate.clone(),
+            spare: self.spare,
+            shared: fork_shared(&self.shared, observer),
         }
     }
 
@@ -180,127 +195,97 @@ where
         Ok(report)
     }
 
-    /// Filter a batch of steps, each `(input, dt, measurement)`: the arguments of one
-    /// [`ExtendedKalmanFilter::step`] (the process model's input, dt in the model's time
-    /// unit, the measurement or `None`), updated with `model` and the one-step
-    /// cross-covariance model `cross`. The same as `step` in a loop, bit for bit: the
-    /// filter advances and its observer sees every event. Time index as
-    /// [`KalmanFilter::filter_batch`]: entry k - 1 is step k, which predicts first.
-    ///
-    /// ```
-    /// use estim_core::nalgebra::{Matrix1, Vector1};
-    /// use estim_core::{
-    ///     ExtendedKalmanFilter, MeasurementModel, ProcessModel, Result, StateAndCovariance, Zero,
-    /// };
-    ///
-    /// /// A position driven by a measured velocity u: x <- x + u dt.
-    /// #[derive(Clone)]
-    /// struct Odometry;
-    /// impl ProcessModel<f64, 1> for Odometry {
-    ///     type State = Vector1<f64>;
-    ///     type Input = f64;
-    ///     fn propagate(&self, x: &Vector1<f64>, u: &f64, dt: f64) -> Result<Vector1<f64>> {
-    ///         Ok(x.add_scalar(u * dt))
-    ///     }
-    ///     fn transition(&self, _: &Vector1<f64>, _: &f64, _: f64) -> Result<Matrix1<f64>> {
-    ///         Ok(Matrix1::identity())
-    ///     }
-    ///     fn process_noise(&self, _: &Vector1<f64>, _: &f64, dt: f64) -> Result<Matrix1<f64>> {
-    ///         Ok(Matrix1::new(0.01 * dt))
-    ///     }
-    /// }
-    ///
-    /// /// A position fix.
-    /// struct Fix;
-    /// impl MeasurementModel<f64, 1, 1> for Fix {
-    ///     type State = Vector1<f64>;
-    ///     fn predict(&self, x: &Vector1<f64>) -> Result<Vector1<f64>> {
-    ///         Ok(*x)
-    ///     }
-    ///     fn jacobian(&self, _: &Vector1<f64>) -> Result<Matrix1<f64>> {
-    ///         Ok(Matrix1::identity())
-    ///     }
-    ///     fn noise_covariance(&self, _: &Vector1<f64>) -> Result<Matrix1<f64>> {
-    ///         Ok(Matrix1::new(0.1))
-    ///     }
-    /// }
-    ///
-    /// let initial = StateAndCovariance::new(Vector1::zeros(), Matrix1::identity())?;
-    /// let mut ekf = ExtendedKalmanFilter::new(Odometry, initial);
-    /// // (input, dt, measurement) per step: irregular times, the first step unmeasured.
-    /// let steps = [
-    ///     (1.0, 0.1, None),
-    ///     (1.0, 0.2, Some(Vector1::new(0.31))),
-    ///     (0.5, 0.1, Some(Vector1::new(0.33))),
-    /// ];
-    /// let smoothed = ekf.smooth_batch(&steps, &Fix, &Zero)?; // on a copy: ekf is untouched
-    /// let filtered = ekf.filter_batch(&steps, &Fix, &Zero)?;
-    /// assert!(filtered.reports[0].is_none());
-    /// assert_eq!(ekf.log_likelihood(), filtered.log_likelihood);
-    /// // The last smoothed estimate is the filtered one.
-    /// assert_eq!(smoothed.estimates[2], filtered.estimates[2]);
-    /// # Ok::<(), estim_core::Error>(())
-    /// ```
-    ///
-    /// # Errors
-    /// Those of [`ExtendedKalmanFilter::step`]; the steps before the failing one stay
-    /// committed (as in a loop).
-    #[allow(clippy::type_complexity)] // the step tuple, spelled out for the reader
-    pub fn filter_batch<Mm, C, const M: usize>(
-        &mut self,
-        steps: &[(P::Input, T, Option<SVector<T, M>>)],
-        model: &Mm,
-        cross: &C,
-    ) -> Result<FilteredBatch<T, N, M>>
-    where
-        Mm: MeasurementModel<T, N, M, State = SVector<T, N>> + ?Sized,
-        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
-    {
-        filter_steps(steps, |(input, dt, y)| {
-            let report = self.step(input, *dt, model, y.as_ref(), cross)?;
-            Ok((report, self.estimate.clone()))
-        })
-    }
-
-    /// Smooth a batch of steps (shape as [`ExtendedKalmanFilter::filter_batch`]): every
-    /// estimate from x_0 (the current one) to the last step given every measurement of
-    /// the batch, by a forward pass on a copy of this filter recorded at every step
-    /// ([`crate::smoother::ForwardRecorder`] with
-    /// [`crate::smoother::RecordAt::EveryStep`]) and its fixed-interval smoothing with
-    /// the reported Phi and H (the linearised RTS smoother; exact on a linear model).
-    /// This filter and its observer are left untouched; the copy needs a `Clone` process
-    /// model.
-    ///
-    /// # Errors
-    /// As [`KalmanFilter::smooth_batch`], with the errors of
-    /// [`ExtendedKalmanFilter::step`].
-    #[allow(clippy::type_complexity)] // the step tuple, spelled out for the reader
-    pub fn smooth_batch<Mm, C, const M: usize>(
-        &self,
-        steps: &[(P::Input, T, Option<SVector<T, M>>)],
-        model: &Mm,
-        cross: &C,
-    ) -> Result<SmoothedBatch<T, N>>
-    where
-        P: Clone,
-        Mm: MeasurementModel<T, N, M, State = SVector<T, N>> + ?Sized,
-        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
-    {
-        smooth_steps(
-            (*self.estimate.state(), *self.estimate.covariance()),
-            self.propagations_since_update() > 0,
-            |recorder| {
-                let mut forward = ExtendedKalmanFilter {
-                    process: self.process.clone(),
-                    estimate: self.estimate.clone(),
-                    spare: self.spare,
-                    shared: fork_shared(&self.shared, recorder),
-                };
-                let filtered = forward.filter_batch(steps, model, cross)?;
-                Ok((filtered, forward.into_observer()))
-            },
-            smoothed_estimate,
-        )
+    batch_methods! {
+        steps: steps: (P::Input, T, Option<SVector<T, M>>),
+        step: |(input, dt, y)| [input, *dt] y.as_ref(),
+        model: [model: Mm: MeasurementModel<T, N, M, State = SVector<T, N>>],
+        size: [M],
+        state: SVector<T, N>,
+        estimate: [] |filter| filter.estimate.clone(),
+        initial: (*filter.estimate.state(), *filter.estimate.covariance()),
+        smoothed: |epoch| smoothed_estimate(epoch),
+        smooth_where: [P: Clone,],
+        /// Filter a batch of steps, each `(input, dt, measurement)`: the arguments of one
+        /// [`ExtendedKalmanFilter::step`] (the process model's input, dt in the model's time
+        /// unit, the measurement or `None`), updated with `model` and the one-step
+        /// cross-covariance model `cross`. The same as `step` in a loop, bit for bit: the
+        /// filter advances and its observer sees every event. Time index as
+        /// [`KalmanFilter::filter_batch`]: entry k - 1 is step k, which predicts first.
+        ///
+        /// ```
+        /// use estim_core::nalgebra::{Matrix1, Vector1};
+        /// use estim_core::{
+        ///     ExtendedKalmanFilter, MeasurementModel, ProcessModel, Result, StateAndCovariance, Zero,
+        /// };
+        ///
+        /// /// A position driven by a measured velocity u: x <- x + u dt.
+        /// #[derive(Clone)]
+        /// struct Odometry;
+        /// impl ProcessModel<f64, 1> for Odometry {
+        ///     type State = Vector1<f64>;
+        ///     type Input = f64;
+        ///     fn propagate(&self, x: &Vector1<f64>, u: &f64, dt: f64) -> Result<Vector1<f64>> {
+        ///         Ok(x.add_scalar(u * dt))
+        ///     }
+        ///     fn transition(&self, _: &Vector1<f64>, _: &f64, _: f64) -> Result<Matrix1<f64>> {
+        ///         Ok(Matrix1::identity())
+        ///     }
+        ///     fn process_noise(&self, _: &Vector1<f64>, _: &f64, dt: f64) -> Result<Matrix1<f64>> {
+        ///         Ok(Matrix1::new(0.01 * dt))
+        ///     }
+        /// }
+        ///
+        /// /// A position fix.
+        /// struct Fix;
+        /// impl MeasurementModel<f64, 1, 1> for Fix {
+        ///     type State = Vector1<f64>;
+        ///     fn predict(&self, x: &Vector1<f64>) -> Result<Vector1<f64>> {
+        ///         Ok(*x)
+        ///     }
+        ///     fn jacobian(&self, _: &Vector1<f64>) -> Result<Matrix1<f64>> {
+        ///         Ok(Matrix1::identity())
+        ///     }
+        ///     fn noise_covariance(&self, _: &Vector1<f64>) -> Result<Matrix1<f64>> {
+        ///         Ok(Matrix1::new(0.1))
+        ///     }
+        /// }
+        ///
+        /// let initial = StateAndCovariance::new(Vector1::zeros(), Matrix1::identity())?;
+        /// let mut ekf = ExtendedKalmanFilter::new(Odometry, initial);
+        /// // (input, dt, measurement) per step: irregular times, the first step unmeasured.
+        /// let steps = [
+        ///     (1.0, 0.1, None),
+        ///     (1.0, 0.2, Some(Vector1::new(0.31))),
+        ///     (0.5, 0.1, Some(Vector1::new(0.33))),
+        /// ];
+        /// let smoothed = ekf.smooth_batch(&steps, &Fix, &Zero)?; // on a copy: ekf is untouched
+        /// let filtered = ekf.filter_batch(&steps, &Fix, &Zero)?;
+        /// assert!(filtered.reports[0].is_none());
+        /// assert_eq!(ekf.log_likelihood(), filtered.log_likelihood);
+        /// // The last smoothed estimate is the filtered one.
+        /// assert_eq!(smoothed.estimates[2], filtered.estimates[2]);
+        /// # Ok::<(), estim_core::Error>(())
+        /// ```
+        ///
+        /// # Errors
+        /// Those of [`ExtendedKalmanFilter::step`]; the steps before the failing one stay
+        /// committed (as in a loop).
+        #[allow(clippy::type_complexity)] // the step tuple, spelled out for the reader
+        filter_batch;
+        /// Smooth a batch of steps (shape as [`ExtendedKalmanFilter::filter_batch`]): every
+        /// estimate from x_0 (the current one) to the last step given every measurement of
+        /// the batch, by a forward pass on a copy of this filter recorded at every step
+        /// ([`crate::smoother::ForwardRecorder`] with
+        /// [`crate::smoother::RecordAt::EveryStep`]) and its fixed-interval smoothing with
+        /// the reported Phi and H (the linearised RTS smoother; exact on a linear model).
+        /// This filter and its observer are left untouched; the copy needs a `Clone` process
+        /// model.
+        ///
+        /// # Errors
+        /// As [`KalmanFilter::smooth_batch`], with the errors of
+        /// [`ExtendedKalmanFilter::step`].
+        #[allow(clippy::type_complexity)] // the step tuple, spelled out for the reader
+        smooth_batch;
     }
 
     update_methods! {

@@ -142,37 +142,7 @@ impl<T: Scalar, const N: usize, const M: usize, O> KalmanFilter<T, N, M, O> {
         }
     }
 
-    /// The transition F used by the next predict.
-    pub fn transition(&self) -> &SMatrix<T, N, N> {
-        &self.transition
-    }
-
-    /// The process-noise covariance Q = Cov(G w) used by the next predict.
-    pub fn process_noise(&self) -> &SMatrix<T, N, N> {
-        &self.process_noise
-    }
-
-    /// The observation matrix H used by the next update.
-    pub fn observation(&self) -> &SMatrix<T, M, N> {
-        &self.observation
-    }
-
-    /// The measurement-noise covariance R used by the next update.
-    pub fn measurement_noise(&self) -> &SMatrix<T, M, M> {
-        &self.measurement_noise
-    }
-
-    /// Replace F for the following predicts (time index: module docs of
-    /// [`KalmanFilter`]). Q_acc and Phi_acc keep what earlier steps accumulated.
-    ///
-    /// # Errors
-    /// [`Error::NonFinite`]; the filter is then unchanged.
-    pub fn set_transition(&mut self, transition: SMatrix<T, N, N>) -> Result<()> {
-        check_finite(transition.as_slice(), "transition matrix")?;
-        self.transition = transition;
-        self.model_unchanged = false;
-        Ok(())
-    }
+    linear_model_accessors!();
 
     /// Replace Q = Cov(G w) for the following predicts.
     ///
@@ -185,16 +155,6 @@ impl<T: Scalar, const N: usize, const M: usize, O> KalmanFilter<T, N, M, O> {
         covariance_factor(&process_noise, "process noise covariance")?;
         self.process_noise = process_noise;
         self.model_unchanged = false;
-        Ok(())
-    }
-
-    /// Replace H for the following updates.
-    ///
-    /// # Errors
-    /// [`Error::NonFinite`]; the filter is then unchanged.
-    pub fn set_observation(&mut self, observation: SMatrix<T, M, N>) -> Result<()> {
-        check_finite(observation.as_slice(), "observation matrix")?;
-        self.observation = observation;
         Ok(())
     }
 

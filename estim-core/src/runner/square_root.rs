@@ -6,7 +6,7 @@
 use crate::{GateRecovery, JointCheck, KalmanFilter};
 use nalgebra::{SMatrix, SVector};
 
-use super::batch::{filter_steps, fork_shared, smooth_steps, smoothed_estimate};
+use super::batch::{fork_shared, smoothed_estimate};
 use super::shared::{
     bisect_inflation, propagate_symmetric, Attempt, CrossSource, GateVerdict, Shared,
 };
@@ -143,6 +143,23 @@ impl<T: Scalar, const N: usize, const M: usize, O> SquareRootKalmanFilter<T, N, 
         }
     }
 
+    /// A copy of this filter (model, estimate, accumulators, recorded window,
+    /// configuration, log-likelihood) with `observer` in place of its own.
+    pub(super) fn fork<O2>(&self, observer: O2) -> SquareRootKalmanFilter<T, N, M, O2> {
+        SquareRootKalmanFilter {
+            transition: self.transition,
+            process_noise: self.process_noise,
+            noise_factor: self.noise_factor,
+            observation: self.observation,
+            measurement_noise: self.measurement_noise,
+            measurement_certificate: self.measurement_certificate,
+            model_unchanged: self.model_unchanged,
+            factor: self.factor,
+            estimate: self.estimate.clone(),
+            shared: fork_shared(&self.shared, observer),
+        }
+    }
+
     /// Current mean.
     pub fn state(&self) -> &SVector<T, N> {
         self.estimate.state()
@@ -158,38 +175,7 @@ impl<T: Scalar, const N: usize, const M: usize, O> SquareRootKalmanFilter<T, N, 
         &self.estimate
     }
 
-    /// The transition F used by the next predict.
-    pub fn transition(&self) -> &SMatrix<T, N, N> {
-        &self.transition
-    }
-
-    /// The process noise Q = Cov(G w) used by the next predict.
-    pub fn process_noise(&self) -> &SMatrix<T, N, N> {
-        &self.process_noise
-    }
-
-    /// The observation matrix H used by the next update.
-    pub fn observation(&self) -> &SMatrix<T, M, N> {
-        &self.observation
-    }
-
-    /// The measurement-noise covariance R used by the next update.
-    pub fn measurement_noise(&self) -> &SMatrix<T, M, M> {
-        &self.measurement_noise
-    }
-
-    /// Replace F for the following predicts (a time-varying model, as
-    /// [`KalmanFilter::set_transition`]). Q_acc and Phi_acc keep what earlier steps
-    /// accumulated.
-    ///
-    /// # Errors
-    /// [`Error::NonFinite`]; the filter is then unchanged.
-    pub fn set_transition(&mut self, transition: SMatrix<T, N, N>) -> Result<()> {
-        check_finite(transition.as_slice(), "transition matrix")?;
-        self.transition = transition;
-        self.model_unchanged = false;
-        Ok(())
-    }
+    linear_model_accessors!();
 
     /// Replace Q = Cov(G w) for the following predicts (its factor is recomputed).
     ///
@@ -201,16 +187,6 @@ impl<T: Scalar, const N: usize, const M: usize, O> SquareRootKalmanFilter<T, N, 
         self.process_noise = process_noise;
         self.noise_factor = noise_factor;
         self.model_unchanged = false;
-        Ok(())
-    }
-
-    /// Replace H for the following updates.
-    ///
-    /// # Errors
-    /// [`Error::NonFinite`]; the filter is then unchanged.
-    pub fn set_observation(&mut self, observation: SMatrix<T, M, N>) -> Result<()> {
-        check_finite(observation.as_slice(), "observation matrix")?;
-        self.observation = observation;
         Ok(())
     }
 
@@ -395,71 +371,40 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         Ok(report)
     }
 
-    /// Filter `measurements`, one entry per step: predict, then update with the one-step
-    /// cross-covariance model `cross` when the entry is `Some`. The same as
-    /// [`SquareRootKalmanFilter::step`] in a loop, bit for bit: the filter advances and
-    /// its observer sees every event. Shape and time index as
-    /// [`KalmanFilter::filter_batch`] (this filter's predict takes no argument either):
-    /// entry k - 1 is step k, which predicts first.
-    ///
-    /// # Errors
-    /// Those of [`SquareRootKalmanFilter::step`]; the steps before the failing one stay
-    /// committed (as in a loop).
-    pub fn filter_batch<C>(
-        &mut self,
-        measurements: &[Option<SVector<T, M>>],
-        cross: &C,
-    ) -> Result<FilteredBatch<T, N, M>>
-    where
-        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
-    {
-        filter_steps(measurements, |y| {
-            let report = self.step(y.as_ref(), cross)?;
-            Ok((report, self.estimate.clone()))
-        })
-    }
-
-    /// Smooth `measurements` (shape as [`SquareRootKalmanFilter::filter_batch`]): every
-    /// estimate from x_0 (the current one) to the last step given every measurement of
-    /// the batch, by a forward pass on a copy of this filter recorded at every step
-    /// ([`crate::smoother::ForwardRecorder`] with
-    /// [`crate::smoother::RecordAt::EveryStep`]; the events carry F, H, the gain and
-    /// S = S_nu S_nu') and its fixed-interval smoothing, in covariance form (the
-    /// backward pass is not a square-root one). This filter and its observer are left
-    /// untouched.
-    ///
-    /// # Errors
-    /// As [`KalmanFilter::smooth_batch`], with the errors of
-    /// [`SquareRootKalmanFilter::step`].
-    pub fn smooth_batch<C>(
-        &self,
-        measurements: &[Option<SVector<T, M>>],
-        cross: &C,
-    ) -> Result<SmoothedBatch<T, N>>
-    where
-        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
-    {
-        smooth_steps(
-            (*self.estimate.state(), *self.estimate.covariance()),
-            self.propagations_since_update() > 0,
-            |recorder| {
-                let mut forward = SquareRootKalmanFilter {
-                    transition: self.transition,
-                    process_noise: self.process_noise,
-                    noise_factor: self.noise_factor,
-                    observation: self.observation,
-                    measurement_noise: self.measurement_noise,
-                    measurement_certificate: self.measurement_certificate,
-                    model_unchanged: self.model_unchanged,
-                    factor: self.factor,
-                    estimate: self.estimate.clone(),
-                    shared: fork_shared(&self.shared, recorder),
-                };
-                let filtered = forward.filter_batch(measurements, cross)?;
-                Ok((filtered, forward.into_observer()))
-            },
-            smoothed_estimate,
-        )
+    batch_methods! {
+        steps: measurements: Option<SVector<T, M>>,
+        step: |y| [] y.as_ref(),
+        model: [],
+        size: [],
+        state: SVector<T, N>,
+        estimate: [] |filter| filter.estimate().clone(),
+        initial: (*filter.estimate().state(), *filter.estimate().covariance()),
+        smoothed: |epoch| smoothed_estimate(epoch),
+        smooth_where: [],
+        /// Filter `measurements`, one entry per step: predict, then update with the one-step
+        /// cross-covariance model `cross` when the entry is `Some`. The same as
+        /// [`SquareRootKalmanFilter::step`] in a loop, bit for bit: the filter advances and
+        /// its observer sees every event. Shape and time index as
+        /// [`KalmanFilter::filter_batch`] (this filter's predict takes no argument either):
+        /// entry k - 1 is step k, which predicts first.
+        ///
+        /// # Errors
+        /// Those of [`SquareRootKalmanFilter::step`]; the steps before the failing one stay
+        /// committed (as in a loop).
+        filter_batch;
+        /// Smooth `measurements` (shape as [`SquareRootKalmanFilter::filter_batch`]): every
+        /// estimate from x_0 (the current one) to the last step given every measurement of
+        /// the batch, by a forward pass on a copy of this filter recorded at every step
+        /// ([`crate::smoother::ForwardRecorder`] with
+        /// [`crate::smoother::RecordAt::EveryStep`]; the events carry F, H, the gain and
+        /// S = S_nu S_nu') and its fixed-interval smoothing, in covariance form (the
+        /// backward pass is not a square-root one). This filter and its observer are left
+        /// untouched.
+        ///
+        /// # Errors
+        /// As [`KalmanFilter::smooth_batch`], with the errors of
+        /// [`SquareRootKalmanFilter::step`].
+        smooth_batch;
     }
 
     update_methods! {

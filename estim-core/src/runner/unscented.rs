@@ -12,7 +12,7 @@ use crate::{
 };
 use nalgebra::{SMatrix, SVector};
 
-use super::batch::{filter_steps, fork_shared, smooth_steps, smoothed_estimate};
+use super::batch::{fork_shared, smoothed_estimate};
 use super::shared::{bisect_inflation, check_dt, Attempt, CrossSource, GateVerdict, Shared};
 use super::{FilteredBatch, SmoothedBatch, UpdateReport};
 use crate::gaussian::check_finite;
@@ -167,6 +167,22 @@ impl<T: Scalar, P: SigmaPointProcess<T, N>, const N: usize, O> UnscentedKalmanFi
             estimate: self.estimate,
             spare: self.spare,
             shared: self.shared.with_observer(observer),
+        }
+    }
+
+    /// A copy of this filter (model, estimate, accumulators, recorded window,
+    /// configuration, log-likelihood) with `observer` in place of its own.
+    pub(super) fn fork<O2>(&self, observer: O2) -> UnscentedKalmanFilter<T, P, N, O2>
+    where
+        P: Clone,
+        P::Input: Clone,
+    {
+        UnscentedKalmanFilter {
+            process: self.process.clone(),
+            transform: self.transform,
+            estimate: self.estimate.clone(),
+            spare: self.spare,
+            shared: fork_shared(&self.shared, observer),
         }
     }
 
@@ -342,90 +358,59 @@ where
         Ok(report)
     }
 
-    /// Filter a batch of steps, each `(input, dt, measurement)`: the arguments of one
-    /// [`UnscentedKalmanFilter::step`] (the process model's input, dt in the model's time
-    /// unit, the measurement or `None`), updated with `model` and the one-step
-    /// cross-covariance model `cross`. The same as `step` in a loop, bit for bit: the
-    /// filter advances and its observer sees every event. Time index as
-    /// [`KalmanFilter::filter_batch`]: entry k - 1 is step k, which predicts first.
-    ///
-    /// # Errors
-    /// Those of [`UnscentedKalmanFilter::step`]; the steps before the failing one stay
-    /// committed (as in a loop).
-    #[allow(clippy::type_complexity)] // the step tuple, spelled out for the reader
-    pub fn filter_batch<Mm, C, const M: usize>(
-        &mut self,
-        steps: &[(P::Input, T, Option<SVector<T, M>>)],
-        model: &Mm,
-        cross: &C,
-    ) -> Result<FilteredBatch<T, N, M>>
-    where
-        Mm: SigmaPointMeasurement<T, N, M> + ?Sized,
-        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
-    {
-        filter_steps(steps, |(input, dt, y)| {
-            let report = self.step(input, *dt, model, y.as_ref(), cross)?;
-            Ok((report, self.estimate.clone()))
-        })
-    }
-
-    /// Smooth a batch of steps (shape as [`UnscentedKalmanFilter::filter_batch`]): every
-    /// estimate from x_0 (the current one) to the last step given every measurement of
-    /// the batch, by a forward pass on a copy of this filter recorded at every step
-    /// ([`crate::smoother::ForwardRecorder`] with
-    /// [`crate::smoother::RecordAt::EveryStep`]) and its fixed-interval smoothing.
-    ///
-    /// It is the unscented RTS smoother (Saerkkae, "Unscented Rauch-Tung-Striebel
-    /// smoother", IEEE TAC 53(3), 2008; *Bayesian Filtering and Smoothing*, 2013,
-    /// alg. 9.6):
-    ///
-    /// ```text
-    /// D_{k+1} = sum Wc_i (X_i,k - m_k)(f(X_i,k) - m-_{k+1})'    (prediction's points)
-    /// G_k = D_{k+1} (P-_{k+1})^-1
-    /// m^s_k = m_k + G_k (m^s_{k+1} - m-_{k+1}),  P^s_k = P_k + G_k (P^s_{k+1} - P-_{k+1}) G_k'
-    /// ```
-    ///
-    /// The smoother reads what the forward pass reported: the sigma-point gain, P_yy
-    /// and the innovation, and the statistical linearisations Phi~ and H~ (struct
-    /// docs), never a Jacobian of the model. With P_k Phi~' = D_{k+1} and, for an
-    /// update, P+ = (I - K H~) P-, its RTS step over Phi~ and H~ is the one above
-    /// (tested against a separately written URTS to 1e-10). On a linear model it equals
-    /// the [`KalmanFilter`]'s. The returned [`SmoothedBatch`] also holds the filtered
-    /// estimates of the same forward pass ([`SmoothedBatch::filtered`]).
-    /// This filter and its observer are left untouched; the copy needs a `Clone` process
-    /// model.
-    ///
-    /// # Errors
-    /// As [`KalmanFilter::smooth_batch`], with the errors of
-    /// [`UnscentedKalmanFilter::step`].
-    #[allow(clippy::type_complexity)] // the step tuple, spelled out for the reader
-    pub fn smooth_batch<Mm, C, const M: usize>(
-        &self,
-        steps: &[(P::Input, T, Option<SVector<T, M>>)],
-        model: &Mm,
-        cross: &C,
-    ) -> Result<SmoothedBatch<T, N>>
-    where
-        P: Clone,
-        Mm: SigmaPointMeasurement<T, N, M> + ?Sized,
-        C: CrossCovariance<T, SVector<T, N>, N, M> + ?Sized,
-    {
-        smooth_steps(
-            (*self.estimate.state(), *self.estimate.covariance()),
-            self.propagations_since_update() > 0,
-            |recorder| {
-                let mut forward = UnscentedKalmanFilter {
-                    process: self.process.clone(),
-                    transform: self.transform,
-                    estimate: self.estimate.clone(),
-                    spare: self.spare,
-                    shared: fork_shared(&self.shared, recorder),
-                };
-                let filtered = forward.filter_batch(steps, model, cross)?;
-                Ok((filtered, forward.into_observer()))
-            },
-            smoothed_estimate,
-        )
+    batch_methods! {
+        steps: steps: (P::Input, T, Option<SVector<T, M>>),
+        step: |(input, dt, y)| [input, *dt] y.as_ref(),
+        model: [model: Mm: SigmaPointMeasurement<T, N, M>],
+        size: [M],
+        state: SVector<T, N>,
+        estimate: [] |filter| filter.estimate.clone(),
+        initial: (*filter.estimate.state(), *filter.estimate.covariance()),
+        smoothed: |epoch| smoothed_estimate(epoch),
+        smooth_where: [P: Clone,],
+        /// Filter a batch of steps, each `(input, dt, measurement)`: the arguments of one
+        /// [`UnscentedKalmanFilter::step`] (the process model's input, dt in the model's time
+        /// unit, the measurement or `None`), updated with `model` and the one-step
+        /// cross-covariance model `cross`. The same as `step` in a loop, bit for bit: the
+        /// filter advances and its observer sees every event. Time index as
+        /// [`KalmanFilter::filter_batch`]: entry k - 1 is step k, which predicts first.
+        ///
+        /// # Errors
+        /// Those of [`UnscentedKalmanFilter::step`]; the steps before the failing one stay
+        /// committed (as in a loop).
+        #[allow(clippy::type_complexity)] // the step tuple, spelled out for the reader
+        filter_batch;
+        /// Smooth a batch of steps (shape as [`UnscentedKalmanFilter::filter_batch`]): every
+        /// estimate from x_0 (the current one) to the last step given every measurement of
+        /// the batch, by a forward pass on a copy of this filter recorded at every step
+        /// ([`crate::smoother::ForwardRecorder`] with
+        /// [`crate::smoother::RecordAt::EveryStep`]) and its fixed-interval smoothing.
+        ///
+        /// It is the unscented RTS smoother (Saerkkae, "Unscented Rauch-Tung-Striebel
+        /// smoother", IEEE TAC 53(3), 2008; *Bayesian Filtering and Smoothing*, 2013,
+        /// alg. 9.6):
+        ///
+        /// ```text
+        /// D_{k+1} = sum Wc_i (X_i,k - m_k)(f(X_i,k) - m-_{k+1})'    (prediction's points)
+        /// G_k = D_{k+1} (P-_{k+1})^-1
+        /// m^s_k = m_k + G_k (m^s_{k+1} - m-_{k+1}),  P^s_k = P_k + G_k (P^s_{k+1} - P-_{k+1}) G_k'
+        /// ```
+        ///
+        /// The smoother reads what the forward pass reported: the sigma-point gain, P_yy
+        /// and the innovation, and the statistical linearisations Phi~ and H~ (struct
+        /// docs), never a Jacobian of the model. With P_k Phi~' = D_{k+1} and, for an
+        /// update, P+ = (I - K H~) P-, its RTS step over Phi~ and H~ is the one above
+        /// (tested against a separately written URTS to 1e-10). On a linear model it equals
+        /// the [`KalmanFilter`]'s. The returned [`SmoothedBatch`] also holds the filtered
+        /// estimates of the same forward pass ([`SmoothedBatch::filtered`]).
+        /// This filter and its observer are left untouched; the copy needs a `Clone` process
+        /// model.
+        ///
+        /// # Errors
+        /// As [`KalmanFilter::smooth_batch`], with the errors of
+        /// [`UnscentedKalmanFilter::step`].
+        #[allow(clippy::type_complexity)] // the step tuple, spelled out for the reader
+        smooth_batch;
     }
 
     update_methods! {

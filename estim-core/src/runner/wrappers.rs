@@ -1,6 +1,8 @@
 //! The code every runner has, written once: the accessors over the shared core, the
 //! `update` / `update_windowed` / `step` wrappers around each runner's
-//! `update_from`, and the AVX2 dispatch of the linear runner.
+//! `update_from`, the `filter_batch` / `smooth_batch` wrappers around the batch loop,
+//! the linear model's accessors of the two linear runners, and the AVX2 dispatch of
+//! the linear runner.
 
 /// `$this.$body`, run through its copy `$avx2` compiled for AVX2 when the CPU has it
 /// and the dispatch allows it ([`crate::linalg::dispatch`])
@@ -217,6 +219,129 @@ macro_rules! update_methods {
             $($Mm: $($bound)+ + ?Sized,)?
         {
             self.step($($arg,)* $($model,)? measurement, &crate::Zero)
+        }
+    };
+}
+
+/// `filter_batch` and `smooth_batch` of a runner, around [`super::batch::filter_steps`],
+/// [`super::batch::smooth_steps`] and the runner's private `fork` (a copy of it with
+/// another observer).
+///
+/// `steps`: the slice's parameter name and the type of one step; `step`: a pattern
+/// for one step, then the arguments it gives `step` before the model and the
+/// measurement after it; `model` and `size` as in [`update_methods`]; `state`: the
+/// state models see; `estimate`: the batch's estimate type (empty for
+/// [`crate::StateAndCovariance`], the batches' default) and how to read it from the
+/// runner, named by `|filter|`; `initial`: x_0 for the smoother, (state as models see
+/// it, covariance), from the same `filter`; `smoothed`: a smoothed epoch as the
+/// estimate; `smooth_where`: what smoothing needs beyond filtering (a `Clone` process
+/// model for the copy). The two docs follow, each before its method's name.
+macro_rules! batch_methods {
+    (
+        steps: $steps:ident: $Step:ty,
+        step: |$step:pat_param| [$($arg:expr),*] $measurement:expr,
+        model: [$($model:ident: $Mm:ident: $($bound:tt)+)?],
+        size: [$($size:ident)?],
+        state: $S:ty,
+        estimate: [$($E:ty)?] |$filter:ident| $estimate:expr,
+        initial: $initial:expr,
+        smoothed: |$epoch:ident| $smoothed:expr,
+        smooth_where: [$($where:tt)*],
+        $(#[$filter_doc:meta])* filter_batch;
+        $(#[$smooth_doc:meta])* smooth_batch;
+    ) => {
+        $(#[$filter_doc])*
+        pub fn filter_batch<$($Mm,)? C $(, const $size: usize)?>(
+            &mut self,
+            $steps: &[$Step],
+            $($model: &$Mm,)?
+            cross: &C,
+        ) -> Result<FilteredBatch<T, N, M $(, $E)?>>
+        where
+            $($Mm: $($bound)+ + ?Sized,)?
+            C: CrossCovariance<T, $S, N, M> + ?Sized,
+        {
+            super::batch::filter_steps($steps, |$step| {
+                let report = self.step($($arg,)* $($model,)? $measurement, cross)?;
+                let $filter = &*self;
+                Ok((report, $estimate))
+            })
+        }
+
+        $(#[$smooth_doc])*
+        pub fn smooth_batch<$($Mm,)? C $(, const $size: usize)?>(
+            &self,
+            $steps: &[$Step],
+            $($model: &$Mm,)?
+            cross: &C,
+        ) -> Result<SmoothedBatch<T, N $(, $E)?>>
+        where
+            $($where)*
+            $($Mm: $($bound)+ + ?Sized,)?
+            C: CrossCovariance<T, $S, N, M> + ?Sized,
+        {
+            let $filter = self;
+            super::batch::smooth_steps(
+                $initial,
+                self.propagations_since_update() > 0,
+                |recorder| {
+                    let mut forward = self.fork(recorder);
+                    let filtered = forward.filter_batch($steps, $($model,)? cross)?;
+                    Ok((filtered, forward.into_observer()))
+                },
+                |$epoch| $smoothed,
+            )
+        }
+    };
+}
+
+/// The accessors of the linear model that [`crate::KalmanFilter`] and
+/// [`crate::SquareRootKalmanFilter`] share (fields `transition`, `process_noise`,
+/// `observation`, `measurement_noise`, `model_unchanged`): F, Q, H and R, and the
+/// setters of F and H (those of Q and R check and factor in each runner's own way).
+macro_rules! linear_model_accessors {
+    () => {
+        /// The transition F used by the next predict.
+        pub fn transition(&self) -> &SMatrix<T, N, N> {
+            &self.transition
+        }
+
+        /// The process-noise covariance Q = Cov(G w) used by the next predict.
+        pub fn process_noise(&self) -> &SMatrix<T, N, N> {
+            &self.process_noise
+        }
+
+        /// The observation matrix H used by the next update.
+        pub fn observation(&self) -> &SMatrix<T, M, N> {
+            &self.observation
+        }
+
+        /// The measurement-noise covariance R used by the next update.
+        pub fn measurement_noise(&self) -> &SMatrix<T, M, M> {
+            &self.measurement_noise
+        }
+
+        /// Replace F for the following predicts (a time-varying model; time index:
+        /// module docs of [`crate::KalmanFilter`]). Q_acc and Phi_acc keep what earlier
+        /// steps accumulated.
+        ///
+        /// # Errors
+        /// [`crate::Error::NonFinite`]; the filter is then unchanged.
+        pub fn set_transition(&mut self, transition: SMatrix<T, N, N>) -> Result<()> {
+            check_finite(transition.as_slice(), "transition matrix")?;
+            self.transition = transition;
+            self.model_unchanged = false;
+            Ok(())
+        }
+
+        /// Replace H for the following updates.
+        ///
+        /// # Errors
+        /// [`crate::Error::NonFinite`]; the filter is then unchanged.
+        pub fn set_observation(&mut self, observation: SMatrix<T, M, N>) -> Result<()> {
+            check_finite(observation.as_slice(), "observation matrix")?;
+            self.observation = observation;
+            Ok(())
         }
     };
 }

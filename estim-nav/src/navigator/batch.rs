@@ -111,10 +111,13 @@ type LearnedUpdate<'a, E, O, const N: usize> =
 
 /// The error for a run that cannot take the DVL error states.
 fn dvl_states_unsupported(what: &str) -> NavigatorError {
-    NavigatorError::Config(format!(
-        "dvl_states: {what} runs the 15-state filter; remove the [dvl_states] table \
-         from the vehicle configuration"
-    ))
+    NavigatorError::conflict(
+        "dvl_states",
+        format!(
+            "{what} runs the 15-state filter; remove the [dvl_states] table from the \
+             vehicle configuration"
+        ),
+    )
 }
 
 /// One measurement of a batch run.
@@ -194,7 +197,7 @@ pub fn navigate(
 /// `ForwardRecorder` for the smoother), returned with the run.
 ///
 /// # Errors
-/// As [`navigate`]; [`NavigatorError::Config`] naming `dvl_states` when the settings
+/// As [`navigate`]; [`NavigatorError::Conflict`] naming `dvl_states` when the settings
 /// hold DVL error states.
 pub fn navigate_with<F: Observer<f64, InsState, ERROR_STATES>>(
     inputs: &SurveyInputs,
@@ -263,7 +266,7 @@ pub(super) fn navigate_augmented_with<
 /// # Errors
 /// [`NavigatorError::Inputs`] for DVL rows that are not beams, or beams whose geometry
 /// (`dvl.beam_angle_deg`, `dvl.beam1_azimuth_deg`) is not the one the network was
-/// trained on; [`NavigatorError::Config`] for an IMU period other than the network's
+/// trained on; [`NavigatorError::Conflict`] for an IMU period other than the network's
 /// 0.01 s, or settings with DVL error states (`dvl_states`); as [`navigate`].
 #[cfg(feature = "learned")]
 pub fn navigate_learned(
@@ -317,10 +320,13 @@ pub fn navigate_learned(
     let period = imu_period(&inputs.imu, settings)?;
     let window_period = 1.0 / 100.0;
     if (period - window_period).abs() > super::IMU_PERIOD_SNAP * window_period {
-        return Err(NavigatorError::Config(format!(
-            "BeamsNet takes {} IMU samples at 100 Hz; this IMU's period is {period} s",
-            estim_learned::BEAMSNET_WINDOW
-        )));
+        return Err(NavigatorError::conflict(
+            "IMU period",
+            format!(
+                "BeamsNet takes {} IMU samples at 100 Hz; this IMU's period is {period} s",
+                estim_learned::BEAMSNET_WINDOW
+            ),
+        ));
     }
     let mut recording = settings.clone();
     recording.filter_config = estim_core::FilterConfigBuilder::from(settings.filter_config.clone())
@@ -625,9 +631,10 @@ where
 {
     if let Some(rate) = output_rate_hz {
         if !(rate.is_finite() && rate > 0.0) {
-            return Err(NavigatorError::Config(format!(
-                "output rate {rate} Hz is not positive and finite"
-            )));
+            return Err(NavigatorError::invalid(
+                "output rate",
+                format!("{rate} Hz is not positive and finite"),
+            ));
         }
     }
     let imu = &inputs.imu;

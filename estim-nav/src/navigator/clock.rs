@@ -25,12 +25,13 @@ impl ImuClock {
     /// A clock at `start` for a nominal period `period` \[s\].
     ///
     /// # Errors
-    /// [`NavigatorError::Config`] for a period that is not positive and finite.
+    /// [`NavigatorError::InvalidValue`] for a period that is not positive and finite.
     pub(super) fn new(period: f64, start: f64) -> Result<Self> {
         if !(period.is_finite() && period > 0.0) {
-            return Err(NavigatorError::Config(format!(
-                "IMU period {period} s is not positive and finite"
-            )));
+            return Err(NavigatorError::invalid(
+                "IMU period",
+                format!("{period} s is not positive and finite"),
+            ));
         }
         Ok(Self {
             period,

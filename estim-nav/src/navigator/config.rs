@@ -352,17 +352,19 @@ pub const IMU_PRESETS: [&str; 4] = [
 /// The IMU spec of a preset name.
 ///
 /// # Errors
-/// [`NavigatorError::Config`] for an unknown name, listing the valid ones.
+/// [`NavigatorError::UnknownName`] for an unknown name, listing the valid ones.
 pub fn imu_preset(name: &str) -> Result<ImuSpec> {
     match name {
         "akit_observed" => Ok(ImuSpec::akit_observed()),
         "tactical_mems" => Ok(ImuSpec::tactical_mems()),
         "navigation_grade_fog" => Ok(ImuSpec::navigation_grade_fog()),
         "consumer_mems" => Ok(ImuSpec::consumer_mems()),
-        other => Err(NavigatorError::Config(format!(
-            "imu.preset: unknown preset `{other}` (valid: {})",
-            IMU_PRESETS.join(", ")
-        ))),
+        other => Err(NavigatorError::UnknownName {
+            key: "imu.preset".into(),
+            what: "preset",
+            name: other.into(),
+            valid: IMU_PRESETS.join(", "),
+        }),
     }
 }
 
@@ -502,7 +504,7 @@ fn finite(name: &str, values: &[f64]) -> Result<()> {
     if values.iter().all(|v| v.is_finite()) {
         Ok(())
     } else {
-        Err(NavigatorError::Config(format!("{name}: not finite")))
+        Err(NavigatorError::invalid(name, "not finite"))
     }
 }
 
@@ -510,9 +512,10 @@ fn positive(name: &str, value: f64) -> Result<()> {
     if value.is_finite() && value > 0.0 {
         Ok(())
     } else {
-        Err(NavigatorError::Config(format!(
-            "{name}: {value} is not a positive finite number"
-        )))
+        Err(NavigatorError::invalid(
+            name,
+            format!("{value} is not a positive finite number"),
+        ))
     }
 }
 
@@ -589,9 +592,10 @@ fn signed_axis(key: usize, name: &str) -> Result<Vector3<f64>> {
         "y" => 1,
         "z" => 2,
         _ => {
-            return Err(NavigatorError::Config(format!(
-                "imu.axes[{key}]: `{name}` is not a signed axis (x, -x, y, -y, z, -z)"
-            )))
+            return Err(NavigatorError::invalid(
+                format!("imu.axes[{key}]"),
+                format!("`{name}` is not a signed axis (x, -x, y, -y, z, -z)"),
+            ))
         }
     };
     let mut v = Vector3::zeros();
@@ -603,7 +607,7 @@ impl NavigatorConfig {
     /// The IMU's axes and clock as configured.
     ///
     /// # Errors
-    /// [`NavigatorError::Config`] naming the key: an axis name that is not a signed
+    /// [`NavigatorError::InvalidValue`] naming the key: an axis name that is not a signed
     /// axis, an axis used twice, a non-finite angle or offset, a clock scale that is
     /// not within 10 % of 1.
     pub fn imu_frame(&self) -> Result<ImuFrame> {
@@ -618,10 +622,13 @@ impl NavigatorConfig {
             rows[2].transpose(),
         ]);
         if (permutation.determinant().abs() - 1.0).abs() > 1e-12 {
-            return Err(NavigatorError::Config(format!(
-                "imu.axes: {:?} names an axis twice (each of x, y, z once, with a sign)",
-                imu.axes
-            )));
+            return Err(NavigatorError::conflict(
+                "imu.axes",
+                format!(
+                    "{:?} names an axis twice (each of x, y, z once, with a sign)",
+                    imu.axes
+                ),
+            ));
         }
         finite("imu.mounting_rpy_deg", &imu.mounting_rpy_deg)?;
         finite("imu.time_offset_s", &[imu.time_offset_s])?;
@@ -629,16 +636,17 @@ impl NavigatorConfig {
         finite("imu.gyroscope_bias", &imu.gyroscope_bias)?;
         for (axis, scale) in ["x", "y", "z"].iter().zip(imu.gyroscope_scale) {
             if !(scale.is_finite() && (scale - 1.0).abs() <= 0.1) {
-                return Err(NavigatorError::Config(format!(
-                    "imu.gyroscope_scale: {scale} on body {axis} is not within 10 % of 1"
-                )));
+                return Err(NavigatorError::invalid(
+                    "imu.gyroscope_scale",
+                    format!("{scale} on body {axis} is not within 10 % of 1"),
+                ));
             }
         }
         if !(imu.clock_scale.is_finite() && (imu.clock_scale - 1.0).abs() <= 0.1) {
-            return Err(NavigatorError::Config(format!(
-                "imu.clock_scale: {} is not within 10 % of 1",
-                imu.clock_scale
-            )));
+            return Err(NavigatorError::invalid(
+                "imu.clock_scale",
+                format!("{} is not within 10 % of 1", imu.clock_scale),
+            ));
         }
         let [r, p, y] = imu.mounting_rpy_deg.map(f64::to_radians);
         let mounting = nalgebra::Rotation3::from_euler_angles(r, p, y).into_inner();
@@ -653,10 +661,12 @@ impl NavigatorConfig {
     /// Validate every value once and assemble the models.
     ///
     /// # Errors
-    /// [`NavigatorError::Config`] naming the key; the member crates' errors for
+    /// [`NavigatorError::InvalidValue`], [`NavigatorError::UnknownName`],
+    /// [`NavigatorError::Conflict`] or [`NavigatorError::ColumnMap`] naming the key;
+    /// the member crates' errors for
     /// invalid model parameters.
     pub fn check(&self) -> Result<NavigatorSettings> {
-        self.columns.check().map_err(NavigatorError::Config)?;
+        self.columns.check().map_err(NavigatorError::ColumnMap)?;
         let mut sensor = imu_preset(&self.imu.preset)?;
         if self.imu.accelerometer.is_some() || self.imu.gyroscope.is_some() {
             sensor = ImuSpec::builder()
@@ -686,10 +696,10 @@ impl NavigatorConfig {
             Matrix3::from_diagonal_element(d.noise_std_mps * d.noise_std_mps),
         )?;
         if !(d.beam_angle_deg > 0.0 && d.beam_angle_deg < 90.0) {
-            return Err(NavigatorError::Config(format!(
-                "dvl.beam_angle_deg: {} is not in (0, 90)",
-                d.beam_angle_deg
-            )));
+            return Err(NavigatorError::invalid(
+                "dvl.beam_angle_deg",
+                format!("{} is not in (0, 90)", d.beam_angle_deg),
+            ));
         }
         finite("dvl.beam1_azimuth_deg", &[d.beam1_azimuth_deg])?;
         let dvl_noise_scale = match d.adaptive_noise_window {
@@ -698,9 +708,10 @@ impl NavigatorConfig {
                 ..NoiseScaleConfig::default()
             }),
             Some(window) => {
-                return Err(NavigatorError::Config(format!(
-                    "dvl.adaptive_noise_window: {window} is not in 1-100000"
-                )))
+                return Err(NavigatorError::invalid(
+                    "dvl.adaptive_noise_window",
+                    format!("{window} is not in 1-100000"),
+                ))
             }
             None => None,
         };
@@ -714,24 +725,26 @@ impl NavigatorConfig {
         finite("fixes.time_offset_s", &[self.fixes.time_offset_s])?;
         let g = &self.gate;
         if !(g.probability == 0.0 || (g.probability > 0.0 && g.probability < 1.0)) {
-            return Err(NavigatorError::Config(format!(
-                "gate.probability: {} is not 0 (off) or in (0, 1)",
-                g.probability
-            )));
+            return Err(NavigatorError::invalid(
+                "gate.probability",
+                format!("{} is not 0 (off) or in (0, 1)", g.probability),
+            ));
         }
         let i = &self.initial;
         match (i.latitude_deg, i.longitude_deg) {
             (Some(lat), Some(lon)) => {
                 if !(lat.abs() < 85.0 && lon.is_finite()) {
-                    return Err(NavigatorError::Config(format!(
-                        "initial: latitude {lat} deg / longitude {lon} deg out of range (|lat| < 85)"
-                    )));
+                    return Err(NavigatorError::invalid(
+                        "initial.latitude_deg / longitude_deg",
+                        format!("{lat} deg / {lon} deg out of range (|lat| < 85)"),
+                    ));
                 }
             }
             (None, None) => {}
             _ => {
-                return Err(NavigatorError::Config(
-                    "initial: give both latitude_deg and longitude_deg, or neither".into(),
+                return Err(NavigatorError::conflict(
+                    "initial.latitude_deg / longitude_deg",
+                    "give both, or neither",
                 ))
             }
         }

@@ -59,7 +59,7 @@ pub trait NavigationModel<const N: usize>:
     /// `model` with its noise scaled by `scale` (the adaptive DVL noise level).
     ///
     /// # Errors
-    /// [`NavigatorError::Config`] for a scale that is not finite and positive.
+    /// [`NavigatorError::InvalidValue`] for a scale that is not finite and positive.
     fn scale_dvl_noise(model: &Self::Dvl, scale: f64) -> Result<Self::Dvl>;
 
     /// After a propagation step of length `dt` ending at `end`, at the new nominal.
@@ -114,9 +114,12 @@ impl NavigationModel<ERROR_STATES> for InsErrorModel {
     }
 
     fn scale_dvl_noise(model: &DvlVelocityModel, scale: f64) -> Result<DvlVelocityModel> {
-        model
-            .with_noise_scale(scale)
-            .map_err(|e| NavigatorError::Config(e.to_string()))
+        model.with_noise_scale(scale).map_err(|_| {
+            NavigatorError::invalid(
+                "DVL noise scale",
+                format!("{scale} is not finite and positive"),
+            )
+        })
     }
 }
 
@@ -212,7 +215,7 @@ impl Navigator {
     /// the clock), its error covariance and the nominal IMU period \[s\].
     ///
     /// # Errors
-    /// [`NavigatorError::Config`] for a period that is not positive and finite; the
+    /// [`NavigatorError::InvalidValue`] for a period that is not positive and finite; the
     /// core's for a covariance that is not finite and symmetric.
     pub fn new(
         settings: &NavigatorSettings,
@@ -549,7 +552,7 @@ impl<E: NavigationModel<N>, O: Observer<f64, E::State, N>, const N: usize> Navig
     /// 1-sigma `sigma_m` \[m\] (> 0).
     ///
     /// # Errors
-    /// [`NavigatorError::Config`] for a sigma that is not positive and finite; as
+    /// [`NavigatorError::InvalidValue`] for a sigma that is not positive and finite; as
     /// [`Navigator::dvl_velocity`].
     pub fn position_fix(
         &mut self,
@@ -559,9 +562,10 @@ impl<E: NavigationModel<N>, O: Observer<f64, E::State, N>, const N: usize> Navig
         sigma_m: f64,
     ) -> Result<UpdateReport<f64, N, 2>> {
         if !(sigma_m.is_finite() && sigma_m > 0.0) {
-            return Err(NavigatorError::Config(format!(
-                "position fix at t = {time}: sigma {sigma_m} m is not positive and finite"
-            )));
+            return Err(NavigatorError::invalid(
+                format!("position fix sigma at t = {time}"),
+                format!("{sigma_m} m is not positive and finite"),
+            ));
         }
         self.propagate_to(time)?;
         let model = PositionFixModel::<E::State>::new(

@@ -65,7 +65,7 @@ impl HealthConfig {
     /// Validate every limit once.
     ///
     /// # Errors
-    /// [`NavigatorError::Config`] naming the key.
+    /// [`NavigatorError::InvalidValue`] naming the key.
     pub fn check(&self) -> Result<()> {
         let positive = [
             ("health.max_speed_mps", self.max_speed_mps),
@@ -76,28 +76,33 @@ impl HealthConfig {
         ];
         for (key, value) in positive {
             if !(value.is_finite() && value > 0.0) {
-                return Err(NavigatorError::Config(format!(
-                    "{key}: {value} is not a positive finite number"
-                )));
+                return Err(NavigatorError::invalid(
+                    key,
+                    format!("{value} is not a positive finite number"),
+                ));
             }
         }
         if !(self.min_depth_m.is_finite()
             && self.max_depth_m.is_finite()
             && self.min_depth_m < self.max_depth_m)
         {
-            return Err(NavigatorError::Config(format!(
-                "health.min_depth_m / max_depth_m: [{}, {}] is not an interval",
-                self.min_depth_m, self.max_depth_m
-            )));
+            return Err(NavigatorError::conflict(
+                "health.min_depth_m / max_depth_m",
+                format!(
+                    "[{}, {}] is not an interval",
+                    self.min_depth_m, self.max_depth_m
+                ),
+            ));
         }
         for (key, window) in [
             ("health.nis_window", self.nis_window),
             ("health.fix_nis_window", self.fix_nis_window),
         ] {
             if window > 100_000 {
-                return Err(NavigatorError::Config(format!(
-                    "{key}: {window} is not in 0-100000"
-                )));
+                return Err(NavigatorError::invalid(
+                    key,
+                    format!("{window} is not in 0-100000"),
+                ));
             }
         }
         Ok(())
@@ -442,7 +447,7 @@ mod tests {
             ..HealthConfig::default()
         };
         assert!(
-            matches!(bad.check(), Err(NavigatorError::Config(m)) if m.contains("max_speed_mps"))
+            matches!(bad.check(), Err(NavigatorError::InvalidValue { key, .. }) if key == "health.max_speed_mps")
         );
         let bad = HealthConfig {
             min_depth_m: 10.0,

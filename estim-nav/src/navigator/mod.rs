@@ -93,9 +93,41 @@ pub use stream::{
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum NavigatorError {
-    /// An invalid configuration value (the message names the key).
+    /// A configuration value out of its valid range, or an argument of the API that
+    /// is.
+    #[error("configuration: {key}: {reason}")]
+    InvalidValue {
+        /// The key as the vehicle file spells it (`dvl.beam_angle_deg`,
+        /// `health.max_speed_mps`), or what the argument is (`DVL noise scale`, `tune`
+        /// for the tuner's inputs).
+        key: String,
+        /// Why the value is not valid (it is quoted).
+        reason: String,
+    },
+    /// A name that is not one of the valid ones.
+    #[error("configuration: {key}: unknown {what} `{name}` (valid: {valid})")]
+    UnknownName {
+        /// The key (`imu.preset`).
+        key: String,
+        /// What the name names (`preset`).
+        what: &'static str,
+        /// The name given.
+        name: String,
+        /// The valid names, comma-separated.
+        valid: String,
+    },
+    /// A `[columns.*]` table that cannot be used: the message of
+    /// [`crate::datasets::ColumnMap::check`], which names the section and key.
     #[error("configuration: {0}")]
-    Config(String),
+    ColumnMap(String),
+    /// Values that are valid alone but not together (or not with the run asked for).
+    #[error("configuration: {keys}: {reason}")]
+    Conflict {
+        /// The keys (`health.min_depth_m / max_depth_m`, `dvl_states`).
+        keys: String,
+        /// What does not go together, and what to do.
+        reason: String,
+    },
     /// A non-finite value (time, specific force or angular rate) in an input.
     #[error("non-finite value in {what} at t = {time} s")]
     NonFinite {
@@ -170,3 +202,21 @@ pub enum NavigatorError {
 
 /// `Result` of the navigator.
 pub type Result<T> = std::result::Result<T, NavigatorError>;
+
+impl NavigatorError {
+    /// [`NavigatorError::InvalidValue`].
+    pub(crate) fn invalid(key: impl Into<String>, reason: impl Into<String>) -> Self {
+        Self::InvalidValue {
+            key: key.into(),
+            reason: reason.into(),
+        }
+    }
+
+    /// [`NavigatorError::Conflict`].
+    pub(crate) fn conflict(keys: impl Into<String>, reason: impl Into<String>) -> Self {
+        Self::Conflict {
+            keys: keys.into(),
+            reason: reason.into(),
+        }
+    }
+}

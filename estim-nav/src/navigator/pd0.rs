@@ -71,12 +71,13 @@ pub struct Pd0Conversion {
 /// (see the module docs for the transform it inverts).
 ///
 /// # Errors
-/// [`NavigatorError::Config`] for a beam angle outside (0, 90) deg.
+/// [`NavigatorError::InvalidValue`] for a beam angle outside (0, 90) deg.
 pub fn rdi_beam_geometry(beam_angle_deg: f64, convex: bool) -> Result<BeamGeometry> {
     if !(beam_angle_deg > 0.0 && beam_angle_deg < 90.0) {
-        return Err(NavigatorError::Config(format!(
-            "PD0 beam angle {beam_angle_deg} deg is not in (0, 90)"
-        )));
+        return Err(NavigatorError::invalid(
+            "PD0 beam angle",
+            format!("{beam_angle_deg} deg is not in (0, 90)"),
+        ));
     }
     let (s, k) = beam_angle_deg.to_radians().sin_cos();
     let c = if convex { 1.0 } else { -1.0 };

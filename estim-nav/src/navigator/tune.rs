@@ -128,13 +128,14 @@ impl TuneModel {
     /// The filter's IMU spec at theta (white-noise densities sqrt(q_a), sqrt(q_g)).
     ///
     /// # Errors
-    /// [`NavigatorError::Config`] for a negative or non-finite PSD.
+    /// [`NavigatorError::InvalidValue`] for a negative or non-finite PSD.
     pub fn filter_spec(&self, theta: &TuneParameters) -> Result<ImuSpec> {
         let (qa, qg) = (theta[0], theta[1]);
         if !(qa.is_finite() && qa >= 0.0 && qg.is_finite() && qg >= 0.0) {
-            return Err(NavigatorError::Config(format!(
-                "tune: IMU PSDs {qa}, {qg} must be finite and >= 0"
-            )));
+            return Err(NavigatorError::invalid(
+                "tune",
+                format!("IMU PSDs {qa}, {qg} must be finite and >= 0"),
+            ));
         }
         let mut acc = *self.sensor_spec.accelerometer();
         let mut gyro = *self.sensor_spec.gyroscope();
@@ -313,7 +314,7 @@ impl Linearization {
 /// linearization (module docs).
 ///
 /// # Errors
-/// [`NavigatorError::Config`] for an invalid theta, an IMU period that is not positive,
+/// [`NavigatorError::InvalidValue`] for an invalid theta, an IMU period that is not positive,
 /// a DVL index beyond the IMU or out of order, or IMU times that do not increase;
 /// [`NavigatorError::Filter`] for a numerical failure (with the time).
 pub fn linearize(
@@ -322,16 +323,17 @@ pub fn linearize(
     theta: &TuneParameters,
 ) -> Result<Linearization> {
     if !theta.iter().all(|v| v.is_finite()) {
-        return Err(NavigatorError::Config(format!(
-            "tune: parameters {:?} must be finite",
-            theta.as_slice()
-        )));
+        return Err(NavigatorError::invalid(
+            "tune",
+            format!("parameters {:?} must be finite", theta.as_slice()),
+        ));
     }
     let period = trajectory.imu_period;
     if !(period.is_finite() && period > 0.0) {
-        return Err(NavigatorError::Config(format!(
-            "tune: IMU period {period} s is not positive and finite"
-        )));
+        return Err(NavigatorError::invalid(
+            "tune",
+            format!("IMU period {period} s is not positive and finite"),
+        ));
     }
     let spec = model.filter_spec(theta)?;
     let r = model.measurement_noise(theta);
@@ -353,7 +355,7 @@ pub fn linearize(
     );
     let imu = trajectory.imu;
     let Some(first) = imu.first() else {
-        return Err(NavigatorError::Config("tune: no IMU samples".into()));
+        return Err(NavigatorError::invalid("tune", "no IMU samples"));
     };
     let tolerance = IMU_PERIOD_SNAP * period;
     let mut recorder = Recorder::new(noise_parts(&spec)?, period);
@@ -365,11 +367,14 @@ pub fn linearize(
         let last = j + 1 == imu.len();
         let end = imu.get(j + 1).map_or(sample.time + period, |s| s.time);
         if !(end.is_finite() && end > sample.time) {
-            return Err(NavigatorError::Config(format!(
-                "tune: IMU sample {} at t = {end} s does not follow sample {j} at t = {} s",
-                j + 1,
-                sample.time
-            )));
+            return Err(NavigatorError::invalid(
+                "tune",
+                format!(
+                    "IMU sample {} at t = {end} s does not follow sample {j} at t = {} s",
+                    j + 1,
+                    sample.time
+                ),
+            ));
         }
         while let Some(&(time, y)) = trajectory.dvl.get(next) {
             // A measurement at the next sample's time belongs to the next interval.
@@ -378,10 +383,13 @@ pub fn linearize(
                 break;
             }
             if !(time.is_finite() && time >= clock - tolerance) {
-                return Err(NavigatorError::Config(format!(
-                    "tune: DVL measurement {next} at t = {time} s is before t = {clock} s \
+                return Err(NavigatorError::invalid(
+                    "tune",
+                    format!(
+                        "DVL measurement {next} at t = {time} s is before t = {clock} s \
                      (out of order, or before the first IMU sample)"
-                )));
+                    ),
+                ));
             }
             if time - clock > tolerance {
                 recorder.step(&mut filter, sample, time - clock)?;
@@ -408,10 +416,13 @@ pub fn linearize(
         }
     }
     if let Some(&(time, _)) = trajectory.dvl.get(next) {
-        return Err(NavigatorError::Config(format!(
-            "tune: DVL measurement {next} at t = {time} s is beyond the IMU's end (t = {} s)",
-            clock.max(imu.last().map_or(clock, |s| s.time + period))
-        )));
+        return Err(NavigatorError::invalid(
+            "tune",
+            format!(
+                "DVL measurement {next} at t = {time} s is beyond the IMU's end (t = {} s)",
+                clock.max(imu.last().map_or(clock, |s| s.time + period))
+            ),
+        ));
     }
     Ok(Linearization {
         epochs,
@@ -749,7 +760,7 @@ pub struct TuneFit {
 /// Fit theta on `trajectories` from `start` (module docs).
 ///
 /// # Errors
-/// [`NavigatorError::Config`] for no trajectories, zero linearizations, an invalid
+/// [`NavigatorError::InvalidValue`] for no trajectories, zero linearizations, an invalid
 /// start or a held m_scale beyond its valid range; [`linearize`]'s; the fit's errors as [`NavigatorError::Core`].
 pub fn tune(
     trajectories: &[TuneTrajectory<'_>],
@@ -758,15 +769,19 @@ pub fn tune(
     options: &TuneOptions,
 ) -> Result<TuneFit> {
     if trajectories.is_empty() || options.linearizations == 0 {
-        return Err(NavigatorError::Config(
-            "tune: at least one trajectory and one linearization are needed".into(),
+        return Err(NavigatorError::invalid(
+            "tune",
+            "at least one trajectory and one linearization are needed",
         ));
     }
     if !(start.iter().take(4).all(|v| *v > 0.0) && start[M_SCALE].is_finite()) {
-        return Err(NavigatorError::Config(format!(
-            "tune: the starting variances {:?} must be positive",
-            &start.as_slice()[..4]
-        )));
+        return Err(NavigatorError::invalid(
+            "tune",
+            format!(
+                "the starting variances {:?} must be positive",
+                &start.as_slice()[..4]
+            ),
+        ));
     }
     let beam_covariance = model.beam_covariance();
     let mut point = *start;
@@ -793,11 +808,14 @@ pub fn tune(
         for (i, value) in options.fixed.iter().enumerate() {
             if let Some(v) = *value {
                 if i == M_SCALE && v.abs() > rho_bound {
-                    return Err(NavigatorError::Config(format!(
-                        "tune: m_scale held at {v} is beyond the largest valid value \
+                    return Err(NavigatorError::invalid(
+                        "tune",
+                        format!(
+                            "m_scale held at {v} is beyond the largest valid value \
                          +-{rho_bound:.4} at this linearization (M would not be a \
                          cross-covariance)"
-                    )));
+                        ),
+                    ));
                 }
                 (lower[i], upper[i], begin[i]) = (v, v, v);
             }

@@ -39,16 +39,17 @@ impl AugmentedDvlModel {
     /// A model with measurement-noise covariance `r` (symmetric positive definite).
     ///
     /// # Errors
-    /// [`NavigatorError::Config`] for an R that is not finite, symmetric and positive
+    /// [`NavigatorError::InvalidValue`] for an R that is not finite, symmetric and positive
     /// definite.
     pub fn new(r: Matrix3<f64>) -> Result<Self> {
         let ok = r.iter().all(|x| x.is_finite())
             && (r - r.transpose()).abs().max() <= 1e-12 * r.abs().max()
             && r.cholesky().is_some();
         if !ok {
-            return Err(NavigatorError::Config(format!(
-                "DVL noise covariance {r} is not symmetric positive definite"
-            )));
+            return Err(NavigatorError::invalid(
+                "DVL noise covariance",
+                format!("{r} is not symmetric positive definite"),
+            ));
         }
         Ok(Self {
             noise_covariance: r,
@@ -60,12 +61,13 @@ impl AugmentedDvlModel {
     /// The same model with the rate-dependent noise κ \[m/s per rad/s\] (>= 0).
     ///
     /// # Errors
-    /// [`NavigatorError::Config`] for a κ that is negative or not finite.
+    /// [`NavigatorError::InvalidValue`] for a κ that is negative or not finite.
     pub fn with_rate_noise(mut self, kappa: f64) -> Result<Self> {
         if !(kappa.is_finite() && kappa >= 0.0) {
-            return Err(NavigatorError::Config(format!(
-                "DVL rate noise {kappa} m/s per rad/s is not finite and >= 0"
-            )));
+            return Err(NavigatorError::invalid(
+                "DVL rate noise",
+                format!("{kappa} m/s per rad/s is not finite and >= 0"),
+            ));
         }
         self.rate_noise = kappa;
         Ok(self)
@@ -75,12 +77,13 @@ impl AugmentedDvlModel {
     /// scale, κ by its square root (so κ² |ω|² scales with R).
     ///
     /// # Errors
-    /// [`NavigatorError::Config`] for a scale that is not finite and positive.
+    /// [`NavigatorError::InvalidValue`] for a scale that is not finite and positive.
     pub fn with_noise_scale(&self, scale: f64) -> Result<Self> {
         if !(scale.is_finite() && scale > 0.0) {
-            return Err(NavigatorError::Config(format!(
-                "DVL noise scale {scale} is not finite and positive"
-            )));
+            return Err(NavigatorError::invalid(
+                "DVL noise scale",
+                format!("{scale} is not finite and positive"),
+            ));
         }
         Ok(Self {
             noise_covariance: self.noise_covariance * scale,

@@ -45,19 +45,21 @@ impl AugmentedErrorModel {
     /// prediction on; tau is kept.
     ///
     /// # Errors
-    /// [`NavigatorError::Config`] when the bias is not estimated or sigma is not
-    /// finite and positive.
+    /// [`NavigatorError::Conflict`] when the bias is not estimated,
+    /// [`NavigatorError::InvalidValue`] when sigma is not finite and positive.
     pub fn set_bias_std(&mut self, sigma: f64) -> Result<()> {
         match &mut self.bias {
             Some((s, _)) if sigma.is_finite() && sigma > 0.0 => {
                 *s = sigma;
                 Ok(())
             }
-            Some(_) => Err(NavigatorError::Config(format!(
-                "DVL bias sigma {sigma} m/s is not finite and positive"
-            ))),
-            None => Err(NavigatorError::Config(
-                "the DVL bias is not estimated: it has no sigma to set".into(),
+            Some(_) => Err(NavigatorError::invalid(
+                "DVL bias sigma",
+                format!("{sigma} m/s is not finite and positive"),
+            )),
+            None => Err(NavigatorError::conflict(
+                "DVL bias sigma",
+                "the DVL bias is not estimated: it has no sigma to set",
             )),
         }
     }

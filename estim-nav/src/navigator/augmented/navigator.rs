@@ -56,22 +56,22 @@ impl DvlParameters {
     /// offset shifts the time stamps, the state estimates what remains).
     ///
     /// # Errors
-    /// [`NavigatorError::Config`] for a misalignment above 0.5 rad or a scale factor
+    /// [`NavigatorError::InvalidValue`] for a misalignment above 0.5 rad or a scale factor
     /// outside (0.5, 1.5).
     pub fn from_config(dvl: &DvlConfig) -> Result<Self> {
         let mu = Vector3::from(dvl.mounting_misalignment_rad);
         if !(mu.iter().all(|v| v.is_finite()) && mu.norm() <= 0.5) {
-            return Err(NavigatorError::Config(format!(
-                "dvl.mounting_misalignment_rad: |mu| = {} is not at most 0.5 rad",
-                mu.norm()
-            )));
+            return Err(NavigatorError::invalid(
+                "dvl.mounting_misalignment_rad",
+                format!("|mu| = {} is not at most 0.5 rad", mu.norm()),
+            ));
         }
         let k = dvl.scale_factor - 1.0;
         if !k.is_finite() || k.abs() >= 0.5 {
-            return Err(NavigatorError::Config(format!(
-                "dvl.scale_factor: {} is not in (0.5, 1.5)",
-                dvl.scale_factor
-            )));
+            return Err(NavigatorError::invalid(
+                "dvl.scale_factor",
+                format!("{} is not in (0.5, 1.5)", dvl.scale_factor),
+            ));
         }
         Ok(Self {
             scale_factor_error: dvl.scale_factor - 1.0,
@@ -103,7 +103,7 @@ impl AugmentedNavigator {
     /// state and its 15 x 15 covariance, and the nominal IMU period \[s\].
     ///
     /// # Errors
-    /// [`NavigatorError::Config`] for a bad period or state settings; the core's for
+    /// [`NavigatorError::InvalidValue`] for a bad period or state settings; the core's for
     /// a covariance that is not finite and symmetric.
     pub fn with_states(
         settings: &NavigatorSettings,

@@ -53,19 +53,20 @@ impl AxisSigma {
     fn check(&self, key: &str, max: f64) -> Result<()> {
         let in_range = |s: f64| s.is_finite() && (0.0..=max).contains(&s);
         match *self {
-            Self::All(s) if !(in_range(s) && s > 0.0) => Err(NavigatorError::Config(format!(
-                "dvl_states.{key}: {s} is not in (0, {max}]"
-            ))),
+            Self::All(s) if !(in_range(s) && s > 0.0) => Err(NavigatorError::invalid(
+                format!("dvl_states.{key}"),
+                format!("{s} is not in (0, {max}]"),
+            )),
             Self::PerAxis(axes) if !axes.iter().all(|&s| in_range(s)) => {
-                Err(NavigatorError::Config(format!(
-                    "dvl_states.{key}: {axes:?}: each axis must be in [0, {max}] (0 holds that axis)"
-                )))
+                Err(NavigatorError::invalid(
+                    format!("dvl_states.{key}"),
+                    format!("{axes:?}: each axis must be in [0, {max}] (0 holds that axis)"),
+                ))
             }
-            Self::PerAxis(axes) if axes.iter().all(|&s| s == 0.0) => {
-                Err(NavigatorError::Config(format!(
-                    "dvl_states.{key}: every axis is 0; set estimate = false to hold the state"
-                )))
-            }
+            Self::PerAxis(axes) if axes.iter().all(|&s| s == 0.0) => Err(NavigatorError::invalid(
+                format!("dvl_states.{key}"),
+                "every axis is 0; set estimate = false to hold the state",
+            )),
             _ => Ok(()),
         }
     }
@@ -176,7 +177,7 @@ impl DvlStatesConfig {
     /// Check every value.
     ///
     /// # Errors
-    /// [`NavigatorError::Config`] naming the key (`dvl_states.<group>.<key>`) of a
+    /// [`NavigatorError::InvalidValue`] naming the key (`dvl_states.<group>.<key>`) of a
     /// prior sigma, bias sigma or time constant that is not positive and finite (only
     /// for estimated states), or a prior larger than the model allows (scale factor
     /// 0.1, misalignment 0.1 rad, lever arm 10 m, time offset 5 s).
@@ -202,16 +203,16 @@ impl DvlStatesConfig {
         let b = self.bias;
         if b.estimate {
             if !(b.std_mps.is_finite() && b.std_mps > 0.0 && b.std_mps <= 1.0) {
-                return Err(NavigatorError::Config(format!(
-                    "dvl_states.bias.std_mps: {} is not in (0, 1]",
-                    b.std_mps
-                )));
+                return Err(NavigatorError::invalid(
+                    "dvl_states.bias.std_mps",
+                    format!("{} is not in (0, 1]", b.std_mps),
+                ));
             }
             if !(b.time_constant_s.is_finite() && b.time_constant_s > 0.0) {
-                return Err(NavigatorError::Config(format!(
-                    "dvl_states.bias.time_constant_s: {} is not positive and finite",
-                    b.time_constant_s
-                )));
+                return Err(NavigatorError::invalid(
+                    "dvl_states.bias.time_constant_s",
+                    format!("{} is not positive and finite", b.time_constant_s),
+                ));
             }
         }
         Ok(())
