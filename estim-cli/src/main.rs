@@ -93,10 +93,16 @@ fn main() -> ExitCode {
         Command::Beamsnet(args) => beamsnet::run(args),
         Command::Dataset(args) => dataset::run(args),
         Command::Report(args) => report::run(args),
-        Command::Smooth(args) => smooth::run(args),
+        Command::Smooth(args) => match args.into_mode() {
+            smooth::Mode::Survey(survey) => smooth::run(survey),
+            smooth::Mode::Scenarios(scenarios) => study::cli::smooth::run(scenarios),
+        },
         Command::Navigate(args) => navigate::run(args),
         Command::Simulate(args) => simulate::run(args),
-        Command::Tune(args) => tune::run(args),
+        Command::Tune(args) => args.into_mode().and_then(|mode| match mode {
+            tune::Mode::Survey(survey) => tune::run(survey),
+            tune::Mode::Trajectories(trajectories) => study::cli::tune::run(trajectories),
+        }),
         Command::WhereM(args) => where_m::run(args),
     };
     // Exit statuses: see `schema` (0 ok, 2 bad input, 3 some filter failed, 141

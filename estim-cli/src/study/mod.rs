@@ -2,6 +2,7 @@
 //! scenarios (simulated or A-KIT), filter variants, their summaries and the result
 //! tables of docs/results.md. Private to the binary (docs/design.md): not library API.
 
+pub mod cli;
 mod config;
 mod evaluate;
 mod faults;
@@ -55,7 +56,7 @@ pub use run::{
 };
 pub use scenario::{synthesize_imu, BeamLoss, DvlEpoch, Scenario};
 pub use smooth::{smooth_scenario, SmoothReport};
-pub use tune::{tune_akit, TuneReport};
+pub use tune::tune_akit;
 pub use where_m::{GRADES, MISSION_DURATION_S};
 
 use std::path::PathBuf;
