@@ -1,6 +1,8 @@
-//! The study's parts of the command line: the modes of user commands that run the
-//! paper's scenarios (their flags are parsed where the command is, `main.rs` brings
-//! them here).
+//! The study's parts of the command line: `estim simulate` (the study's sensor files
+//! from a recorded trajectory), and the modes of `estim smooth` and `estim tune` that
+//! run the paper's scenarios (their flags are parsed in the command's own file,
+//! `main.rs` brings them here).
 
+pub mod simulate;
 pub mod smooth;
 pub mod tune;
