@@ -87,7 +87,10 @@ fn main() -> ExitCode {
         Command::Compare(args) => compare::run(args),
         Command::Evaluate(args) => evaluate::run(args),
         Command::Montecarlo(args) => montecarlo::run(args),
-        Command::Dvl(args) => dvl::run(args),
+        Command::Dvl(args) => match args.into_mode() {
+            dvl::Mode::Tool(tool) => dvl::run(tool),
+            dvl::Mode::Mismatch(args) => study::cli::dvl_mismatch::run(&args),
+        },
         Command::Imu(args) => imu::run(args),
         Command::Beamsnet(args) => beamsnet::run(args),
         Command::Dataset(args) => dataset::run(args),
