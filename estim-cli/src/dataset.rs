@@ -4,8 +4,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use estim::datasets::{
-    akit_overlaps, check_spans, data_root, load_dvl, load_gt, touches_held_out, trajectory_files,
-    SPAN_TIME_OFFSET_ALLOWANCE_S, WINDOW_MARGIN_ROWS,
+    check_spans, data_root, load_dvl, load_gt, trajectory_files, SPAN_TIME_OFFSET_ALLOWANCE_S,
 };
 use estim_core::nalgebra::Vector3;
 use estim_dvl::BeamsNetProtocol;
@@ -15,7 +14,9 @@ use estim_learned::{
     BEAMSNET_WINDOW, DATASET_COLUMNS, IMU_RATE_HZ,
 };
 
-use crate::study::{Config, ImuChoice, Scenario};
+use crate::study::{
+    akit_overlaps, touches_held_out, Config, ImuChoice, Scenario, WINDOW_MARGIN_ROWS,
+};
 
 /// Trajectories BeamsNet is trained on: A-KIT 1-3 and 5-12 (4 and 13 are held out).
 pub const TRAINING_TRAJECTORIES: [u32; 11] = [1, 2, 3, 5, 6, 7, 8, 9, 10, 11, 12];

@@ -11,8 +11,6 @@
 //!   [`LearnedCrossCovariance`], by Monte Carlo [`Empirical::for_model`]);
 //! - [`OutageNet`]: IMU window + last valid DVL velocity + time since it -> body
 //!   velocity (a full DVL outage; M as for the two-beams network);
-//! - [`RowOverlaps`]: rows shared between recorded trajectories (keeps windows that
-//!   touch a held-out trajectory out of training and validation);
 //! - [`metrics`](fn@metrics), [`speed_metrics`], [`evaluate`]: the paper's RMSE, MAE, R^2, VAF;
 //! - [`NetworkSensitivity`], [`Empirical`]: the cross-covariance M between the INS
 //!   process noise and the network's output error, from the network's own sensitivity
@@ -54,7 +52,6 @@ mod metadata;
 mod metrics;
 mod onnx;
 mod outage;
-mod overlap;
 mod sensitivity;
 mod two_beams;
 
@@ -73,7 +70,6 @@ pub use metadata::{
 };
 pub use metrics::{metrics, speed_metrics, Metrics};
 pub use outage::{default_outage_model_path, OutageNet};
-pub use overlap::{row_key, row_span, RowKey, RowOverlaps};
 pub use sensitivity::{
     driven_error_covariance, CrossMatrix, Empirical, EmpiricalEstimate, InputNoise,
     LearnedCrossCovariance, NetworkSensitivity, IMU_CHANNELS,

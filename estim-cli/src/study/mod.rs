@@ -12,6 +12,7 @@ pub mod markdown;
 mod mismatch;
 mod montecarlo;
 mod oracle;
+mod overlaps;
 mod paired;
 mod recorded;
 mod report;
@@ -38,6 +39,7 @@ pub use montecarlo::{
     ORACLE_SCALED, ORACLE_TRUE_M,
 };
 pub use oracle::{oracle_measurements, OracleSensor};
+pub use overlaps::{akit_overlaps, touches_held_out, WINDOW_MARGIN_ROWS};
 pub use paired::{
     beamsnet_without_sensitivity, markdown as paired_markdown, paired_study, Gate, PairedInterval,
 };

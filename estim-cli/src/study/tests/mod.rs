@@ -6,6 +6,7 @@ mod claims;
 #[path = "../../../tests/common/mod.rs"]
 mod common;
 mod data_span;
+mod dataset_overlaps;
 mod faults;
 mod filter_failures;
 mod fuzz_parsers;
