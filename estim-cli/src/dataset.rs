@@ -9,13 +9,11 @@ use estim::datasets::{
 use estim_core::nalgebra::Vector3;
 use estim_dvl::BeamsNetProtocol;
 use estim_ins::{ImuSpec, Trajectory};
-use estim_learned::{
-    dataset_row, synthesize_aligned, write_npy, BeamsNetInput, BeamsNetSample, WindowAlignment,
-    BEAMSNET_WINDOW, DATASET_COLUMNS, IMU_RATE_HZ,
-};
+use estim_learned::{BeamsNetInput, BEAMSNET_WINDOW};
 
 use crate::study::{
-    akit_overlaps, touches_held_out, Config, ImuChoice, Scenario, WINDOW_MARGIN_ROWS,
+    akit_overlaps, dataset_row, synthesize_aligned, touches_held_out, write_npy, BeamsNetSample,
+    Config, ImuChoice, Scenario, WindowAlignment, DATASET_COLUMNS, IMU_RATE_HZ, WINDOW_MARGIN_ROWS,
 };
 
 /// Trajectories BeamsNet is trained on: A-KIT 1-3 and 5-12 (4 and 13 are held out).
@@ -468,9 +466,9 @@ mod tests {
 
     use super::common;
     use super::*;
-    use crate::study::{two_beams_measurements, Scenario};
+    use crate::study::{synthesize, two_beams_measurements, BeamsNetSample, Scenario};
     use estim_core::nalgebra::DMatrix;
-    use estim_learned::{synthesize, BeamsNetSample, BEAMSNET_WINDOW};
+    use estim_learned::BEAMSNET_WINDOW;
 
     /// Whether every example is the window, target and update the study builds for the
     /// same trajectory and seed, and every study epoch with a full window has one.

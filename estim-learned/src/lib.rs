@@ -5,13 +5,11 @@
 //!   stream and window, normalisation and R from the metadata, batched finite-difference
 //!   Jacobian-vector products);
 //! - [`BeamsNet`]: BeamsNetV1 (IMU windows + 4 beams -> body velocity);
-//! - [`synthesize_aligned`] (windows aligned as the filter feeds them, [`WindowAlignment`]),
-//!   [`synthesize`], [`dataset_row`], [`write_npy`]: training data of the networks;
 //! - [`TwoBeamsNet`]: IMU window + two beams -> body velocity (its M is the generic
 //!   [`LearnedCrossCovariance`], by Monte Carlo [`Empirical::for_model`]);
 //! - [`OutageNet`]: IMU window + last valid DVL velocity + time since it -> body
 //!   velocity (a full DVL outage; M as for the two-beams network);
-//! - [`metrics`](fn@metrics), [`speed_metrics`], [`evaluate`]: the paper's RMSE, MAE, R^2, VAF;
+//! - [`metrics`](fn@metrics), [`speed_metrics`]: the paper's RMSE, MAE, R^2, VAF;
 //! - [`NetworkSensitivity`], [`Empirical`]: the cross-covariance M between the INS
 //!   process noise and the network's output error, from the network's own sensitivity
 //!   (Jacobian-vector products in one batched inference) or by Monte Carlo.
@@ -44,9 +42,7 @@
 #![deny(rustdoc::broken_intra_doc_links, rustdoc::private_intra_doc_links)]
 
 mod beamsnet;
-mod dataset;
 mod error;
-mod evaluation;
 mod measurement;
 mod metadata;
 mod metrics;
@@ -56,12 +52,7 @@ mod sensitivity;
 mod two_beams;
 
 pub use beamsnet::{default_model_path, BeamsNet, BeamsNetInput, BEAMSNET_WINDOW};
-pub use dataset::{
-    dataset_row, synthesize, synthesize_aligned, write_npy, BeamsNetSample, SynthesizedRun,
-    WindowAlignment, DATASET_COLUMNS, IMU_RATE_HZ,
-};
 pub use error::{Error, Result};
-pub use evaluation::{evaluate, Evaluation};
 pub use measurement::{
     LearnedSensor, LinearObservation, Observation, OnnxMeasurement, DEFAULT_SENSITIVITY_STEP,
 };

@@ -20,6 +20,7 @@ mod run;
 mod scenario;
 mod smooth;
 pub mod stats;
+mod training_data;
 mod tune;
 pub mod where_m;
 
@@ -58,6 +59,10 @@ pub use run::{
 };
 pub use scenario::{synthesize_imu, BeamLoss, DvlEpoch, Scenario};
 pub use smooth::{smooth_scenario, SmoothReport};
+pub use training_data::{
+    dataset_row, evaluate_beamsnet, synthesize, synthesize_aligned, write_npy, BeamsNetEvaluation,
+    BeamsNetSample, WindowAlignment, DATASET_COLUMNS, IMU_RATE_HZ,
+};
 pub use tune::tune_akit;
 pub use where_m::{GRADES, MISSION_DURATION_S};
 
@@ -107,6 +112,14 @@ pub enum PipelineError {
     /// The navigator (its configuration; numerical failures are `FilterStopped`).
     #[error(transparent)]
     Navigator(#[from] estim::navigator::NavigatorError),
+    /// A file could not be written.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
     /// The learned-measurement crate (model files, inference).
     #[error(transparent)]
     Learned(#[from] estim_learned::Error),

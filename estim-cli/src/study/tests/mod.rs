@@ -1,6 +1,7 @@
 //! Tests of the study (run by `cargo test` as unit tests of the binary; the study
 //! is private to it).
 
+mod beamsnet_eval;
 mod claims;
 // The data lookup shared with the integration tests (one copy).
 #[path = "../../../tests/common/mod.rs"]
