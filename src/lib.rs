@@ -14,13 +14,11 @@
 //! - [`learned`] (`learned`): ONNX learned measurements, BeamsNet, network-derived
 //!   cross-covariance, and the committed learned models, embedded ([`models`]);
 //! - [`navigator`] and [`datasets`] (`nav`, estim-nav): the INS/DVL error-state filter fed
-//!   with real logs, the readers of A-KIT's and users' log files, a survey loaded in one
-//!   call ([`SurveyFiles`]), and the rows shared between A-KIT trajectories.
+//!   with real logs, the readers of A-KIT's and users' log files, and a survey loaded in
+//!   one call ([`SurveyFiles`]).
 #![deny(missing_docs)]
 #![deny(rustdoc::broken_intra_doc_links, rustdoc::private_intra_doc_links)]
 
-#[cfg(feature = "nav")]
-pub mod datasets;
 #[cfg(feature = "learned")]
 pub mod models;
 
@@ -32,7 +30,7 @@ pub use estim_ins as ins;
 #[cfg(feature = "learned")]
 pub use estim_learned as learned;
 #[cfg(feature = "nav")]
-pub use estim_nav::navigator;
+pub use estim_nav::{datasets, navigator};
 #[cfg(feature = "nav")]
 pub use estim_nav::truth;
 #[cfg(feature = "nav")]

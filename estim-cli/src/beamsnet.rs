@@ -6,9 +6,9 @@ use std::path::PathBuf;
 use anyhow::Context;
 use estim_dvl::BeamsNetProtocol;
 use estim_ins::{Mission, MissionConfig};
-use estim_learned::{evaluate, synthesize, BeamsNet, Evaluation};
+use estim_learned::BeamsNet;
 
-use crate::study::{filter_label, BEAMSNET, LS};
+use crate::study::{evaluate_beamsnet, filter_label, synthesize, BeamsNetEvaluation, BEAMSNET, LS};
 
 use crate::dataset::{imu_spec, load_akit, TEST_TRAJECTORIES};
 use crate::output::emit;
@@ -79,7 +79,7 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
             }
             let (trajectory, dvl) = load_akit(dir, args.trajectory)?;
             let run = synthesize(&trajectory, &dvl, &imu_spec(), &protocol, seed)?;
-            let e = evaluate(&beamsnet, protocol.geometry(), &run.samples)?;
+            let e = evaluate_beamsnet(&beamsnet, protocol.geometry(), &run.samples)?;
             (
                 format!("A-KIT trajectory {}", args.trajectory),
                 serde_json::json!(args.trajectory),
@@ -136,7 +136,7 @@ fn simulated(
     beamsnet: &BeamsNet,
     protocol: &BeamsNetProtocol,
     seed: u64,
-) -> anyhow::Result<Evaluation> {
+) -> anyhow::Result<BeamsNetEvaluation> {
     let config = MissionConfig::builder().duration(400.0).build()?;
     let mission = Mission::generate(&config, seed)?;
     let trajectory = &mission.trajectory;
@@ -148,10 +148,14 @@ fn simulated(
         t += 1.0;
     }
     let run = synthesize(trajectory, &dvl, &imu_spec(), protocol, seed)?;
-    Ok(evaluate(beamsnet, protocol.geometry(), &run.samples)?)
+    Ok(evaluate_beamsnet(
+        beamsnet,
+        protocol.geometry(),
+        &run.samples,
+    )?)
 }
 
-fn print_table(label: &str, e: &Evaluation, seed: u64) -> String {
+fn print_table(label: &str, e: &BeamsNetEvaluation, seed: u64) -> String {
     let mut out = format!(
         "{label}: {} windows, seed {seed}, metrics on |v|\n",
         e.reference.len()

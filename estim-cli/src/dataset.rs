@@ -4,18 +4,17 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use estim::datasets::{
-    akit_overlaps, check_spans, data_root, load_dvl, load_gt, touches_held_out, trajectory_files,
-    SPAN_TIME_OFFSET_ALLOWANCE_S, WINDOW_MARGIN_ROWS,
+    check_spans, data_root, load_dvl, load_gt, trajectory_files, SPAN_TIME_OFFSET_ALLOWANCE_S,
 };
 use estim_core::nalgebra::Vector3;
 use estim_dvl::BeamsNetProtocol;
 use estim_ins::{ImuSpec, Trajectory};
-use estim_learned::{
-    dataset_row, synthesize_aligned, write_npy, BeamsNetInput, BeamsNetSample, WindowAlignment,
-    BEAMSNET_WINDOW, DATASET_COLUMNS, IMU_RATE_HZ,
-};
+use estim_learned::{BeamsNetInput, BEAMSNET_WINDOW};
 
-use crate::study::{Config, ImuChoice, Scenario};
+use crate::study::{
+    akit_overlaps, dataset_row, synthesize_aligned, touches_held_out, write_npy, BeamsNetSample,
+    Config, ImuChoice, Scenario, WindowAlignment, DATASET_COLUMNS, IMU_RATE_HZ, WINDOW_MARGIN_ROWS,
+};
 
 /// Trajectories BeamsNet is trained on: A-KIT 1-3 and 5-12 (4 and 13 are held out).
 pub const TRAINING_TRAJECTORIES: [u32; 11] = [1, 2, 3, 5, 6, 7, 8, 9, 10, 11, 12];
@@ -467,9 +466,9 @@ mod tests {
 
     use super::common;
     use super::*;
-    use crate::study::{two_beams_measurements, Scenario};
+    use crate::study::{synthesize, two_beams_measurements, BeamsNetSample, Scenario};
     use estim_core::nalgebra::DMatrix;
-    use estim_learned::{synthesize, BeamsNetSample, BEAMSNET_WINDOW};
+    use estim_learned::BEAMSNET_WINDOW;
 
     /// Whether every example is the window, target and update the study builds for the
     /// same trajectory and seed, and every study epoch with a full window has one.

@@ -62,21 +62,22 @@ struct Pd0Args {
     strict: bool,
 }
 
+/// The flags of `dvl mismatch`.
 #[derive(Debug, clap::Args)]
-struct MismatchArgs {
+pub struct MismatchArgs {
     /// Folder holding A-KIT `TrajectoryN/` (or a data root holding `a-kit/`); default
     /// `ESTIM_DATA_DIR`, then `../shared/data`.
     #[arg(long, value_name = "DIR")]
-    data: Option<PathBuf>,
+    pub data: Option<PathBuf>,
     /// TOML configuration (lever arm, time offset, column names; as for `estim reproduce`).
     #[arg(long, value_name = "FILE")]
-    config: Option<PathBuf>,
+    pub config: Option<PathBuf>,
     /// Trajectories held out of the fit (repeatable); default 4 and 13, the test set.
     #[arg(long = "held-out", value_name = "N")]
-    held_out: Vec<u32>,
+    pub held_out: Vec<u32>,
     /// JSON (the schema of every `--json`, see docs/cli.md) instead of CSV.
     #[arg(long)]
-    json: bool,
+    pub json: bool,
 }
 
 #[derive(Debug, clap::Args)]
@@ -116,15 +117,44 @@ struct CalibrateArgs {
     json: bool,
 }
 
-/// Run `estim dvl`.
-pub fn run(args: Args) -> anyhow::Result<()> {
+/// `estim dvl` as parsed, by subcommand.
+pub enum Mode {
+    /// `dvl solve`, `dvl calibrate`, `dvl pd0`: run by [`run`].
+    Tool(Tool),
+    /// `dvl mismatch`: a fit on the A-KIT reproduction's training trajectories, with
+    /// its configuration; that code runs it.
+    Mismatch(MismatchArgs),
+}
+
+/// A subcommand that [`run`] runs.
+pub struct Tool(ToolCommand);
+
+enum ToolCommand {
+    Solve(SolveArgs),
+    Calibrate(CalibrateArgs),
+    Pd0(Pd0Args),
+}
+
+impl Args {
+    /// The subcommand, as [`Mode`] sorts it.
+    pub fn into_mode(self) -> Mode {
+        match self.command {
+            Command::Solve(a) => Mode::Tool(Tool(ToolCommand::Solve(a))),
+            Command::Calibrate(a) => Mode::Tool(Tool(ToolCommand::Calibrate(a))),
+            Command::Mismatch(a) => Mode::Mismatch(a),
+            Command::Pd0(a) => Mode::Tool(Tool(ToolCommand::Pd0(a))),
+        }
+    }
+}
+
+/// Run `estim dvl`'s own subcommands.
+pub fn run(tool: Tool) -> anyhow::Result<()> {
     // Everything is written to a buffer and printed only on success, so that a
     // malformed input leaves stdout empty.
-    let output = match args.command {
-        Command::Solve(a) => solve(&a)?,
-        Command::Calibrate(a) => calibrate(&a)?,
-        Command::Mismatch(a) => mismatch(&a)?,
-        Command::Pd0(a) => pd0(&a)?,
+    let output = match tool.0 {
+        ToolCommand::Solve(a) => solve(&a)?,
+        ToolCommand::Calibrate(a) => calibrate(&a)?,
+        ToolCommand::Pd0(a) => pd0(&a)?,
     };
     crate::output::emit(&output)
 }
@@ -271,97 +301,6 @@ fn calibrate(args: &CalibrateArgs) -> anyhow::Result<String> {
     let _ = writeln!(
         out,
         "# standard errors assume white residuals; a lag-1 autocorrelation well above 0 makes them optimistic"
-    );
-    Ok(out)
-}
-
-fn mismatch(args: &MismatchArgs) -> anyhow::Result<String> {
-    use crate::study::{fit_reference_mismatch, Config, AKIT_TEST_TRAJECTORIES};
-    let config = match &args.config {
-        Some(path) => Config::from_file(path)?,
-        None => Config::default(),
-    };
-    let dir = estim::datasets::data_root(args.data.as_deref()).context(
-        "no data folder: pass --data DIR, set ESTIM_DATA_DIR, or place the data at ../shared/data",
-    )?;
-    let held_out = if args.held_out.is_empty() {
-        AKIT_TEST_TRAJECTORIES.to_vec()
-    } else {
-        args.held_out.clone()
-    };
-    let fit = fit_reference_mismatch(&dir, &config, &held_out)?;
-    let v = |v: &Vector3<f64>| [v.x, v.y, v.z];
-    if args.json {
-        use crate::schema::{document, path_json};
-        let inputs = serde_json::json!({
-            "data": path_json(Some(&dir)),
-            "config": path_json(args.config.as_deref()),
-            "held_out": held_out,
-            "lever_arm_m": config.dvl.lever_arm_m,
-            "akit_time_offset_s": config.dvl.akit_time_offset_s,
-        });
-        let trajectories: Vec<_> = fit
-            .trajectories
-            .iter()
-            .map(|t| {
-                serde_json::json!({
-                    "trajectory": t.trajectory,
-                    "samples": t.samples,
-                    "overlapping_samples": t.overlapping,
-                    "mean_mps": v(&t.mean),
-                    "rms_mps": v(&t.rms),
-                })
-            })
-            .collect();
-        let doc = document(
-            "dvl mismatch",
-            inputs,
-            0,
-            serde_json::json!({
-                "rms_all_mps": fit.rms_all,
-                "robust_std_mps": fit.robust_std,
-                "samples": fit.samples,
-                "mean_mps": v(&fit.mean),
-                "rms_mps": v(&fit.rms),
-                "trajectories": trajectories,
-            }),
-        );
-        return Ok(format!("{}\n", serde_json::to_string_pretty(&doc)?));
-    }
-    let mut out = String::from(
-        "trajectory,samples,overlapping_samples,mean_x_mps,mean_y_mps,mean_z_mps,rms_x_mps,rms_y_mps,rms_z_mps\n",
-    );
-    let row =
-        |out: &mut String, name: &str, n: usize, o: usize, m: &Vector3<f64>, r: &Vector3<f64>| {
-            let _ = writeln!(
-                out,
-                "{name},{n},{o},{:.5},{:.5},{:.5},{:.5},{:.5},{:.5}",
-                m.x, m.y, m.z, r.x, r.y, r.z
-            );
-        };
-    for t in &fit.trajectories {
-        row(
-            &mut out,
-            &t.trajectory.to_string(),
-            t.samples,
-            t.overlapping,
-            &t.mean,
-            &t.rms,
-        );
-    }
-    let overlapping = fit.trajectories.iter().map(|t| t.overlapping).sum();
-    row(
-        &mut out,
-        "all",
-        fit.samples,
-        overlapping,
-        &fit.mean,
-        &fit.rms,
-    );
-    let _ = writeln!(
-        out,
-        "# pooled over epochs and axes (held out: {held_out:?}): RMS {:.4} m/s, robust std {:.4} m/s",
-        fit.rms_all, fit.robust_std
     );
     Ok(out)
 }

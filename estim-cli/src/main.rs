@@ -21,7 +21,6 @@ mod plots;
 mod report;
 mod reproduce;
 mod schema;
-mod simulate;
 mod smooth;
 mod stream;
 mod survey_checks;
@@ -69,7 +68,7 @@ enum Command {
     /// navigation solution with its 1-sigma out; no ground truth needed.
     Navigate(navigate::Args),
     /// Synthesize sensor files from a recorded trajectory (IMU, beams): a simulation.
-    Simulate(simulate::Args),
+    Simulate(study::cli::simulate::Args),
     /// Fit the INS/DVL noise parameters (IMU densities, DVL noise and mismatch, the M
     /// scale) by maximum likelihood on A-KIT training trajectories, with standard
     /// errors and a likelihood-ratio test of M = 0.
@@ -88,15 +87,24 @@ fn main() -> ExitCode {
         Command::Compare(args) => compare::run(args),
         Command::Evaluate(args) => evaluate::run(args),
         Command::Montecarlo(args) => montecarlo::run(args),
-        Command::Dvl(args) => dvl::run(args),
+        Command::Dvl(args) => match args.into_mode() {
+            dvl::Mode::Tool(tool) => dvl::run(tool),
+            dvl::Mode::Mismatch(args) => study::cli::dvl_mismatch::run(&args),
+        },
         Command::Imu(args) => imu::run(args),
         Command::Beamsnet(args) => beamsnet::run(args),
         Command::Dataset(args) => dataset::run(args),
         Command::Report(args) => report::run(args),
-        Command::Smooth(args) => smooth::run(args),
+        Command::Smooth(args) => match args.into_mode() {
+            smooth::Mode::Survey(survey) => smooth::run(survey),
+            smooth::Mode::Scenarios(scenarios) => study::cli::smooth::run(scenarios),
+        },
         Command::Navigate(args) => navigate::run(args),
-        Command::Simulate(args) => simulate::run(args),
-        Command::Tune(args) => tune::run(args),
+        Command::Simulate(args) => study::cli::simulate::run(args),
+        Command::Tune(args) => args.into_mode().and_then(|mode| match mode {
+            tune::Mode::Survey(survey) => tune::run(survey),
+            tune::Mode::Trajectories(trajectories) => study::cli::tune::run(trajectories),
+        }),
         Command::WhereM(args) => where_m::run(args),
     };
     // Exit statuses: see `schema` (0 ok, 2 bad input, 3 some filter failed, 141

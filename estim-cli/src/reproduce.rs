@@ -225,7 +225,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     });
     let smoothed = if args.smooth {
         let cross = crate::study::CrossSource::Zero;
-        Some(crate::smooth::smooth_all(&scenarios, &config, &cross)?)
+        Some(crate::study::cli::smooth::smooth_all(
+            &scenarios, &config, &cross,
+        )?)
     } else {
         None
     };
@@ -241,7 +243,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let dir = staged.path("smoothing");
             std::fs::create_dir(&dir)
                 .with_context(|| format!("{}: cannot create", dir.display()))?;
-            crate::smooth::write_files(&dir, s)?;
+            crate::study::cli::smooth::write_files(&dir, s)?;
         }
         write_outputs(staged, &reports, &json)?;
     }
@@ -253,7 +255,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             print_report(&mut text, r)?;
         }
         if let Some(s) = &smoothed {
-            crate::smooth::print_reports(&mut text, s)?;
+            crate::study::cli::smooth::print_reports(&mut text, s)?;
         }
         emit(&text)?;
     }

@@ -1,14 +1,16 @@
 //! `estim tune`: maximum-likelihood noise parameters of the INS/DVL filter, with
 //! standard errors and the likelihood-ratio test of M = 0, on A-KIT training
 //! trajectories (`--trajectories`) or on a survey's own IMU and DVL files (`--imu`).
+//! This file runs the survey mode ([`run`]) and prints either mode's fit; the
+//! `--trajectories` mode ([`TrajectoryMode`]) is the A-KIT reproduction's code, which
+//! `main.rs` runs.
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
-use anyhow::Context;
-use estim::navigator::tune::{TuneOptions, M_SCALE, PARAMETER_NAMES, PARAMETER_UNITS};
-
-use crate::study::{tune_akit, Config, TuneReport};
+use estim::navigator::tune::{
+    TuneFit, TuneOptions, TuneParameters, M_SCALE, PARAMETER_NAMES, PARAMETER_UNITS,
+};
 
 /// Arguments of `estim tune`.
 #[derive(Debug, clap::Args)]
@@ -102,75 +104,118 @@ fn parse_fix(text: &str) -> Result<(usize, f64), String> {
     Ok((index, value))
 }
 
-/// Run it.
-pub fn run(args: Args) -> anyhow::Result<()> {
-    let mut fixed = [None; PARAMETER_NAMES.len()];
-    for &(i, value) in &args.fix {
-        anyhow::ensure!(
-            fixed[i].replace(value).is_none(),
-            "--fix {}: given twice",
-            PARAMETER_NAMES[i]
-        );
-    }
-    let options = TuneOptions {
-        linearizations: usize::try_from(args.linearizations)?,
-        fixed,
-        ..TuneOptions::default()
-    };
-    if let Some(imu) = &args.imu {
-        return survey(&args, imu.clone(), &options);
-    }
-    let config = match &args.config {
-        Some(path) => Config::from_file(path)?,
-        None => Config::default(),
-    };
-    let seed = match args.seed {
-        Some(seed) => {
-            crate::schema::check_seeds("--seed", seed, 0)?;
-            seed
-        }
-        None => config.seed,
-    };
-    let dir = estim::datasets::data_root(args.data.as_deref()).context(
-        "no data folder: pass --data DIR, set ESTIM_DATA_DIR, or place the data at ../shared/data",
-    )?;
-    let report = tune_akit(&dir, &args.trajectories, &config, seed, &options)?;
-    let text = if args.json {
-        use crate::schema::path_json;
-        let inputs = serde_json::json!({
-            "data": path_json(Some(&dir)),
-            "config": path_json(args.config.as_deref()),
-            "trajectories": report.trajectories,
-            "seed": seed,
-            "linearizations": args.linearizations,
-            "imu": "synthesized from the ground truth with the configured error model",
-            // Every trajectory's IMU, as `reproduce` says it per trajectory.
-            "imu_source": "synthesized",
-        });
-        json(inputs, &report)?
-    } else {
-        let list: Vec<String> = report.trajectories.iter().map(u32::to_string).collect();
-        let head = format!(
-            "Maximum likelihood on A-KIT trajectories {} ({} DVL epochs; {} left out as \
-             shared with a test trajectory). The IMU is synthesized from the ground truth \
-             with the configured error model (column `synthesized`).",
-            list.join(", "),
-            report.epochs.iter().sum::<usize>(),
-            report.overlapping.iter().sum::<usize>(),
-        );
-        table(&head, &report)
-    };
-    finish(&text, &report)
+/// `estim tune` as parsed, by call shape.
+pub enum Mode {
+    /// `--imu`: a survey's own files, fitted by [`run`].
+    Survey(SurveyMode),
+    /// `--trajectories`: A-KIT training trajectories, fitted by the A-KIT
+    /// reproduction's code.
+    Trajectories(TrajectoryMode),
 }
 
-/// Survey mode: the navigator's inputs and arithmetic, the likelihood of its DVL rows.
-fn survey(args: &Args, imu: PathBuf, options: &TuneOptions) -> anyhow::Result<()> {
+/// The survey mode's flags.
+pub struct SurveyMode {
+    imu: PathBuf,
+    dvl: Option<PathBuf>,
+    beams: Option<PathBuf>,
+    vehicle: Option<PathBuf>,
+    truth: Option<PathBuf>,
+    init_from_truth: bool,
+    linearizations: u64,
+    json: bool,
+    options: TuneOptions,
+}
+
+/// The `--trajectories` mode's flags, as given.
+pub struct TrajectoryMode {
+    /// `--data`.
+    pub data: Option<PathBuf>,
+    /// `--trajectories`.
+    pub trajectories: Vec<u32>,
+    /// `--config`.
+    pub config: Option<PathBuf>,
+    /// `--seed`.
+    pub seed: Option<u64>,
+    /// `--linearizations`.
+    pub linearizations: u64,
+    /// `--json`.
+    pub json: bool,
+    /// The fit's options (`--linearizations`, `--fix`).
+    pub options: TuneOptions,
+}
+
+impl Args {
+    /// The call shape: survey mode with `--imu`, else the trajectories.
+    ///
+    /// # Errors
+    /// A parameter held twice by `--fix`.
+    pub fn into_mode(self) -> anyhow::Result<Mode> {
+        let mut fixed = [None; PARAMETER_NAMES.len()];
+        for &(i, value) in &self.fix {
+            anyhow::ensure!(
+                fixed[i].replace(value).is_none(),
+                "--fix {}: given twice",
+                PARAMETER_NAMES[i]
+            );
+        }
+        let options = TuneOptions {
+            linearizations: usize::try_from(self.linearizations)?,
+            fixed,
+            ..TuneOptions::default()
+        };
+        let Some(imu) = self.imu else {
+            return Ok(Mode::Trajectories(TrajectoryMode {
+                data: self.data,
+                trajectories: self.trajectories,
+                config: self.config,
+                seed: self.seed,
+                linearizations: self.linearizations,
+                json: self.json,
+                options,
+            }));
+        };
+        Ok(Mode::Survey(SurveyMode {
+            imu,
+            dvl: self.dvl,
+            beams: self.beams,
+            vehicle: self.vehicle,
+            truth: self.truth,
+            init_from_truth: self.init_from_truth,
+            linearizations: self.linearizations,
+            json: self.json,
+            options,
+        }))
+    }
+}
+
+/// What a fit was fitted on, with the fit.
+#[derive(Debug, Clone)]
+pub struct TuneReport {
+    /// The trajectories, in the order given (none for a survey).
+    pub trajectories: Vec<u32>,
+    /// DVL epochs used per trajectory.
+    pub epochs: Vec<usize>,
+    /// DVL epochs left out per trajectory (rows shared with a test trajectory; for a
+    /// survey, the rows skipped).
+    pub overlapping: Vec<usize>,
+    /// The starting point.
+    pub start: TuneParameters,
+    /// The IMU PSDs the IMU was synthesized with (the values q_a and q_g recover when
+    /// the filter's model is right); `None` for a recorded IMU.
+    pub synthesized_psd: Option<[f64; 2]>,
+    /// The fit.
+    pub fit: TuneFit,
+}
+
+/// Run the survey mode: the navigator's inputs and arithmetic, the likelihood of its DVL
+/// rows.
+pub fn run(args: SurveyMode) -> anyhow::Result<()> {
     use estim::navigator::tune::{survey_measurements, tune, TuneModel};
     if args.dvl.is_none() && args.beams.is_none() {
         anyhow::bail!("--imu needs --dvl or --beams");
     }
     let files = crate::navigate::SurveyFiles {
-        imu,
+        imu: args.imu.clone(),
         dvl: args.dvl.clone(),
         beams: args.beams.clone(),
         pd0: None,
@@ -186,7 +231,7 @@ fn survey(args: &Args, imu: PathBuf, options: &TuneOptions) -> anyhow::Result<()
     let model = TuneModel::from_settings(&loaded.settings);
     let start = model.start(loaded.config.dvl.noise_std_mps);
     let trajectory = measurements.trajectory(&loaded.inputs.imu);
-    let fit = tune(&[trajectory], &model, &start, options)?;
+    let fit = tune(&[trajectory], &model, &start, &args.options)?;
     let report = TuneReport {
         trajectories: Vec::new(),
         epochs: vec![measurements.dvl.len()],
@@ -221,7 +266,7 @@ fn survey(args: &Args, imu: PathBuf, options: &TuneOptions) -> anyhow::Result<()
 
 /// Print the report; a fit that cannot be used as it stands (degenerate, not
 /// converged) exits 3 naming why, after its figures were printed.
-fn finish(text: &str, report: &TuneReport) -> anyhow::Result<()> {
+pub fn finish(text: &str, report: &TuneReport) -> anyhow::Result<()> {
     crate::output::emit(text)?;
     let status = &report.fit.status;
     if status.is_usable() {
@@ -234,7 +279,8 @@ fn finish(text: &str, report: &TuneReport) -> anyhow::Result<()> {
     }
 }
 
-fn json(inputs: serde_json::Value, report: &TuneReport) -> anyhow::Result<String> {
+/// The JSON document of a fit, with the inputs named by `inputs`.
+pub fn json(inputs: serde_json::Value, report: &TuneReport) -> anyhow::Result<String> {
     use crate::schema::document;
     let fit = &report.fit;
     let se =
@@ -286,7 +332,8 @@ fn json(inputs: serde_json::Value, report: &TuneReport) -> anyhow::Result<String
     Ok(format!("{}\n", serde_json::to_string_pretty(&doc)?))
 }
 
-fn table(head: &str, report: &TuneReport) -> String {
+/// The table of a fit under the line `head`.
+pub fn table(head: &str, report: &TuneReport) -> String {
     let fit = &report.fit;
     let mut out = String::new();
     let _ = writeln!(out, "{head}");

@@ -5,15 +5,11 @@
 //!   stream and window, normalisation and R from the metadata, batched finite-difference
 //!   Jacobian-vector products);
 //! - [`BeamsNet`]: BeamsNetV1 (IMU windows + 4 beams -> body velocity);
-//! - [`synthesize_aligned`] (windows aligned as the filter feeds them, [`WindowAlignment`]),
-//!   [`synthesize`], [`dataset_row`], [`write_npy`]: training data of the networks;
 //! - [`TwoBeamsNet`]: IMU window + two beams -> body velocity (its M is the generic
 //!   [`LearnedCrossCovariance`], by Monte Carlo [`Empirical::for_model`]);
 //! - [`OutageNet`]: IMU window + last valid DVL velocity + time since it -> body
 //!   velocity (a full DVL outage; M as for the two-beams network);
-//! - [`RowOverlaps`]: rows shared between recorded trajectories (keeps windows that
-//!   touch a held-out trajectory out of training and validation);
-//! - [`metrics`](fn@metrics), [`speed_metrics`], [`evaluate`]: the paper's RMSE, MAE, R^2, VAF;
+//! - [`metrics`](fn@metrics), [`speed_metrics`]: the paper's RMSE, MAE, R^2, VAF;
 //! - [`NetworkSensitivity`], [`Empirical`]: the cross-covariance M between the INS
 //!   process noise and the network's output error, from the network's own sensitivity
 //!   (Jacobian-vector products in one batched inference) or by Monte Carlo.
@@ -46,25 +42,17 @@
 #![deny(rustdoc::broken_intra_doc_links, rustdoc::private_intra_doc_links)]
 
 mod beamsnet;
-mod dataset;
 mod error;
-mod evaluation;
 mod measurement;
 mod metadata;
 mod metrics;
 mod onnx;
 mod outage;
-mod overlap;
 mod sensitivity;
 mod two_beams;
 
 pub use beamsnet::{default_model_path, BeamsNet, BeamsNetInput, BEAMSNET_WINDOW};
-pub use dataset::{
-    dataset_row, synthesize, synthesize_aligned, write_npy, BeamsNetSample, SynthesizedRun,
-    WindowAlignment, DATASET_COLUMNS, IMU_RATE_HZ,
-};
 pub use error::{Error, Result};
-pub use evaluation::{evaluate, Evaluation};
 pub use measurement::{
     LearnedSensor, LinearObservation, Observation, OnnxMeasurement, DEFAULT_SENSITIVITY_STEP,
 };
@@ -73,7 +61,6 @@ pub use metadata::{
 };
 pub use metrics::{metrics, speed_metrics, Metrics};
 pub use outage::{default_outage_model_path, OutageNet};
-pub use overlap::{row_key, row_span, RowKey, RowOverlaps};
 pub use sensitivity::{
     driven_error_covariance, CrossMatrix, Empirical, EmpiricalEstimate, InputNoise,
     LearnedCrossCovariance, NetworkSensitivity, IMU_CHANNELS,

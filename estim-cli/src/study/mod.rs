@@ -2,6 +2,7 @@
 //! scenarios (simulated or A-KIT), filter variants, their summaries and the result
 //! tables of docs/results.md. Private to the binary (docs/design.md): not library API.
 
+pub mod cli;
 mod config;
 mod evaluate;
 mod faults;
@@ -11,6 +12,7 @@ pub mod markdown;
 mod mismatch;
 mod montecarlo;
 mod oracle;
+mod overlaps;
 mod paired;
 mod recorded;
 mod report;
@@ -18,6 +20,7 @@ mod run;
 mod scenario;
 mod smooth;
 pub mod stats;
+mod training_data;
 mod tune;
 pub mod where_m;
 
@@ -37,6 +40,7 @@ pub use montecarlo::{
     ORACLE_SCALED, ORACLE_TRUE_M,
 };
 pub use oracle::{oracle_measurements, OracleSensor};
+pub use overlaps::{akit_overlaps, touches_held_out, WINDOW_MARGIN_ROWS};
 pub use paired::{
     beamsnet_without_sensitivity, markdown as paired_markdown, paired_study, Gate, PairedInterval,
 };
@@ -55,7 +59,11 @@ pub use run::{
 };
 pub use scenario::{synthesize_imu, BeamLoss, DvlEpoch, Scenario};
 pub use smooth::{smooth_scenario, SmoothReport};
-pub use tune::{tune_akit, TuneReport};
+pub use training_data::{
+    dataset_row, evaluate_beamsnet, synthesize, synthesize_aligned, write_npy, BeamsNetEvaluation,
+    BeamsNetSample, WindowAlignment, DATASET_COLUMNS, IMU_RATE_HZ,
+};
+pub use tune::tune_akit;
 pub use where_m::{GRADES, MISSION_DURATION_S};
 
 use std::path::PathBuf;
@@ -104,6 +112,14 @@ pub enum PipelineError {
     /// The navigator (its configuration; numerical failures are `FilterStopped`).
     #[error(transparent)]
     Navigator(#[from] estim::navigator::NavigatorError),
+    /// A file could not be written.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
     /// The learned-measurement crate (model files, inference).
     #[error(transparent)]
     Learned(#[from] estim_learned::Error),

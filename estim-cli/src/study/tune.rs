@@ -12,34 +12,16 @@ use std::collections::HashSet;
 use std::path::Path;
 
 use estim::datasets::{load_dvl_with, trajectory_files};
-use estim::navigator::tune::{
-    tune, TuneFit, TuneModel, TuneOptions, TuneParameters, TuneTrajectory,
-};
+use estim::navigator::tune::{tune, TuneModel, TuneOptions, TuneParameters, TuneTrajectory};
 use estim::navigator::{DvlConfig, NavigatorConfig};
 use estim_core::nalgebra::Vector3;
+
+use crate::tune::TuneReport;
 
 use super::{
     initial_covariance, initial_nominal, least_squares_velocities, Config, PipelineError, Result,
     Scenario, AKIT_TEST_TRAJECTORIES,
 };
-
-/// What [`tune_akit`] fitted, with what it was fitted on.
-#[derive(Debug, Clone)]
-pub struct TuneReport {
-    /// The trajectories, in the order given.
-    pub trajectories: Vec<u32>,
-    /// DVL epochs used per trajectory.
-    pub epochs: Vec<usize>,
-    /// DVL epochs left out per trajectory (rows shared with a test trajectory).
-    pub overlapping: Vec<usize>,
-    /// The starting point.
-    pub start: TuneParameters,
-    /// The IMU PSDs the IMU was synthesized with (the values q_a and q_g recover when
-    /// the filter's model is right); `None` for a recorded IMU.
-    pub synthesized_psd: Option<[f64; 2]>,
-    /// The fit.
-    pub fit: TuneFit,
-}
 
 fn bits(v: &Vector3<f64>) -> [u64; 3] {
     [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()]

@@ -47,10 +47,6 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum DatasetError {
-    /// The rows shared between trajectories could not be matched.
-    #[cfg(feature = "learned")]
-    #[error(transparent)]
-    Overlap(#[from] estim_learned::Error),
     /// The file could not be opened or read.
     #[error("{}: cannot read: {error}", path.display())]
     Io {

@@ -12,10 +12,13 @@ use std::path::Path;
 
 use rayon::prelude::*;
 
+use super::results::{
+    data_set, filter, filter_rows, group_improvement, meets_paper_claim, paper_rows, rho_run,
+    velocity_rows, DataSet,
+};
 use super::{
-    data_set, filter, filter_rows, group_improvement, meets_paper_claim, one_decimal, paper_rows,
-    rho_run, significant, velocity_rows, DataSet, Table, AKIT_TRAJECTORIES,
-    SEED_INTERVAL_FIRST_SEED, SEED_INTERVAL_SEEDS,
+    one_decimal, significant, Table, AKIT_TRAJECTORIES, SEED_INTERVAL_FIRST_SEED,
+    SEED_INTERVAL_SEEDS,
 };
 use crate::study::{
     apply_faults, learned_study, BeamLoss, Config, DvlOutage, LearnedEvent, LearnedSource,

@@ -12,7 +12,9 @@
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
-use crate::study::{initial_covariance, Config, Scenario};
+use crate::study::{
+    initial_covariance, initial_nominal, synthesize_imu, Config, ImuSource, Scenario,
+};
 use anyhow::Context;
 use estim::datasets::{load_dvl_with, load_gt_with};
 
@@ -82,8 +84,7 @@ fn imu(args: ImuArgs) -> anyhow::Result<()> {
     }
     let config = config(&args.config)?;
     let gt = load_gt_with(&args.gt, &config.columns)?;
-    let (truth, imu, _, _, spec) =
-        crate::study::synthesize_imu(&gt, &args.gt, &args.gt, &config, config.seed)?;
+    let (truth, imu, _, _, spec) = synthesize_imu(&gt, &args.gt, &args.gt, &config, config.seed)?;
     if let Some(path) = &args.vehicle_out {
         let text = vehicle_toml(&config, &truth, &spec)?;
         std::fs::write(path, text).with_context(|| format!("{}: cannot write", path.display()))?;
@@ -123,11 +124,11 @@ fn vehicle_toml(
         imu_spec: *spec,
         dvl: Vec::new(),
         span: None,
-        imu_source: crate::study::ImuSource::Synthesized,
+        imu_source: ImuSource::Synthesized,
         recorded: None,
     };
     let p0 = initial_covariance(config, &scenario);
-    let x0 = crate::study::initial_nominal(truth0, &p0, config.seed);
+    let x0 = initial_nominal(truth0, &p0, config.seed);
     let (r, p, y) = x0.attitude.euler_angles();
     let f = &config.filter;
     let (a, g) = (spec.accelerometer(), spec.gyroscope());

@@ -1,9 +1,13 @@
-//! Rows shared between recorded trajectories, and the rule that keeps anything touching a
-//! held-out trajectory out of training and validation.
+//! Rows shared between recorded trajectories, found in the A-KIT files themselves, and
+//! the rule that keeps anything touching a held-out trajectory out of training and
+//! validation (`estim dataset beamsnet`).
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::path::Path;
 
-use crate::{Error, Result};
+use estim::datasets::{load_dvl, load_gt, trajectory_files, DvlSample, GtSample};
+
+use super::{PipelineError, Result};
 
 /// The exact bit patterns of one row's values (the time stamp excluded).
 pub type RowKey = Vec<u64>;
@@ -31,8 +35,6 @@ pub fn row_key(values: &[f64]) -> RowKey {
 pub struct RowOverlaps {
     /// Per trajectory: row index -> the other trajectories holding an identical row.
     shared: BTreeMap<u32, BTreeMap<usize, BTreeSet<u32>>>,
-    /// Every trajectory given to [`RowOverlaps::find`].
-    trajectories: BTreeSet<u32>,
 }
 
 impl RowOverlaps {
@@ -45,10 +47,9 @@ impl RowOverlaps {
         let mut index: HashMap<&RowKey, Vec<(u32, usize)>> = HashMap::new();
         for (n, rows) in trajectories {
             if !seen.insert(*n) {
-                return Err(Error::InvalidInput {
-                    what: "trajectories",
-                    reason: format!("trajectory {n} given twice"),
-                });
+                return Err(PipelineError::Invalid(format!(
+                    "invalid trajectories: trajectory {n} given twice"
+                )));
             }
             for (i, key) in rows.iter().enumerate() {
                 index.entry(key).or_default().push((*n, i));
@@ -70,10 +71,7 @@ impl RowOverlaps {
                     .extend(others);
             }
         }
-        Ok(Self {
-            shared,
-            trajectories: seen,
-        })
+        Ok(Self { shared })
     }
 
     /// Rows of trajectory `n` also found in trajectory `other`, increasing.
@@ -135,10 +133,12 @@ impl RowOverlaps {
 
     /// Check that a validation set does not split a group: for every group, its members
     /// present in `dataset` (trajectories with examples) are all in `validation` or
-    /// none is.
+    /// none is. The training scripts apply this rule to the groups `estim dataset`
+    /// records (training/); here it is the tests' statement of it.
     ///
     /// # Errors
-    /// [`Error::InvalidInput`] naming the group.
+    /// [`PipelineError::Invalid`] naming the group.
+    #[cfg(test)]
     pub fn check_split(&self, dataset: &[u32], validation: &[u32]) -> Result<()> {
         for group in self.groups() {
             let present: Vec<u32> = group
@@ -148,20 +148,13 @@ impl RowOverlaps {
                 .collect();
             let in_val = present.iter().filter(|n| validation.contains(n)).count();
             if in_val != 0 && in_val != present.len() {
-                return Err(Error::InvalidInput {
-                    what: "validation split",
-                    reason: format!(
-                        "trajectories {present:?} share rows; validation {validation:?} splits them"
-                    ),
-                });
+                return Err(PipelineError::Invalid(format!(
+                    "invalid validation split: trajectories {present:?} share rows; \
+                     validation {validation:?} splits them"
+                )));
             }
         }
         Ok(())
-    }
-
-    /// The trajectories searched.
-    pub fn trajectories(&self) -> impl Iterator<Item = u32> + '_ {
-        self.trajectories.iter().copied()
     }
 }
 
@@ -181,6 +174,68 @@ pub fn row_span(times: &[f64], start: f64, end: f64, margin: usize) -> Option<(u
         first.saturating_sub(margin),
         (last + margin).min(times.len() - 1),
     ))
+}
+
+/// Fingerprint of each row: the GT values and the DVL values of the same row, time
+/// stamps excluded (the copies carry each file's own clock). Rows beyond the shorter
+/// file use the values of the longer one alone.
+pub fn akit_row_keys(gt: &[GtSample], dvl: &[DvlSample]) -> Vec<RowKey> {
+    (0..gt.len().max(dvl.len()))
+        .map(|i| {
+            let mut values = Vec::with_capacity(12);
+            if let Some(g) = gt.get(i) {
+                values.extend([g.longitude, g.latitude, g.altitude]);
+                values.extend(g.velocity_ned);
+                values.extend(g.roll_pitch_yaw);
+            }
+            if let Some(d) = dvl.get(i) {
+                values.extend(d.velocity_body);
+            }
+            row_key(&values)
+        })
+        .collect()
+}
+
+/// The rows shared between the given A-KIT trajectories under `dir` (a data root or an
+/// A-KIT folder); a trajectory listed twice counts once.
+///
+/// # Errors
+/// A missing or malformed file (named).
+pub fn akit_overlaps(dir: &Path, trajectories: &[u32]) -> Result<RowOverlaps> {
+    let list: BTreeSet<u32> = trajectories.iter().copied().collect();
+    let mut keys = Vec::with_capacity(list.len());
+    for n in list {
+        let files = trajectory_files(dir, n)?;
+        let gt = load_gt(&files.gt)?;
+        let dvl = load_dvl(&files.dvl)?;
+        keys.push((n, akit_row_keys(&gt, &dvl)));
+    }
+    RowOverlaps::find(&keys)
+}
+
+/// GT rows on each side of an example's time span that count as part of it: the IMU
+/// synthesized over the span comes from a cubic Hermite position curve (the two rows
+/// around each instant) and a natural cubic spline of the attitude (every row, with an
+/// influence that decays by 2 - sqrt(3) = 0.27 per row). Two rows each side keep the
+/// influence of any excluded row below 0.27^2 = 7 %.
+pub const WINDOW_MARGIN_ROWS: usize = 2;
+
+/// Whether an example of trajectory `n` spanning `[start, end]` (its IMU window and
+/// its DVL sample) touches a row shared with a trajectory in `held_out` (GT times
+/// `gt_times`, margin [`WINDOW_MARGIN_ROWS`]). An example whose span is empty or not
+/// finite counts as touching (it is kept out).
+pub fn touches_held_out(
+    overlaps: &RowOverlaps,
+    n: u32,
+    gt_times: &[f64],
+    start: f64,
+    end: f64,
+    held_out: &[u32],
+) -> bool {
+    match row_span(gt_times, start, end, WINDOW_MARGIN_ROWS) {
+        Some((first, last)) => overlaps.touches(n, first, last, held_out),
+        None => true,
+    }
 }
 
 #[cfg(test)]

@@ -1,18 +1,21 @@
-//! BeamsNet training data: IMU windows synthesized from a trajectory, beams simulated
-//! from DVL velocities with the BeamsNet protocol, and the file format the training
-//! script reads.
+//! BeamsNet examples synthesized from a recorded trajectory: IMU windows from the
+//! estim-ins simulator, beams simulated from the DVL velocities with the BeamsNet
+//! protocol, the rows and `.npy` file the training scripts read (`estim dataset
+//! beamsnet`), and least squares against BeamsNet on them (`estim beamsnet eval`, the
+//! paper's Tables I and II).
 
 use std::io::Write;
 use std::path::Path;
 
-use estim_dvl::BeamsNetProtocol;
+use estim_dvl::{BeamGeometry, BeamsNetProtocol};
 use estim_ins::{ImuErrorGenerator, ImuSample, ImuSpec, InsState, Trajectory};
+use estim_learned::{speed_metrics, BeamsNet, BeamsNetInput, Metrics, BEAMSNET_WINDOW};
 use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
 
-use crate::beamsnet::{BeamsNetInput, BEAMSNET_WINDOW};
-use crate::{Error, Result};
+use super::{PipelineError, Result};
 
 /// Columns of a dataset row (the layout in [`synthesize`]).
 pub const DATASET_COLUMNS: usize = 610;
@@ -38,9 +41,11 @@ pub struct BeamsNetSample {
 pub struct SynthesizedRun {
     /// Truth states at the IMU sample times (one more than `imu`).
     pub truth: Vec<InsState>,
-    /// Error-free IMU samples.
-    pub imu_clean: Vec<ImuSample>,
     /// Measured (corrupted) IMU samples.
+    #[cfg_attr(
+        not(test),
+        expect(dead_code, reason = "the tests check each window against it")
+    )]
     pub imu: Vec<ImuSample>,
     /// The examples, one per DVL sample with a full window.
     pub samples: Vec<BeamsNetSample>,
@@ -157,7 +162,7 @@ pub fn synthesize(
 /// `estim dataset beamsnet`).
 ///
 /// # Errors
-/// [`Error::InvalidInput`] for a trajectory the simulator refuses, a non-finite DVL
+/// [`PipelineError::Invalid`] for a trajectory the simulator refuses, a non-finite DVL
 /// sample or a non-finite time offset.
 pub fn synthesize_aligned(
     trajectory: &Trajectory,
@@ -169,16 +174,12 @@ pub fn synthesize_aligned(
 ) -> Result<SynthesizedRun> {
     if let WindowAlignment::Filter { time_offset_s } = alignment {
         if !time_offset_s.is_finite() {
-            return Err(Error::InvalidInput {
-                what: "DVL time offset",
-                reason: format!("{time_offset_s} is not finite"),
-            });
+            return Err(PipelineError::Invalid(format!(
+                "invalid DVL time offset: {time_offset_s} is not finite"
+            )));
         }
     }
-    let ins_err = |e: estim_ins::Error| Error::InvalidInput {
-        what: "trajectory",
-        reason: e.to_string(),
-    };
+    let ins_err = |e: estim_ins::Error| PipelineError::Invalid(format!("invalid trajectory: {e}"));
     let (truth, imu_clean) = trajectory.simulate(IMU_RATE_HZ).map_err(ins_err)?;
     let dt = 1.0 / IMU_RATE_HZ;
     let mut generator = ImuErrorGenerator::new(*imu_spec, seed);
@@ -188,10 +189,9 @@ pub fn synthesize_aligned(
     let mut samples = Vec::with_capacity(dvl.len());
     for &(time, velocity) in dvl {
         if !time.is_finite() || velocity.iter().any(|v| !v.is_finite()) {
-            return Err(Error::InvalidInput {
-                what: "DVL sample",
-                reason: format!("non-finite value at time {time}"),
-            });
+            return Err(PipelineError::Invalid(format!(
+                "invalid DVL sample: non-finite value at time {time}"
+            )));
         }
         let Some(end) = alignment.window_end(time, t0, dt, imu.len()) else {
             continue;
@@ -209,7 +209,6 @@ pub fn synthesize_aligned(
     }
     Ok(SynthesizedRun {
         truth,
-        imu_clean,
         imu,
         samples,
     })
@@ -234,10 +233,10 @@ pub fn dataset_row(sample: &BeamsNetSample, trajectory: u32, realization: u32) -
 /// Write a 2-D little-endian `float64` C-order array in NumPy `.npy` format 1.0.
 pub fn write_npy(path: &Path, columns: usize, data: &[f64]) -> Result<()> {
     if columns == 0 || !data.len().is_multiple_of(columns) {
-        return Err(Error::InvalidInput {
-            what: "npy array",
-            reason: format!("{} values do not fill rows of {columns}", data.len()),
-        });
+        return Err(PipelineError::Invalid(format!(
+            "invalid npy array: {} values do not fill rows of {columns}",
+            data.len()
+        )));
     }
     let rows = data.len() / columns;
     let mut header =
@@ -246,23 +245,80 @@ pub fn write_npy(path: &Path, columns: usize, data: &[f64]) -> Result<()> {
     let unpadded = 10 + header.len() + 1;
     header.push_str(&" ".repeat((64 - unpadded % 64) % 64));
     header.push('\n');
-    let io = |source| Error::Io {
+    let io = |source| PipelineError::Io {
         path: path.to_path_buf(),
         source,
     };
     let file = std::fs::File::create(path).map_err(io)?;
     let mut w = std::io::BufWriter::new(file);
     w.write_all(b"\x93NUMPY\x01\x00").map_err(io)?;
-    let len = u16::try_from(header.len()).map_err(|_| Error::InvalidInput {
-        what: "npy header",
-        reason: "too long".into(),
-    })?;
+    let len = u16::try_from(header.len())
+        .map_err(|_| PipelineError::Invalid("invalid npy header: too long".into()))?;
     w.write_all(&len.to_le_bytes()).map_err(io)?;
     w.write_all(header.as_bytes()).map_err(io)?;
     for v in data {
         w.write_all(&v.to_le_bytes()).map_err(io)?;
     }
     w.flush().map_err(io)
+}
+
+/// Predictions and metrics of least squares and BeamsNet on the same examples.
+#[derive(Debug, Clone, Serialize)]
+pub struct BeamsNetEvaluation {
+    /// Metrics of the least-squares velocity of the beams.
+    pub ls: Metrics,
+    /// Metrics of BeamsNet.
+    pub beamsnet: Metrics,
+    /// Reference (target) velocities.
+    #[serde(skip)]
+    pub reference: Vec<Vector3<f64>>,
+    /// Least-squares velocities.
+    #[serde(skip)]
+    #[cfg_attr(
+        not(test),
+        expect(dead_code, reason = "the tests check the metrics against them")
+    )]
+    pub ls_velocity: Vec<Vector3<f64>>,
+    /// BeamsNet velocities.
+    #[serde(skip)]
+    #[cfg_attr(
+        not(test),
+        expect(dead_code, reason = "the tests check the metrics against them")
+    )]
+    pub beamsnet_velocity: Vec<Vector3<f64>>,
+}
+
+impl BeamsNetEvaluation {
+    /// How much lower BeamsNet's RMSE is than LS's, in percent.
+    pub fn rmse_reduction_percent(&self) -> f64 {
+        100.0 * (1.0 - self.beamsnet.rmse / self.ls.rmse)
+    }
+}
+
+/// Evaluate LS (with `geometry`) and BeamsNet on `samples` (one batched inference): the
+/// paper's Tables I and II.
+///
+/// # Errors
+/// The network's inference; metrics of an empty or degenerate set.
+pub fn evaluate_beamsnet(
+    beamsnet: &BeamsNet,
+    geometry: &BeamGeometry,
+    samples: &[BeamsNetSample],
+) -> Result<BeamsNetEvaluation> {
+    let reference: Vec<Vector3<f64>> = samples.iter().map(|s| s.target).collect();
+    let ls_velocity: Vec<Vector3<f64>> = samples
+        .iter()
+        .map(|s| geometry.least_squares(&s.input.beams))
+        .collect();
+    let inputs: Vec<_> = samples.iter().map(|s| s.input.clone()).collect();
+    let beamsnet_velocity = beamsnet.velocities(&inputs)?;
+    Ok(BeamsNetEvaluation {
+        ls: speed_metrics(&reference, &ls_velocity)?,
+        beamsnet: speed_metrics(&reference, &beamsnet_velocity)?,
+        reference,
+        ls_velocity,
+        beamsnet_velocity,
+    })
 }
 
 #[cfg(test)]

@@ -1,0 +1,54 @@
+//! `estim tune --trajectories`: the maximum-likelihood fit ([`tune_akit`]) on A-KIT
+//! training trajectories, printed as `crate::tune` prints a survey's fit. The flags are
+//! parsed by `crate::tune`.
+
+use anyhow::Context;
+
+use crate::study::{tune_akit, Config};
+use crate::tune::{finish, json, table, TrajectoryMode};
+
+/// Run it on the trajectories that `args` names.
+pub fn run(args: TrajectoryMode) -> anyhow::Result<()> {
+    let options = &args.options;
+    let config = match &args.config {
+        Some(path) => Config::from_file(path)?,
+        None => Config::default(),
+    };
+    let seed = match args.seed {
+        Some(seed) => {
+            crate::schema::check_seeds("--seed", seed, 0)?;
+            seed
+        }
+        None => config.seed,
+    };
+    let dir = estim::datasets::data_root(args.data.as_deref()).context(
+        "no data folder: pass --data DIR, set ESTIM_DATA_DIR, or place the data at ../shared/data",
+    )?;
+    let report = tune_akit(&dir, &args.trajectories, &config, seed, options)?;
+    let text = if args.json {
+        use crate::schema::path_json;
+        let inputs = serde_json::json!({
+            "data": path_json(Some(&dir)),
+            "config": path_json(args.config.as_deref()),
+            "trajectories": report.trajectories,
+            "seed": seed,
+            "linearizations": args.linearizations,
+            "imu": "synthesized from the ground truth with the configured error model",
+            // Every trajectory's IMU, as `reproduce` says it per trajectory.
+            "imu_source": "synthesized",
+        });
+        json(inputs, &report)?
+    } else {
+        let list: Vec<String> = report.trajectories.iter().map(u32::to_string).collect();
+        let head = format!(
+            "Maximum likelihood on A-KIT trajectories {} ({} DVL epochs; {} left out as \
+             shared with a test trajectory). The IMU is synthesized from the ground truth \
+             with the configured error model (column `synthesized`).",
+            list.join(", "),
+            report.epochs.iter().sum::<usize>(),
+            report.overlapping.iter().sum::<usize>(),
+        );
+        table(&head, &report)
+    };
+    finish(&text, &report)
+}
