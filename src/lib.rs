@@ -30,9 +30,9 @@ pub use estim_ins as ins;
 #[cfg(feature = "learned")]
 pub use estim_learned as learned;
 #[cfg(feature = "nav")]
-pub use estim_nav::{datasets, navigator};
-#[cfg(feature = "nav")]
 pub use estim_nav::truth;
+#[cfg(feature = "nav")]
+pub use estim_nav::{datasets, navigator};
 #[cfg(feature = "nav")]
 pub use estim_nav::{LoadedSurvey, Pd0Load, SurveyError, SurveyFiles};
 
