@@ -387,7 +387,7 @@ pub fn load_survey_with(files: SurveyFiles, columns: Option<&Path>) -> anyhow::R
 }
 
 /// [`load_survey`] with the vehicle configuration already read (`files.vehicle` only
-/// names it in messages): the study reads the embedded A-KIT vehicle this way.
+/// names it in messages), e.g. a vehicle embedded in the binary.
 pub fn load_survey_from(files: SurveyFiles, config: NavigatorConfig) -> anyhow::Result<Survey> {
     let sensors = estim::SurveyFiles {
         imu: files.imu.clone(),
