@@ -58,8 +58,8 @@ pub struct TruthConfig {
     /// Clock scale s of the reference's stamps: a row stamped t refers to navigator
     /// time `t0 + s (t - t0) - time_offset_s`, t0 the first stamp (default 1).
     pub clock_scale: f64,
-    /// Time offset of the reference's stamps \[s\]; unset (default): estimated by the
-    /// evaluation from the heading of the solution against the reference's
+    /// Time offset of the reference's stamps \[s\]; unset (default): estimated by
+    /// [`Truth::load`](crate::truth::Truth::load) against the IMU's angular rate
     /// (`evaluation.truth_time_offset_s`).
     pub time_offset_s: Option<f64>,
     /// With a truth, start from its position, velocity and attitude at its first
