@@ -600,6 +600,13 @@ pub fn evaluation_json(truth: Option<&Truth>) -> Value {
         "epochs_outside_truth": e.epochs_outside_truth,
         "truth_time_offset_s": t.time_offset().offset_s(),
         "truth_time_offset": time_offset_json(t.time_offset()),
+        "truth_velocity_bias": t.velocity_bias().map(|b| json!({
+            "bias_mps": b.bias_mps,
+            "sigma_mps": b.sigma_mps,
+            "residual_rms_m": b.residual_rms_m,
+            "intervals": b.intervals,
+            "removed": b.removed,
+        })),
         "position_rmse_m": e.position_rmse_m,
         "final_position_error_m": e.final_position_error_m,
         "nees_average": e.nees_average,

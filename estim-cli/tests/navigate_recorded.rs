@@ -2,8 +2,10 @@
 //! the IMU files of 4 and 13 are held out) with `vehicles/akit.toml`:
 //! - the raw files described as they are (y axes reversed, clock scaled) navigate
 //!   without divergence on every training trajectory, with the gate rejecting under
-//!   6 % of the DVL updates (under 5 % on all but one: 11 gates 5.5 %) and a
-//!   horizontal RMSE below 3.5 m (measured 0.79-3.05 m);
+//!   5 % of the DVL updates (measured 0-4.3 %) and a horizontal RMSE below 4.5 m
+//!   (measured 0.63-3.96 m);
+//! - the reference's velocity bias against its own positions is reported as a
+//!   separately coded flat-Earth fit finds it, and `remove_velocity_bias` removes it;
 //! - a rotated and re-timed copy of an IMU log, described by `[imu]` keys, gives the
 //!   same solution;
 //! - the raw files read as if their axes were the body's end `diverged` (exit 3).
@@ -75,10 +77,9 @@ fn every_training_trajectory_navigates_on_its_recorded_imu() {
     // The table of docs/results.md ("The A-KIT vehicle file"), printed with
     // `-- --nocapture`.
     println!(
-        "| trajectory | horizontal RMSE [m] | NEES (9 states) | NEES pos / vel / att | mean DVL NIS | DVL gated | truth offset [s] |"
+        "| trajectory | horizontal RMSE [m] | NEES (9 states) | NEES pos / vel / att | mean DVL NIS | DVL gated | truth offset [s] | truth velocity bias N / E [mm/s] |"
     );
-    println!("|---|---|---|---|---|---|---|");
-    let mut over_five_percent = 0;
+    println!("|---|---|---|---|---|---|---|---|");
     for n in TRAINING {
         let [imu, dvl, gt] = files(&root, n);
         let out = navigate(&imu, &dvl, &gt, &vehicle(), None);
@@ -101,18 +102,13 @@ fn every_training_trajectory_navigates_on_its_recorded_imu() {
         );
         let gated = s["updates"]["dvl"]["gated"].as_u64().unwrap();
         let accepted = s["updates"]["dvl"]["accepted"].as_u64().unwrap();
-        // The target is under 5 %; trajectory 11 (the roughest DVL, residual
-        // 0.04-0.08 m/s against the reference) is at 5.5 %: every one under 6 %, and
-        // under 5 % on all but one (counted below).
+        // The target: under 5 % (trajectory 9 is the highest, 17 of 399).
         let share = gated as f64 / (gated + accepted) as f64;
         assert!(
-            share < 0.06,
+            share < 0.05,
             "trajectory {n}: {gated} of {} gated",
             gated + accepted
         );
-        if share >= 0.05 {
-            over_five_percent += 1;
-        }
         let rmse = e["horizontal_position_rmse_m"].as_f64().unwrap();
         // A regression guard, not the 2.0 m target (met on 8 of 11, the table
         // in docs/results.md): trajectory 8 is the largest at 3.96 m.
@@ -125,17 +121,102 @@ fn every_training_trajectory_navigates_on_its_recorded_imu() {
         let g = &e["nees_per_group"];
         let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
         println!(
-            "| {n} | {rmse:.2} | {nees:.1} | {:.1} / {:.1} / {:.1} | {:.2} | {gated} of {} | {tau:+.3} |",
+            "| {n} | {rmse:.2} | {nees:.1} | {:.1} / {:.1} / {:.1} | {:.2} | {gated} of {} | {tau:+.3} | {:+.1} / {:+.1} |",
             f(&g["position"]),
             f(&g["velocity"]),
             f(&g["attitude"]),
             f(&s["nis"]["dvl"]["mean"]),
-            gated + accepted
+            gated + accepted,
+            1e3 * f(&e["truth_velocity_bias"]["bias_mps"][0]),
+            1e3 * f(&e["truth_velocity_bias"]["bias_mps"][1]),
         );
     }
+}
+
+/// The reference's velocity minus its positions' change, fitted the simple way: a
+/// sphere of radius 6378137 m, the first row's latitude for the east scale, times
+/// scaled by `clock_scale`, the velocity integrated by the trapezoid rule; the
+/// least-squares slope per axis \[m/s\] (positions' change minus integrated velocity).
+fn flat_earth_velocity_bias(gt: &Path, clock_scale: f64) -> [f64; 3] {
+    let rows: Vec<Vec<f64>> = std::fs::read_to_string(gt)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| l.split(',').map(|c| c.trim().parse().unwrap()).collect())
+        .collect();
+    const R: f64 = 6_378_137.0;
+    let (lon0, lat0, alt0) = (rows[0][1], rows[0][2], rows[0][3]);
+    let mut integral = [0.0; 3];
+    let mut points = vec![(rows[0][0] * clock_scale, [0.0; 3])];
+    for w in rows.windows(2) {
+        let dt = (w[1][0] - w[0][0]) * clock_scale;
+        for (axis, i) in integral.iter_mut().zip(4..7) {
+            *axis += 0.5 * (w[0][i] + w[1][i]) * dt;
+        }
+        let p = [
+            (w[1][2] - lat0) * R,
+            (w[1][1] - lon0) * R * lat0.cos(),
+            -(w[1][3] - alt0),
+        ];
+        let d = [0, 1, 2].map(|a| p[a] - integral[a]);
+        points.push((w[1][0] * clock_scale, d));
+    }
+    let n = points.len() as f64;
+    let t_mean = points.iter().map(|p| p.0).sum::<f64>() / n;
+    [0, 1, 2].map(|a| {
+        let d_mean = points.iter().map(|p| p.1[a]).sum::<f64>() / n;
+        let num: f64 = points
+            .iter()
+            .map(|p| (p.0 - t_mean) * (p.1[a] - d_mean))
+            .sum();
+        let den: f64 = points.iter().map(|p| (p.0 - t_mean).powi(2)).sum();
+        num / den
+    })
+}
+
+#[test]
+fn the_reference_velocity_bias_is_reported_and_removable() {
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    // Trajectory 9: the reference's velocity runs about 25 mm/s south and 45 mm/s west
+    // of its own positions' change (docs/results.md).
+    let [imu, dvl, gt] = files(&root, 9);
+    let kept = json(&navigate(&imu, &dvl, &gt, &vehicle(), None));
+    let reported = &kept["evaluation"]["truth_velocity_bias"];
+    assert_eq!(reported["removed"], false);
+    assert_eq!(reported["intervals"], 399);
+    let simple = flat_earth_velocity_bias(&gt, 1.0025);
+    for (axis, expected) in simple.iter().enumerate() {
+        let got = reported["bias_mps"][axis].as_f64().unwrap();
+        // The sphere against the ellipsoid's radii (within 0.7 % here): 0.5 mm/s.
+        assert!(
+            (got - expected).abs() < 5e-4,
+            "axis {axis}: {got} m/s against {expected} m/s"
+        );
+    }
+    assert!(simple[1] < -0.04 && simple[0] < -0.02, "{simple:?}");
+    // Removed: the velocity errors lose most of that bias.
+    let dir = tempfile::tempdir().unwrap();
+    let vehicle = std::fs::read_to_string(vehicle())
+        .unwrap()
+        .replace("[truth]\n", "[truth]\nremove_velocity_bias = true\n");
+    let path = dir.path().join("akit_removed.toml");
+    std::fs::write(&path, vehicle).unwrap();
+    let removed = json(&navigate(&imu, &dvl, &gt, &path, None));
+    let e = &removed["evaluation"];
+    assert_eq!(e["truth_velocity_bias"]["removed"], true);
+    let velocity = |s: &Value| {
+        s["evaluation"]["nees_per_group"]["velocity"]
+            .as_f64()
+            .unwrap()
+    };
     assert!(
-        over_five_percent <= 1,
-        "{over_five_percent} runs gate 5 % or more"
+        velocity(&removed) < 0.5 * velocity(&kept),
+        "velocity NEES {} removed, {} kept",
+        velocity(&removed),
+        velocity(&kept)
     );
 }
 

@@ -250,6 +250,10 @@ fn navigate<'py>(
                 TruthTimeOffset::Estimated(_) => "estimated",
             };
             ev.set_item("truth_time_offset_source", source)?;
+            if let Some(b) = t.velocity_bias() {
+                ev.set_item("truth_velocity_bias_mps", b.bias_mps.to_vec())?;
+                ev.set_item("truth_velocity_bias_removed", b.removed)?;
+            }
             out.set_item("evaluation", ev)?;
             let scored = t.rows();
             let errors = PyDict::new(py);

@@ -161,6 +161,10 @@ def test_akit_trajectory_2_with_its_recorded_imu_equals_the_binary():
         assert got[key] == pytest.approx(expected[key], rel=1e-12), key
     assert got["epochs"] == expected["epochs"] and got["nees_states"] == 9
     assert got["truth_time_offset_source"] == expected["truth_time_offset"]["source"]
+    bias = expected["truth_velocity_bias"]
+    assert got["truth_velocity_bias_removed"] == bias["removed"]
+    for a, b in zip(got["truth_velocity_bias_mps"], bias["bias_mps"]):
+        assert abs(a - b) <= 1e-12 * max(1.0, abs(b))
     errors = out["errors"]
     assert errors["error"].shape == (got["epochs"], 9) == errors["sigma"].shape
     # The horizontal RMSE is the one of the error rows.

@@ -66,6 +66,12 @@ pub struct TruthConfig {
     /// epoch inside the IMU's span, replacing `[initial]`'s (as `--init-from-truth`;
     /// default false).
     pub initial_state: bool,
+    /// Remove from the reference's velocity its constant bias against its own
+    /// positions before scoring (default false). The bias is estimated per run by
+    /// [`Truth::load`](crate::truth::Truth::load) as the slope of the reference's
+    /// positions minus its integrated velocity, and reported
+    /// (`evaluation.truth_velocity_bias`) whether it is removed or not.
+    pub remove_velocity_bias: bool,
 }
 
 impl Default for TruthConfig {
@@ -75,6 +81,7 @@ impl Default for TruthConfig {
             clock_scale: 1.0,
             time_offset_s: None,
             initial_state: false,
+            remove_velocity_bias: false,
         }
     }
 }
