@@ -8,7 +8,9 @@ use estim::datasets::data_root;
 
 use crate::output::emit;
 use crate::schema::{document, path_json, status_result};
-use crate::study::{beamsnet_without_sensitivity, paired_study, Config, Gate, MAX_SEED};
+use crate::study::{
+    beamsnet_without_sensitivity, paired_study, Config, Gate, ImuSelection, ImuSource, MAX_SEED,
+};
 
 /// Arguments of `estim compare`.
 #[derive(Debug, clap::Args)]
@@ -34,6 +36,15 @@ pub struct Args {
     /// configured gate, then all run on the updates that all of them accepted.
     #[arg(long)]
     common_gate: bool,
+    /// Which IMU a trajectory uses: `auto` (the recorded `IMU_trajectoryN.csv` where
+    /// the folder holds one, else synthesized from the reference), `recorded` (an
+    /// error where there is none) or `synthesized`.
+    #[arg(long = "imu", value_enum, default_value = "auto")]
+    imu: crate::study::ImuChoice,
+    /// Vehicle file a recorded IMU is read with (axes, clocks, offsets, lever arms);
+    /// default: the A-KIT vehicle, `vehicles/akit.toml`, embedded in the binary.
+    #[arg(long, value_name = "FILE")]
+    vehicle: Option<PathBuf>,
     /// JSON on stdout.
     #[arg(long)]
     json: bool,
@@ -70,7 +81,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         Gate::Off
     };
-    let study = paired_study(&config, &dir, &trajectories, &seeds, gate, learned.as_ref())?;
+    let imu = ImuSelection {
+        choice: args.imu,
+        vehicle: args.vehicle.clone(),
+    };
+    let study = paired_study(
+        &config,
+        &dir,
+        &trajectories,
+        &seeds,
+        gate,
+        learned.as_ref(),
+        &imu,
+    )?;
     let failures = study.failures.len();
     if args.json {
         let inputs = serde_json::json!({
@@ -78,6 +101,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "trajectories": trajectories,
             "seeds": seeds,
             "common_gate": args.common_gate,
+            "imu": args.imu,
+            "vehicle": path_json(args.vehicle.as_deref()),
             "config_file": path_json(args.config.as_deref()),
             "config": config,
         });
@@ -89,8 +114,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         writeln!(
             text,
             "Paired comparison, {}; {} trajectories x {} seeds ({}-{}).\n\
-             IMU synthesized from the ground truth (error model `{}`), beams by the BeamsNet \
-             protocol from the real DVL; the seeds redraw only that synthetic noise.\n\
+             IMU per trajectory: {}. A recorded IMU is read through the vehicle file ({}); a \
+             synthesized one uses the error model `{}`. Beams by the BeamsNet protocol from \
+             the real DVL (A-KIT has no beam data); the seeds redraw only the synthetic \
+             noise. NEES is per state with truth (15 synthesized, 9 recorded).\n\
              Intervals: 95 % Student t confidence intervals of the mean paired difference \
              (minuend - subtrahend); over trajectories = each trajectory's seed mean is one \
              sample (the real sample); over cells = every (trajectory, seed) is one sample.\n",
@@ -106,6 +133,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             seeds.len(),
             args.first_seed,
             last,
+            study
+                .imu_sources
+                .iter()
+                .map(|(n, source)| format!("{n} {}", source.as_str()))
+                .collect::<Vec<_>>()
+                .join(", "),
+            match (
+                &args.vehicle,
+                study
+                    .imu_sources
+                    .values()
+                    .any(|s| *s == ImuSource::Recorded)
+            ) {
+                (_, false) => "none recorded".to_string(),
+                (Some(path), true) => path.display().to_string(),
+                (None, true) => "vehicles/akit.toml, embedded".to_string(),
+            },
             config.imu.preset,
         )?;
         text.push_str(&crate::study::paired_markdown(&study));

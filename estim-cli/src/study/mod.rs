@@ -45,7 +45,8 @@ pub use paired::{
     beamsnet_without_sensitivity, markdown as paired_markdown, paired_study, Gate, PairedInterval,
 };
 pub use recorded::{
-    run_recorded, ImuChoice, ImuSource, RecordedSurvey, AKIT_VEHICLE, RECORDED_NEES_STATES,
+    run_recorded, ImuChoice, ImuSelection, ImuSource, RecordedSurvey, AKIT_VEHICLE,
+    RECORDED_NEES_STATES,
 };
 pub use report::{
     analyse, filter_label, least_squares_velocities, run_variant, summarise, FilterSummary,

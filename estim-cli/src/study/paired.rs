@@ -1,20 +1,25 @@
 //! Paired comparisons of filter variants on the A-KIT trajectories (`estim compare`).
 //!
 //! Every variant of one (trajectory, seed) cell runs on the same scenario: the same
-//! synthesized IMU, the same beam-noise draw, the same initial error. The innovation
-//! gate is off (`filter.gate_probability = 0`), so every variant takes every DVL
-//! update and no difference comes from one variant rejecting updates another accepts;
-//! or, with [`Gate::Common`], every variant takes the same updates: those all of them
-//! accepted when run with the configured gate.
-//! Per cell and variant the run gives three numbers (time-averaged NEES, time-averaged
-//! NIS, position RMSE); per pair of variants the difference of each number is taken
-//! inside the cell (a paired difference), and [`PairedInterval`] summarises them.
+//! IMU (the recorded one where the trajectory's folder holds it, read through the
+//! vehicle file, else synthesized from the reference; [`ImuSelection`]), the same
+//! beam-noise draw, the same initial state. The innovation gate is off
+//! (`filter.gate_probability = 0`, and the vehicle's gate for a recorded IMU), so every
+//! variant takes every DVL update and no difference comes from one variant rejecting
+//! updates another accepts; or, with [`Gate::Common`], every variant takes the same
+//! updates: those all of them accepted when run with the configured (or the
+//! vehicle's) gate.
+//! Per cell and variant the run gives three numbers (time-averaged NEES per state with
+//! truth: 15 on a synthesized IMU, 9 on a recorded one; time-averaged NIS; position
+//! RMSE); per pair of variants the difference of each number is taken inside the cell
+//! (a paired difference), and [`PairedInterval`] summarises them.
 //!
 //! What the interval is: a Student t confidence interval of the mean paired
 //! difference, mean +- t_{(1+level)/2, n-1} s / sqrt(n). Two are reported:
 //! - over the trajectories (n = number of trajectories), each trajectory's
 //!   difference being its mean over the seeds. The seeds redraw only the synthetic
-//!   noise (IMU errors, beam noise, initial error); the real sample is the
+//!   noise (IMU errors on a synthesized IMU, beam noise, initial error on a
+//!   synthesized IMU); the real sample is the
 //!   trajectories, so this is the interval to read;
 //! - over every (trajectory, seed) cell (n = trajectories x seeds), which treats the
 //!   seeds as independent real samples: narrower, and optimistic for that reason.
@@ -33,8 +38,9 @@ use statrs::distribution::{ContinuousCDF, StudentsT};
 use super::report::FilterFailure;
 use super::stats::{error_summary, finite_mean, std_summary};
 use super::{
-    least_squares_velocities, run_variant, Config, CrossSource, FilterRun, LearnedSource,
-    MeasurementSet, PipelineError, Result, Scenario, BEAMSNET_NEGLECTED, LS,
+    least_squares_velocities, run_variant, Config, CrossSource, FilterRun, ImuSelection,
+    LearnedSource, MeasurementSet, PipelineError, Result, Scenario, BEAMSNET_NEGLECTED,
+    BEAMSNET_SCALED, LS,
 };
 use estim_core::nalgebra::Matrix3;
 
@@ -47,14 +53,28 @@ pub use markdown::markdown;
 /// from the last IMU step's process noise Q_k (the paper's letter).
 pub const BEAMSNET_PER_STEP: &str = "beamsnet_m_rho_per_step";
 
-/// The variants every cell runs, in this order.
-pub const PAIRED_VARIANTS: [&str; 3] = [LS, BEAMSNET_NEGLECTED, BEAMSNET_PER_STEP];
+/// The variants, in this order: every cell runs least squares, BeamsNet with M
+/// neglected, and BeamsNet with the paper's M on the basis [`paper_variant`] gives.
+pub const PAIRED_VARIANTS: [&str; 4] = [LS, BEAMSNET_NEGLECTED, BEAMSNET_PER_STEP, BEAMSNET_SCALED];
 
 /// The pairs compared: (minuend, subtrahend); the difference is minuend - subtrahend.
-pub const PAIRS: [(&str, &str); 2] = [
+/// A pair no cell ran (the per-step M on a recorded IMU, the accumulated one on a
+/// synthesized IMU) is left out of [`PairedStudy::comparisons`].
+pub const PAIRS: [(&str, &str); 3] = [
     (BEAMSNET_PER_STEP, BEAMSNET_NEGLECTED),
+    (BEAMSNET_SCALED, BEAMSNET_NEGLECTED),
     (BEAMSNET_NEGLECTED, LS),
 ];
+
+/// The paper's-M variant of a cell on an IMU of `source`: M from the last IMU step's
+/// Q_k (the paper's letter) on a synthesized IMU; on a recorded one, M from the Q
+/// accumulated since the previous update, the basis the navigator's loop runs.
+pub fn paper_variant(source: super::ImuSource) -> &'static str {
+    match source {
+        super::ImuSource::Synthesized => BEAMSNET_PER_STEP,
+        super::ImuSource::Recorded => BEAMSNET_SCALED,
+    }
+}
 
 /// The per-run numbers compared: (key, what it is). The first three are differences
 /// (first variant minus second); the `*_std_improvement_percent` ones are the paper's
@@ -143,8 +163,7 @@ impl PairedInterval {
 pub struct CellRun {
     /// A-KIT trajectory.
     pub trajectory: u32,
-    /// Which IMU the run integrated (`synthesized`: `compare` runs on the IMU
-    /// synthesized from the reference on every trajectory).
+    /// Which IMU the run integrated.
     pub imu_source: super::ImuSource,
     /// Seed (IMU synthesis, beam noise, initial error).
     pub seed: u64,
@@ -152,6 +171,12 @@ pub struct CellRun {
     pub id: String,
     /// Time-averaged NEES (over the epochs where P was positive definite).
     pub nees: f64,
+    /// The states NEES is over (15 on a synthesized IMU, 9 on a recorded one).
+    pub nees_states: usize,
+    /// The NEES the pairs compare: `nees`, or `nees / nees_states` in a study whose
+    /// runs differ in `nees_states` ([`PairedStudy::nees_per_state`]).
+    #[serde(skip)]
+    nees_compared: f64,
     /// Time-averaged NIS.
     pub nis: f64,
     /// Position RMSE \[m\].
@@ -180,7 +205,7 @@ pub struct CellRun {
 impl CellRun {
     fn metric(&self, key: &str) -> f64 {
         match key {
-            "nees" => self.nees,
+            "nees" => self.nees_compared,
             "nis" => self.nis,
             "velocity_std_improvement_percent" => self.velocity_std_mps,
             "misalignment_std_improvement_percent" => self.misalignment_std_rad,
@@ -239,6 +264,12 @@ pub struct PairedStudy {
     pub gate: Gate,
     /// The paper's rho of the per-step variant.
     pub rho: f64,
+    /// Which IMU each trajectory used, by trajectory number.
+    pub imu_sources: std::collections::BTreeMap<u32, super::ImuSource>,
+    /// Whether the NEES compared is per state: the runs' NEES are over different
+    /// numbers of states (recorded and synthesized IMUs in one study); else it is the
+    /// NEES over their common [`CellRun::nees_states`].
+    pub nees_per_state: bool,
     /// Every run that completed.
     pub runs: Vec<CellRun>,
     /// Every run that stopped on a numerical failure.
@@ -262,6 +293,7 @@ pub enum Gate {
 pub fn variant_label(id: &str) -> String {
     match id {
         BEAMSNET_PER_STEP => "BeamsNet, M = rho 0.42 (per-step Q_k)".into(),
+        BEAMSNET_SCALED => "BeamsNet, M = rho 0.42 (accumulated Q)".into(),
         other => super::filter_label(other, f64::NAN),
     }
 }
@@ -294,14 +326,21 @@ fn cell(
     seed: u64,
     gate: Gate,
     learned: &LearnedSource,
-) -> Result<Vec<std::result::Result<CellRun, FilterFailure>>> {
+    imu: &ImuSelection,
+) -> Result<(
+    super::ImuSource,
+    Vec<std::result::Result<CellRun, FilterFailure>>,
+)> {
     let gated = Config {
         seed,
         ..config.clone()
     };
     let mut config = gated.clone();
     config.filter.gate_probability = 0.0;
-    let scenario = Scenario::akit(data, trajectory, &config, seed)?;
+    // `scenario` keeps a recorded survey's own gate (for Gate::Common's decisions);
+    // `open` is the one every compared run uses.
+    let scenario = Scenario::akit_selected(data, trajectory, &config, seed, imu)?;
+    let open = scenario.without_recorded_gate()?;
     let mut visited = [false; 12];
     for d in &scenario.dvl {
         if let Some(t) = scenario.truth.get(d.imu_index) {
@@ -319,9 +358,12 @@ fn cell(
         (LS, ls, CrossSource::Zero),
         (BEAMSNET_NEGLECTED, net.clone(), CrossSource::Zero),
         (
-            BEAMSNET_PER_STEP,
+            paper_variant(scenario.imu_source),
             net,
-            CrossSource::ScaledPerStep(config.filter.rho),
+            match scenario.imu_source {
+                super::ImuSource::Synthesized => CrossSource::ScaledPerStep(config.filter.rho),
+                super::ImuSource::Recorded => CrossSource::Scaled(config.filter.rho),
+            },
         ),
     ];
     if gate == Gate::Common {
@@ -330,7 +372,7 @@ fn cell(
         for (id, set, cross) in &jobs {
             match run_variant(id, &scenario, &gated, set, cross, seed)? {
                 Ok(run) => decisions.push(run.update_accepted),
-                Err(failure) => return Ok(vec![Err(failure)]),
+                Err(failure) => return Ok((scenario.imu_source, vec![Err(failure)])),
             }
         }
         for (_, set, _) in &mut jobs {
@@ -341,49 +383,51 @@ fn cell(
             }
         }
     }
-    jobs.iter()
+    let runs = jobs
+        .iter()
         .map(|(id, set, cross)| {
             Ok(
-                run_variant(id, &scenario, &config, set, cross, seed)?.map(|run: FilterRun| {
-                    CellRun {
-                        trajectory,
-                        imu_source: scenario.imu_source,
-                        seed,
-                        id: id.to_string(),
-                        nees: finite_mean(&run.nees),
-                        nis: finite_mean(&run.nis),
-                        position_rmse_m: error_summary(&run.position_error).rmse,
-                        velocity_std_mps: std_summary(&run.covariance_diagonal, estim_ins::VEL)
-                            .time_average,
-                        misalignment_std_rad: std_summary(&run.covariance_diagonal, estim_ins::ATT)
-                            .time_average,
-                        covariance_not_positive_definite_epochs: run
-                            .covariance_not_positive_definite,
-                        updates_accepted: run.accepted,
-                        largest_valid_rho_per_step_own: median(&run.largest_valid_rho_per_step_own),
-                        paper_cross_term_over_r: std::array::from_fn(|basis| {
-                            let values = run
-                                .paper_cross_term_over_r
-                                .iter()
-                                .map(|b| b[basis][0])
-                                .map(|v| v * config.filter.rho);
-                            let (lo, hi) = values
-                                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
-                                    (lo.min(v), hi.max(v))
-                                });
-                            [lo, hi]
-                        }),
-                        heading_sectors_visited: sectors,
-                    }
+                run_variant(id, &open, &config, set, cross, seed)?.map(|run: FilterRun| CellRun {
+                    trajectory,
+                    imu_source: scenario.imu_source,
+                    seed,
+                    id: id.to_string(),
+                    nees: finite_mean(&run.nees),
+                    nees_states: run.nees_states,
+                    nees_compared: finite_mean(&run.nees),
+                    nis: finite_mean(&run.nis),
+                    position_rmse_m: error_summary(&run.position_error).rmse,
+                    velocity_std_mps: std_summary(&run.covariance_diagonal, estim_ins::VEL)
+                        .time_average,
+                    misalignment_std_rad: std_summary(&run.covariance_diagonal, estim_ins::ATT)
+                        .time_average,
+                    covariance_not_positive_definite_epochs: run.covariance_not_positive_definite,
+                    updates_accepted: run.accepted,
+                    largest_valid_rho_per_step_own: median(&run.largest_valid_rho_per_step_own),
+                    paper_cross_term_over_r: std::array::from_fn(|basis| {
+                        let values = run
+                            .paper_cross_term_over_r
+                            .iter()
+                            .map(|b| b[basis][0])
+                            .map(|v| v * config.filter.rho);
+                        let (lo, hi) = values
+                            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+                                (lo.min(v), hi.max(v))
+                            });
+                        [lo, hi]
+                    }),
+                    heading_sectors_visited: sectors,
                 }),
             )
         })
-        .collect()
+        .collect::<Result<_>>()?;
+    Ok((scenario.imu_source, runs))
 }
 
-/// Run [`PAIRED_VARIANTS`] on every (trajectory, seed) of A-KIT under `data`, with
-/// the gate off or common gate decisions ([`Gate`]), with `learned` as the BeamsNet sensor (its M is not used), and compare
-/// [`PAIRS`]. The cells run in parallel (rayon).
+/// Run [`PAIRED_VARIANTS`] on every (trajectory, seed) of A-KIT under `data`, on the
+/// IMU `imu` selects, with the gate off or common gate decisions ([`Gate`]), with
+/// `learned` as the BeamsNet sensor (its M is not used), and compare [`PAIRS`]. The
+/// cells run in parallel (rayon).
 ///
 /// # Errors
 /// An empty or repeated trajectory or seed list; the loaders' and the pipeline's
@@ -395,6 +439,7 @@ pub fn paired_study(
     seeds: &[u64],
     gate: Gate,
     learned: &LearnedSource,
+    imu: &ImuSelection,
 ) -> Result<PairedStudy> {
     if trajectories.is_empty() || seeds.is_empty() {
         return Err(PipelineError::Invalid(
@@ -415,25 +460,38 @@ pub fn paired_study(
         .collect();
     let outcomes: Vec<_> = cells
         .par_iter()
-        .map(|(t, s)| cell(config, data, *t, *s, gate, learned))
+        .map(|(t, s)| cell(config, data, *t, *s, gate, learned, imu).map(|o| (*t, o)))
         .collect::<Result<_>>()?;
     let mut runs = Vec::new();
     let mut failures = Vec::new();
-    for outcome in outcomes.into_iter().flatten() {
-        match outcome {
-            Ok(run) => runs.push(run),
-            Err(f) => failures.push(f),
+    let mut imu_sources = std::collections::BTreeMap::new();
+    for (trajectory, (source, outcomes)) in outcomes {
+        imu_sources.insert(trajectory, source);
+        for outcome in outcomes {
+            match outcome {
+                Ok(run) => runs.push(run),
+                Err(f) => failures.push(f),
+            }
+        }
+    }
+    let nees_per_state = runs.iter().any(|r| r.nees_states != runs[0].nees_states);
+    if nees_per_state {
+        for r in &mut runs {
+            r.nees_compared = r.nees / r.nees_states as f64;
         }
     }
     let comparisons = PAIRS
         .iter()
         .map(|(a, b)| compare(&runs, trajectories, seeds, a, b))
+        .filter(|c: &Comparison| c.cells > 0)
         .collect();
     Ok(PairedStudy {
         trajectories: trajectories.to_vec(),
         seeds: seeds.to_vec(),
         gate,
         rho: config.filter.rho,
+        imu_sources,
+        nees_per_state,
         runs,
         failures,
         comparisons,

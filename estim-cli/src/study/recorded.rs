@@ -68,7 +68,8 @@ impl ImuSource {
 }
 
 /// Which IMU the study uses for A-KIT trajectories.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "snake_case")]
 pub enum ImuChoice {
     /// The recorded IMU where the trajectory's folder holds one, else synthesized.
     #[default]
@@ -77,6 +78,16 @@ pub enum ImuChoice {
     Recorded,
     /// The IMU synthesized from the reference, everywhere.
     Synthesized,
+}
+
+/// The IMU a study command uses for the A-KIT trajectories, and the vehicle file a
+/// recorded one is read with (`--imu`, `--vehicle`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ImuSelection {
+    /// Recorded where it exists (default), recorded only, or synthesized.
+    pub choice: ImuChoice,
+    /// The vehicle file; `None`: the embedded [`AKIT_VEHICLE`].
+    pub vehicle: Option<std::path::PathBuf>,
 }
 
 /// A recorded survey as the study runs it.
@@ -126,6 +137,42 @@ impl Scenario {
         scenario.name = format!("A-KIT trajectory {n}");
         scenario.trajectory = Some(n);
         Ok(scenario)
+    }
+
+    /// A-KIT trajectory `n` with the IMU of `selection` ([`Scenario::akit_choosing`],
+    /// no partial trajectory).
+    ///
+    /// # Errors
+    /// As [`Scenario::akit_choosing`].
+    pub fn akit_selected(
+        dir: &Path,
+        n: u32,
+        config: &Config,
+        seed: u64,
+        selection: &ImuSelection,
+    ) -> Result<Self> {
+        Self::akit_choosing(
+            dir,
+            n,
+            config,
+            seed,
+            false,
+            selection.choice,
+            selection.vehicle.as_deref(),
+        )
+    }
+
+    /// The same scenario with a recorded survey's innovation gate off (a synthesized
+    /// scenario's gate is the configuration's `filter.gate_probability`).
+    ///
+    /// # Errors
+    /// As [`RecordedSurvey::without_gate`].
+    pub fn without_recorded_gate(&self) -> Result<Self> {
+        let mut open = self.clone();
+        if let Some(recorded) = &self.recorded {
+            open.recorded = Some(Arc::new(recorded.without_gate()?));
+        }
+        Ok(open)
     }
 
     /// A recorded IMU, DVL and reference read through a vehicle file (see the module

@@ -3,7 +3,10 @@
 
 use std::fmt::Write as _;
 
-use super::{median, variant_label, CellRun, PairedInterval, PairedStudy, PAIRED_VARIANTS};
+use super::{
+    median, paper_variant, variant_label, CellRun, PairedInterval, PairedStudy, BEAMSNET_PER_STEP,
+    BEAMSNET_SCALED, PAIRED_VARIANTS,
+};
 use crate::study::markdown::significant;
 use crate::study::{AKIT_TEST_TRAJECTORIES, BEAMSNET_NEGLECTED};
 
@@ -45,15 +48,25 @@ fn test_mark(trajectory: u32) -> &'static str {
     }
 }
 
+/// "NEES (k)" over the runs' common k states, or "NEES per state" when they differ.
+fn nees_heading(study: &PairedStudy) -> String {
+    match study.runs.first() {
+        Some(r) if !study.nees_per_state => format!("NEES ({})", r.nees_states),
+        _ => "NEES per state".to_string(),
+    }
+}
+
 /// The paired differences of NEES, NIS and position RMSE, over trajectories and over
 /// cells.
 fn differences_table(s: &mut String, study: &PairedStudy) {
+    let digits = if study.nees_per_state { 3 } else { 2 };
     let cell = interval_text;
     let n_t = study.trajectories.len();
     let n_s = study.seeds.len();
+    let nees = nees_heading(study);
     let _ = writeln!(
         s,
-        "| pair (difference) | NEES (15), over {n_t} trajectories | NIS (3), over trajectories | position RMSE [m], over trajectories | NEES, over {} cells | NIS, over cells | position RMSE [m], over cells |",
+        "| pair (difference) | {nees}, over {n_t} trajectories | NIS (3), over trajectories | position RMSE [m], over trajectories | NEES, over {} cells | NIS, over cells | position RMSE [m], over cells |",
         n_t * n_s
     );
     let _ = writeln!(s, "|---|---|---|---|---|---|---|");
@@ -63,10 +76,10 @@ fn differences_table(s: &mut String, study: &PairedStudy) {
             s,
             "| {} | {} | {} | {} | {} | {} | {} |",
             c.label,
-            cell(&m(0).over_trajectories, 2),
+            cell(&m(0).over_trajectories, digits),
             cell(&m(1).over_trajectories, 3),
             cell(&m(2).over_trajectories, 2),
-            cell(&m(0).over_cells, 2),
+            cell(&m(0).over_cells, digits),
             cell(&m(1).over_cells, 3),
             cell(&m(2).over_cells, 2),
         );
@@ -136,18 +149,25 @@ fn std_reduction_per_trajectory(s: &mut String, study: &PairedStudy) {
 /// Each variant's NEES, NIS and position RMSE, the mean over seeds per trajectory.
 fn variant_means_per_trajectory(s: &mut String, study: &PairedStudy) {
     let n_s = study.seeds.len();
+    // The variants some cell ran (or tried to).
+    let variants: Vec<&str> = PAIRED_VARIANTS
+        .into_iter()
+        .filter(|id| {
+            study.runs.iter().any(|r| r.id == *id) || study.failures.iter().any(|f| f.id == *id)
+        })
+        .collect();
     let _ = writeln!(
         s,
         "| trajectory | {} |",
-        PAIRED_VARIANTS
+        variants
             .iter()
             .map(|id| format!("{}: NEES / NIS / position RMSE [m]", variant_label(id)))
             .collect::<Vec<_>>()
             .join(" | ")
     );
-    let _ = writeln!(s, "|---|{}", "---|".repeat(PAIRED_VARIANTS.len()));
+    let _ = writeln!(s, "|---|{}", "---|".repeat(variants.len()));
     for t in &study.trajectories {
-        let cells: Vec<String> = PAIRED_VARIANTS
+        let cells: Vec<String> = variants
             .iter()
             .map(|id| {
                 let rs: Vec<&CellRun> = study
@@ -155,8 +175,14 @@ fn variant_means_per_trajectory(s: &mut String, study: &PairedStudy) {
                     .iter()
                     .filter(|r| r.trajectory == *t && r.id == *id)
                     .collect();
-                if rs.is_empty() {
-                    return "failed".into();
+                let source = study.imu_sources.get(t).copied();
+                let paper = [BEAMSNET_PER_STEP, BEAMSNET_SCALED].contains(id);
+                match source {
+                    Some(source) if paper && paper_variant(source) != *id => {
+                        return format!("not run ({} IMU)", source.as_str())
+                    }
+                    _ if rs.is_empty() => return "failed".into(),
+                    _ => {}
                 }
                 let mean = |k: &str| rs.iter().map(|r| r.metric(k)).sum::<f64>() / rs.len() as f64;
                 let failed = n_s - rs.len();
@@ -209,11 +235,21 @@ fn cross_term_table(s: &mut String, study: &PairedStudy) {
                 .iter()
                 .map(|r| r.paper_cross_term_over_r[basis][1])
                 .fold(f64::NEG_INFINITY, f64::max);
-            format!("{lo:+.3} / {hi:+.3}")
+            // A recorded IMU's runs (the navigator's loop) do not compute it.
+            if lo <= hi {
+                format!("{lo:+.3} / {hi:+.3}")
+            } else {
+                "-".to_string()
+            }
+        };
+        let rho = if rho.is_finite() {
+            format!("{rho:.3}")
+        } else {
+            "-".to_string()
         };
         let _ = writeln!(
             s,
-            "| {t} | {} | {rho:.3} | {} | {} |",
+            "| {t} | {} | {rho} | {} | {} |",
             rs[0].heading_sectors_visited,
             range(0),
             range(1)

@@ -6,9 +6,17 @@
 //! Needs the A-KIT data: skipped with a printed reason without it, required in CI.
 
 use crate::study::{
-    beamsnet_without_sensitivity, paired_study, Config, Gate, PairedInterval, BEAMSNET_NEGLECTED,
-    BEAMSNET_PER_STEP, LS,
+    beamsnet_without_sensitivity, paired_study, Config, Gate, ImuChoice, ImuSelection, ImuSource,
+    PairedInterval, BEAMSNET_NEGLECTED, BEAMSNET_PER_STEP, LS,
 };
+
+/// The IMU synthesized from the reference on every trajectory.
+fn synthesized() -> ImuSelection {
+    ImuSelection {
+        choice: ImuChoice::Synthesized,
+        vehicle: None,
+    }
+}
 
 use super::common;
 
@@ -27,6 +35,7 @@ fn paired_study_runs_on_a_slice_of_akit() {
         &seeds,
         Gate::Off,
         learned.as_ref(),
+        &synthesized(),
     )
     .expect("study");
     assert!(study.failures.is_empty(), "{:?}", study.failures);
@@ -40,14 +49,17 @@ fn paired_study_runs_on_a_slice_of_akit() {
             assert!(m.over_cells.lo <= m.over_cells.mean && m.over_cells.mean <= m.over_cells.hi);
         }
     }
-    // The NEES difference of (per-step M - M neglected), recomputed from the runs.
+    // The NEES difference of (per-step M - M neglected), recomputed from the runs
+    // (every run over the 15 states of a synthesized IMU: the NEES itself).
+    assert!(!study.nees_per_state);
     let value = |t: u32, s: u64, id: &str| {
-        study
+        let run = study
             .runs
             .iter()
             .find(|r| r.trajectory == t && r.seed == s && r.id == id)
-            .expect("run")
-            .nees
+            .expect("run");
+        assert_eq!(run.nees_states, 15);
+        run.nees
     };
     let diffs: Vec<f64> = trajectories
         .iter()
@@ -99,8 +111,16 @@ fn paired_study_runs_on_a_slice_of_akit() {
         );
     }
     // Same scenario, same seed: LS alone gives the same NEES as in the study.
-    let alone =
-        paired_study(&config, &data, &[4], &[2001], Gate::Off, learned.as_ref()).expect("alone");
+    let alone = paired_study(
+        &config,
+        &data,
+        &[4],
+        &[2001],
+        Gate::Off,
+        learned.as_ref(),
+        &synthesized(),
+    )
+    .expect("alone");
     let ls = |s: &crate::study::PairedStudy| {
         s.runs
             .iter()
@@ -123,7 +143,16 @@ fn a_repeated_trajectory_or_seed_is_refused() {
         (&[4][..], &[1, 1][..]),
         (&[][..], &[1][..]),
     ] {
-        assert!(paired_study(&config, data, t, s, Gate::Off, learned.as_ref()).is_err());
+        assert!(paired_study(
+            &config,
+            data,
+            t,
+            s,
+            Gate::Off,
+            learned.as_ref(),
+            &synthesized()
+        )
+        .is_err());
     }
 }
 
@@ -136,8 +165,18 @@ fn common_gate_decisions_give_every_variant_the_same_updates() {
     };
     let config = Config::default();
     let learned = beamsnet_without_sensitivity(&config).expect("committed model");
-    let run =
-        |gate| paired_study(&config, &data, &[4], &[2001], gate, learned.as_ref()).expect("study");
+    let run = |gate| {
+        paired_study(
+            &config,
+            &data,
+            &[4],
+            &[2001],
+            gate,
+            learned.as_ref(),
+            &synthesized(),
+        )
+        .expect("study")
+    };
     let (common, off) = (run(Gate::Common), run(Gate::Off));
     assert!(common.failures.is_empty() && off.failures.is_empty());
     let counts: Vec<usize> = common.runs.iter().map(|r| r.updates_accepted).collect();
@@ -151,4 +190,103 @@ fn common_gate_decisions_give_every_variant_the_same_updates() {
     assert_eq!(counts.len(), 3);
     assert!(counts.iter().all(|c| *c == counts[0]), "{counts:?}");
     assert!(off.runs.iter().all(|r| r.updates_accepted > counts[0]));
+}
+
+/// On a recorded IMU (training trajectory 2, read through the embedded
+/// vehicles/akit.toml): the runs say so, NEES is over the 9 states with truth, the gate
+/// is off (every DVL update applied), LS equals the recorded study's ungated LS run
+/// (`analyse`, as `estim reproduce` and the recorded-IMU tables run it), and common
+/// gate decisions give every variant the same updates.
+#[test]
+fn the_recorded_imu_is_compared_where_it_exists() {
+    let Some(data) = common::data_root() else {
+        return;
+    };
+    let config = Config::default();
+    let learned = beamsnet_without_sensitivity(&config).expect("committed model");
+    let auto = ImuSelection::default();
+    let study = |gate| {
+        paired_study(&config, &data, &[2], &[2000], gate, learned.as_ref(), &auto).expect("study")
+    };
+    let (off, common) = (study(Gate::Off), study(Gate::Common));
+    assert!(off.failures.is_empty() && common.failures.is_empty());
+    assert_eq!(off.imu_sources.get(&2), Some(&ImuSource::Recorded));
+    assert_eq!(off.runs.len(), 3);
+    let scenario = crate::study::Scenario::akit_selected(&data, 2, &config, 2000, &auto)
+        .expect("scenario")
+        .without_recorded_gate()
+        .expect("gate off");
+    let epochs = scenario.dvl.len();
+    let inputs = learned(&scenario).expect("BeamsNet");
+    // BeamsNet has no velocity where its IMU window is not full (the first epoch).
+    let beamsnet = inputs.velocities.iter().flatten().count();
+    assert!(beamsnet + 1 >= epochs);
+    for run in &off.runs {
+        assert_eq!(run.imu_source, ImuSource::Recorded);
+        assert_eq!(run.nees_states, 9);
+        let expected = if run.id == LS { epochs } else { beamsnet };
+        assert_eq!(run.updates_accepted, expected, "{}", run.id);
+    }
+    let report =
+        crate::study::analyse(&scenario, &config, Some(&inputs), 2000).expect("the study's run");
+    let reference = report.filters.iter().find(|f| f.id == LS).expect("LS");
+    let ls = off.runs.iter().find(|r| r.id == LS).expect("LS");
+    assert!(
+        (ls.nees - reference.nees_average).abs() <= 1e-12 * reference.nees_average,
+        "{} against {}",
+        ls.nees,
+        reference.nees_average
+    );
+    let counts: Vec<usize> = common.runs.iter().map(|r| r.updates_accepted).collect();
+    assert!(counts.iter().all(|c| *c == counts[0]), "{counts:?}");
+    assert!(
+        counts[0] < beamsnet,
+        "the vehicle's gate rejected none: {counts:?}"
+    );
+    // Beside a synthesized trajectory (4: no recorded IMU here), the pairs compare NEES
+    // per state, and each IMU runs its own basis of the paper's M.
+    let mixed = paired_study(
+        &config,
+        &data,
+        &[2, 4],
+        &[2000],
+        Gate::Off,
+        learned.as_ref(),
+        &auto,
+    )
+    .expect("mixed");
+    assert_eq!(mixed.imu_sources.get(&4), Some(&ImuSource::Synthesized));
+    assert!(mixed.nees_per_state);
+    let per_state = |t: u32, id: &str| {
+        let r = mixed
+            .runs
+            .iter()
+            .find(|r| r.trajectory == t && r.id == id)
+            .expect("run");
+        r.nees / r.nees_states as f64
+    };
+    let last = mixed.comparisons.last().expect("BeamsNet - LS");
+    assert_eq!(
+        (last.minuend.as_str(), last.subtrahend.as_str()),
+        (BEAMSNET_NEGLECTED, LS)
+    );
+    let differences = [2, 4].map(|t| per_state(t, BEAMSNET_NEGLECTED) - per_state(t, LS));
+    assert_eq!(
+        last.metrics[0].over_trajectories,
+        PairedInterval::of(&differences, 0.95)
+    );
+    let minuends: Vec<&str> = mixed
+        .comparisons
+        .iter()
+        .map(|c| c.minuend.as_str())
+        .collect();
+    assert_eq!(
+        minuends,
+        [
+            BEAMSNET_PER_STEP,
+            crate::study::BEAMSNET_SCALED,
+            BEAMSNET_NEGLECTED
+        ]
+    );
+    assert!(mixed.comparisons.iter().take(2).all(|c| c.cells == 1));
 }
