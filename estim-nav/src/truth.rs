@@ -109,6 +109,18 @@ pub fn velocity_bias(samples: &[TrajectorySample]) -> Option<VelocityBias> {
     })
 }
 
+/// `state` at the reference's point carried to the IMU's, `lever_arm` (the
+/// reference's point seen from the IMU, body frame) behind it: the position less
+/// C_b^n l; velocity and attitude as they are.
+fn carried(mut state: InsState, lever_arm: &Vector3<f64>) -> InsState {
+    let offset = state.attitude * lever_arm;
+    let (rn, re) = estim_ins::earth::radii_of_curvature(state.latitude);
+    state.latitude -= offset.x / (rn + state.height);
+    state.longitude -= offset.y / ((re + state.height) * state.latitude.cos());
+    state.height += offset.z;
+    state
+}
+
 impl TruthTimeOffset {
     /// The offset \[s\]: a reference row stamped t refers to navigator time t - offset.
     pub fn offset_s(&self) -> f64 {
@@ -143,9 +155,10 @@ pub struct Evaluation {
     pub covariance_not_positive_definite_epochs: usize,
 }
 
-/// The truth for an evaluation: the reference's spline on the navigator's clock,
-/// carried to the IMU's point, and (for a simulated IMU) the true biases; it keeps the
-/// scores of the solutions passed to [`Truth::score`].
+/// The truth for an evaluation: the reference's spline on the navigator's clock
+/// through the reference's own point (carried to the IMU's point where it is
+/// evaluated), and (for a simulated IMU) the true biases; it keeps the scores of the
+/// solutions passed to [`Truth::score`].
 #[derive(Clone)]
 pub struct Truth {
     path: PathBuf,
@@ -212,27 +225,14 @@ impl Truth {
             .iter()
             .zip(&times)
             .map(|(g, &t)| {
+                // The spline runs through the reference's own point, whose positions
+                // and velocities agree; [`Truth::kinematics`] carries it to the IMU.
                 let mut s = g.trajectory_sample();
                 s.time = t0 + c.clock_scale * (t - t0);
-                // The IMU is at the reference's point minus C_b^n l.
-                let offset = s.attitude * lever;
-                let (rn, re) = estim_ins::earth::radii_of_curvature(s.latitude);
-                s.latitude -= offset.x / (rn + s.height);
-                s.longitude -= offset.y / ((re + s.height) * s.latitude.cos());
-                s.height += offset.z;
                 s
             })
             .collect();
-        // Measured on the reference's own point (before the lever arm) and clock.
-        let mut velocity_bias = velocity_bias(
-            &gt.iter()
-                .zip(&samples)
-                .map(|(g, s)| TrajectorySample {
-                    time: s.time,
-                    ..g.trajectory_sample()
-                })
-                .collect::<Vec<_>>(),
-        );
+        let mut velocity_bias = velocity_bias(&samples);
         if let Some(b) = velocity_bias.as_mut().filter(|_| c.remove_velocity_bias) {
             let bias = Vector3::from(b.bias_mps);
             for s in &mut samples {
@@ -329,7 +329,7 @@ impl Truth {
         }
         let kinematics = self.trajectory.evaluate(time)?;
         let w = kinematics.angular_rate;
-        let mut state = kinematics.state;
+        let mut state = carried(kinematics.state, &self.lever_arm);
         // The reference's velocity is its point's: the IMU's lacks omega x l.
         state.velocity_ned -= state.attitude * w.cross(&self.lever_arm);
         if let Some((times, biases)) = &self.biases {
@@ -363,12 +363,8 @@ impl Truth {
             .iter()
             .filter(|&&t| t >= from && t <= to)
             .filter_map(|&t| self.trajectory.evaluate(t).ok())
-            .map(|k| {
-                [
-                    k.state.latitude.to_degrees(),
-                    k.state.longitude.to_degrees(),
-                ]
-            })
+            .map(|k| carried(k.state, &self.lever_arm))
+            .map(|s| [s.latitude.to_degrees(), s.longitude.to_degrees()])
             .collect()
     }
 
