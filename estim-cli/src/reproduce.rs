@@ -143,16 +143,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             }
             _ => (vec![Scenario::simulated(&config, config.seed)?], None),
         };
-    if args.smooth {
-        if let Some(s) = scenarios.iter().find(|s| s.recorded.is_some()) {
-            anyhow::bail!(
-                "--smooth: {} is on its recorded IMU, and the study's smoother runs on the \
-                 synthesized one only (add --imu synthesized; a recorded log is smoothed by \
-                 `estim smooth --imu IMU --dvl DVL --vehicle vehicles/akit.toml`)",
-                s.name
-            );
-        }
-    }
     for s in &scenarios {
         if let Some(span) = s.span.filter(|span| !span.agrees()) {
             let [a, b] = span.overlap_s().unwrap_or(span.gt_s);

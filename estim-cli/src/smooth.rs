@@ -67,6 +67,18 @@ pub struct Args {
     /// --data the data is found through `ESTIM_DATA_DIR`, then `../shared/data`.
     #[arg(long = "trajectory", value_name = "N")]
     trajectories: Vec<u32>,
+    /// Which IMU an A-KIT trajectory uses: `auto` (the recorded `IMU_trajectoryN.csv`
+    /// where the folder holds one, read through the embedded `vehicles/akit.toml` and
+    /// smoothed by the navigator's own pass; else synthesized from the reference),
+    /// `recorded` (an error where there is none) or `synthesized`.
+    #[arg(
+        long = "imu-source",
+        value_name = "WHICH",
+        value_enum,
+        default_value = "auto",
+        conflicts_with = "imu"
+    )]
+    imu_source: crate::study::ImuChoice,
     /// TOML configuration (as for `estim reproduce`).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
@@ -107,6 +119,8 @@ pub struct ScenarioMode {
     pub data: Option<PathBuf>,
     /// `--trajectory` (repeatable).
     pub trajectories: Vec<u32>,
+    /// `--imu-source`.
+    pub imu_source: crate::study::ImuChoice,
     /// `--config`.
     pub config: Option<PathBuf>,
     /// `--rho`.
@@ -124,6 +138,7 @@ impl Args {
             return Mode::Scenarios(ScenarioMode {
                 data: self.data,
                 trajectories: self.trajectories,
+                imu_source: self.imu_source,
                 config: self.config,
                 rho: self.rho,
                 json: self.json,

@@ -4,16 +4,19 @@
 //! the recorded nominal trajectory (`true = nominal + error`, estim-ins convention),
 //! then compared with the filter against ground truth at the same epochs.
 
+use std::collections::HashMap;
+
+use estim::navigator::{smooth_survey_at, DvlInput, NavSolution, NavigationObserver, SolutionKind};
 use estim_core::consistency::nees;
 use estim_core::nalgebra::{Matrix3, SMatrix};
 use estim_core::smoother::{ForwardRecorder, RecordAt, Smoothed};
-use estim_ins::{InsErrorModel, InsState, ATT, ERROR_STATES, POS, VEL};
+use estim_ins::{ErrorMatrix, InsErrorModel, InsState, ATT, ERROR_STATES, POS, VEL};
 use serde::Serialize;
 
 use super::stats::{error_summary, finite_mean, ErrorSummary};
 use super::{
     error_state, filter_imu_spec, least_squares_velocities, run_filter_with_observer, Config,
-    CrossSource, MeasurementSet, PipelineError, Result, Scenario,
+    CrossSource, MeasurementSet, PipelineError, Result, Scenario, RECORDED_NEES_STATES,
 };
 
 /// Error series of one estimate (filtered or smoothed) at the smoother's epochs.
@@ -55,11 +58,14 @@ impl EstimateSeries {
         }
     }
 
+    /// Append the errors of `estimate` against `truth`, NEES over the first
+    /// `nees_states` error states (15 with the IMU's true biases, 9 without).
     fn push(
         &mut self,
         truth: &InsState,
         estimate: &InsState,
         covariance: &SMatrix<f64, ERROR_STATES, ERROR_STATES>,
+        nees_states: usize,
     ) {
         let e = error_state(truth, estimate);
         self.position_error.push(e.fixed_rows::<3>(POS).norm());
@@ -68,7 +74,12 @@ impl EstimateSeries {
         self.velocity_error.push(e.fixed_rows::<3>(VEL).norm());
         self.attitude_error_deg
             .push(e.fixed_rows::<3>(ATT).norm().to_degrees());
-        self.nees.push(nees(&e, covariance).unwrap_or(f64::NAN));
+        let value = if nees_states == ERROR_STATES {
+            nees(&e, covariance).ok()
+        } else {
+            estim::navigator::nees_of_block(&e, covariance, 0, nees_states)
+        };
+        self.nees.push(value.unwrap_or(f64::NAN));
     }
 }
 
@@ -79,6 +90,11 @@ pub struct SmoothReport {
     pub name: String,
     /// A-KIT trajectory number, if any.
     pub trajectory: Option<u32>,
+    /// Which IMU the filter integrated.
+    pub imu_source: super::ImuSource,
+    /// The states NEES is over: 15 on a synthesized IMU (its true biases known), 9 on
+    /// a recorded one (position, velocity, attitude).
+    pub nees_states: usize,
     /// The cross-covariance used ("M = 0" or "rho = ...").
     pub cross: String,
     /// Time of each epoch since the start \[s\].
@@ -129,15 +145,27 @@ fn truth_at(scenario: &Scenario, time: f64) -> Result<&InsState> {
 }
 
 /// Run the LS-aided INS/DVL filter on `scenario` with `cross`, record it, smooth it.
+/// On a recorded IMU: [`smooth_recorded`] (M = 0 only).
 ///
 /// # Errors
-/// The filter's and the smoother's errors (e.g. [`estim_core::Error::SmootherUnsupported`]).
+/// The filter's and the smoother's errors (e.g. [`estim_core::Error::SmootherUnsupported`]);
+/// a cross-covariance other than M = 0 on a recorded IMU.
 pub fn smooth_scenario(
     scenario: &Scenario,
     config: &Config,
     cross: &CrossSource,
     seed: u64,
 ) -> Result<SmoothReport> {
+    if let Some(recorded) = &scenario.recorded {
+        if !matches!(cross, CrossSource::Zero) {
+            return Err(PipelineError::Invalid(format!(
+                "{}: the recorded IMU is smoothed by the navigator's own pass, whose DVL \
+                 updates have M = 0 (leave out --rho, or add --imu synthesized)",
+                scenario.name
+            )));
+        }
+        return smooth_recorded(scenario, recorded, config);
+    }
     let measurements = least_squares_measurements(scenario, config);
     let mut recorder = ForwardRecorder::<f64, InsState, ERROR_STATES>::new(RecordAt::Updates);
     run_filter_with_observer(
@@ -162,9 +190,14 @@ pub fn smooth_scenario(
     for s in &smoothed {
         let truth = truth_at(scenario, s.filtered_state.time)?;
         time.push(truth.time - start);
-        filtered.push(truth, &s.filtered_state, &s.filtered_covariance);
+        filtered.push(
+            truth,
+            &s.filtered_state,
+            &s.filtered_covariance,
+            ERROR_STATES,
+        );
         let state = s.injected(&process)?;
-        smooth.push(truth, &state, &s.covariance);
+        smooth.push(truth, &state, &s.covariance, ERROR_STATES);
     }
     let cross_name = match cross {
         CrossSource::Zero => "M = 0".to_string(),
@@ -175,7 +208,96 @@ pub fn smooth_scenario(
     Ok(SmoothReport {
         name: scenario.name.clone(),
         trajectory: scenario.trajectory,
+        imu_source: scenario.imu_source,
+        nees_states: ERROR_STATES,
         cross: cross_name,
+        time,
+        filtered_summary: filtered.summary(),
+        smoothed_summary: smooth.summary(),
+        filtered,
+        smoothed: smooth,
+    })
+}
+
+/// The forward pass's state and covariance at each DVL epoch, by time.
+#[derive(Default)]
+struct ForwardEpochs(HashMap<u64, (InsState, ErrorMatrix)>);
+
+impl NavigationObserver for ForwardEpochs {
+    fn on_solution(
+        &mut self,
+        kind: SolutionKind,
+        solution: &NavSolution,
+        state: &InsState,
+        covariance: &ErrorMatrix,
+    ) -> std::result::Result<(), Box<dyn std::error::Error + Send + Sync>> {
+        if kind == SolutionKind::Dvl {
+            self.0
+                .insert(solution.time.to_bits(), (*state, *covariance));
+        }
+        Ok(())
+    }
+}
+
+/// [`smooth_scenario`] on a recorded IMU: the navigator's own forward pass on the
+/// survey as the vehicle file describes it (its DVL model and error states, the least
+/// squares velocities of the protocol's beams as DVL rows, M = 0), smoothed over its DVL
+/// epochs ([`estim::navigator::smooth_survey_at`], as `estim smooth --imu` does), the
+/// filtered and smoothed solutions scored against the reference at those epochs
+/// (interpolated to the IMU sample of each), NEES over the 9 states with truth.
+///
+/// # Errors
+/// The navigator's and the smoother's errors; a smoothed epoch without a forward
+/// solution or a truth sample.
+pub fn smooth_recorded(
+    scenario: &Scenario,
+    recorded: &super::RecordedSurvey,
+    config: &Config,
+) -> Result<SmoothReport> {
+    let mut inputs = recorded.inputs.clone();
+    inputs.output_epochs.clear();
+    let velocities = least_squares_velocities(scenario, config);
+    for (row, v) in inputs.dvl.iter_mut().zip(&velocities) {
+        row.input = match v {
+            Some(v) => DvlInput::Velocity(*v),
+            None => DvlInput::NoLock,
+        };
+    }
+    let mut forward = ForwardEpochs::default();
+    let run = smooth_survey_at(
+        &inputs,
+        &recorded.settings,
+        None,
+        &mut forward,
+        RecordAt::Measurements,
+    )?;
+    let start = scenario
+        .truth
+        .first()
+        .ok_or_else(|| PipelineError::Invalid("empty scenario".into()))?
+        .time;
+    let mut time = Vec::with_capacity(run.smoothed.len());
+    let mut filtered = EstimateSeries::default();
+    let mut smooth = EstimateSeries::default();
+    for s in run.smoothed.iter().filter(|s| s.kind == SolutionKind::Dvl) {
+        let t = s.solution.time;
+        let (state, covariance) = forward.0.get(&t.to_bits()).ok_or_else(|| {
+            PipelineError::Invalid(format!(
+                "{}: the smoothed epoch at t = {t} s has no forward solution",
+                scenario.name
+            ))
+        })?;
+        let truth = truth_at(scenario, t)?;
+        time.push(truth.time - start);
+        filtered.push(truth, state, covariance, RECORDED_NEES_STATES);
+        smooth.push(truth, &s.state, &s.covariance, RECORDED_NEES_STATES);
+    }
+    Ok(SmoothReport {
+        name: scenario.name.clone(),
+        trajectory: scenario.trajectory,
+        imu_source: scenario.imu_source,
+        nees_states: RECORDED_NEES_STATES,
+        cross: "M = 0".to_string(),
         time,
         filtered_summary: filtered.summary(),
         smoothed_summary: smooth.summary(),

@@ -7,7 +7,9 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use crate::smooth::ScenarioMode;
-use crate::study::{apply_faults, smooth_scenario, Config, CrossSource, Scenario, SmoothReport};
+use crate::study::{
+    apply_faults, smooth_scenario, Config, CrossSource, ImuSource, Scenario, SmoothReport,
+};
 use anyhow::Context;
 use estim::datasets::data_root;
 use rayon::prelude::*;
@@ -48,7 +50,15 @@ pub fn run(args: ScenarioMode) -> anyhow::Result<()> {
             args.trajectories.clone()
         };
         for n in list {
-            scenarios.push(Scenario::akit(&dir, n, &config, config.seed)?);
+            scenarios.push(Scenario::akit_choosing(
+                &dir,
+                n,
+                &config,
+                config.seed,
+                false,
+                args.imu_source,
+                None,
+            )?);
         }
     }
     for s in &mut scenarios {
@@ -69,8 +79,8 @@ pub fn run(args: ScenarioMode) -> anyhow::Result<()> {
             "rho": args.rho,
             "out": path_json(args.out.as_deref()),
             "seed": config.seed,
-            // The study's smoother runs on an IMU synthesized from the ground truth.
-            "imu_source": "synthesized",
+            // Which IMU each trajectory used is `imu_source` in its report.
+            "imu": args.imu_source,
             "config": config,
         });
         let doc = document(
@@ -104,10 +114,15 @@ pub fn smooth_all(
 /// The filtered-against-smoothed tables.
 pub fn print_reports(out: &mut String, reports: &[SmoothReport]) -> std::fmt::Result {
     for r in reports {
+        let imu = match r.imu_source {
+            ImuSource::Recorded => {
+                "recorded IMU read through vehicles/akit.toml, the navigator's own pass"
+            }
+            ImuSource::Synthesized => "IMU synthesized from the ground truth",
+        };
         writeln!(
             out,
-            "== {} (IMU synthesized from the ground truth, LS DVL, {}, {} epochs): filtered \
-             vs smoothed against ground truth",
+            "== {} ({imu}, LS DVL, {}, {} epochs): filtered vs smoothed against ground truth",
             r.name,
             r.cross,
             r.time.len()
@@ -134,7 +149,8 @@ pub fn print_reports(out: &mut String, reports: &[SmoothReport]) -> std::fmt::Re
         }
         writeln!(
             out,
-            "(NEES of the 15-state error; 15 for a consistent estimate)\n"
+            "(NEES of the {n}-state error; {n} for a consistent estimate)\n",
+            n = r.nees_states
         )?;
     }
     Ok(())

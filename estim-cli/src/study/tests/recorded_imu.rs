@@ -285,3 +285,74 @@ fn the_network_m_on_recorded_windows_matches_monte_carlo() {
         picks.len()
     );
 }
+
+/// `smooth --trajectory` on a recorded IMU: the navigator's own pass (the vehicle's
+/// model, LS velocities as DVL rows) smoothed over its DVL epochs, NEES over the 9
+/// states with truth; the filtered series is that pass's (the explicit 9 x 9 NEES of
+/// its state against the truth at each epoch), the last smoothed epoch is the last
+/// filtered one, and a paper M is refused (the navigator's updates have M = 0).
+#[test]
+fn a_recorded_trajectory_is_smoothed_by_the_navigators_own_pass() {
+    let Some(data) = common::data_root() else {
+        return;
+    };
+    let s = scenario(&data);
+    let config = Config::default();
+    let report = crate::study::smooth_scenario(&s, &config, &CrossSource::Zero, config.seed)
+        .expect("smooth");
+    assert_eq!(report.imu_source, ImuSource::Recorded);
+    assert_eq!(report.nees_states, RECORDED_NEES_STATES);
+    // One epoch per DVL epoch of the forward pass, accepted or gated.
+    let recorded = s.recorded.as_ref().expect("survey");
+    let mut inputs: SurveyInputs = recorded.inputs.clone();
+    inputs.output_epochs.clear();
+    let ls = least_squares_velocities(&s, &config);
+    for (row, v) in inputs.dvl.iter_mut().zip(&ls) {
+        row.input = v.map_or(DvlInput::NoLock, DvlInput::Velocity);
+    }
+    let mut forward = Dvl::default();
+    navigate(&inputs, &recorded.settings, None, &mut forward).expect("navigate");
+    assert_eq!(report.time.len(), forward.0.len());
+    let t0 = s.truth[0].time;
+    for (k, (t, state, p)) in forward.0.iter().enumerate() {
+        assert!((report.time[k] - (t - t0)).abs() < 1e-9);
+        let truth = s
+            .truth
+            .iter()
+            .min_by(|a, b| (a.time - t).abs().total_cmp(&(b.time - t).abs()))
+            .expect("truth");
+        let e = crate::study::error_state(truth, state);
+        let block = p.fixed_view::<9, 9>(0, 0).clone_owned();
+        let ev = estim_core::nalgebra::SVector::<f64, 9>::from_fn(|i, _| e[i]);
+        let nees = (ev.transpose() * block.try_inverse().expect("P") * ev)[(0, 0)];
+        let got = report.filtered.nees[k];
+        assert!(
+            (got - nees).abs() <= 1e-6 * nees.max(1.0),
+            "epoch {k}: {got} vs {nees}"
+        );
+    }
+    let last = report.time.len() - 1;
+    assert!(
+        (report.smoothed.position_error[last] - report.filtered.position_error[last]).abs() < 1e-9
+    );
+    assert!(crate::study::smooth_scenario(&s, &config, &CrossSource::Scaled(0.42), 1).is_err());
+}
+
+/// The forward pass's DVL-epoch solutions.
+#[derive(Default)]
+struct Dvl(Vec<(f64, InsState, ErrorMatrix)>);
+
+impl NavigationObserver for Dvl {
+    fn on_solution(
+        &mut self,
+        kind: SolutionKind,
+        solution: &NavSolution,
+        state: &InsState,
+        covariance: &ErrorMatrix,
+    ) -> std::result::Result<(), Box<dyn std::error::Error + Send + Sync>> {
+        if kind == SolutionKind::Dvl {
+            self.0.push((solution.time, *state, *covariance));
+        }
+        Ok(())
+    }
+}
