@@ -8,8 +8,8 @@
 //!
 //! A reference's velocity and positions need not agree: [`velocity_bias`] measures the
 //! constant velocity by which its positions move apart from its integrated velocity
-//! (on the A-KIT data, 45 mm/s east on trajectory 9, at most 12 mm/s on the other
-//! training trajectories; docs/results.md). It is always reported, and removed from the
+//! (on the A-KIT data, 45 mm/s west on trajectory 9, at most 12.5 mm/s per axis on the
+//! other training trajectories; docs/results.md). It is always reported, and removed from the
 //! reference's velocity before scoring when `truth.remove_velocity_bias` says so.
 
 use std::path::{Path, PathBuf};
@@ -225,8 +225,9 @@ impl Truth {
             .iter()
             .zip(&times)
             .map(|(g, &t)| {
-                // The spline runs through the reference's own point, whose positions
-                // and velocities agree; [`Truth::kinematics`] carries it to the IMU.
+                // The spline runs through the reference's own point, to which both its
+                // positions and its velocities refer; [`Truth::kinematics`] carries it
+                // to the IMU.
                 let mut s = g.trajectory_sample();
                 s.time = t0 + c.clock_scale * (t - t0);
                 s
