@@ -82,7 +82,10 @@ pub fn paper_variant(source: super::ImuSource) -> &'static str {
 /// deviation (summed over the three axes, from P) is below the second's,
 /// 100 (second - first) / second, taken inside each cell.
 pub const METRICS: [(&str, &str); 5] = [
-    ("nees", "time-averaged NEES (15 states) against truth"),
+    (
+        "nees",
+        "time-averaged NEES against truth (per state when the runs differ in states)",
+    ),
     ("nis", "time-averaged NIS (3 dof)"),
     ("position_rmse_m", "position RMSE against truth [m]"),
     (
