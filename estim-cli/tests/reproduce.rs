@@ -192,23 +192,41 @@ fn reproduce_uses_the_recorded_imu_where_there_is_one() {
     assert!(stderr.contains("IMU_trajectory2.csv"), "{stderr}");
 
     // What runs only on a synthesized IMU is refused on a recorded one, naming why.
-    for (extra, says) in [
-        (
-            &["--scenario", "two-beams", "--imu", "recorded"][..],
-            "--scenario",
-        ),
-        (&["--smooth"][..], "--smooth"),
-    ] {
-        let out = Command::new(env!("CARGO_BIN_EXE_estim"))
-            .args(["reproduce", "--data", d, "--trajectory", "2"])
-            .args(extra)
-            .output()
-            .expect("run estim");
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(2), "{extra:?}: {stderr}");
-        assert!(
-            stderr.contains(says) && stderr.contains("synthesized"),
-            "{stderr}"
-        );
-    }
+    let out = Command::new(env!("CARGO_BIN_EXE_estim"))
+        .args(["reproduce", "--data", d, "--trajectory", "2"])
+        .args(["--scenario", "two-beams", "--imu", "recorded"])
+        .output()
+        .expect("run estim");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("--scenario") && stderr.contains("synthesized"),
+        "{stderr}"
+    );
+
+    // --smooth smooths the recorded trajectory with the navigator's own pass (M = 0),
+    // NEES over the 9 states with truth.
+    let out = Command::new(env!("CARGO_BIN_EXE_estim"))
+        .args([
+            "reproduce",
+            "--data",
+            d,
+            "--trajectory",
+            "2",
+            "--smooth",
+            "--json",
+        ])
+        .output()
+        .expect("run estim");
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let doc: Value = serde_json::from_slice(&out.stdout).expect("valid JSON");
+    let smoothing = &doc["smoothing"][0];
+    assert_eq!(smoothing["imu_source"], "recorded");
+    assert_eq!(smoothing["nees_states"], 9);
+    assert_eq!(smoothing["cross"], "M = 0");
 }
