@@ -109,11 +109,10 @@ fn the_recorded_imu_is_read_through_the_vehicle_file() {
     assert!(s.dvl.len() >= 395, "{}", s.dvl.len());
 }
 
-/// Records the state and covariance at the output epochs.
-#[derive(Default)]
-struct Epochs(Vec<(f64, InsState, ErrorMatrix)>);
+/// Records the time, state and covariance of the solutions of one kind.
+struct Solutions(SolutionKind, Vec<(f64, InsState, ErrorMatrix)>);
 
-impl NavigationObserver for Epochs {
+impl NavigationObserver for Solutions {
     fn on_solution(
         &mut self,
         kind: SolutionKind,
@@ -121,8 +120,8 @@ impl NavigationObserver for Epochs {
         state: &InsState,
         covariance: &ErrorMatrix,
     ) -> std::result::Result<(), Box<dyn std::error::Error + Send + Sync>> {
-        if kind == SolutionKind::Epoch {
-            self.0.push((solution.time, *state, *covariance));
+        if kind == self.0 {
+            self.1.push((solution.time, *state, *covariance));
         }
         Ok(())
     }
@@ -155,12 +154,12 @@ fn a_recorded_run_is_the_users_navigator_with_the_variants_velocity() {
             None => DvlInput::NoLock,
         };
     }
-    let mut epochs = Epochs::default();
+    let mut epochs = Solutions(SolutionKind::Epoch, Vec::new());
     navigate(&inputs, &recorded.settings, None, &mut epochs).expect("navigate");
-    assert_eq!(epochs.0.len(), run.time.len());
+    assert_eq!(epochs.1.len(), run.time.len());
     let t0 = recorded.truth_epochs[0].0;
     let mut worst: f64 = 0.0;
-    for (k, ((t, state, p), (te, truth))) in epochs.0.iter().zip(&recorded.truth_epochs).enumerate()
+    for (k, ((t, state, p), (te, truth))) in epochs.1.iter().zip(&recorded.truth_epochs).enumerate()
     {
         assert_eq!(t, te);
         assert!((run.time[k] - (t - t0)).abs() < 1e-12);
@@ -310,11 +309,11 @@ fn a_recorded_trajectory_is_smoothed_by_the_navigators_own_pass() {
     for (row, v) in inputs.dvl.iter_mut().zip(&ls) {
         row.input = v.map_or(DvlInput::NoLock, DvlInput::Velocity);
     }
-    let mut forward = Dvl::default();
+    let mut forward = Solutions(SolutionKind::Dvl, Vec::new());
     navigate(&inputs, &recorded.settings, None, &mut forward).expect("navigate");
-    assert_eq!(report.time.len(), forward.0.len());
+    assert_eq!(report.time.len(), forward.1.len());
     let t0 = s.truth[0].time;
-    for (k, (t, state, p)) in forward.0.iter().enumerate() {
+    for (k, (t, state, p)) in forward.1.iter().enumerate() {
         assert!((report.time[k] - (t - t0)).abs() < 1e-9);
         let truth = s
             .truth
@@ -336,23 +335,4 @@ fn a_recorded_trajectory_is_smoothed_by_the_navigators_own_pass() {
         (report.smoothed.position_error[last] - report.filtered.position_error[last]).abs() < 1e-9
     );
     assert!(crate::study::smooth_scenario(&s, &config, &CrossSource::Scaled(0.42), 1).is_err());
-}
-
-/// The forward pass's DVL-epoch solutions.
-#[derive(Default)]
-struct Dvl(Vec<(f64, InsState, ErrorMatrix)>);
-
-impl NavigationObserver for Dvl {
-    fn on_solution(
-        &mut self,
-        kind: SolutionKind,
-        solution: &NavSolution,
-        state: &InsState,
-        covariance: &ErrorMatrix,
-    ) -> std::result::Result<(), Box<dyn std::error::Error + Send + Sync>> {
-        if kind == SolutionKind::Dvl {
-            self.0.push((solution.time, *state, *covariance));
-        }
-        Ok(())
-    }
 }
