@@ -2,8 +2,10 @@
 //! the IMU files of 4 and 13 are held out) with `vehicles/akit.toml`:
 //! - the raw files described as they are (y axes reversed, clock scaled) navigate
 //!   without divergence on every training trajectory, with the gate rejecting under
-//!   5 % of the DVL updates (measured 0-4.3 %) and a horizontal RMSE below 4.5 m
-//!   (measured 0.63-3.96 m);
+//!   5 % of the DVL updates and a horizontal and 3-D position RMSE below 4.5 m
+//!   (docs/results.md, "The A-KIT vehicle file", has the figures);
+//! - the vehicle file's DVL mounting is the mean of the training trajectories' DVL
+//!   calibrations, its misalignment prior their spread;
 //! - the reference's velocity bias against its own positions is reported as a
 //!   separately coded flat-Earth fit finds it, and `remove_velocity_bias` removes it;
 //! - a rotated and re-timed copy of an IMU log, described by `[imu]` keys, gives the
@@ -77,9 +79,9 @@ fn every_training_trajectory_navigates_on_its_recorded_imu() {
     // The table of docs/results.md ("The A-KIT vehicle file"), printed with
     // `-- --nocapture`.
     println!(
-        "| trajectory | horizontal RMSE [m] | NEES (9 states) | NEES pos / vel / att | mean DVL NIS | DVL gated | truth offset [s] | truth velocity bias N / E [mm/s] |"
+        "| trajectory | horizontal RMSE [m] | 3-D RMSE [m] | NEES (9 states) | NEES pos / vel / att | mean DVL NIS | DVL gated | truth offset [s] | truth velocity bias N / E [mm/s] |"
     );
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|");
     for n in TRAINING {
         let [imu, dvl, gt] = files(&root, n);
         let out = navigate(&imu, &dvl, &gt, &vehicle(), None);
@@ -110,9 +112,12 @@ fn every_training_trajectory_navigates_on_its_recorded_imu() {
             gated + accepted
         );
         let rmse = e["horizontal_position_rmse_m"].as_f64().unwrap();
-        // A regression guard, not the 2.0 m target (met on 8 of 11, the table
-        // in docs/results.md): trajectory 8 is the largest at 3.96 m.
+        // A regression guard, not the 2.0 m target (met on 10 of 11, the table
+        // in docs/results.md): trajectory 8 is the largest at 4.02 m. The 3-D figure
+        // adds the depth, which no sensor measures here (vertical 0.03-0.25 m RMS).
         assert!(rmse < 4.5, "trajectory {n}: horizontal RMSE {rmse} m");
+        let rmse_3d = e["position_rmse_m"].as_f64().unwrap();
+        assert!(rmse_3d < 4.5, "trajectory {n}: 3-D RMSE {rmse_3d} m");
         let nees = e["nees_average"].as_f64().unwrap();
         assert!(
             nees.is_finite() && nees > 0.0,
@@ -121,7 +126,7 @@ fn every_training_trajectory_navigates_on_its_recorded_imu() {
         let g = &e["nees_per_group"];
         let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
         println!(
-            "| {n} | {rmse:.2} | {nees:.1} | {:.1} / {:.1} / {:.1} | {:.2} | {gated} of {} | {tau:+.3} | {:+.1} / {:+.1} |",
+            "| {n} | {rmse:.2} | {rmse_3d:.2} | {nees:.1} | {:.1} / {:.1} / {:.1} | {:.2} | {gated} of {} | {tau:+.3} | {:+.1} / {:+.1} |",
             f(&g["position"]),
             f(&g["velocity"]),
             f(&g["attitude"]),
@@ -382,4 +387,57 @@ fn the_smoother_reports_at_the_forward_filters_epochs() {
         .as_f64()
         .unwrap();
     assert!(rmse.is_finite() && rmse < 3.5, "{rmse}");
+}
+
+/// The vehicle file's DVL mounting (`[dvl] mounting_misalignment_rad`) is the mean of
+/// `estim dvl calibrate` over the training trajectories, and the misalignment state's
+/// prior (`[dvl_states] misalignment.prior_std_rad`) its sample standard deviation
+/// between trajectories, both as the file rounds them (0.1 mrad).
+#[test]
+fn the_dvl_mounting_is_the_training_calibrations_mean_and_spread() {
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    let mut angles: Vec<[f64; 3]> = Vec::new();
+    for n in TRAINING {
+        let [_, dvl, gt] = files(&root, n);
+        let out = estim(&[
+            "dvl",
+            "calibrate",
+            "--gt",
+            &gt.to_string_lossy(),
+            "--dvl",
+            &dvl.to_string_lossy(),
+            "--json",
+        ]);
+        assert_eq!(out.status.code(), Some(0), "trajectory {n}");
+        let s = json(&out);
+        let e = &s["mounting_misalignment_rad"]["estimate"];
+        angles.push([0, 1, 2].map(|a| e[a].as_f64().unwrap()));
+    }
+    let count = angles.len() as f64;
+    let mean = [0, 1, 2].map(|a| angles.iter().map(|x| x[a]).sum::<f64>() / count);
+    let std = [0, 1, 2].map(|a| {
+        (angles.iter().map(|x| (x[a] - mean[a]).powi(2)).sum::<f64>() / (count - 1.0)).sqrt()
+    });
+    println!("mounting mean {mean:?} rad, spread {std:?} rad");
+    let text = std::fs::read_to_string(vehicle()).unwrap();
+    let file: toml::Value = toml::from_str(&text).unwrap();
+    let three = |v: &toml::Value| [0, 1, 2].map(|a| v[a].as_float().unwrap());
+    let mounting = three(&file["dvl"]["mounting_misalignment_rad"]);
+    let prior = three(&file["dvl_states"]["misalignment"]["prior_std_rad"]);
+    for a in 0..3 {
+        assert!(
+            (mounting[a] - mean[a]).abs() <= 0.5e-4 + 1e-12,
+            "axis {a}: file {} vs mean {}",
+            mounting[a],
+            mean[a]
+        );
+        assert!(
+            (prior[a] - std[a]).abs() <= 0.5e-4 + 1e-12,
+            "axis {a}: prior {} vs spread {}",
+            prior[a],
+            std[a]
+        );
+    }
 }
