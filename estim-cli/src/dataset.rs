@@ -81,7 +81,7 @@ pub fn imu_spec() -> ImuSpec {
 /// # Errors
 /// An invalid IMU section, or an IMU rate other than the networks' 100 Hz.
 pub fn filter_synthesis(config: &Config) -> anyhow::Result<(ImuSpec, WindowAlignment)> {
-    let spec = config.imu_spec().map_err(anyhow::Error::msg)?;
+    let spec = config.imu_spec()?;
     if config.mission.imu_rate_hz != IMU_RATE_HZ {
         bail!(
             "mission.imu_rate_hz = {}: the networks' windows are {IMU_RATE_HZ} Hz",

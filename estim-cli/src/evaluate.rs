@@ -73,6 +73,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !(1..=1000).contains(&args.seeds) {
         anyhow::bail!("--seeds {} is outside 1-1000", args.seeds);
     }
+    if let Some(n) = args.adaptive_noise {
+        if !(1..=100_000).contains(&n) {
+            anyhow::bail!("--adaptive-noise {n} is outside 1-100000");
+        }
+    }
     let last = args
         .first_seed
         .checked_add(args.seeds - 1)
@@ -107,11 +112,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         args.trajectories.clone()
     };
-    if let Some(n) = args.adaptive_noise {
-        if !(1..=100_000).contains(&n) {
-            anyhow::bail!("--adaptive-noise {n} is outside 1-100000");
-        }
-    }
     let seeds: Vec<u64> = (args.first_seed..=last).collect();
     let fit = fit_training(&dir, &config, &args.fit_trajectories, args.rate_noise)?;
     let evaluation = evaluate(

@@ -544,7 +544,7 @@ impl Config {
         }
         self.faults.check().map_err(|e| e.to_string())?;
         self.columns.check_used(&["gt", "dvl"])?;
-        self.imu_spec().map(|_| ())
+        self.imu_spec().map(|_| ()).map_err(|e| e.to_string())
     }
 
     /// The value of a key of [`LIMITS`].
@@ -569,23 +569,30 @@ impl Config {
     }
 
     /// The preset named by `imu.preset`, without overrides.
-    fn preset_spec(&self) -> std::result::Result<ImuSpec, String> {
+    fn preset_spec(&self) -> Result<ImuSpec> {
         Ok(match self.imu.preset.as_str() {
             "akit_observed" => ImuSpec::akit_observed(),
             "tactical_mems" => ImuSpec::tactical_mems(),
             "navigation_grade_fog" => ImuSpec::navigation_grade_fog(),
             "consumer_mems" => ImuSpec::consumer_mems(),
             other => {
-                return Err(format!(
-                    "imu.preset: unknown preset {other:?}; valid presets: {}",
-                    IMU_PRESETS.join(", ")
-                ))
+                return Err(PipelineError::Setting {
+                    key: "imu.preset".into(),
+                    reason: format!(
+                        "unknown preset {other:?}; valid presets: {}",
+                        IMU_PRESETS.join(", ")
+                    ),
+                })
             }
         })
     }
 
     /// The IMU spec: preset plus overrides, validated.
-    pub fn imu_spec(&self) -> std::result::Result<ImuSpec, String> {
+    ///
+    /// # Errors
+    /// [`PipelineError::Setting`] for an unknown `imu.preset` or overrides the spec
+    /// builder refuses.
+    pub fn imu_spec(&self) -> Result<ImuSpec> {
         let preset = self.preset_spec()?;
         let mut acc = self
             .imu
@@ -603,7 +610,10 @@ impl Config {
             .accelerometer(acc)
             .gyroscope(gyro)
             .build()
-            .map_err(|e| format!("imu: {e}"))
+            .map_err(|e| PipelineError::Setting {
+                key: "imu".into(),
+                reason: e.to_string(),
+            })
     }
 }
 
@@ -667,7 +677,7 @@ mod tests {
         }
         // Loads back: the same IMU model and everything else unchanged.
         let back = Config::from_toml(&text, Path::new("printed.toml")).expect("valid");
-        assert_eq!(back.imu_spec(), c.imu_spec());
+        assert_eq!(back.imu_spec().ok(), c.imu_spec().ok());
         let mut without_imu = back.clone();
         without_imu.imu = c.imu.clone();
         assert_eq!(without_imu, c);

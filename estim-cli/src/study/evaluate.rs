@@ -220,24 +220,26 @@ impl TrainingFit {
 /// Refuse the test trajectories, an empty list and repeats.
 ///
 /// # Errors
-/// [`PipelineError::Invalid`] naming the trajectory.
+/// [`PipelineError::HeldOut`] for a test trajectory, [`PipelineError::Argument`] for
+/// an empty list or a repeat.
 pub fn check_fit_trajectories(trajectories: &[u32]) -> Result<()> {
+    const FLAG: &str = "--fit-trajectories";
+    let bad = |reason: String| PipelineError::Argument {
+        flag: FLAG.into(),
+        reason,
+    };
     if trajectories.is_empty() {
-        return Err(PipelineError::Invalid(
-            "--fit-trajectories: no trajectory to fit on".into(),
-        ));
+        return Err(bad("no trajectory to fit on".into()));
     }
     for (i, n) in trajectories.iter().enumerate() {
         if AKIT_TEST_TRAJECTORIES.contains(n) {
-            return Err(PipelineError::Invalid(format!(
-                "--fit-trajectories: trajectory {n} is an A-KIT test trajectory \
-                 (4 and 13 are never used for fitting)"
-            )));
+            return Err(PipelineError::HeldOut {
+                flag: FLAG.into(),
+                trajectory: *n,
+            });
         }
         if trajectories[..i].contains(n) {
-            return Err(PipelineError::Invalid(format!(
-                "--fit-trajectories: trajectory {n} given twice"
-            )));
+            return Err(bad(format!("trajectory {n} given twice")));
         }
     }
     Ok(())
@@ -299,7 +301,10 @@ fn calibrate(
         .collect();
     let c = calibrator
         .calibrate(&reference, &log)
-        .map_err(|e| PipelineError::Invalid(format!("calibration of A-KIT trajectory {n}: {e}")))?;
+        .map_err(|error| PipelineError::Calibration {
+            trajectory: n,
+            error,
+        })?;
     let standard_errors = [
         c.scale_factor_error.standard_error,
         c.mounting_misalignment
@@ -337,17 +342,19 @@ fn calibration_residuals(
     cfg.dvl.akit_time_offset_s = c.time_offset_s;
     let scenario = Scenario::akit(dir, c.trajectory, &cfg, cfg.seed)?;
     let mut out = Vec::with_capacity(scenario.dvl.len());
-    for epoch in &scenario.dvl {
+    for (k, epoch) in scenario.dvl.iter().enumerate() {
         if test_rows.contains(&bits(&epoch.reference_velocity.into())) {
             out.push(None);
             continue;
         }
-        let truth = scenario.truth.get(epoch.imu_index).ok_or_else(|| {
-            PipelineError::Invalid(format!(
-                "A-KIT trajectory {}: DVL epoch beyond the truth",
-                c.trajectory
-            ))
-        })?;
+        let truth = scenario
+            .truth
+            .get(epoch.imu_index)
+            .ok_or_else(|| PipelineError::DvlEpoch {
+                scenario: scenario.name.clone(),
+                epoch: k,
+                reason: "beyond the truth".into(),
+            })?;
         let predicted = dvl_frame_velocity(
             &(truth.attitude.inverse() * truth.velocity_ned),
             &truth.angular_rate,
@@ -387,9 +394,7 @@ pub fn fit_training(
             test_rows.insert(bits(&row.velocity_body));
         }
     }
-    let calibrator = Calibrator::builder()
-        .build()
-        .map_err(|e| PipelineError::Invalid(e.to_string()))?;
+    let calibrator = Calibrator::builder().build()?;
     let calibrations: Vec<(TrajectoryCalibration, [f64; 3])> = trajectories
         .par_iter()
         .map(|&n| calibrate(dir, config, n, &calibrator, &test_rows))
@@ -498,7 +503,9 @@ fn dvl_interval(dir: &Path, config: &Config, trajectories: &[u32]) -> Result<f64
     dts.get(dts.len() / 2)
         .copied()
         .filter(|d| *d > 0.0)
-        .ok_or_else(|| PipelineError::Invalid("no DVL interval in the training logs".into()))
+        .ok_or_else(|| PipelineError::NoData {
+            what: "DVL interval in the training logs".into(),
+        })
 }
 
 /// The numbers of one run.
@@ -624,9 +631,10 @@ pub fn evaluate(
     states.check()?;
     if let Some(window) = adaptive_noise {
         if !(1..=100_000).contains(&window) {
-            return Err(PipelineError::Invalid(format!(
-                "--adaptive-noise: {window} is not in 1-100000"
-            )));
+            return Err(PipelineError::Argument {
+                flag: "--adaptive-noise".into(),
+                reason: format!("{window} is not in 1-100000"),
+            });
         }
     }
     let learned = beamsnet_without_sensitivity(config)?;
@@ -708,23 +716,27 @@ pub fn evaluate(
     })
 }
 
-/// Refuse an empty or repeated trajectory or seed list.
+/// Refuse an empty or repeated trajectory (`--trajectory`) or seed (`--seeds`) list.
 fn check_lists(trajectories: &[u32], seeds: &[u64]) -> Result<()> {
-    if trajectories.is_empty() || seeds.is_empty() {
-        return Err(PipelineError::Invalid(
-            "an evaluation needs at least one trajectory and one seed".into(),
-        ));
+    let bad = |flag: &str, reason: String| PipelineError::Argument {
+        flag: flag.into(),
+        reason,
+    };
+    let needs = "an evaluation needs at least one trajectory and one seed";
+    if trajectories.is_empty() {
+        return Err(bad("--trajectory", needs.into()));
+    }
+    if seeds.is_empty() {
+        return Err(bad("--seeds", needs.into()));
     }
     for (i, t) in trajectories.iter().enumerate() {
         if trajectories[..i].contains(t) {
-            return Err(PipelineError::Invalid(format!(
-                "trajectory {t} given twice"
-            )));
+            return Err(bad("--trajectory", format!("trajectory {t} given twice")));
         }
     }
     for (i, s) in seeds.iter().enumerate() {
         if seeds[..i].contains(s) {
-            return Err(PipelineError::Invalid(format!("seed {s} given twice")));
+            return Err(bad("--seeds", format!("seed {s} given twice")));
         }
     }
     Ok(())

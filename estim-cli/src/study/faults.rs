@@ -143,61 +143,86 @@ impl FaultConfig {
     /// Validate ranges; the message names the key.
     ///
     /// # Errors
-    /// [`PipelineError::Invalid`] naming the offending key.
+    /// [`PipelineError::Setting`] or [`PipelineError::OutOfRange`] naming the
+    /// offending key.
     pub fn check(&self) -> Result<()> {
-        let bad = |m: String| Err(PipelineError::Invalid(format!("faults: {m}")));
+        let bad = |key: &str, reason: String| {
+            Err(PipelineError::Setting {
+                key: format!("faults.{key}"),
+                reason,
+            })
+        };
+        let outside = |key: &str, value: String, range: String| {
+            Err(PipelineError::OutOfRange {
+                key: format!("faults.{key}"),
+                value,
+                range,
+            })
+        };
         let probability = |name: &str, p: f64| -> Result<()> {
             if (0.0..=1.0).contains(&p) {
                 Ok(())
             } else {
-                bad(format!("{name} must be within [0, 1], got {p}"))
+                bad(name, format!("must be within [0, 1], got {p}"))
             }
         };
         probability("beam_dropout_probability", self.beam_dropout_probability)?;
         probability("beam_outlier_probability", self.beam_outlier_probability)?;
         let [lo, hi] = self.beam_outlier_magnitude_mps;
         if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo <= hi && hi <= MAX_OUTLIER_MPS) {
-            return bad(format!(
-                "beam_outlier_magnitude_mps must be finite with 0 <= low <= high <= \
-                 {MAX_OUTLIER_MPS} m/s, got [{lo}, {hi}]"
-            ));
+            return bad(
+                "beam_outlier_magnitude_mps",
+                format!(
+                    "must be finite with 0 <= low <= high <= {MAX_OUTLIER_MPS} m/s, \
+                     got [{lo}, {hi}]"
+                ),
+            );
         }
         let rate = self.imu_gap_rate_per_s;
         if !(rate.is_finite() && (0.0..=MAX_GAP_RATE_PER_S).contains(&rate)) {
-            return bad(format!(
-                "imu_gap_rate_per_s = {rate} is outside [0, {MAX_GAP_RATE_PER_S}] 1/s"
-            ));
+            return outside(
+                "imu_gap_rate_per_s",
+                rate.to_string(),
+                format!("[0, {MAX_GAP_RATE_PER_S}] 1/s"),
+            );
         }
         let samples_ok = |n: usize| (1..=MAX_GAP_SAMPLES).contains(&n);
         if !samples_ok(self.imu_gap_samples) {
-            return bad(format!(
-                "imu_gap_samples = {} is outside [1, {MAX_GAP_SAMPLES}]",
-                self.imu_gap_samples
-            ));
+            return outside(
+                "imu_gap_samples",
+                self.imu_gap_samples.to_string(),
+                format!("[1, {MAX_GAP_SAMPLES}]"),
+            );
         }
         for (key, n) in [
             ("dvl_outages", self.dvl_outages.len()),
             ("imu_gaps", self.imu_gaps.len()),
         ] {
             if n > MAX_LISTED_FAULTS {
-                return bad(format!("{key}: {n} entries, at most {MAX_LISTED_FAULTS}"));
+                return bad(key, format!("{n} entries, at most {MAX_LISTED_FAULTS}"));
             }
         }
         let time_ok = |t: f64| t.is_finite() && t.abs() <= MAX_FAULT_TIME_S;
         for (i, o) in self.dvl_outages.iter().enumerate() {
             if !(time_ok(o.start_s) && time_ok(o.duration_s) && o.duration_s > 0.0) {
-                return bad(format!(
-                    "dvl_outages[{i}] needs start_s within +-{MAX_FAULT_TIME_S:e} s and \
-                     0 < duration_s <= {MAX_FAULT_TIME_S:e} s"
-                ));
+                return bad(
+                    &format!("dvl_outages[{i}]"),
+                    format!(
+                        "needs start_s within +-{MAX_FAULT_TIME_S:e} s and \
+                         0 < duration_s <= {MAX_FAULT_TIME_S:e} s"
+                    ),
+                );
             }
         }
         for (i, g) in self.imu_gaps.iter().enumerate() {
             if !(time_ok(g.start_s) && samples_ok(g.samples)) {
-                return bad(format!(
-                    "imu_gaps[{i}] needs start_s within +-{MAX_FAULT_TIME_S:e} s and \
-                     samples in [1, {MAX_GAP_SAMPLES}]"
-                ));
+                return bad(
+                    &format!("imu_gaps[{i}]"),
+                    format!(
+                        "needs start_s within +-{MAX_FAULT_TIME_S:e} s and \
+                         samples in [1, {MAX_GAP_SAMPLES}]"
+                    ),
+                );
             }
         }
         Ok(())
@@ -243,7 +268,7 @@ impl FaultConfig {
 /// IMU gaps never remove the first IMU sample.
 ///
 /// # Errors
-/// [`PipelineError::Invalid`] for an invalid configuration.
+/// [`PipelineError::Setting`] for an invalid configuration.
 pub fn apply_faults(scenario: &mut Scenario, config: &FaultConfig, seed: u64) -> Result<FaultLog> {
     config.check()?;
     let mut log = FaultLog::default();

@@ -116,8 +116,8 @@ pub fn beamsnet_inputs(
             let steps = recorder.step_window(n)?;
             let m = NetworkSensitivity::new(net, &error_model, beams)?
                 .transported_cross_covariance(&steps)?
-                .ok_or_else(|| {
-                    super::PipelineError::Invalid("network sensitivity gave no M".into())
+                .ok_or(super::PipelineError::NoCrossCovariance {
+                    network: "network sensitivity",
                 })?;
             let q_w = driven_error_covariance::<f64, _, ERROR_STATES, IMU_CHANNELS>(
                 &error_model,

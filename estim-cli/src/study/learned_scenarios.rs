@@ -225,9 +225,11 @@ pub fn learned_measurements(
     for (k, extra) in extras {
         let k = *k;
         let Some(epoch) = scenario.dvl.get(k) else {
-            return Err(PipelineError::Invalid(format!(
-                "learned-sensor epoch {k} beyond the scenario's {len} DVL epochs"
-            )));
+            return Err(PipelineError::DvlEpoch {
+                scenario: scenario.name.clone(),
+                epoch: k,
+                reason: format!("learned-sensor epoch beyond the scenario's {len} DVL epochs"),
+            });
         };
         let end = epoch.imu_index.min(scenario.imu.len());
         if end < n {
@@ -247,9 +249,11 @@ pub fn learned_measurements(
         let generic =
             LearnedCrossCovariance::<f64, _, _, 3, IMU_CHANNELS>::new(model, &error_model, extra)?;
         velocities[k] = Some(generic.measure::<ERROR_STATES>(&steps)?);
-        let m = generic
-            .transported_cross_covariance(&steps)?
-            .ok_or_else(|| PipelineError::Invalid("network sensitivity gave no M".into()))?;
+        let m = generic.transported_cross_covariance(&steps)?.ok_or(
+            PipelineError::NoCrossCovariance {
+                network: "network sensitivity",
+            },
+        )?;
         let q_w =
             driven_error_covariance::<f64, _, ERROR_STATES, IMU_CHANNELS>(&error_model, &steps)?;
         network_m[k] = m;

@@ -91,6 +91,10 @@ impl Table {
 /// begin marker and the line of the end marker). Errors when a marker is missing,
 /// repeated, or out of order.
 fn region_range(text: &str, name: &str) -> Result<std::ops::Range<usize>> {
+    let region_error = |reason: String| PipelineError::Region {
+        region: name.into(),
+        reason,
+    };
     let find_line = |marker: &str| -> Result<usize> {
         // A marker is a whole line: text that merely quotes it does not count.
         let line = format!("{marker}\n");
@@ -100,9 +104,9 @@ fn region_range(text: &str, name: &str) -> Result<std::ops::Range<usize>> {
             .filter(|i| *i == 0 || text.as_bytes()[i - 1] == b'\n');
         let first = hits
             .next()
-            .ok_or_else(|| PipelineError::Invalid(format!("marker line {marker:?} not found")))?;
+            .ok_or_else(|| region_error(format!("marker line {marker:?} not found")))?;
         if hits.next().is_some() {
-            return Err(PipelineError::Invalid(format!(
+            return Err(region_error(format!(
                 "marker line {marker:?} appears more than once"
             )));
         }
@@ -112,9 +116,7 @@ fn region_range(text: &str, name: &str) -> Result<std::ops::Range<usize>> {
     let end = find_line(&end_marker(name))?;
     let start = begin + begin_marker(name).len() + 1;
     if end < start {
-        return Err(PipelineError::Invalid(format!(
-            "region {name:?}: end marker before begin marker"
-        )));
+        return Err(region_error("end marker before begin marker".into()));
     }
     Ok(start..end)
 }
@@ -142,10 +144,10 @@ pub fn splice(text: &str, tables: &[Table]) -> Result<String> {
     let mut at = 0;
     for (range, table) in ranges {
         if range.start < at {
-            return Err(PipelineError::Invalid(format!(
-                "region {:?} overlaps another region",
-                table.name
-            )));
+            return Err(PipelineError::Region {
+                region: table.name.into(),
+                reason: "overlaps another region".into(),
+            });
         }
         out.push_str(&text[at..range.start]);
         out.push_str(&table.markdown);

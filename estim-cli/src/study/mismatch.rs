@@ -73,8 +73,8 @@ fn bits(v: &Vector3<f64>) -> [u64; 3] {
 ///
 /// # Errors
 /// Loader errors (file and line), a held-out trajectory missing from the folder, and
-/// [`PipelineError::Invalid`] when no training epoch is left or a residual is not
-/// finite.
+/// [`PipelineError::Data`] when no training trajectory is left,
+/// [`PipelineError::DvlEpoch`] when a residual is not finite.
 pub fn fit_reference_mismatch(
     dir: &Path,
     config: &Config,
@@ -111,21 +111,26 @@ pub fn fit_reference_mismatch(
         let scenario = Scenario::akit(dir, n, config, config.seed)?;
         let (mut s, mut s2, mut used, mut overlapping) =
             (Vector3::zeros(), Vector3::zeros(), 0usize, 0usize);
-        for epoch in &scenario.dvl {
+        for (k, epoch) in scenario.dvl.iter().enumerate() {
             if test_rows.contains(&bits(&epoch.reference_velocity)) {
                 overlapping += 1;
                 continue;
             }
+            let bad = |reason: String| PipelineError::DvlEpoch {
+                scenario: scenario.name.clone(),
+                epoch: k,
+                reason,
+            };
             let truth = scenario.truth.get(epoch.imu_index).ok_or_else(|| {
-                PipelineError::Invalid(format!(
-                    "A-KIT trajectory {n}: DVL epoch at IMU index {} beyond the truth",
+                bad(format!(
+                    "at IMU index {}, beyond the truth",
                     epoch.imu_index
                 ))
             })?;
             let r = epoch.reference_velocity - model.predict(truth)?;
             if !r.iter().all(|x| x.is_finite()) {
-                return Err(PipelineError::Invalid(format!(
-                    "A-KIT trajectory {n}: non-finite DVL residual at t = {:.3} s",
+                return Err(bad(format!(
+                    "non-finite DVL residual at t = {:.3} s",
                     truth.time
                 )));
             }
@@ -150,10 +155,11 @@ pub fn fit_reference_mismatch(
         });
     }
     if fit.samples == 0 {
-        return Err(PipelineError::Invalid(format!(
-            "{}: no A-KIT training trajectory (all held out: {held_out:?})",
-            akit.display()
-        )));
+        return Err(PipelineError::Data {
+            path: akit,
+            line: None,
+            reason: format!("no A-KIT training trajectory (all held out: {held_out:?})"),
+        });
     }
     let k = fit.samples as f64;
     fit.mean = sum / k;

@@ -441,9 +441,12 @@ impl MonteCarloSums {
                 updates_rejected: completed.iter().map(|(_, r)| r.rejected).sum(),
             });
         }
-        let end = first_seed.checked_add(runs).ok_or_else(|| {
-            super::PipelineError::Invalid(format!("seeds {first_seed} + {runs} overflow"))
-        })?;
+        let end = first_seed
+            .checked_add(runs)
+            .ok_or_else(|| super::PipelineError::Argument {
+                flag: "--first-seed".into(),
+                reason: format!("seeds {first_seed} + {runs} overflow"),
+            })?;
         Ok(Self {
             seed_ranges: if runs == 0 {
                 Vec::new()

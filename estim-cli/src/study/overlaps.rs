@@ -47,9 +47,10 @@ impl RowOverlaps {
         let mut index: HashMap<&RowKey, Vec<(u32, usize)>> = HashMap::new();
         for (n, rows) in trajectories {
             if !seen.insert(*n) {
-                return Err(PipelineError::Invalid(format!(
-                    "invalid trajectories: trajectory {n} given twice"
-                )));
+                return Err(PipelineError::Argument {
+                    flag: "trajectories".into(),
+                    reason: format!("trajectory {n} given twice"),
+                });
             }
             for (i, key) in rows.iter().enumerate() {
                 index.entry(key).or_default().push((*n, i));
@@ -137,7 +138,7 @@ impl RowOverlaps {
     /// records (training/); here it is the tests' statement of it.
     ///
     /// # Errors
-    /// [`PipelineError::Invalid`] naming the group.
+    /// [`PipelineError::Argument`] naming the group.
     #[cfg(test)]
     pub fn check_split(&self, dataset: &[u32], validation: &[u32]) -> Result<()> {
         for group in self.groups() {
@@ -148,10 +149,13 @@ impl RowOverlaps {
                 .collect();
             let in_val = present.iter().filter(|n| validation.contains(n)).count();
             if in_val != 0 && in_val != present.len() {
-                return Err(PipelineError::Invalid(format!(
-                    "invalid validation split: trajectories {present:?} share rows; \
-                     validation {validation:?} splits them"
-                )));
+                return Err(PipelineError::Argument {
+                    flag: "validation split".into(),
+                    reason: format!(
+                        "trajectories {present:?} share rows; validation {validation:?} \
+                         splits them"
+                    ),
+                });
             }
         }
         Ok(())

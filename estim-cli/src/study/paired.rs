@@ -445,16 +445,20 @@ pub fn paired_study(
     imu: &ImuSelection,
 ) -> Result<PairedStudy> {
     if trajectories.is_empty() || seeds.is_empty() {
-        return Err(PipelineError::Invalid(
-            "a paired comparison needs at least one trajectory and one seed".into(),
-        ));
+        return Err(PipelineError::Argument {
+            flag: "compare".into(),
+            reason: "a paired comparison needs at least one trajectory and one seed".into(),
+        });
     }
     for (what, repeated) in [
         ("trajectory", has_repeat(trajectories)),
         ("seed", has_repeat(seeds)),
     ] {
         if let Some(x) = repeated {
-            return Err(PipelineError::Invalid(format!("{what} {x} given twice")));
+            return Err(PipelineError::Argument {
+                flag: "compare".into(),
+                reason: format!("{what} {x} given twice"),
+            });
         }
     }
     let cells: Vec<(u32, u64)> = trajectories

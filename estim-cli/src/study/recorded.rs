@@ -114,7 +114,7 @@ impl Scenario {
     ///
     /// # Errors
     /// As [`Scenario::akit_with`]; a missing IMU file under [`ImuChoice::Recorded`];
-    /// the survey's errors (naming the file and line) as [`PipelineError::Invalid`].
+    /// the survey's errors (naming the file and line) as [`PipelineError::Survey`] or [`PipelineError::Data`].
     pub fn akit_choosing(
         dir: &Path,
         n: u32,
@@ -190,16 +190,20 @@ impl Scenario {
         seed: u64,
         vehicle: Option<&Path>,
     ) -> Result<Self> {
-        let invalid = |e: anyhow::Error| PipelineError::Invalid(format!("{e:#}"));
+        let invalid = PipelineError::Survey;
+        let data = |path: &Path, reason: String| PipelineError::Data {
+            path: path.to_path_buf(),
+            line: None,
+            reason,
+        };
         let (nav_config, vehicle_name) = match vehicle {
             Some(p) => (
                 crate::navigate::vehicle_config(p).map_err(invalid)?,
                 p.display().to_string(),
             ),
             None => (
-                toml::from_str::<NavigatorConfig>(AKIT_VEHICLE).map_err(|e| {
-                    PipelineError::Invalid(format!("embedded vehicles/akit.toml: {e}"))
-                })?,
+                toml::from_str::<NavigatorConfig>(AKIT_VEHICLE)
+                    .map_err(|e| data(Path::new("vehicles/akit.toml (embedded)"), e.to_string()))?,
                 "vehicles/akit.toml (embedded)".to_string(),
             ),
         };
@@ -216,12 +220,13 @@ impl Scenario {
             init_from_truth: true,
         };
         let survey = crate::navigate::load_survey_from(files, nav_config).map_err(invalid)?;
-        let truth = survey.truth.as_ref().ok_or_else(|| {
-            PipelineError::Invalid(format!("{}: no truth read", gt_path.display()))
-        })?;
+        let truth = survey
+            .truth
+            .as_ref()
+            .ok_or_else(|| data(gt_path, "no truth read".into()))?;
         let all = &survey.inputs.imu;
         let period = estim::navigator::nominal_imu_period(all, &survey.settings)
-            .map_err(|e| PipelineError::Invalid(format!("{}: {e}", imu_path.display())))?;
+            .map_err(|e| data(imu_path, e.to_string()))?;
         let start_time = survey
             .settings
             .config()
@@ -235,92 +240,43 @@ impl Scenario {
         let first = all.partition_point(|s| s.time < start_time - 1e-9);
         let last = all.partition_point(|s| s.time + period <= truth_end + 1e-9);
         if last <= first + 1 {
-            return Err(PipelineError::Invalid(format!(
-                "{}: no IMU sample inside the reference's span ({})",
-                imu_path.display(),
-                gt_path.display()
-            )));
+            return Err(data(
+                imu_path,
+                format!(
+                    "no IMU sample inside the reference's span ({})",
+                    gt_path.display()
+                ),
+            ));
         }
         let imu: Vec<ImuSample> = all[first..last].to_vec();
         let end = imu[imu.len() - 1].time + period;
         let reference = |t: f64| -> Result<(InsState, Vector3<f64>)> {
             truth
                 .kinematics(t)
-                .map_err(|e| invalid(e.into()))?
+                .map_err(|e| data(gt_path, e.to_string()))?
                 .ok_or_else(|| {
-                    PipelineError::Invalid(format!(
-                        "{}: t = {t:.3} s is outside the reference's span",
-                        gt_path.display()
-                    ))
+                    data(
+                        gt_path,
+                        format!("t = {t:.3} s is outside the reference's span"),
+                    )
                 })
         };
-        let mut states = Vec::with_capacity(imu.len() + 1);
-        let mut clean = Vec::with_capacity(imu.len());
-        for (k, sample) in imu.iter().enumerate() {
-            let (mut state, _) = reference(sample.time)?;
-            state.time = sample.time;
-            states.push(state);
-            // The error-free sample over [t_k, t_k+1]: the reference at its middle.
-            let next = imu.get(k + 1).map_or(end, |s| s.time);
-            let (middle, force) = reference(0.5 * (sample.time + next))?;
-            clean.push(ImuSample {
-                time: sample.time,
-                specific_force: force,
-                angular_rate: middle.angular_rate,
-            });
-        }
-        let (mut last_state, _) = reference(end)?;
-        last_state.time = end;
-        states.push(last_state);
+        let (states, clean) = reference_imu(&imu, end, &reference)?;
 
         let protocol = if config.dvl.protocol == "v2" {
             BeamsNetProtocol::v2()
         } else {
             BeamsNetProtocol::v1()
         };
-        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xD71);
-        let mut dvl = Vec::new();
-        let mut rows = Vec::new();
-        let half = 0.5 * period * (1.0 + 1e-9);
-        for record in &survey.inputs.dvl {
-            let DvlInput::Velocity(v) = record.input else {
-                continue;
-            };
-            let t = record.time - dvl_offset;
-            let j = imu.partition_point(|s| s.time < t);
-            let nearest = [j.checked_sub(1), Some(j)]
-                .into_iter()
-                .flatten()
-                .filter(|&i| i < imu.len())
-                .min_by(|&a, &b| (imu[a].time - t).abs().total_cmp(&(imu[b].time - t).abs()));
-            let Some(i) = nearest.filter(|&i| i >= 1 && (imu[i].time - t).abs() <= half) else {
-                continue;
-            };
-            if dvl.last().is_some_and(|d: &DvlEpoch| d.imu_index >= i) {
-                return Err(PipelineError::Invalid(format!(
-                    "{}: two DVL rows on the IMU sample at t = {:.3} s (rows must be at \
-                     least one IMU period apart; refused, not merged)",
-                    dvl_path.display(),
-                    imu[i].time
-                )));
-            }
-            dvl.push(DvlEpoch {
-                imu_index: i,
-                reference_velocity: v,
-                beams: protocol.beams(&v, &mut rng),
-            });
-            rows.push(record.time);
-        }
-        if dvl.len() < super::scenario::MIN_DVL_EPOCHS {
-            return Err(PipelineError::Invalid(format!(
-                "{}: {} DVL rows inside the run on {} (after dvl.time_offset_s = {dvl_offset} \
-                 s); at least {} are needed",
-                dvl_path.display(),
-                dvl.len(),
-                imu_path.display(),
-                super::scenario::MIN_DVL_EPOCHS
-            )));
-        }
+        let (dvl, rows) = dvl_epochs(
+            &survey.inputs.dvl,
+            &imu,
+            period,
+            dvl_offset,
+            &protocol,
+            seed,
+            [dvl_path, imu_path],
+        )?;
         let truth_epochs = epochs
             .iter()
             .filter(|&&t| t >= imu[0].time && t <= end)
@@ -368,6 +324,103 @@ impl Scenario {
     }
 }
 
+/// The reference at each IMU sample (and at `end`, the last sample's interval's end),
+/// and the error-free IMU: over [t_k, t_k+1] the reference's specific force and rate
+/// at the interval's middle.
+fn reference_imu(
+    imu: &[ImuSample],
+    end: f64,
+    reference: &dyn Fn(f64) -> Result<(InsState, Vector3<f64>)>,
+) -> Result<(Vec<InsState>, Vec<ImuSample>)> {
+    let mut states = Vec::with_capacity(imu.len() + 1);
+    let mut clean = Vec::with_capacity(imu.len());
+    for (k, sample) in imu.iter().enumerate() {
+        let (mut state, _) = reference(sample.time)?;
+        state.time = sample.time;
+        states.push(state);
+        // The error-free sample over [t_k, t_k+1]: the reference at its middle.
+        let next = imu.get(k + 1).map_or(end, |s| s.time);
+        let (middle, force) = reference(0.5 * (sample.time + next))?;
+        clean.push(ImuSample {
+            time: sample.time,
+            specific_force: force,
+            angular_rate: middle.angular_rate,
+        });
+    }
+    let (mut last_state, _) = reference(end)?;
+    last_state.time = end;
+    states.push(last_state);
+    Ok((states, clean))
+}
+
+/// The survey's DVL velocity rows as the study's epochs: each at the IMU sample
+/// nearest its stamp minus `dvl_offset` (within half a period), with the protocol's
+/// beams drawn from its velocity (seeded); and the rows' stamps. `[dvl_path,
+/// imu_path]` name the files in errors.
+fn dvl_epochs(
+    records: &[DvlRecord],
+    imu: &[ImuSample],
+    period: f64,
+    dvl_offset: f64,
+    protocol: &BeamsNetProtocol,
+    seed: u64,
+    [dvl_path, imu_path]: [&Path; 2],
+) -> Result<(Vec<DvlEpoch>, Vec<f64>)> {
+    let data = |path: &Path, reason: String| PipelineError::Data {
+        path: path.to_path_buf(),
+        line: None,
+        reason,
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xD71);
+    let mut dvl = Vec::new();
+    let mut rows = Vec::new();
+    let half = 0.5 * period * (1.0 + 1e-9);
+    for record in records {
+        let DvlInput::Velocity(v) = record.input else {
+            continue;
+        };
+        let t = record.time - dvl_offset;
+        let j = imu.partition_point(|s| s.time < t);
+        let nearest = [j.checked_sub(1), Some(j)]
+            .into_iter()
+            .flatten()
+            .filter(|&i| i < imu.len())
+            .min_by(|&a, &b| (imu[a].time - t).abs().total_cmp(&(imu[b].time - t).abs()));
+        let Some(i) = nearest.filter(|&i| i >= 1 && (imu[i].time - t).abs() <= half) else {
+            continue;
+        };
+        if dvl.last().is_some_and(|d: &DvlEpoch| d.imu_index >= i) {
+            return Err(data(
+                dvl_path,
+                format!(
+                    "two DVL rows on the IMU sample at t = {:.3} s (rows must be at \
+                     least one IMU period apart; refused, not merged)",
+                    imu[i].time
+                ),
+            ));
+        }
+        dvl.push(DvlEpoch {
+            imu_index: i,
+            reference_velocity: v,
+            beams: protocol.beams(&v, &mut rng),
+        });
+        rows.push(record.time);
+    }
+    if dvl.len() < super::scenario::MIN_DVL_EPOCHS {
+        return Err(data(
+            dvl_path,
+            format!(
+                "{} DVL rows inside the run on {} (after dvl.time_offset_s = \
+                 {dvl_offset} s); at least {} are needed",
+                dvl.len(),
+                imu_path.display(),
+                super::scenario::MIN_DVL_EPOCHS
+            ),
+        ));
+    }
+    Ok((dvl, rows))
+}
+
 impl RecordedSurvey {
     /// The same survey with the innovation gate off (every update accepted): for
     /// paired comparisons whose variants must not differ in the gate's decisions.
@@ -379,7 +432,11 @@ impl RecordedSurvey {
         config.gate.probability = 0.0;
         let settings = config
             .check()
-            .map_err(|e| PipelineError::Invalid(format!("{}: {e}", self.vehicle)))?
+            .map_err(|e| PipelineError::Data {
+                path: self.vehicle.clone().into(),
+                line: None,
+                reason: e.to_string(),
+            })?
             .with_beam_geometry(self.settings.beam_geometry().clone());
         Ok(Self {
             settings,
@@ -393,7 +450,7 @@ impl RecordedSurvey {
 /// # Errors
 /// [`PipelineError::FilterStopped`] when the navigator stopped (a numerical failure,
 /// or its health checks found the solution diverged); other navigator errors as
-/// [`PipelineError::Invalid`].
+/// [`PipelineError::NavigatorAt`].
 pub fn run_recorded(
     id: &str,
     scenario: &Scenario,
@@ -449,11 +506,10 @@ fn run_on<E: NavigationModel<N>, const N: usize>(
         epoch: 0,
     };
     if let CrossSource::ScaledPerStep(_) = cross {
-        return Err(PipelineError::Invalid(
-            "filter.paper_m_basis = \"per_step\" is not run on a recorded IMU; use \
-             \"accumulated\""
-                .into(),
-        ));
+        return Err(PipelineError::Setting {
+            key: "filter.paper_m_basis".into(),
+            reason: "\"per_step\" is not run on a recorded IMU; use \"accumulated\"".into(),
+        });
     }
     let mut update = |nav: &mut Navigator<E, NoObserver, N>,
                       time: f64,
@@ -559,7 +615,7 @@ fn stopped(epoch: usize, t0: f64, error: NavigatorError) -> PipelineError {
             time_s: time - t0,
             source: estim_core::Error::Model(format!("the navigator diverged: {reason}")),
         },
-        other => PipelineError::Invalid(format!("DVL epoch {epoch}: {other}")),
+        error => PipelineError::NavigatorAt { epoch, error },
     }
 }
 

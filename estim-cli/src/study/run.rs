@@ -128,7 +128,7 @@ pub fn error_state(truth: &InsState, nominal: &InsState) -> SVector<f64, ERROR_S
 /// [`estim::navigator::FILTER_BIAS_TIME_CONSTANT`] with the
 /// sensor drift's driving-noise PSD).
 pub fn filter_imu_spec(spec: &ImuSpec) -> Result<ImuSpec> {
-    estim::navigator::filter_imu_spec(spec).map_err(|e| PipelineError::Invalid(e.to_string()))
+    Ok(estim::navigator::filter_imu_spec(spec)?)
 }
 
 /// Initial covariance from the configuration and the IMU spec.
@@ -221,7 +221,7 @@ use estim::navigator::IMU_PERIOD_SNAP;
 /// - A gap (missing samples) is bridged by holding the last sample over the longer
 ///   interval (zero-order hold); the process noise grows with that dt.
 /// - A duplicate, backward or non-finite IMU timestamp is a typed error
-///   ([`PipelineError::Invalid`] naming the sample index), never a zero or negative dt.
+///   ([`PipelineError::ImuSample`] naming the sample index), never a zero or negative dt.
 /// - A DVL epoch beyond the end of the IMU (more than one period after the last
 ///   sample) is an error too: the filter does not extrapolate.
 ///
@@ -311,28 +311,26 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
     observer: &mut O,
 ) -> Result<FilterRun> {
     if scenario.recorded.is_some() {
-        return Err(PipelineError::Invalid(format!(
-            "{}: this study run takes an IMU synthesized from the reference; on a recorded \
-             IMU the variants run through the navigator (run_recorded)",
-            scenario.name
-        )));
+        return Err(PipelineError::RecordedImu {
+            scenario: scenario.name.clone(),
+        });
     }
     check_imu_timestamps(scenario)?;
     let truth0 = scenario
         .truth
         .first()
-        .ok_or_else(|| PipelineError::Invalid("empty scenario".into()))?;
+        .ok_or_else(|| PipelineError::NoData {
+            what: format!("truth samples in {}", scenario.name),
+        })?;
     let p0 = initial_covariance(config, scenario);
     let nominal0 = initial_nominal(truth0, &p0, seed);
     let settings = navigator_settings(config, scenario, measurements.noise_covariance)?;
     let imu = &scenario.imu;
     let period = scenario.imu_dt;
-    let mut nav = Navigator::new(&settings, nominal0, p0, period)
-        .map_err(|e| PipelineError::Invalid(e.to_string()))?
-        .with_observer(observer);
-    let first_imu = imu
-        .first()
-        .ok_or_else(|| PipelineError::Invalid("the scenario has no IMU samples".into()))?;
+    let mut nav = Navigator::new(&settings, nominal0, p0, period)?.with_observer(observer);
+    let first_imu = imu.first().ok_or_else(|| PipelineError::NoData {
+        what: format!("IMU samples in {}", scenario.name),
+    })?;
     let mut hook = StudyHook {
         scenario,
         settings: &settings,
@@ -416,22 +414,27 @@ impl<'o, O: Observer<f64, InsState, ERROR_STATES>> EpochHook<InsErrorModel, &'o 
     fn before_epoch(&mut self, nav: &StudyNavigator<'o, O>, target: f64) -> Result<()> {
         let epoch = self.epoch;
         let dvl = &self.scenario.dvl[epoch];
+        let bad = |reason: String| PipelineError::DvlEpoch {
+            scenario: self.scenario.name.clone(),
+            epoch,
+            reason,
+        };
         if self.scenario.truth.get(dvl.imu_index).is_none() {
-            return Err(PipelineError::Invalid(format!(
-                "DVL epoch {epoch}: truth index {} beyond the scenario ({} samples)",
+            return Err(bad(format!(
+                "truth index {} beyond the scenario ({} samples)",
                 dvl.imu_index,
                 self.scenario.truth.len()
             )));
         }
         if target < nav.clock() - self.tolerance {
-            return Err(PipelineError::Invalid(format!(
-                "DVL epoch {epoch} at t = {target} s is before the previous one ({} s)",
+            return Err(bad(format!(
+                "at t = {target} s, before the previous one ({} s)",
                 nav.clock()
             )));
         }
         if target - self.imu_end > self.tolerance {
-            return Err(PipelineError::Invalid(format!(
-                "DVL epoch {epoch} at t = {target} s is after the end of the IMU ({} s)",
+            return Err(bad(format!(
+                "at t = {target} s, after the end of the IMU ({} s)",
                 self.imu_end
             )));
         }
@@ -588,7 +591,7 @@ impl StudyHook<'_> {
 fn nav_error(epoch: usize, start: f64, error: NavigatorError) -> PipelineError {
     match error {
         NavigatorError::Filter { time, source } => stopped(epoch, time - start, source),
-        other => PipelineError::Invalid(format!("DVL epoch {epoch}: {other}")),
+        error => PipelineError::NavigatorAt { epoch, error },
     }
 }
 
@@ -607,17 +610,18 @@ fn check_imu_timestamps(scenario: &Scenario) -> Result<()> {
     let mut previous: Option<f64> = None;
     for (index, sample) in scenario.imu.iter().enumerate() {
         let t = sample.time;
+        let bad = |reason: String| PipelineError::ImuSample {
+            scenario: scenario.name.clone(),
+            index,
+            reason,
+        };
         if !t.is_finite() {
-            return Err(PipelineError::Invalid(format!(
-                "IMU sample {index}: non-finite timestamp {t}"
-            )));
+            return Err(bad(format!("non-finite timestamp {t}")));
         }
         if let Some(p) = previous {
             if t <= p {
                 let what = if t == p { "duplicate" } else { "backward" };
-                return Err(PipelineError::Invalid(format!(
-                    "IMU sample {index}: {what} timestamp {t} s (previous {p} s)"
-                )));
+                return Err(bad(format!("{what} timestamp {t} s (previous {p} s)")));
             }
         }
         previous = Some(t);

@@ -71,7 +71,7 @@ fn protocol(config: &Config) -> BeamsNetProtocol {
 }
 
 fn imu_spec(config: &Config) -> Result<ImuSpec> {
-    config.imu_spec().map_err(PipelineError::Invalid)
+    config.imu_spec()
 }
 
 impl Scenario {
@@ -371,9 +371,9 @@ impl Scenario {
             || a > 3
             || b > 3
         {
-            return Err(PipelineError::Invalid(format!(
-                "invalid beam loss {loss:?}"
-            )));
+            return Err(PipelineError::Event {
+                event: format!("beam loss {loss:?}"),
+            });
         }
         let t0 = self.truth.first().map_or(0.0, |s| s.time);
         let mut affected = Vec::new();
@@ -403,9 +403,9 @@ impl Scenario {
             || outage.start_s < 0.0
             || outage.duration_s < 0.0
         {
-            return Err(PipelineError::Invalid(format!(
-                "invalid DVL outage {outage:?}"
-            )));
+            return Err(PipelineError::Event {
+                event: format!("DVL outage {outage:?}"),
+            });
         }
         let t0 = self.truth.first().map_or(0.0, |s| s.time);
         let mut affected = Vec::new();

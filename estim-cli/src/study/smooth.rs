@@ -138,9 +138,10 @@ fn truth_at(scenario: &Scenario, time: f64) -> Result<&InsState> {
         });
     match best {
         Some(j) if (truth[j].time - time).abs() <= 0.5 * scenario.imu_dt => Ok(&truth[j]),
-        _ => Err(PipelineError::Invalid(format!(
-            "smoother epoch at t = {time} s has no truth sample"
-        ))),
+        _ => Err(PipelineError::Missing {
+            within: scenario.name.clone(),
+            what: format!("truth sample at the smoother epoch t = {time} s"),
+        }),
     }
 }
 
@@ -158,11 +159,15 @@ pub fn smooth_scenario(
 ) -> Result<SmoothReport> {
     if let Some(recorded) = &scenario.recorded {
         if !matches!(cross, CrossSource::Zero) {
-            return Err(PipelineError::Invalid(format!(
-                "{}: the recorded IMU is smoothed by the navigator's own pass, whose DVL \
-                 updates have M = 0 (leave out --rho, or add --imu synthesized)",
-                scenario.name
-            )));
+            return Err(PipelineError::Argument {
+                flag: "--rho".into(),
+                reason: format!(
+                    "{}: the recorded IMU is smoothed by the navigator's own pass, whose \
+                     DVL updates have M = 0 (leave out --rho, or run on the synthesized \
+                     IMU)",
+                    scenario.name
+                ),
+            });
         }
         return smooth_recorded(scenario, recorded, config);
     }
@@ -182,7 +187,9 @@ pub fn smooth_scenario(
     let start = scenario
         .truth
         .first()
-        .ok_or_else(|| PipelineError::Invalid("empty scenario".into()))?
+        .ok_or_else(|| PipelineError::NoData {
+            what: format!("truth samples in {}", scenario.name),
+        })?
         .time;
     let mut time = Vec::with_capacity(smoothed.len());
     let mut filtered = EstimateSeries::default();
@@ -274,19 +281,23 @@ pub fn smooth_recorded(
     let start = scenario
         .truth
         .first()
-        .ok_or_else(|| PipelineError::Invalid("empty scenario".into()))?
+        .ok_or_else(|| PipelineError::NoData {
+            what: format!("truth samples in {}", scenario.name),
+        })?
         .time;
     let mut time = Vec::with_capacity(run.smoothed.len());
     let mut filtered = EstimateSeries::default();
     let mut smooth = EstimateSeries::default();
     for s in run.smoothed.iter().filter(|s| s.kind == SolutionKind::Dvl) {
         let t = s.solution.time;
-        let (state, covariance) = forward.0.get(&t.to_bits()).ok_or_else(|| {
-            PipelineError::Invalid(format!(
-                "{}: the smoothed epoch at t = {t} s has no forward solution",
-                scenario.name
-            ))
-        })?;
+        let (state, covariance) =
+            forward
+                .0
+                .get(&t.to_bits())
+                .ok_or_else(|| PipelineError::Missing {
+                    within: scenario.name.clone(),
+                    what: format!("forward solution at the smoothed epoch t = {t} s"),
+                })?;
         let truth = truth_at(scenario, t)?;
         time.push(truth.time - start);
         filtered.push(truth, state, covariance, RECORDED_NEES_STATES);

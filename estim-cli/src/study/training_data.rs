@@ -162,8 +162,9 @@ pub fn synthesize(
 /// `estim dataset beamsnet`).
 ///
 /// # Errors
-/// [`PipelineError::Invalid`] for a trajectory the simulator refuses, a non-finite DVL
-/// sample or a non-finite time offset.
+/// [`PipelineError::Trajectory`] for a trajectory the simulator refuses,
+/// [`PipelineError::DvlEpoch`] for a non-finite DVL sample and
+/// [`PipelineError::Setting`] for a non-finite time offset.
 pub fn synthesize_aligned(
     trajectory: &Trajectory,
     dvl: &[(f64, Vector3<f64>)],
@@ -174,24 +175,28 @@ pub fn synthesize_aligned(
 ) -> Result<SynthesizedRun> {
     if let WindowAlignment::Filter { time_offset_s } = alignment {
         if !time_offset_s.is_finite() {
-            return Err(PipelineError::Invalid(format!(
-                "invalid DVL time offset: {time_offset_s} is not finite"
-            )));
+            return Err(PipelineError::Setting {
+                key: "dvl.akit_time_offset_s".into(),
+                reason: format!("invalid DVL time offset: {time_offset_s} is not finite"),
+            });
         }
     }
-    let ins_err = |e: estim_ins::Error| PipelineError::Invalid(format!("invalid trajectory: {e}"));
-    let (truth, imu_clean) = trajectory.simulate(IMU_RATE_HZ).map_err(ins_err)?;
+    let (truth, imu_clean) = trajectory
+        .simulate(IMU_RATE_HZ)
+        .map_err(PipelineError::Trajectory)?;
     let dt = 1.0 / IMU_RATE_HZ;
     let mut generator = ImuErrorGenerator::new(*imu_spec, seed);
     let imu: Vec<ImuSample> = imu_clean.iter().map(|s| generator.corrupt(s, dt)).collect();
     let mut beam_rng = ChaCha8Rng::seed_from_u64(seed.wrapping_add(1_000_003));
     let t0 = trajectory.start_time();
     let mut samples = Vec::with_capacity(dvl.len());
-    for &(time, velocity) in dvl {
+    for (k, &(time, velocity)) in dvl.iter().enumerate() {
         if !time.is_finite() || velocity.iter().any(|v| !v.is_finite()) {
-            return Err(PipelineError::Invalid(format!(
-                "invalid DVL sample: non-finite value at time {time}"
-            )));
+            return Err(PipelineError::DvlEpoch {
+                scenario: "the DVL log".into(),
+                epoch: k,
+                reason: format!("invalid DVL sample: non-finite value at time {time}"),
+            });
         }
         let Some(end) = alignment.window_end(time, t0, dt, imu.len()) else {
             continue;
@@ -233,10 +238,14 @@ pub fn dataset_row(sample: &BeamsNetSample, trajectory: u32, realization: u32) -
 /// Write a 2-D little-endian `float64` C-order array in NumPy `.npy` format 1.0.
 pub fn write_npy(path: &Path, columns: usize, data: &[f64]) -> Result<()> {
     if columns == 0 || !data.len().is_multiple_of(columns) {
-        return Err(PipelineError::Invalid(format!(
-            "invalid npy array: {} values do not fill rows of {columns}",
-            data.len()
-        )));
+        return Err(PipelineError::Data {
+            path: path.to_path_buf(),
+            line: None,
+            reason: format!(
+                "invalid npy array: {} values do not fill rows of {columns}",
+                data.len()
+            ),
+        });
     }
     let rows = data.len() / columns;
     let mut header =
@@ -252,8 +261,11 @@ pub fn write_npy(path: &Path, columns: usize, data: &[f64]) -> Result<()> {
     let file = std::fs::File::create(path).map_err(io)?;
     let mut w = std::io::BufWriter::new(file);
     w.write_all(b"\x93NUMPY\x01\x00").map_err(io)?;
-    let len = u16::try_from(header.len())
-        .map_err(|_| PipelineError::Invalid("invalid npy header: too long".into()))?;
+    let len = u16::try_from(header.len()).map_err(|_| PipelineError::Data {
+        path: path.to_path_buf(),
+        line: None,
+        reason: "invalid npy header: too long".into(),
+    })?;
     w.write_all(&len.to_le_bytes()).map_err(io)?;
     w.write_all(header.as_bytes()).map_err(io)?;
     for v in data {

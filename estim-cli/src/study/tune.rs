@@ -32,8 +32,8 @@ fn bits(v: &Vector3<f64>) -> [u64; 3] {
 /// rho = 0).
 ///
 /// # Errors
-/// [`PipelineError::Invalid`] for a test trajectory, a repeated one or none; loader
-/// errors (file and line); the fit's errors.
+/// [`PipelineError::HeldOut`] for a test trajectory, [`PipelineError::Argument`] for
+/// a repeated one or none; loader errors (file and line); the fit's errors.
 pub fn tune_akit(
     dir: &Path,
     trajectories: &[u32],
@@ -41,20 +41,26 @@ pub fn tune_akit(
     seed: u64,
     options: &TuneOptions,
 ) -> Result<TuneReport> {
+    const FLAG: &str = "--trajectories";
+    let no_trajectory = || PipelineError::Argument {
+        flag: FLAG.into(),
+        reason: "no trajectory given".into(),
+    };
     if trajectories.is_empty() {
-        return Err(PipelineError::Invalid("tune: no trajectory given".into()));
+        return Err(no_trajectory());
     }
     for (i, n) in trajectories.iter().enumerate() {
         if AKIT_TEST_TRAJECTORIES.contains(n) {
-            return Err(PipelineError::Invalid(format!(
-                "tune: A-KIT trajectory {n} is a held-out test trajectory (4 and 13 are never \
-                 used to fit anything)"
-            )));
+            return Err(PipelineError::HeldOut {
+                flag: FLAG.into(),
+                trajectory: *n,
+            });
         }
         if trajectories[..i].contains(n) {
-            return Err(PipelineError::Invalid(format!(
-                "tune: A-KIT trajectory {n} is given twice"
-            )));
+            return Err(PipelineError::Argument {
+                flag: FLAG.into(),
+                reason: format!("A-KIT trajectory {n} is given twice"),
+            });
         }
     }
     let mut test_rows = HashSet::new();
@@ -74,7 +80,7 @@ pub fn tune_akit(
         let velocities = least_squares_velocities(scenario, config);
         let mut used = Vec::with_capacity(velocities.len());
         let mut left_out = 0;
-        for (epoch, v) in scenario.dvl.iter().zip(velocities) {
+        for (k, (epoch, v)) in scenario.dvl.iter().zip(velocities).enumerate() {
             if test_rows.contains(&bits(&epoch.reference_velocity)) {
                 left_out += 1;
             } else if let Some(v) = v {
@@ -82,11 +88,10 @@ pub fn tune_akit(
                     .imu
                     .get(epoch.imu_index)
                     .map(|s| s.time)
-                    .ok_or_else(|| {
-                        PipelineError::Invalid(format!(
-                            "{}: DVL epoch at IMU index {} beyond the IMU",
-                            scenario.name, epoch.imu_index
-                        ))
+                    .ok_or_else(|| PipelineError::DvlEpoch {
+                        scenario: scenario.name.clone(),
+                        epoch: k,
+                        reason: format!("at IMU index {}, beyond the IMU", epoch.imu_index),
                     })?;
                 used.push((time, v));
             }
@@ -99,7 +104,9 @@ pub fn tune_akit(
         let truth0 = scenario
             .truth
             .first()
-            .ok_or_else(|| PipelineError::Invalid(format!("{}: no samples", scenario.name)))?;
+            .ok_or_else(|| PipelineError::NoData {
+                what: format!("truth samples in {}", scenario.name),
+            })?;
         let covariance = initial_covariance(config, scenario);
         inputs.push(TuneTrajectory {
             imu: &scenario.imu,
@@ -109,9 +116,7 @@ pub fn tune_akit(
             covariance,
         });
     }
-    let first = scenarios
-        .first()
-        .ok_or_else(|| PipelineError::Invalid("tune: no trajectory given".into()))?;
+    let first = scenarios.first().ok_or_else(no_trajectory)?;
     let spec = first.imu_spec;
     let settings = NavigatorConfig {
         dvl: DvlConfig {

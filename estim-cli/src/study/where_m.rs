@@ -346,7 +346,10 @@ pub fn where_m(
     tick: &(dyn Fn() + Sync),
 ) -> Result<WhereM> {
     if runs == 0 {
-        return Err(PipelineError::Invalid("runs must be at least 1".into()));
+        return Err(PipelineError::Argument {
+            flag: "--runs".into(),
+            reason: "must be at least 1".into(),
+        });
     }
     let band = chi_square_band(ERROR_STATES, runs, 0.95)?;
     let pairs: Vec<(DvlNoise, SensorKind)> = noises
@@ -367,9 +370,10 @@ pub fn where_m(
                     .iter()
                     .map(|(noise, kind)| {
                         paired_runs(*kind, *noise, &scenario, &config, seed).map_err(|e| {
-                            PipelineError::Invalid(format!(
-                                "{grade}, {noise:?} DVL noise, {kind:?}, seed {seed}: {e}"
-                            ))
+                            PipelineError::Run {
+                                run: format!("{grade}, {noise:?} DVL noise, {kind:?}, seed {seed}"),
+                                error: Box::new(e),
+                            }
                         })
                     })
                     .collect::<Result<Vec<_>>>();

@@ -31,7 +31,9 @@ impl Run<'_> {
         let truth0 = scenario
             .truth
             .first()
-            .ok_or_else(|| PipelineError::Invalid("empty scenario".into()))?;
+            .ok_or_else(|| PipelineError::NoData {
+                what: format!("truth samples in {}", scenario.name),
+            })?;
         let p0 = initial_covariance(config, scenario);
         let nominal0 = initial_nominal(truth0, &p0, seed);
         let nav_config = NavigatorConfig {
@@ -96,9 +98,10 @@ impl Run<'_> {
             ..
         } = hook;
         let Some(s) = nav.dvl_states() else {
-            return Err(PipelineError::Invalid(
-                "the augmented navigator reported no DVL states".into(),
-            ));
+            return Err(PipelineError::Missing {
+                within: "the augmented navigator".into(),
+                what: "DVL states".into(),
+            });
         };
         Ok(Ok(EvaluationRun {
             trajectory: 0,
@@ -143,6 +146,17 @@ struct EvaluateHook<'a> {
     position: Vec<f64>,
 }
 
+impl EvaluateHook<'_> {
+    /// DVL epoch `epoch` has no truth sample (its IMU index is beyond the scenario).
+    fn beyond_truth(&self, epoch: usize) -> PipelineError {
+        PipelineError::DvlEpoch {
+            scenario: self.scenario.name.clone(),
+            epoch,
+            reason: "truth index beyond the scenario".into(),
+        }
+    }
+}
+
 impl EpochHook<AugmentedErrorModel, NoObserver, AUGMENTED_STATES> for EvaluateHook<'_> {
     type Measurement = ();
     type Error = Stop;
@@ -157,9 +171,7 @@ impl EpochHook<AugmentedErrorModel, NoObserver, AUGMENTED_STATES> for EvaluateHo
         if inside {
             Ok(())
         } else {
-            Err(Stop::Invalid(PipelineError::Invalid(format!(
-                "DVL epoch {epoch}: truth index beyond the scenario"
-            ))))
+            Err(Stop::Invalid(self.beyond_truth(epoch)))
         }
     }
 
@@ -180,7 +192,7 @@ impl EpochHook<AugmentedErrorModel, NoObserver, AUGMENTED_STATES> for EvaluateHo
             .dvl
             .get(self.epoch)
             .and_then(|dvl| self.scenario.truth.get(dvl.imu_index))
-            .ok_or_else(|| Stop::Invalid(PipelineError::Invalid("truth index".into())))?;
+            .ok_or_else(|| Stop::Invalid(self.beyond_truth(self.epoch)))?;
         let e = error_state(truth, nav.ins());
         self.position.push(e.fixed_rows::<3>(POS).norm());
         self.nees

@@ -123,7 +123,10 @@ pub fn learned_monte_carlo(
     let median_rho = rhos.get(rhos.len() / 2).copied().unwrap_or(f64::NAN);
     let mut variants = Vec::new();
     let Some((first, epochs)) = studies.first() else {
-        return Err(PipelineError::Invalid("--runs must be at least 1".into()));
+        return Err(PipelineError::Argument {
+            flag: "--runs".into(),
+            reason: "must be at least 1".into(),
+        });
     };
     for (v, run0) in first.runs.iter().enumerate() {
         let per_epoch: Vec<f64> = epochs

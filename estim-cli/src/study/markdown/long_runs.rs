@@ -1,7 +1,7 @@
 //! The `fuzz` and `long-mission` tables, rendered from the committed logs of the long
 //! runs in `results/` ([`long_run_tables`]).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use super::{thousands, Table};
 use crate::study::{PipelineError, Result};
@@ -9,6 +9,7 @@ use crate::study::{PipelineError, Result};
 /// A long-run log: its first line is `<commit> <command>`, the rest the command's output.
 #[derive(Debug, Clone)]
 struct Log {
+    path: PathBuf,
     file: String,
     commit: String,
     command: String,
@@ -16,20 +17,23 @@ struct Log {
 }
 
 fn read_log(path: &Path) -> Result<Log> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| PipelineError::Invalid(format!("{}: cannot read: {e}", path.display())))?;
+    let text = std::fs::read_to_string(path).map_err(|source| PipelineError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let first_line = |reason: String| PipelineError::Data {
+        path: path.to_path_buf(),
+        line: Some(1),
+        reason,
+    };
     let mut lines = text.lines();
     let first = lines.next().unwrap_or_default();
-    let (commit, command) = first.split_once(' ').ok_or_else(|| {
-        PipelineError::Invalid(format!(
-            "{}:1: expected \"<commit> <command>\"",
-            path.display()
-        ))
-    })?;
+    let (commit, command) = first
+        .split_once(' ')
+        .ok_or_else(|| first_line("expected \"<commit> <command>\"".into()))?;
     if commit.len() != 40 || !commit.chars().all(|c| c.is_ascii_hexdigit()) {
-        return Err(PipelineError::Invalid(format!(
-            "{}:1: {commit:?} is not a 40-digit commit hash",
-            path.display()
+        return Err(first_line(format!(
+            "{commit:?} is not a 40-digit commit hash"
         )));
     }
     let file = path
@@ -37,11 +41,23 @@ fn read_log(path: &Path) -> Result<Log> {
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     Ok(Log {
+        path: path.to_path_buf(),
         file,
         commit: commit.to_string(),
         command: command.to_string(),
         lines: lines.map(str::to_string).collect(),
     })
+}
+
+impl Log {
+    /// What was wrong in this log, at `line` (1-based) where known.
+    fn error(&self, line: Option<u64>, reason: &str) -> PipelineError {
+        PipelineError::Data {
+            path: self.path.clone(),
+            line,
+            reason: reason.into(),
+        }
+    }
 }
 
 /// The text after `key` in `line`, up to `end` (or the end of the line).
@@ -60,11 +76,11 @@ fn test_outcome(log: &Log) -> Result<(bool, String)> {
         .lines
         .iter()
         .find(|l| l.starts_with("test result:"))
-        .ok_or_else(|| PipelineError::Invalid(format!("{}: no \"test result:\" line", log.file)))?;
+        .ok_or_else(|| log.error(None, "no \"test result:\" line"))?;
     let passed = line.starts_with("test result: ok.");
     let seconds = after(line, "finished in ", "s")
         .and_then(|s| s.trim().parse::<f64>().ok())
-        .ok_or_else(|| PipelineError::Invalid(format!("{}: no \"finished in\" time", log.file)))?;
+        .ok_or_else(|| log.error(None, "no \"finished in\" time"))?;
     Ok((passed, format!("{seconds:.0} s")))
 }
 
@@ -104,9 +120,7 @@ fn fuzz_table(logs: &[Log]) -> Result<Table> {
     for log in logs {
         let cases = after(&log.command, "ESTIM_FUZZ_CASES=", " ")
             .and_then(|c| c.parse::<usize>().ok())
-            .ok_or_else(|| {
-                PipelineError::Invalid(format!("{}:1: no ESTIM_FUZZ_CASES=N", log.file))
-            })?;
+            .ok_or_else(|| log.error(Some(1), "no ESTIM_FUZZ_CASES=N"))?;
         let (passed, time) = test_outcome(log)?;
         for line in &log.lines {
             let Some(rest) = line.strip_prefix("test ") else {
@@ -138,10 +152,7 @@ fn fuzz_table(logs: &[Log]) -> Result<Table> {
                 .iter()
                 .any(|l| l.starts_with("test ") && l.contains(" ... "))
         {
-            return Err(PipelineError::Invalid(format!(
-                "{}: failed without a test line",
-                log.file
-            )));
+            return Err(log.error(None, "failed without a test line"));
         }
     }
     rows.sort_by(|a, b| (a.0, &a.1).cmp(&(b.0, &b.1)));
@@ -185,9 +196,8 @@ fn long_mission_table(logs: &[Log]) -> Result<Table> {
     );
     let mut notes = Vec::new();
     for log in logs {
-        let bad = |line: usize, what: &str| {
-            PipelineError::Invalid(format!("{}:{}: {what}", log.file, line + 2))
-        };
+        // `lines` starts after the log's first line, and lines count from 1.
+        let bad = |line: usize, what: &str| log.error(Some(line as u64 + 2), what);
         let mut mission = None;
         let (passed, total) = test_outcome(log)?;
         let mut i = 0;
@@ -272,13 +282,14 @@ fn long_mission_table(logs: &[Log]) -> Result<Table> {
 /// # Errors
 /// A missing folder, a log that cannot be read or parsed (file and line named).
 pub fn long_run_tables(results: &Path) -> Result<Vec<Table>> {
-    let entries = std::fs::read_dir(results)
-        .map_err(|e| PipelineError::Invalid(format!("{}: cannot list: {e}", results.display())))?;
+    let io = |source| PipelineError::Io {
+        path: results.to_path_buf(),
+        source,
+    };
+    let entries = std::fs::read_dir(results).map_err(io)?;
     let mut names = Vec::new();
     for entry in entries {
-        let entry = entry.map_err(|e| {
-            PipelineError::Invalid(format!("{}: cannot list: {e}", results.display()))
-        })?;
+        let entry = entry.map_err(io)?;
         names.push(entry.file_name().to_string_lossy().into_owned());
     }
     names.sort();
@@ -292,10 +303,11 @@ pub fn long_run_tables(results: &Path) -> Result<Vec<Table>> {
     let fuzz = logs("fuzz_parsers-")?;
     let long = logs("long_mission-")?;
     if fuzz.is_empty() || long.is_empty() {
-        return Err(PipelineError::Invalid(format!(
-            "{}: expected fuzz_parsers-*.log and long_mission-*.log",
-            results.display()
-        )));
+        return Err(PipelineError::Data {
+            path: results.to_path_buf(),
+            line: None,
+            reason: "expected fuzz_parsers-*.log and long_mission-*.log".into(),
+        });
     }
     Ok(vec![fuzz_table(&fuzz)?, long_mission_table(&long)?])
 }

@@ -57,9 +57,9 @@ fn reports(config: &Config, data: &Path, learned: &LearnedSource) -> Result<Vec<
         });
     }
     if out.is_empty() {
-        return Err(PipelineError::Invalid(
-            "no A-KIT training trajectory with a recorded IMU (IMU_trajectoryN.csv)".into(),
-        ));
+        return Err(PipelineError::NoData {
+            what: "A-KIT training trajectory with a recorded IMU (IMU_trajectoryN.csv)".into(),
+        });
     }
     Ok(out)
 }

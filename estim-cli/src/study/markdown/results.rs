@@ -68,7 +68,10 @@ pub(super) fn filter<'a>(report: &'a TrajectoryReport, name: &str) -> Result<&'a
         .filters
         .iter()
         .find(|f| f.id == name)
-        .ok_or_else(|| PipelineError::Invalid(format!("{}: no filter {name:?}", report.name)))
+        .ok_or_else(|| PipelineError::Missing {
+            within: report.name.clone(),
+            what: format!("filter {name:?}"),
+        })
 }
 
 /// The `velocity`, `filters`, `paper-std` and `rho` tables: `config` on A-KIT
@@ -106,8 +109,9 @@ pub fn results_tables(config: &Config, data: &Path, learned: &LearnedSource) -> 
 /// with [RMSE, MAE, R^2, VAF, RMSE change against LS in %] (NaN for LS itself).
 pub(super) fn velocity_rows(set: &DataSet) -> Result<Vec<(&'static str, [f64; 5])>> {
     let v = &set.accumulated.velocity;
-    let ls = v.get(LS).ok_or_else(|| {
-        PipelineError::Invalid(format!("{}: no least-squares velocity", set.label))
+    let ls = v.get(LS).ok_or_else(|| PipelineError::Missing {
+        within: set.label.clone(),
+        what: "least-squares velocity".into(),
     })?;
     let mut rows = Vec::new();
     for (method, m) in [("LS", Some(ls)), ("BeamsNet", v.get(BEAMSNET))] {
@@ -235,8 +239,9 @@ pub(super) fn paper_rows(set: &DataSet, rho: f64) -> Result<Vec<(String, Improve
             .iter()
             .find(|i| i.id == variant)
             .cloned()
-            .ok_or_else(|| {
-                PipelineError::Invalid(format!("{}: no improvement of {variant}", set.label))
+            .ok_or_else(|| PipelineError::Missing {
+                within: set.label.clone(),
+                what: format!("improvement of {variant}"),
             })
     };
     Ok(vec![
@@ -260,7 +265,10 @@ pub(super) fn group_improvement(set: &DataSet, imp: &Improvement, group: &str) -
     let v = imp
         .groups
         .get(group)
-        .ok_or_else(|| PipelineError::Invalid(format!("{}: no group {group}", set.label)))?;
+        .ok_or_else(|| PipelineError::Missing {
+            within: set.label.clone(),
+            what: format!("group {group}"),
+        })?;
     Ok([v.time_average_percent, v.final_percent])
 }
 
@@ -323,8 +331,9 @@ pub(super) fn rho_run(set: &DataSet) -> Result<&FilterRun> {
         .runs
         .iter()
         .find(|r| r.id == BEAMSNET_NEGLECTED)
-        .ok_or_else(|| {
-            PipelineError::Invalid(format!("{}: no run {BEAMSNET_NEGLECTED:?}", set.label))
+        .ok_or_else(|| PipelineError::Missing {
+            within: set.label.clone(),
+            what: format!("run {BEAMSNET_NEGLECTED:?}"),
         })
 }
 
@@ -376,7 +385,10 @@ pub fn monte_carlo_table(config: &Config, learned: &LearnedSource) -> Result<Tab
         .variants
         .values()
         .next()
-        .ok_or_else(|| PipelineError::Invalid("Monte Carlo: no variant".into()))?;
+        .ok_or_else(|| PipelineError::Missing {
+            within: "Monte Carlo".into(),
+            what: "variant".into(),
+        })?;
     let mut s = format!(
         "| variant | average NEES (band {:.1}-{:.1}) | epochs in band | NIS (band {:.2}-{:.2}) | P not PD [run-epochs] |\n\
          |---|---|---|---|---|\n",
@@ -396,7 +408,10 @@ pub fn monte_carlo_table(config: &Config, learned: &LearnedSource) -> Result<Tab
         let v = report
             .variants
             .get(key)
-            .ok_or_else(|| PipelineError::Invalid(format!("Monte Carlo: no variant {key:?}")))?;
+            .ok_or_else(|| PipelineError::Missing {
+                within: "Monte Carlo".into(),
+                what: format!("variant {key:?}"),
+            })?;
         let nees = if v.covariance_not_positive_definite > 0 {
             format!("{:.2} (over the epochs where P stayed PD)", v.nees_average)
         } else {

@@ -86,20 +86,26 @@ fn over_seeds_table(
 ) -> Result<Table> {
     for (s, rows) in per_seed.iter().enumerate() {
         if rows.len() != labels.len() || rows.iter().any(|r| r.len() != columns.len()) {
-            return Err(PipelineError::Invalid(format!(
-                "{name}: seed {s} gave {} rows, expected {} rows of {} values",
-                rows.len(),
-                labels.len(),
-                columns.len()
-            )));
+            return Err(PipelineError::Table {
+                table: name.into(),
+                reason: format!(
+                    "seed {s} gave {} rows, expected {} rows of {} values",
+                    rows.len(),
+                    labels.len(),
+                    columns.len()
+                ),
+            });
         }
     }
     if let Some(bad) = labels.iter().find(|l| l.len() != label_headers.len()) {
-        return Err(PipelineError::Invalid(format!(
-            "{name}: row {bad:?} has {} labels, expected {}",
-            bad.len(),
-            label_headers.len()
-        )));
+        return Err(PipelineError::Table {
+            table: name.into(),
+            reason: format!(
+                "row {bad:?} has {} labels, expected {}",
+                bad.len(),
+                label_headers.len()
+            ),
+        });
     }
     let headers: Vec<&str> = label_headers
         .iter()
@@ -196,10 +202,10 @@ fn data_set_values(sets: &[DataSet], rho: f64) -> Result<[SeedValues; 4]> {
         }
         let velocity = velocity_rows(set)?;
         if velocity.len() != 2 {
-            return Err(PipelineError::Invalid(format!(
-                "{}: velocity-seeds needs the LS and the BeamsNet velocity",
-                set.label
-            )));
+            return Err(PipelineError::Table {
+                table: set.label.clone(),
+                reason: "velocity-seeds needs the LS and the BeamsNet velocity".into(),
+            });
         }
         for (_, values) in velocity {
             out[1].push(values.to_vec());
@@ -376,7 +382,10 @@ fn study_values(study: &LearnedStudy, ids: &[&str; 5]) -> Result<SeedValues> {
                 .filters
                 .iter()
                 .position(|f| f.id == *id)
-                .ok_or_else(|| PipelineError::Invalid(format!("no variant {id:?}")))?;
+                .ok_or_else(|| PipelineError::Missing {
+                    within: "learned study".into(),
+                    what: format!("variant {id:?}"),
+                })?;
             let (f, l) = (&study.filters[v], &study.loss_window[v]);
             Ok(vec![
                 l.nees_mean,
@@ -419,8 +428,9 @@ fn learned_seed_table(
                     STUDY_EMPIRICAL_REALIZATIONS,
                     c.seed,
                 )?;
-                let rows = study_values(&study, &ids).map_err(|e| {
-                    PipelineError::Invalid(format!("{name}: A-KIT {n}, seed {}: {e}", c.seed))
+                let rows = study_values(&study, &ids).map_err(|e| PipelineError::Run {
+                    run: format!("{name}: A-KIT {n}, seed {}", c.seed),
+                    error: Box::new(e),
                 })?;
                 Ok((study.paper_rho, rows))
             })

@@ -120,9 +120,11 @@ fn measurements_of<L: LearnedMeasurement<f64, 3>>(
         }
         let steps = recorder.step_window(window)?;
         let y = cross.measure::<ERROR_STATES>(&steps)?;
-        let m = cross
-            .transported_cross_covariance(&steps)?
-            .ok_or_else(|| PipelineError::Invalid("stand-in network gave no M".into()))?;
+        let m = cross.transported_cross_covariance(&steps)?.ok_or(
+            PipelineError::NoCrossCovariance {
+                network: "stand-in network",
+            },
+        )?;
         let q_w =
             driven_error_covariance::<f64, _, ERROR_STATES, IMU_CHANNELS>(error_model, &steps)?;
         out.velocities[k] = Some(y);
