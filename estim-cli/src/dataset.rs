@@ -13,7 +13,8 @@ use estim_learned::{BeamsNetInput, BEAMSNET_WINDOW};
 
 use crate::study::{
     akit_overlaps, dataset_row, synthesize_aligned, touches_held_out, write_npy, BeamsNetSample,
-    Config, ImuChoice, Scenario, WindowAlignment, DATASET_COLUMNS, IMU_RATE_HZ, WINDOW_MARGIN_ROWS,
+    Config, ImuChoice, RowOverlaps, Scenario, WindowAlignment, DATASET_COLUMNS, IMU_RATE_HZ,
+    WINDOW_MARGIN_ROWS,
 };
 
 /// Trajectories BeamsNet is trained on: A-KIT 1-3 and 5-12 (4 and 13 are held out).
@@ -378,6 +379,44 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
         counts.push(count);
         eprintln!("trajectory {n}: {rows} rows ({excluded} left out: they touch rows of a held-out trajectory)");
     }
+    write_npy(&npy_path, DATASET_COLUMNS, &data)?;
+    let imu = match (args.imu, vehicle) {
+        (ImuWindows::Synthesized, _) => synthesized_description(&config, &spec),
+        (ImuWindows::Recorded, Some(vehicle)) => recorded_description(&vehicle)?,
+        (ImuWindows::Recorded, None) => bail!("no trajectory was read"),
+    };
+    let meta = metadata(
+        &args,
+        data.len() / DATASET_COLUMNS,
+        &protocol,
+        counts,
+        &overlaps,
+        imu,
+    );
+    let meta_path = args.out.with_extension("json");
+    std::fs::write(&staged_meta, serde_json::to_string_pretty(&meta)?)
+        .with_context(|| format!("writing {}", meta_path.display()))?;
+    staged.commit()?;
+    eprintln!(
+        "wrote {} rows to {} and {}",
+        data.len() / DATASET_COLUMNS,
+        args.out.display(),
+        meta_path.display()
+    );
+    Ok(())
+}
+
+/// The dataset's `.json` description: layout, rates, beam protocol, the rows per
+/// trajectory (`counts`), the rows shared between trajectories and the rule that left
+/// examples out, and the IMU's description (`imu`, merged in).
+fn metadata(
+    args: &BeamsnetArgs,
+    rows: usize,
+    protocol: &BeamsNetProtocol,
+    counts: Vec<serde_json::Value>,
+    overlaps: &RowOverlaps,
+    imu: serde_json::Value,
+) -> serde_json::Value {
     let shared_pairs: Vec<serde_json::Value> = overlaps
         .pairs()
         .iter()
@@ -392,17 +431,11 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
             })
         })
         .collect();
-    write_npy(&npy_path, DATASET_COLUMNS, &data)?;
     let geometry = protocol.geometry();
-    let imu = match (args.imu, vehicle) {
-        (ImuWindows::Synthesized, _) => synthesized_description(&config, &spec),
-        (ImuWindows::Recorded, Some(vehicle)) => recorded_description(&vehicle)?,
-        (ImuWindows::Recorded, None) => bail!("no trajectory was read"),
-    };
     let mut meta = serde_json::json!({
         "format": "estim-beamsnet-dataset/2",
         "columns": DATASET_COLUMNS,
-        "rows": data.len() / DATASET_COLUMNS,
+        "rows": rows,
         "layout": {
             "acc": [0, 300], "gyro": [300, 600], "beams": [600, 604], "target": [604, 607],
             "trajectory": 607, "time": 608, "realization": 609,
@@ -438,17 +471,7 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
     if let (Some(meta), serde_json::Value::Object(imu)) = (meta.as_object_mut(), imu) {
         meta.extend(imu);
     }
-    let meta_path = args.out.with_extension("json");
-    std::fs::write(&staged_meta, serde_json::to_string_pretty(&meta)?)
-        .with_context(|| format!("writing {}", meta_path.display()))?;
-    staged.commit()?;
-    eprintln!(
-        "wrote {} rows to {} and {}",
-        data.len() / DATASET_COLUMNS,
-        args.out.display(),
-        meta_path.display()
-    );
-    Ok(())
+    meta
 }
 
 // The data lookup shared with the integration tests (one copy; the study's tests load
