@@ -286,22 +286,7 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
     )?;
     // Checked before any work: the folder of --out is created, locked and written to
     // now; the .npy and its .json appear together at the end, or neither does.
-    let (Some(npy_name), Some(json_name)) = (
-        args.out.file_name(),
-        args.out
-            .with_extension("json")
-            .file_name()
-            .map(ToOwned::to_owned),
-    ) else {
-        bail!("--out {}: not a file name", args.out.display());
-    };
-    let folder = match args.out.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let staged = crate::output::StagedDir::for_files(&folder)?;
-    let npy_path = staged.path(&npy_name.to_string_lossy());
-    let staged_meta = staged.path(&json_name.to_string_lossy());
+    let (staged, npy_path, staged_meta) = staged_outputs(&args.out)?;
     let Some(root) = data_root(args.data.as_deref()) else {
         bail!("no data folder: pass --data DIR or set ESTIM_DATA_DIR");
     };
@@ -404,6 +389,27 @@ fn beamsnet(args: BeamsnetArgs) -> anyhow::Result<()> {
         meta_path.display()
     );
     Ok(())
+}
+
+/// The staged folder of `--out` (created and locked now) and the staged paths of the
+/// `.npy` and its `.json`.
+fn staged_outputs(out: &Path) -> anyhow::Result<(crate::output::StagedDir, PathBuf, PathBuf)> {
+    let (Some(npy_name), Some(json_name)) = (
+        out.file_name(),
+        out.with_extension("json")
+            .file_name()
+            .map(ToOwned::to_owned),
+    ) else {
+        bail!("--out {}: not a file name", out.display());
+    };
+    let folder = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let staged = crate::output::StagedDir::for_files(&folder)?;
+    let npy_path = staged.path(&npy_name.to_string_lossy());
+    let staged_meta = staged.path(&json_name.to_string_lossy());
+    Ok((staged, npy_path, staged_meta))
 }
 
 /// The dataset's `.json` description: layout, rates, beam protocol, the rows per

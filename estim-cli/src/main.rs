@@ -11,6 +11,7 @@ mod dataset;
 mod dvl;
 mod evaluate;
 mod imu;
+mod imu_choice;
 mod learned;
 mod learned_scenarios;
 mod montecarlo;

@@ -430,6 +430,45 @@ fn stop_note(data: &PlotData<'_>) -> String {
         .unwrap_or_default()
 }
 
+/// What the track plot leaves out of its view, for its caption.
+fn outside_notes(view: &TrackView, stopped: Option<&str>) -> Vec<String> {
+    let mut outside = Vec::new();
+    if view.diverged_solutions > 0 {
+        outside.push(format!(
+            "{} diverged solutions (beyond {MAX_PLOTTED_SPEED_MPS} m/s from the start) outside the view",
+            view.diverged_solutions
+        ));
+    }
+    if view.clipped_ellipses > 0 {
+        outside.push(format!(
+            "{} ellipses clipped at the frame",
+            view.clipped_ellipses
+        ));
+    }
+    if let Some(stop) = stopped {
+        outside.insert(
+            0,
+            format!("run stopped ({stop}): the solutions before the stop"),
+        );
+    }
+    outside
+}
+
+/// The 3-sigma position ellipses drawn: at most [`MAX_ELLIPSES`] of the DVL epochs,
+/// evenly spaced, and the last solution.
+fn position_ellipses(rows: &[PlotRow], points: &[(f64, f64)]) -> Vec<Vec<(f64, f64)>> {
+    let dvl: Vec<usize> = (0..rows.len())
+        .filter(|&k| rows[k].kind == SolutionKind::Dvl)
+        .collect();
+    let step = dvl.len().div_ceil(MAX_ELLIPSES).max(1);
+    let mut chosen: Vec<usize> = dvl.iter().copied().step_by(step).collect();
+    chosen.extend(rows.len().checked_sub(1));
+    chosen
+        .iter()
+        .map(|&k| ellipse((points[k].1, points[k].0), rows[k].north_east))
+        .collect()
+}
+
 fn track<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     data: &PlotData<'_>,
@@ -454,16 +493,7 @@ where
             (e, n)
         })
         .collect();
-    let dvl: Vec<usize> = (0..rows.len())
-        .filter(|&k| rows[k].kind == SolutionKind::Dvl)
-        .collect();
-    let step = dvl.len().div_ceil(MAX_ELLIPSES).max(1);
-    let mut chosen: Vec<usize> = dvl.iter().copied().step_by(step).collect();
-    chosen.push(rows.len() - 1);
-    let ellipses: Vec<Vec<(f64, f64)>> = chosen
-        .iter()
-        .map(|&k| ellipse((points[k].1, points[k].0), rows[k].north_east))
-        .collect();
+    let ellipses = position_ellipses(rows, &points);
     let elapsed: Vec<f64> = rows.iter().map(|r| r.time - rows[0].time).collect();
     let view = track_view(&points, &elapsed, &truth, &ellipses);
     let (title, body) = root.split_vertically(50);
@@ -473,25 +503,7 @@ where
         view.north,
         (w.saturating_sub(110), h.saturating_sub(110)),
     );
-    let mut outside = Vec::new();
-    if view.diverged_solutions > 0 {
-        outside.push(format!(
-            "{} diverged solutions (beyond {MAX_PLOTTED_SPEED_MPS} m/s from the start) outside the view",
-            view.diverged_solutions
-        ));
-    }
-    if view.clipped_ellipses > 0 {
-        outside.push(format!(
-            "{} ellipses clipped at the frame",
-            view.clipped_ellipses
-        ));
-    }
-    if let Some(stop) = data.stopped {
-        outside.insert(
-            0,
-            format!("run stopped ({stop}): the solutions before the stop"),
-        );
-    }
+    let outside = outside_notes(&view, data.stopped);
     title
         .draw(&Text::new(
             format!(

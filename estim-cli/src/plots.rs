@@ -327,6 +327,27 @@ fn shape(style: &Style) -> ShapeStyle {
     style.color.stroke_width(style.width)
 }
 
+/// The axes' ranges of a line chart over `pixels` of plotting area: every finite
+/// value (positive ones on a log axis) and the horizontal lines; equal metres per
+/// pixel when asked, else 5 % padding on a linear y axis.
+fn line_ranges(c: &LineChart<'_>, pixels: (u32, u32)) -> ((f64, f64), (f64, f64)) {
+    let (mut x0, mut x1) = finite_range(c.series.iter().flat_map(|s| s.x.iter().copied()));
+    let (mut y0, mut y1) = finite_range(
+        c.series
+            .iter()
+            .flat_map(|s| s.y.iter().copied())
+            .chain(c.hlines.iter().map(|h| h.1))
+            .filter(|v| !c.log_y || *v > 0.0),
+    );
+    if c.equal_axes {
+        ((x0, x1), (y0, y1)) = equal_scale_ranges((x0, x1), (y0, y1), pixels);
+    } else if !c.log_y {
+        let pad = 0.05 * (y1 - y0);
+        (y0, y1) = (y0 - pad, y1 + pad);
+    }
+    ((x0, x1), (y0, y1))
+}
+
 fn draw_line<DB: DrawingBackend>(
     root: DrawingArea<DB, Shift>,
     c: &LineChart<'_>,
@@ -344,20 +365,7 @@ where
         bw.saturating_sub(2 * MARGIN + Y_LABEL_AREA),
         bh.saturating_sub(2 * MARGIN + X_LABEL_AREA),
     );
-    let (mut x0, mut x1) = finite_range(c.series.iter().flat_map(|s| s.x.iter().copied()));
-    let (mut y0, mut y1) = finite_range(
-        c.series
-            .iter()
-            .flat_map(|s| s.y.iter().copied())
-            .chain(c.hlines.iter().map(|h| h.1))
-            .filter(|v| !c.log_y || *v > 0.0),
-    );
-    if c.equal_axes {
-        ((x0, x1), (y0, y1)) = equal_scale_ranges((x0, x1), (y0, y1), pixels);
-    } else if !c.log_y {
-        let pad = 0.05 * (y1 - y0);
-        (y0, y1) = (y0 - pad, y1 + pad);
-    }
+    let ((x0, x1), (y0, y1)) = line_ranges(c, pixels);
     let mut builder = ChartBuilder::on(&body);
     builder
         .margin(MARGIN)

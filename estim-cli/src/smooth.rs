@@ -78,7 +78,7 @@ pub struct Args {
         default_value = "auto",
         conflicts_with = "imu"
     )]
-    imu_source: crate::study::ImuChoice,
+    imu_source: crate::imu_choice::ImuChoice,
     /// TOML configuration (as for `estim reproduce`).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
@@ -120,7 +120,7 @@ pub struct ScenarioMode {
     /// `--trajectory` (repeatable).
     pub trajectories: Vec<u32>,
     /// `--imu-source`.
-    pub imu_source: crate::study::ImuChoice,
+    pub imu_source: crate::imu_choice::ImuChoice,
     /// `--config`.
     pub config: Option<PathBuf>,
     /// `--rho`.

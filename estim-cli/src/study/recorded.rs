@@ -28,7 +28,7 @@ use estim::navigator::{
     DvlRecord, NavSolution, NavigationModel, NavigationObserver, Navigator, NavigatorConfig,
     NavigatorError, NavigatorSettings, SolutionKind, SurveyInputs,
 };
-use estim_core::nalgebra::{SMatrix, Vector3, Vector4};
+use estim_core::nalgebra::{Matrix3, SMatrix, Vector3, Vector4};
 use estim_core::{Fixed, JointCovariance, NoObserver, ScaledCorrelation, Zero};
 use estim_dvl::BeamsNetProtocol;
 use estim_ins::{ErrorMatrix, ImuSample, InsState, ATT, ERROR_STATES, POS, VEL};
@@ -67,18 +67,7 @@ impl ImuSource {
     }
 }
 
-/// Which IMU the study uses for A-KIT trajectories.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ImuChoice {
-    /// The recorded IMU where the trajectory's folder holds one, else synthesized.
-    #[default]
-    Auto,
-    /// The recorded IMU; a trajectory without one is an error.
-    Recorded,
-    /// The IMU synthesized from the reference, everywhere.
-    Synthesized,
-}
+pub use crate::imu_choice::ImuChoice;
 
 /// The IMU a study command uses for the A-KIT trajectories, and the vehicle file a
 /// recorded one is read with (`--imu`, `--vehicle`).
@@ -196,28 +185,16 @@ impl Scenario {
             line: None,
             reason,
         };
-        let (nav_config, vehicle_name) = match vehicle {
-            Some(p) => (
-                crate::navigate::vehicle_config(p).map_err(invalid)?,
-                p.display().to_string(),
-            ),
-            None => (
-                toml::from_str::<NavigatorConfig>(AKIT_VEHICLE)
-                    .map_err(|e| data(Path::new("vehicles/akit.toml (embedded)"), e.to_string()))?,
-                "vehicles/akit.toml (embedded)".to_string(),
-            ),
-        };
+        let (nav_config, vehicle_name) = vehicle_config(vehicle)?;
         let dvl_offset = nav_config.dvl.time_offset_s;
+        // As `estim navigate --imu --dvl --vehicle --truth` reads them.
         let files = crate::navigate::SurveyFiles {
             imu: imu_path.to_path_buf(),
             dvl: Some(dvl_path.to_path_buf()),
-            beams: None,
-            pd0: None,
-            depth: None,
-            fixes: None,
             vehicle: vehicle.map(Path::to_path_buf),
             truth: Some(gt_path.to_path_buf()),
             init_from_truth: true,
+            ..Default::default()
         };
         let survey = crate::navigate::load_survey_from(files, nav_config).map_err(invalid)?;
         let truth = survey
@@ -282,19 +259,7 @@ impl Scenario {
             .filter(|&&t| t >= imu[0].time && t <= end)
             .map(|&t| reference(t).map(|(s, _)| (t, s)))
             .collect::<Result<Vec<_>>>()?;
-        let inputs = SurveyInputs {
-            imu: imu.clone(),
-            dvl: rows
-                .iter()
-                .map(|&time| DvlRecord {
-                    time,
-                    input: DvlInput::NoLock,
-                })
-                .collect(),
-            depth: Vec::new(),
-            fixes: Vec::new(),
-            output_epochs: truth_epochs.iter().map(|(t, _)| *t).collect(),
-        };
+        let inputs = variant_inputs(&imu, &rows, &truth_epochs);
         let imu_spec = *survey.settings.sensor_spec();
         let recorded = RecordedSurvey {
             vehicle: vehicle_name,
@@ -321,6 +286,48 @@ impl Scenario {
             imu_source: ImuSource::Recorded,
             recorded: Some(Arc::new(recorded)),
         })
+    }
+}
+
+/// The vehicle file a recorded IMU is read with (default the embedded
+/// [`AKIT_VEHICLE`]), and its name for reports.
+fn vehicle_config(vehicle: Option<&Path>) -> Result<(NavigatorConfig, String)> {
+    Ok(match vehicle {
+        Some(p) => (
+            crate::navigate::vehicle_config(p).map_err(PipelineError::Survey)?,
+            p.display().to_string(),
+        ),
+        None => (
+            toml::from_str::<NavigatorConfig>(AKIT_VEHICLE).map_err(|e| PipelineError::Data {
+                path: "vehicles/akit.toml (embedded)".into(),
+                line: None,
+                reason: e.to_string(),
+            })?,
+            "vehicles/akit.toml (embedded)".to_string(),
+        ),
+    })
+}
+
+/// The navigator's inputs of a variant run: the IMU, a placeholder row at each DVL
+/// row's stamp (each variant supplies its velocity there), and a solution at each of
+/// the reference's epochs.
+fn variant_inputs(
+    imu: &[ImuSample],
+    rows: &[f64],
+    truth_epochs: &[(f64, InsState)],
+) -> SurveyInputs {
+    SurveyInputs {
+        imu: imu.to_vec(),
+        dvl: rows
+            .iter()
+            .map(|&time| DvlRecord {
+                time,
+                input: DvlInput::NoLock,
+            })
+            .collect(),
+        depth: Vec::new(),
+        fixes: Vec::new(),
+        output_epochs: truth_epochs.iter().map(|(t, _)| *t).collect(),
     }
 }
 
@@ -530,20 +537,8 @@ fn run_on<E: NavigationModel<N>, const N: usize>(
         let r = estim_core::MeasurementModel::noise_covariance(nav.dvl_model(), nav.nominal())
             .map_err(|source| NavigatorError::Filter { time, source })?
             * nav.dvl_noise_scale().unwrap_or(1.0);
-        // The paper's M at rho = 1 on the INS states' accumulated noise (the IMU noise
-        // the measurement can share), zero on the DVL states.
-        let q_acc = nav.filter().accumulated_process_noise();
-        let ins_q = q_acc
-            .fixed_view::<ERROR_STATES, ERROR_STATES>(0, 0)
-            .clone_owned();
-        let mut unit = SMatrix::<f64, N, 3>::zeros();
-        unit.fixed_rows_mut::<ERROR_STATES>(0)
-            .copy_from(&ScaledCorrelation::unit(&ins_q, &r));
-        updates.largest_valid_rho.push(
-            JointCovariance::new(*q_acc, unit, r)
-                .largest_valid_scale()
-                .unwrap_or(f64::NAN),
-        );
+        let (unit, largest_valid_rho) = paper_unit(nav.filter().accumulated_process_noise(), &r);
+        updates.largest_valid_rho.push(largest_valid_rho);
         let fixed;
         let source: &DvlCross<'_, E::State, N> = match cross {
             CrossSource::Zero | CrossSource::ScaledPerStep(_) => &Zero,
@@ -600,6 +595,25 @@ fn run_on<E: NavigationModel<N>, const N: usize>(
     out.joint_min_eigenvalue = updates.joint_min_eigenvalue;
     out.largest_valid_rho = updates.largest_valid_rho;
     Ok(out)
+}
+
+/// The paper's M at rho = 1 on the INS states' accumulated noise `q_acc` (the IMU
+/// noise the measurement can share), zero on the DVL states; and the largest rho for
+/// which [[Q, rho M], [rho M', R]] is a covariance (NaN where none is found).
+fn paper_unit<const N: usize>(
+    q_acc: &SMatrix<f64, N, N>,
+    r: &Matrix3<f64>,
+) -> (SMatrix<f64, N, 3>, f64) {
+    let ins_q = q_acc
+        .fixed_view::<ERROR_STATES, ERROR_STATES>(0, 0)
+        .clone_owned();
+    let mut unit = SMatrix::<f64, N, 3>::zeros();
+    unit.fixed_rows_mut::<ERROR_STATES>(0)
+        .copy_from(&ScaledCorrelation::unit(&ins_q, r));
+    let largest = JointCovariance::new(*q_acc, unit, *r)
+        .largest_valid_scale()
+        .unwrap_or(f64::NAN);
+    (unit, largest)
 }
 
 /// A navigator's stop on a recorded survey as a variant's failure.

@@ -443,6 +443,38 @@ pub fn analyse(
         add(BEAMSNET, &l.velocities);
     }
 
+    let improvements = improvements_over_neglected(&filters);
+    let duration_s = match (scenario.truth.first(), scenario.truth.last()) {
+        (Some(a), Some(b)) => b.time - a.time,
+        _ => 0.0,
+    };
+    let truth_north_east = truth_north_east(scenario);
+    Ok(TrajectoryReport {
+        truth_north_east,
+        name: scenario.name.clone(),
+        trajectory: scenario.trajectory,
+        imu_source: scenario.imu_source,
+        recorded: scenario.recorded.as_ref().map(|r| {
+            serde_json::json!({
+                "vehicle": r.vehicle,
+                "truth_time_offset": r.truth_time_offset,
+                "nees_states": super::RECORDED_NEES_STATES,
+                "scored_at": "reference_epochs",
+            })
+        }),
+        duration_s,
+        dvl_epochs: scenario.dvl.len(),
+        velocity,
+        filters,
+        failures,
+        improvements,
+        runs,
+    })
+}
+
+/// The std improvements of each M-aware BeamsNet variant over M neglected (none
+/// without both), per group: time average and final value, in percent.
+fn improvements_over_neglected(filters: &[FilterSummary]) -> Vec<Improvement> {
     let mut improvements = Vec::new();
     if let Some(neglected) = filters.iter().find(|f| f.id == BEAMSNET_NEGLECTED) {
         for aware in filters
@@ -472,11 +504,13 @@ pub fn analyse(
             });
         }
     }
-    let duration_s = match (scenario.truth.first(), scenario.truth.last()) {
-        (Some(a), Some(b)) => b.time - a.time,
-        _ => 0.0,
-    };
-    let truth_north_east = match (&scenario.recorded, scenario.truth.first()) {
+    improvements
+}
+
+/// The reference's north-east track \[m\] from its first point: at its own epochs on a
+/// recorded IMU (where the runs are scored), else at the DVL epochs.
+fn truth_north_east(scenario: &Scenario) -> Vec<[f64; 2]> {
+    match (&scenario.recorded, scenario.truth.first()) {
         // Recorded: at the reference's epochs, where the runs are scored.
         (Some(recorded), _) => match recorded.truth_epochs.first() {
             Some((_, t0)) => {
@@ -509,28 +543,7 @@ pub fn analyse(
                 .collect()
         }
         (None, None) => Vec::new(),
-    };
-    Ok(TrajectoryReport {
-        truth_north_east,
-        name: scenario.name.clone(),
-        trajectory: scenario.trajectory,
-        imu_source: scenario.imu_source,
-        recorded: scenario.recorded.as_ref().map(|r| {
-            serde_json::json!({
-                "vehicle": r.vehicle,
-                "truth_time_offset": r.truth_time_offset,
-                "nees_states": super::RECORDED_NEES_STATES,
-                "scored_at": "reference_epochs",
-            })
-        }),
-        duration_s,
-        dvl_epochs: scenario.dvl.len(),
-        velocity,
-        filters,
-        failures,
-        improvements,
-        runs,
-    })
+    }
 }
 
 /// Run one filter variant (id `id`, labelled with [`filter_label`]): `Ok(Ok(run))`

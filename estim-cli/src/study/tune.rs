@@ -27,6 +27,31 @@ fn bits(v: &Vector3<f64>) -> [u64; 3] {
     [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()]
 }
 
+/// The trajectories `tune` fits on: at least one, none held out, none twice.
+fn check_trajectories(trajectories: &[u32], flag: &str) -> Result<()> {
+    if trajectories.is_empty() {
+        return Err(PipelineError::Argument {
+            flag: flag.into(),
+            reason: "no trajectory given".into(),
+        });
+    }
+    for (i, n) in trajectories.iter().enumerate() {
+        if AKIT_TEST_TRAJECTORIES.contains(n) {
+            return Err(PipelineError::HeldOut {
+                flag: flag.into(),
+                trajectory: *n,
+            });
+        }
+        if trajectories[..i].contains(n) {
+            return Err(PipelineError::Argument {
+                flag: flag.into(),
+                reason: format!("A-KIT trajectory {n} is given twice"),
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Fit on A-KIT `trajectories` under `dir` (module docs), from the configuration's
 /// noise values (IMU densities, beam noise of the protocol, the reference mismatch,
 /// rho = 0).
@@ -46,23 +71,7 @@ pub fn tune_akit(
         flag: FLAG.into(),
         reason: "no trajectory given".into(),
     };
-    if trajectories.is_empty() {
-        return Err(no_trajectory());
-    }
-    for (i, n) in trajectories.iter().enumerate() {
-        if AKIT_TEST_TRAJECTORIES.contains(n) {
-            return Err(PipelineError::HeldOut {
-                flag: FLAG.into(),
-                trajectory: *n,
-            });
-        }
-        if trajectories[..i].contains(n) {
-            return Err(PipelineError::Argument {
-                flag: FLAG.into(),
-                reason: format!("A-KIT trajectory {n} is given twice"),
-            });
-        }
-    }
+    check_trajectories(trajectories, FLAG)?;
     let mut test_rows = HashSet::new();
     for &n in &AKIT_TEST_TRAJECTORIES {
         let files = trajectory_files(dir, n)?;
