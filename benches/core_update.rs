@@ -320,6 +320,37 @@ fn predict_update(c: &mut Criterion<ThreadCpuTime>) {
             Zero,
         );
     }
+    bare_update_and_peer(c, cv);
+    floor_references(c, cv);
+    bench_estim(
+        c,
+        "estim KalmanFilter (15,3) predict+update",
+        estim_filter(random_model::<15, 3>(15), JointCheck::Skip),
+        Zero,
+    );
+    // The same with a nonzero M (the correlated path).
+    let model = random_model::<15, 3>(15);
+    // Valid: M' Q^-1 M <= 1e-6 / 1e-4 = 0.01 < R = 0.05.
+    let m = SMatrix::<f64, 15, 3>::from_fn(|i, j| if i == j { 1e-3 } else { 0.0 });
+    bench_estim(
+        c,
+        "estim KalmanFilter (15,3) predict+update, correlated (Fixed M)",
+        estim_filter(model, JointCheck::Skip),
+        Fixed(m),
+    );
+    bench_estim(
+        c,
+        "estim KalmanFilter (30,6) predict+update",
+        estim_filter(random_model::<30, 6>(30), JointCheck::Skip),
+        Zero,
+    );
+}
+
+/// The bare update function on a fixed prior, and adskalman's step (the peer).
+fn bare_update_and_peer(
+    c: &mut Criterion<ThreadCpuTime>,
+    cv: (Matrix4<f64>, Matrix4<f64>, Matrix2x4<f64>, Matrix2<f64>),
+) {
     {
         // The bare update function on a fixed prior (no runner, no prediction).
         let (f, q, h, r) = cv;
@@ -373,6 +404,13 @@ fn predict_update(c: &mut Criterion<ThreadCpuTime>) {
             },
         );
     }
+}
+
+/// The hand-written (4,2) floors (checked against estim first).
+fn floor_references(
+    c: &mut Criterion<ThreadCpuTime>,
+    cv: (Matrix4<f64>, Matrix4<f64>, Matrix2x4<f64>, Matrix2<f64>),
+) {
     floor_matches_estim(cv);
     let y = [0.0, 0.1];
     let mut reference = floor_filter(cv);
@@ -394,28 +432,6 @@ fn predict_update(c: &mut Criterion<ThreadCpuTime>) {
         c,
         "floor: hand-written (4,2) square-root-free step, LDL'(P), with the runner's checks and report (reference)",
         cv,
-    );
-    bench_estim(
-        c,
-        "estim KalmanFilter (15,3) predict+update",
-        estim_filter(random_model::<15, 3>(15), JointCheck::Skip),
-        Zero,
-    );
-    // The same with a nonzero M (the correlated path).
-    let model = random_model::<15, 3>(15);
-    // Valid: M' Q^-1 M <= 1e-6 / 1e-4 = 0.01 < R = 0.05.
-    let m = SMatrix::<f64, 15, 3>::from_fn(|i, j| if i == j { 1e-3 } else { 0.0 });
-    bench_estim(
-        c,
-        "estim KalmanFilter (15,3) predict+update, correlated (Fixed M)",
-        estim_filter(model, JointCheck::Skip),
-        Fixed(m),
-    );
-    bench_estim(
-        c,
-        "estim KalmanFilter (30,6) predict+update",
-        estim_filter(random_model::<30, 6>(30), JointCheck::Skip),
-        Zero,
     );
 }
 

@@ -27,7 +27,7 @@ use estim_core::{
 use estim_dvl::DvlVelocityModel;
 use estim_ins::{
     ErrorMatrix, ImuSample, ImuSpec, InsErrorModel, InsState, Mechanization, Mission,
-    MissionConfig, ERROR_STATES,
+    MissionConfig, SimulatedMission, ERROR_STATES,
 };
 
 /// Predicts per learned-style update (1 Hz against the 100 Hz IMU) and the window its
@@ -68,17 +68,54 @@ impl WindowedCrossCovariance<f64, InsState, ImuSample, ERROR_STATES, 3>
     }
 }
 
-fn benches(c: &mut Criterion<ThreadCpuTime>) {
-    let mission = Mission::generate(&MissionConfig::default(), 7).expect("default mission");
-    let dt = mission.imu_dt;
-    let model = InsErrorModel::new(ImuSpec::akit_observed());
-    let mech = Mechanization::new();
-    let start = mission.truth[0];
-    let p0 = ErrorMatrix::from_diagonal(&nalgebra::SVector::<f64, 15>::from_fn(|i, _| {
-        [1.0, 1e-2, 1e-6, 1e-6, 1e-10][i / 3]
-    }));
-    let n = mission.imu.len();
+/// The default 400 s mission and the filter's start, shared by the groups.
+struct Setup {
+    mission: SimulatedMission,
+    dt: f64,
+    model: InsErrorModel,
+    mech: Mechanization,
+    start: InsState,
+    p0: ErrorMatrix,
+    n: usize,
+}
 
+impl Setup {
+    fn new() -> Self {
+        let mission = Mission::generate(&MissionConfig::default(), 7).expect("default mission");
+        let p0 = ErrorMatrix::from_diagonal(&nalgebra::SVector::<f64, 15>::from_fn(|i, _| {
+            [1.0, 1e-2, 1e-6, 1e-6, 1e-10][i / 3]
+        }));
+        Self {
+            dt: mission.imu_dt,
+            model: InsErrorModel::new(ImuSpec::akit_observed()),
+            mech: Mechanization::new(),
+            start: mission.truth[0],
+            n: mission.imu.len(),
+            p0,
+            mission,
+        }
+    }
+}
+
+fn benches(c: &mut Criterion<ThreadCpuTime>) {
+    let setup = Setup::new();
+    step_benches(c, &setup);
+    mission_benches(c, &setup);
+    filter_benches(c, &setup);
+}
+
+/// One IMU step's parts, and the peer's predict.
+fn step_benches(c: &mut Criterion<ThreadCpuTime>, setup: &Setup) {
+    let Setup {
+        mission,
+        dt,
+        model,
+        mech,
+        start,
+        p0,
+        n,
+    } = setup;
+    let (dt, start, p0, n) = (*dt, *start, *p0, *n);
     let mut g = c.benchmark_group("ins_step");
     g.throughput(criterion::Throughput::Elements(1));
     g.bench_function("mechanization", |b| {
@@ -176,7 +213,20 @@ fn benches(c: &mut Criterion<ThreadCpuTime>) {
         });
     });
     g.finish();
+}
 
+/// The whole 400 s mission, and the peer's.
+fn mission_benches(c: &mut Criterion<ThreadCpuTime>, setup: &Setup) {
+    let Setup {
+        mission,
+        dt,
+        model,
+        mech,
+        start,
+        p0,
+        ..
+    } = setup;
+    let (dt, start, p0) = (*dt, *start, *p0);
     let mut g = c.benchmark_group("ins_mission_400s_100hz");
     g.sample_size(10);
     g.bench_function("mechanization+covariance every step", |b| {
@@ -242,9 +292,20 @@ fn benches(c: &mut Criterion<ThreadCpuTime>) {
         });
     });
     g.finish();
+}
 
-    // The error-state filter over the same mission with a learned-style DVL velocity
-    // update every second (WINDOW predicts), without and with the exact windowed M.
+/// The error-state filter over the same mission with a learned-style DVL velocity
+/// update every second (WINDOW predicts), without and with the exact windowed M.
+fn filter_benches(c: &mut Criterion<ThreadCpuTime>, setup: &Setup) {
+    let Setup {
+        mission,
+        dt,
+        start,
+        p0,
+        n,
+        ..
+    } = setup;
+    let (dt, start, p0, n) = (*dt, *start, *p0, *n);
     let spec = ImuSpec::akit_observed();
     let dvl = DvlVelocityModel::builder()
         .lever_arm(nalgebra::Vector3::new(0.5, 0.0, 0.3))

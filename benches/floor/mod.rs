@@ -110,22 +110,7 @@ impl<const N: usize> Filter<N> {
         y: &[f64; 2],
         report: &mut Report<N>,
     ) -> Result<f64, &'static str> {
-        let ldl = LDL;
-        let fp = product(&self.f, &self.p);
-        let mut p = product_transposed(&fp, &self.f);
-        for j in 0..N {
-            for i in 0..=j {
-                let v = p[j][i] + self.q[j][i];
-                p[j][i] = v;
-                p[i][j] = v;
-            }
-        }
-        let mut x = [0.0; N];
-        for k in 0..N {
-            for i in 0..N {
-                x[i] += self.f[k][i] * self.x[k];
-            }
-        }
+        let (mut x, p) = self.predicted();
         if CHECKED {
             if !finite(&x) {
                 return Err("predicted state");
@@ -188,68 +173,8 @@ impl<const N: usize> Filter<N> {
                 x[i] += k[kk][i] * nu[kk];
             }
         }
-        // The factor of P: L (and D for LDL').
-        let mut l = [[0.0; N]; N];
-        let mut pivots = [1.0; N];
-        let tolerance = 16.0 * (N + 2) as f64 * f64::EPSILON;
-        for j in 0..N {
-            let mut pivot = p[j][j];
-            for kk in 0..j {
-                pivot -= l[kk][j] * l[kk][j] * if ldl { pivots[kk] } else { 1.0 };
-            }
-            if CHECKED
-                && !(pivot.is_finite()
-                    & (pivot > tolerance * p[j][j].abs())
-                    & (1.0 / pivot).is_finite())
-            {
-                return Err("covariance factor: a pivot not clearly positive");
-            }
-            let inverse = if ldl {
-                pivots[j] = pivot;
-                l[j][j] = 1.0;
-                1.0 / pivot
-            } else {
-                let root = pivot.sqrt();
-                l[j][j] = root;
-                root * (1.0 / pivot)
-            };
-            for i in (j + 1)..N {
-                let mut v = p[j][i];
-                for kk in 0..j {
-                    v -= l[kk][i] * l[kk][j] * if ldl { pivots[kk] } else { 1.0 };
-                }
-                l[j][i] = v * inverse;
-            }
-        }
-        let hl = product(&self.h, &l);
-        let khl = product(&k, &hl);
-        let mut b1 = l;
-        for j in 0..N {
-            for i in 0..N {
-                b1[j][i] -= khl[j][i];
-            }
-        }
-        let (r_factor, r_pivots) = if ldl {
-            (&self.r_unit, self.r_pivots)
-        } else {
-            (&self.r_factor, [1.0; 2])
-        };
-        let b2 = product(&k, r_factor);
-        let mut out = [[0.0; N]; N];
-        for j in 0..N {
-            for kk in 0..N {
-                let w = b1[kk][j] * pivots[kk];
-                for i in 0..N {
-                    out[j][i] += b1[kk][i] * w;
-                }
-            }
-            for kk in 0..2 {
-                let w = b2[kk][j] * r_pivots[kk];
-                for i in 0..N {
-                    out[j][i] += b2[kk][i] * w;
-                }
-            }
-        }
+        let (l, pivots) = factor::<N, LDL, CHECKED>(&p)?;
+        let out = self.posterior_covariance::<LDL>(&l, &pivots, &k);
         if CHECKED {
             if !finite(&x) {
                 return Err("posterior state");
@@ -269,6 +194,68 @@ impl<const N: usize> Filter<N> {
         self.p = out;
         self.x = x;
         Ok(nis)
+    }
+
+    /// x = F x, P = F P F' + Q (symmetric).
+    #[inline(always)]
+    fn predicted(&self) -> ([f64; N], [[f64; N]; N]) {
+        let fp = product(&self.f, &self.p);
+        let mut p = product_transposed(&fp, &self.f);
+        for j in 0..N {
+            for i in 0..=j {
+                let v = p[j][i] + self.q[j][i];
+                p[j][i] = v;
+                p[i][j] = v;
+            }
+        }
+        let mut x = [0.0; N];
+        for k in 0..N {
+            for i in 0..N {
+                x[i] += self.f[k][i] * self.x[k];
+            }
+        }
+        (x, p)
+    }
+
+    /// P+ = B1 D B1' + B2 D_R B2' with B1 = (I - K H) L, B2 = K L_R (`pivots` = D,
+    /// all ones for chol(P)).
+    #[inline(always)]
+    fn posterior_covariance<const LDL: bool>(
+        &self,
+        l: &[[f64; N]; N],
+        pivots: &[f64; N],
+        k: &[[f64; N]; 2],
+    ) -> [[f64; N]; N] {
+        let hl = product(&self.h, l);
+        let khl = product(k, &hl);
+        let mut b1 = *l;
+        for j in 0..N {
+            for i in 0..N {
+                b1[j][i] -= khl[j][i];
+            }
+        }
+        let (r_factor, r_pivots) = if LDL {
+            (&self.r_unit, self.r_pivots)
+        } else {
+            (&self.r_factor, [1.0; 2])
+        };
+        let b2 = product(k, r_factor);
+        let mut out = [[0.0; N]; N];
+        for j in 0..N {
+            for kk in 0..N {
+                let w = b1[kk][j] * pivots[kk];
+                for i in 0..N {
+                    out[j][i] += b1[kk][i] * w;
+                }
+            }
+            for kk in 0..2 {
+                let w = b2[kk][j] * r_pivots[kk];
+                for i in 0..N {
+                    out[j][i] += b2[kk][i] * w;
+                }
+            }
+        }
+        out
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -315,4 +302,45 @@ impl<const N: usize> Filter<N> {
     ) -> Result<f64, &'static str> {
         self.dispatch::<LDL, true>(y, report)
     }
+}
+
+/// The factor of P: L (and D for LDL', `LDL`); with `CHECKED`, each pivot finite and
+/// above 16 (N + 2) eps P_jj.
+#[inline(always)]
+fn factor<const N: usize, const LDL: bool, const CHECKED: bool>(
+    p: &[[f64; N]; N],
+) -> Result<([[f64; N]; N], [f64; N]), &'static str> {
+    let mut l = [[0.0; N]; N];
+    let mut pivots = [1.0; N];
+    let tolerance = 16.0 * (N + 2) as f64 * f64::EPSILON;
+    for j in 0..N {
+        let mut pivot = p[j][j];
+        for kk in 0..j {
+            pivot -= l[kk][j] * l[kk][j] * if LDL { pivots[kk] } else { 1.0 };
+        }
+        if CHECKED
+            && !(pivot.is_finite()
+                & (pivot > tolerance * p[j][j].abs())
+                & (1.0 / pivot).is_finite())
+        {
+            return Err("covariance factor: a pivot not clearly positive");
+        }
+        let inverse = if LDL {
+            pivots[j] = pivot;
+            l[j][j] = 1.0;
+            1.0 / pivot
+        } else {
+            let root = pivot.sqrt();
+            l[j][j] = root;
+            root * (1.0 / pivot)
+        };
+        for i in (j + 1)..N {
+            let mut v = p[j][i];
+            for kk in 0..j {
+                v -= l[kk][i] * l[kk][j] * if LDL { pivots[kk] } else { 1.0 };
+            }
+            l[j][i] = v * inverse;
+        }
+    }
+    Ok((l, pivots))
 }

@@ -426,20 +426,7 @@ impl Calibrator {
         dvl: &[DvlMeasurement],
     ) -> Result<Calibration> {
         let reference = Reference::new(trajectory)?;
-        for (i, m) in dvl.iter().enumerate() {
-            if !(m.time.is_finite() && m.velocity.iter().all(|x| x.is_finite())) {
-                return Err(Error::InvalidData {
-                    what: "DVL log",
-                    reason: format!("sample {i} holds a non-finite value"),
-                });
-            }
-            if i > 0 && m.time <= dvl[i - 1].time {
-                return Err(Error::InvalidData {
-                    what: "DVL log",
-                    reason: format!("time does not increase at sample {i}"),
-                });
-            }
-        }
+        check_dvl_log(dvl)?;
         let margin = if self.estimate_time_offset {
             self.max_time_offset
         } else {
@@ -473,23 +460,11 @@ impl Calibrator {
         let zero = Params::zeros();
         let uncalibrated = axis_rms(&problem.residuals(&zero));
 
-        // Grid search over the time offset, other parameters fitted at each point.
-        let mut start = zero;
-        if self.estimate_time_offset {
-            let others: Vec<usize> = (0..7).collect();
-            let steps = (self.max_time_offset / self.time_offset_grid_step).floor() as i64;
-            let mut best = f64::INFINITY;
-            for s in -steps..=steps {
-                let mut p = zero;
-                p[7] = s as f64 * self.time_offset_grid_step;
-                let (p, _) = problem.fit(&p, &others, 10, self.max_time_offset)?;
-                let cost = problem.residuals(&p).norm_squared();
-                if cost < best {
-                    best = cost;
-                    start = p;
-                }
-            }
-        }
+        let start = if self.estimate_time_offset {
+            self.time_offset_grid_start(&problem)?
+        } else {
+            zero
+        };
         let (mut p, mut iterations) =
             problem.fit(&start, &free, self.max_iterations, self.max_time_offset)?;
         if self.weight_axes {
@@ -543,6 +518,48 @@ impl Calibrator {
             iterations,
         })
     }
+}
+
+impl Calibrator {
+    /// The start of the joint fit: the time offset located on a grid, the other
+    /// parameters fitted (10 iterations) at each grid point; the lowest cost wins.
+    fn time_offset_grid_start(&self, problem: &Problem<'_>) -> Result<Params> {
+        let zero = Params::zeros();
+        let mut start = zero;
+        let others: Vec<usize> = (0..7).collect();
+        let steps = (self.max_time_offset / self.time_offset_grid_step).floor() as i64;
+        let mut best = f64::INFINITY;
+        for s in -steps..=steps {
+            let mut p = zero;
+            p[7] = s as f64 * self.time_offset_grid_step;
+            let (p, _) = problem.fit(&p, &others, 10, self.max_time_offset)?;
+            let cost = problem.residuals(&p).norm_squared();
+            if cost < best {
+                best = cost;
+                start = p;
+            }
+        }
+        Ok(start)
+    }
+}
+
+/// A DVL log's values are finite and its times increase.
+fn check_dvl_log(dvl: &[DvlMeasurement]) -> Result<()> {
+    for (i, m) in dvl.iter().enumerate() {
+        if !(m.time.is_finite() && m.velocity.iter().all(|x| x.is_finite())) {
+            return Err(Error::InvalidData {
+                what: "DVL log",
+                reason: format!("sample {i} holds a non-finite value"),
+            });
+        }
+        if i > 0 && m.time <= dvl[i - 1].time {
+            return Err(Error::InvalidData {
+                what: "DVL log",
+                reason: format!("time does not increase at sample {i}"),
+            });
+        }
+    }
+    Ok(())
 }
 
 fn axis_rms(r: &DVector<f64>) -> Vector3<f64> {

@@ -237,6 +237,67 @@ impl UpdateRecord {
     }
 }
 
+/// The buffers of the smoother gain G (allocated once per backward pass).
+struct GainBuffers {
+    factor: DMatrix<f64>,
+    inverse_factor: DMatrix<f64>,
+    inverse_factor_t: DMatrix<f64>,
+    scratch: DMatrix<f64>,
+}
+
+impl GainBuffers {
+    fn new(n: usize) -> Self {
+        Self {
+            factor: DMatrix::zeros(n, n),
+            inverse_factor: DMatrix::zeros(n, n),
+            inverse_factor_t: DMatrix::zeros(n, n),
+            scratch: DMatrix::zeros(n, n),
+        }
+    }
+
+    /// G' = P_{k+1}^-1 C' = W' (W C') into `gain_t`, with `covariance` = P_{k+1} = L L'
+    /// (the filtered covariance after `step` = k + 1), W = L^-1: two blocked products
+    /// instead of two triangular solves with n right-hand sides.
+    fn gain_t(
+        &mut self,
+        covariance: DMatrixView<'_, f64>,
+        cross_cov: &DMatrix<f64>,
+        gain_t: &mut DMatrix<f64>,
+        step: usize,
+    ) -> Result<()> {
+        self.factor.copy_from(&covariance);
+        let not_positive_definite = || Error::InvalidCovariance {
+            what: "filtered covariance (smoother gain)",
+            reason: format!("not positive definite after step {step}"),
+        };
+        let chol = Cholesky::new(std::mem::replace(&mut self.factor, DMatrix::zeros(0, 0)))
+            .ok_or_else(not_positive_definite)?;
+        self.factor = chol.unpack_dirty();
+        if !lower_inverse_into(&self.factor, &mut self.inverse_factor) {
+            return Err(not_positive_definite());
+        }
+        self.inverse_factor.transpose_to(&mut self.inverse_factor_t);
+        cross_cov.transpose_to(gain_t);
+        gemm_triangular(
+            &mut self.scratch,
+            1.0,
+            &self.inverse_factor,
+            Triangle::Lower,
+            &*gain_t,
+            0.0,
+        );
+        gemm_triangular(
+            gain_t,
+            1.0,
+            &self.inverse_factor_t,
+            Triangle::Upper,
+            &self.scratch,
+            0.0,
+        );
+        Ok(())
+    }
+}
+
 /// The fixed-interval smoother's backward pass over a recorded forward pass (the
 /// formulas of [`DynKalmanFilter::filter_and_smooth`]), with the transition and the
 /// observation of each step given transposed: `transition_t(k)` is F' of the predict
@@ -260,10 +321,7 @@ pub(super) fn smooth_backward<'a>(
     let mut gain_t = DMatrix::<f64>::zeros(n, n);
     let mut gain = DMatrix::<f64>::zeros(n, n);
     let mut ch_t = DMatrix::<f64>::zeros(m, n);
-    let mut factor = DMatrix::<f64>::zeros(n, n);
-    let mut inverse_factor = DMatrix::<f64>::zeros(n, n);
-    let mut inverse_factor_t = DMatrix::<f64>::zeros(n, n);
-    let mut scratch = DMatrix::<f64>::zeros(n, n);
+    let mut gain_buffers = GainBuffers::new(n);
     let mut difference = DMatrix::<f64>::zeros(n, n);
     let mut product = DMatrix::<f64>::zeros(n, n);
     let mut ch = DMatrix::<f64>::zeros(n, m);
@@ -306,38 +364,12 @@ pub(super) fn smooth_backward<'a>(
             gemm_upper(&mut previous_cov, -1.0, &a, &ch_t, 1.0);
             gemm(&mut cross_cov, -1.0, &ch, kt, 1.0);
         }
-        // G' = P_{k+1}^-1 C' = W' (W C'), P_{k+1} = L L' (the filtered covariance
-        // after step k + 1), W = L^-1: two blocked products instead of two
-        // triangular solves with n right-hand sides.
-        factor.copy_from(&filtered.estimates.covariance(k));
-        let not_positive_definite = || Error::InvalidCovariance {
-            what: "filtered covariance (smoother gain)",
-            reason: format!("not positive definite after step {}", k + 1),
-        };
-        let chol = Cholesky::new(std::mem::replace(&mut factor, DMatrix::zeros(0, 0)))
-            .ok_or_else(not_positive_definite)?;
-        factor = chol.unpack_dirty();
-        if !lower_inverse_into(&factor, &mut inverse_factor) {
-            return Err(not_positive_definite());
-        }
-        inverse_factor.transpose_to(&mut inverse_factor_t);
-        cross_cov.transpose_to(&mut gain_t);
-        gemm_triangular(
-            &mut scratch,
-            1.0,
-            &inverse_factor,
-            Triangle::Lower,
-            &gain_t,
-            0.0,
-        );
-        gemm_triangular(
+        gain_buffers.gain_t(
+            filtered.estimates.covariance(k),
+            &cross_cov,
             &mut gain_t,
-            1.0,
-            &inverse_factor_t,
-            Triangle::Upper,
-            &scratch,
-            0.0,
-        );
+            k + 1,
+        )?;
         // e^s_k = shift + G e^s_{k+1}.
         next_correction.copy_from(&shift);
         next_correction.gemv_tr(1.0, &gain_t, &correction, 1.0);

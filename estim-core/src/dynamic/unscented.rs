@@ -563,23 +563,13 @@ impl DynUnscentedKalmanFilter {
         let pass = &mut ws.measurement;
         // P_xy = sum_i W (chi_i - x) d_i' summed point by point as the static update
         // sums it (the e part cancels over each +/- pair).
-        let gamma = weights.gamma;
-        ws.pxy.fill(0.0);
-        for j in 0..n {
-            for (k, sign) in [1.0, -1.0].into_iter().enumerate() {
-                let g = gamma * sign;
-                let d = if k == 0 {
-                    &pass.plus_all
-                } else {
-                    &pass.minus_all
-                };
-                for c in 0..m {
-                    for r in 0..n {
-                        ws.pxy[(r, c)] += ws.factor[(r, j)] * g * d[(c, j)] * weights.other;
-                    }
-                }
-            }
-        }
+        sum_state_measurement_products(
+            &mut ws.pxy,
+            &ws.factor,
+            [&pass.plus_all, &pass.minus_all],
+            weights.gamma,
+            weights.other,
+        );
         if let Some(c) = correlated {
             gemm(
                 &mut ws.linearised_cross,
@@ -651,5 +641,29 @@ impl DynUnscentedKalmanFilter {
             joint_min_eigenvalue,
             gate_threshold: None,
         })
+    }
+}
+
+/// P_xy = sum_i W (chi_i - x) d_i' over the +/- sigma points of `factor`'s columns
+/// (chi_i - x = +/- gamma column j; `deviations` the measurement deviations d of the
+/// plus and the minus points), summed point by point.
+fn sum_state_measurement_products(
+    pxy: &mut DMatrix<f64>,
+    factor: &DMatrix<f64>,
+    deviations: [&DMatrix<f64>; 2],
+    gamma: f64,
+    weight: f64,
+) {
+    let (n, m) = pxy.shape();
+    pxy.fill(0.0);
+    for j in 0..n {
+        for (d, sign) in deviations.into_iter().zip([1.0, -1.0]) {
+            let g = gamma * sign;
+            for c in 0..m {
+                for r in 0..n {
+                    pxy[(r, c)] += factor[(r, j)] * g * d[(c, j)] * weight;
+                }
+            }
+        }
     }
 }

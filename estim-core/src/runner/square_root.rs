@@ -248,6 +248,25 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
         )
     }
 
+    /// A nonzero one-step M needs [[Q_acc, M], [M', R]] positive semidefinite, checked
+    /// on the tracked accumulated process noise.
+    fn check_one_step_cross(&self, cross: &SMatrix<T, N, M>) -> Result<()> {
+        if all_zero(cross.as_slice()) {
+            return Ok(());
+        }
+        if !self.shared.config.track_accumulated_noise() {
+            return Err(Error::NotTracked {
+                what: "accumulated process noise (the square-root filter's joint check)",
+                hint: "FilterConfig::builder().track_accumulated_noise(true)",
+            });
+        }
+        check_joint_factor(
+            self.shared.accumulated.noise(),
+            cross,
+            &self.measurement_noise,
+        )
+    }
+
     fn update_from<C, W>(
         &mut self,
         measurement: &SVector<T, M>,
@@ -276,18 +295,8 @@ impl<T: Scalar, const N: usize, const M: usize, O: Observer<T, SVector<T, N>, N>
             Some(self.measurement_certificate),
             &mut report,
         )?;
-        if windowed.is_none() && !all_zero(report.cross_covariance.as_slice()) {
-            if !self.shared.config.track_accumulated_noise() {
-                return Err(Error::NotTracked {
-                    what: "accumulated process noise (the square-root filter's joint check)",
-                    hint: "FilterConfig::builder().track_accumulated_noise(true)",
-                });
-            }
-            check_joint_factor(
-                self.shared.accumulated.noise(),
-                &report.cross_covariance,
-                &self.measurement_noise,
-            )?;
+        if windowed.is_none() {
+            self.check_one_step_cross(&report.cross_covariance)?;
         }
         report.innovation = measurement - mul_static(h, &x) - report.noise_mean;
         let update = |factor: &SMatrix<T, N, N>| {
