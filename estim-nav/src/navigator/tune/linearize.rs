@@ -2,6 +2,8 @@
 //! DVL epochs ([`linearize`]; the parent module's docs derive the model).
 
 use super::*;
+use crate::navigator::{run_epochs, EpochHook, Navigator, NavigatorConfig, Tail};
+use estim_core::NoObserver;
 
 /// One DVL epoch of the linearized model (module docs).
 #[derive(Debug, Clone)]
@@ -37,8 +39,8 @@ impl Linearization {
     }
 }
 
-/// Run the error-state filter over `trajectory` at `theta` (no gate) and record its
-/// linearization (module docs).
+/// Run the navigator over `trajectory` at `theta` (no gate; the one IMU loop,
+/// [`run_epochs`]) and record its linearization (module docs).
 ///
 /// # Errors
 /// [`NavigatorError::InvalidValue`] for an invalid theta, an IMU period that is not positive,
@@ -62,102 +64,88 @@ pub fn linearize(
             format!("IMU period {period} s is not positive and finite"),
         ));
     }
+    let imu = trajectory.imu;
+    let (Some(first), Some(last)) = (imu.first(), imu.last()) else {
+        return Err(NavigatorError::invalid("tune", "no IMU samples"));
+    };
+    check_imu_times(imu, period)?;
     let spec = model.filter_spec(theta)?;
     let r = model.measurement_noise(theta);
     let dvl = model.dvl_with_noise(r)?;
-    let cross = ScaledCorrelation {
-        rho: theta[M_SCALE],
-    };
-    let mut filter = ErrorStateKalmanFilter::new(
-        InsErrorModel::new(spec),
-        trajectory.initial,
-        trajectory.covariance,
-    )?
-    // Reported, not refused (estim-core's default refuses an invalid M): the
-    // linearisation pass records the joint margin of each update as before.
-    .with_config(
-        FilterConfig::builder()
+    let settings = NavigatorSettings {
+        config: NavigatorConfig::default(),
+        sensor_spec: model.sensor_spec,
+        filter_spec: spec,
+        // No gate. The joint check is reported, not refused (estim-core's default
+        // refuses an invalid M): the pass records the joint margin of each update.
+        filter_config: FilterConfig::builder()
             .joint_check(JointCheck::Report)
             .build()?,
-    );
-    let imu = trajectory.imu;
-    let Some(first) = imu.first() else {
-        return Err(NavigatorError::invalid("tune", "no IMU samples"));
+        dvl: dvl.clone(),
+        geometry: model.geometry.clone(),
+        dvl_noise_scale: None,
     };
-    let tolerance = IMU_PERIOD_SNAP * period;
-    let mut recorder = Recorder::new(noise_parts(&spec)?, period);
-    let mut epochs = Vec::with_capacity(trajectory.dvl.len());
-    let mut largest_valid_rho = f64::INFINITY;
-    let mut clock = first.time;
-    let mut next = 0;
-    for (j, sample) in imu.iter().enumerate() {
-        let last = j + 1 == imu.len();
-        let end = imu.get(j + 1).map_or(sample.time + period, |s| s.time);
-        if !(end.is_finite() && end > sample.time) {
+    // The clock starts at the first sample, which is held from there.
+    let initial = InsState {
+        time: first.time,
+        ..trajectory.initial
+    };
+    let mut nav = Navigator::new(&settings, initial, trajectory.covariance, period)?;
+    let mut recorder = Recorder {
+        parts: noise_parts(&spec)?,
+        dvl,
+        r,
+        cross: ScaledCorrelation {
+            rho: theta[M_SCALE],
+        },
+        imu_end: last.time + period,
+        tolerance: IMU_PERIOD_SNAP * period,
+        clock: nav.clock(),
+        before: initial,
+        phi_acc: ErrorMatrix::identity(),
+        q_acc: [ErrorMatrix::zeros(); 3],
+        reset: ErrorMatrix::identity(),
+        correction: SVector::zeros(),
+        epochs: Vec::with_capacity(trajectory.dvl.len()),
+        largest_valid_rho: f64::INFINITY,
+    };
+    run_epochs(
+        &mut nav,
+        imu,
+        trajectory.dvl.iter().copied(),
+        &mut recorder,
+        Tail::StopAtLastEpoch,
+    )?;
+    Ok(Linearization {
+        epochs: recorder.epochs,
+        covariance: trajectory.covariance,
+        theta: *theta,
+        filter_log_likelihood: nav.filter().log_likelihood(),
+        largest_valid_rho: recorder.largest_valid_rho,
+    })
+}
+
+/// IMU times finite and increasing.
+fn check_imu_times(imu: &[ImuSample], period: f64) -> Result<()> {
+    for (j, pair) in imu.windows(2).enumerate() {
+        let (sample, end) = (pair[0].time, pair[1].time);
+        if !(sample.is_finite() && end.is_finite() && end > sample) {
             return Err(NavigatorError::invalid(
                 "tune",
                 format!(
-                    "IMU sample {} at t = {end} s does not follow sample {j} at t = {} s",
-                    j + 1,
-                    sample.time
+                    "IMU sample {} at t = {end} s does not follow sample {j} at t = {sample} s",
+                    j + 1
                 ),
             ));
         }
-        while let Some(&(time, y)) = trajectory.dvl.get(next) {
-            // A measurement at the next sample's time belongs to the next interval.
-            let inside = time < end - tolerance || (last && time <= end + tolerance);
-            if !inside {
-                break;
-            }
-            if !(time.is_finite() && time >= clock - tolerance) {
-                return Err(NavigatorError::invalid(
-                    "tune",
-                    format!(
-                        "DVL measurement {next} at t = {time} s is before t = {clock} s \
-                     (out of order, or before the first IMU sample)"
-                    ),
-                ));
-            }
-            if time - clock > tolerance {
-                recorder.step(&mut filter, sample, time - clock)?;
-                clock = time;
-            }
-            let fail = |source| NavigatorError::Filter { time, source };
-            largest_valid_rho = largest_valid_rho.min(
-                ScaledCorrelation::largest_valid_rho(filter.accumulated_process_noise(), &r)
-                    .map_err(fail)?,
-            );
-            epochs.push(
-                recorder
-                    .update(&mut filter, &dvl, &y, &cross)
-                    .map_err(fail)?,
-            );
-            next += 1;
-        }
-        if last {
-            break;
-        }
-        if end - clock > tolerance {
-            recorder.step(&mut filter, sample, end - clock)?;
-            clock = end;
-        }
     }
-    if let Some(&(time, _)) = trajectory.dvl.get(next) {
+    if let Some(last) = imu.last().filter(|s| !(s.time + period).is_finite()) {
         return Err(NavigatorError::invalid(
             "tune",
-            format!(
-                "DVL measurement {next} at t = {time} s is beyond the IMU's end (t = {} s)",
-                clock.max(imu.last().map_or(clock, |s| s.time + period))
-            ),
+            format!("IMU sample at t = {} s is not finite", last.time),
         ));
     }
-    Ok(Linearization {
-        epochs,
-        covariance: trajectory.covariance,
-        theta: *theta,
-        filter_log_likelihood: filter.log_likelihood(),
-        largest_valid_rho,
-    })
+    Ok(())
 }
 
 /// One error model per part of Q_d (white accelerometer noise, white gyroscope
@@ -187,83 +175,111 @@ fn noise_parts(spec: &ImuSpec) -> Result<[InsErrorModel; 3]> {
     ])
 }
 
-/// What [`linearize`] records between and at DVL epochs: Phi and the parts of Q_d
-/// accumulated since the last epoch, the last correction and its reset Jacobian.
+/// The hook of [`linearize`]'s run: records, between and at DVL epochs, Phi and the
+/// parts of Q_d accumulated since the last epoch (from each step the navigator takes,
+/// [`Navigator::last_step`]), the last correction and its reset Jacobian, and applies
+/// the DVL updates.
 struct Recorder {
     parts: [InsErrorModel; 3],
-    period: f64,
+    dvl: DvlVelocityModel,
+    r: Matrix3<f64>,
+    cross: ScaledCorrelation<f64>,
+    /// The last sample's time plus a period: no DVL epoch after it (within tolerance).
+    imu_end: f64,
     tolerance: f64,
+    /// The navigator's clock and nominal when the recorder last saw it.
+    clock: f64,
+    before: InsState,
     phi_acc: ErrorMatrix,
     q_acc: [ErrorMatrix; 3],
     reset: ErrorMatrix,
     correction: SVector<f64, ERROR_STATES>,
+    epochs: Vec<Epoch>,
+    largest_valid_rho: f64,
 }
 
 impl Recorder {
-    fn new(parts: [InsErrorModel; 3], period: f64) -> Self {
-        Self {
-            parts,
-            period,
-            tolerance: IMU_PERIOD_SNAP * period,
-            phi_acc: ErrorMatrix::identity(),
-            q_acc: [ErrorMatrix::zeros(); 3],
-            reset: ErrorMatrix::identity(),
-            correction: SVector::zeros(),
+    /// Record the step the navigator took since the recorder last saw it (if any):
+    /// Phi and the parts of Q_d at the nominal before it, with its sample and dt.
+    fn record_step(&mut self, nav: &Navigator) {
+        if nav.clock() != self.clock {
+            if let Some((sample, dt)) = nav.last_step() {
+                let mut phi = ErrorMatrix::identity();
+                for (q, model) in self.q_acc.iter_mut().zip(&self.parts) {
+                    let (p, qd) = model.transition_and_noise(&self.before, sample, dt);
+                    *q = model.propagate_covariance(q, &p, &qd);
+                    phi = p;
+                }
+                self.phi_acc = self.parts[0].compose_transitions(&phi, &self.phi_acc);
+            }
         }
+        self.clock = nav.clock();
+        self.before = *nav.ins();
+    }
+}
+
+impl EpochHook<InsErrorModel, NoObserver, ERROR_STATES> for Recorder {
+    type Measurement = Vector3<f64>;
+    type Error = NavigatorError;
+
+    fn before_epoch(&mut self, nav: &Navigator, time: f64) -> Result<()> {
+        let index = self.epochs.len();
+        if !(time.is_finite() && time >= nav.clock() - self.tolerance) {
+            return Err(NavigatorError::invalid(
+                "tune",
+                format!(
+                    "DVL measurement {index} at t = {time} s is before t = {} s \
+                     (out of order, or before the first IMU sample)",
+                    nav.clock()
+                ),
+            ));
+        }
+        if time > self.imu_end + self.tolerance {
+            return Err(NavigatorError::invalid(
+                "tune",
+                format!(
+                    "DVL measurement {index} at t = {time} s is beyond the IMU's end (t = {} s)",
+                    self.imu_end
+                ),
+            ));
+        }
+        Ok(())
     }
 
-    /// Integrate `sample` over dt (the period when within the snap tolerance of it),
-    /// recording Phi and the parts of Q_d.
-    fn step(
-        &mut self,
-        filter: &mut ErrorStateKalmanFilter<f64, InsErrorModel, ERROR_STATES>,
-        sample: &ImuSample,
-        mut dt: f64,
-    ) -> Result<()> {
-        if (dt - self.period).abs() <= self.tolerance {
-            dt = self.period;
-        }
-        let before = *filter.nominal();
-        filter
-            .predict(sample, dt)
-            .map_err(|source| NavigatorError::Filter {
-                time: before.time,
-                source,
-            })?;
-        let mut phi = ErrorMatrix::identity();
-        for (q, model) in self.q_acc.iter_mut().zip(&self.parts) {
-            let (p, qd) = model.transition_and_noise(&before, sample, dt);
-            *q = model.propagate_covariance(q, &p, &qd);
-            phi = p;
-        }
-        self.phi_acc = self.parts[0].compose_transitions(&phi, &self.phi_acc);
+    fn on_sample(&mut self, nav: &Navigator, _sample: &ImuSample) -> Result<()> {
+        self.record_step(nav);
         Ok(())
     }
 
     /// The DVL update `y` and its epoch of the linearized model; the accumulation
     /// starts again.
-    fn update(
-        &mut self,
-        filter: &mut ErrorStateKalmanFilter<f64, InsErrorModel, ERROR_STATES>,
-        dvl: &DvlVelocityModel,
-        y: &Vector3<f64>,
-        cross: &ScaledCorrelation<f64>,
-    ) -> estim_core::Result<Epoch> {
-        let before = *filter.nominal();
-        let jacobian = dvl.jacobian(&before)?;
-        let report = filter.update(dvl, y, cross)?;
+    fn on_epoch(&mut self, nav: &mut Navigator, time: f64, y: Vector3<f64>) -> Result<()> {
+        self.record_step(nav);
+        let fail = |source| NavigatorError::Filter { time, source };
+        self.largest_valid_rho = self.largest_valid_rho.min(
+            ScaledCorrelation::largest_valid_rho(nav.filter().accumulated_process_noise(), &self.r)
+                .map_err(fail)?,
+        );
+        let before = *nav.ins();
+        let jacobian = self.dvl.jacobian(&before).map_err(fail)?;
+        let report = nav.dvl_velocity_with(time, &y, &self.dvl, &self.cross)?;
         let transition = self.phi_acc * self.reset;
-        let epoch = Epoch {
+        self.epochs.push(Epoch {
             control: -(transition * self.correction),
             transition,
             noise: self.q_acc,
             jacobian,
             innovation: report.innovation,
-        };
+        });
         self.correction = report.correction.unwrap_or_else(SVector::zeros);
-        self.reset = filter.process().reset_jacobian(&before, &self.correction);
+        self.reset = nav
+            .filter()
+            .process()
+            .reset_jacobian(&before, &self.correction);
         self.phi_acc = ErrorMatrix::identity();
         self.q_acc = [ErrorMatrix::zeros(); 3];
-        Ok(epoch)
+        self.clock = nav.clock();
+        self.before = *nav.ins();
+        Ok(())
     }
 }

@@ -18,8 +18,9 @@
 //!
 //! ## The likelihood
 //!
-//! The error-state filter is run once at a linearization point theta_0
-//! ([`linearize`]). Its steps are recorded between DVL epochs as the accumulated
+//! The navigator is run once at a linearization point theta_0 ([`linearize`]: its one
+//! IMU loop, [`super::run_epochs`], with no gate), and a hook records its steps
+//! ([`super::Navigator::last_step`]) between DVL epochs as the accumulated
 //! transition Phi_acc and the accumulated process noise split into its three parts,
 //! Q_acc(theta) = q_a Q_a + q_g Q_g + Q_bias (Q_d is linear in the PSDs), and at each
 //! epoch the DVL Jacobian H, the innovation y_k = z_k - h(nominal), the injected
@@ -48,8 +49,8 @@ use estim_core::noise::ml::{
 };
 use estim_core::numeric::lit;
 use estim_core::{
-    ErrorStateKalmanFilter, ErrorStateModel, FilterConfig, Fixed, JointCheck, KalmanFilter,
-    MeasurementModel, ProcessModel, Scalar, ScaledCorrelation, StateAndCovariance,
+    ErrorStateModel, FilterConfig, Fixed, JointCheck, KalmanFilter, MeasurementModel, ProcessModel,
+    Scalar, ScaledCorrelation, StateAndCovariance,
 };
 use estim_dvl::{BeamGeometry, DvlVelocityModel};
 use estim_ins::{ErrorMatrix, ImuSample, ImuSpec, InsErrorModel, InsState, ERROR_STATES};
