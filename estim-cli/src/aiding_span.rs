@@ -66,10 +66,11 @@ pub fn check_survey(
         inputs.imu.last().map_or(0.0, |s| s.time),
     ];
     let dvl = files
+        .sensors
         .dvl
         .as_ref()
-        .or(files.beams.as_ref())
-        .or(files.pd0.as_ref());
+        .or(files.sensors.beams.as_ref())
+        .or(files.sensors.pd0.as_ref());
     let checks = [
         dvl.map(|path| AidingTimes {
             path,
@@ -77,13 +78,13 @@ pub fn check_survey(
             offset_s: config.dvl.time_offset_s,
             times: inputs.dvl.iter().map(|r| r.time).collect(),
         }),
-        files.depth.as_ref().map(|path| AidingTimes {
+        files.sensors.depth.as_ref().map(|path| AidingTimes {
             path,
             offset_key: "depth.time_offset_s",
             offset_s: config.depth.time_offset_s,
             times: inputs.depth.iter().map(|r| r.time).collect(),
         }),
-        files.fixes.as_ref().map(|path| AidingTimes {
+        files.sensors.fixes.as_ref().map(|path| AidingTimes {
             path,
             offset_key: "fixes.time_offset_s",
             offset_s: config.fixes.time_offset_s,
@@ -91,7 +92,7 @@ pub fn check_survey(
         }),
     ];
     for aiding in checks.iter().flatten() {
-        check_in_imu_span(aiding, &files.imu, imu_span, epoch)?;
+        check_in_imu_span(aiding, &files.sensors.imu, imu_span, epoch)?;
     }
     Ok(())
 }

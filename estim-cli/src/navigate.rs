@@ -125,13 +125,15 @@ pub struct Args {
 impl Args {
     fn files(&self) -> SurveyFiles {
         SurveyFiles {
-            imu: self.imu.clone().unwrap_or_default(),
-            dvl: self.dvl.clone(),
-            beams: self.beams.clone(),
-            pd0: self.pd0.clone(),
-            depth: self.depth.clone(),
-            fixes: self.fixes.clone(),
-            vehicle: self.vehicle.clone(),
+            sensors: estim::SurveyFiles {
+                imu: self.imu.clone().unwrap_or_default(),
+                dvl: self.dvl.clone(),
+                beams: self.beams.clone(),
+                pd0: self.pd0.clone(),
+                depth: self.depth.clone(),
+                fixes: self.fixes.clone(),
+                vehicle: self.vehicle.clone(),
+            },
             truth: self.truth.clone(),
             init_from_truth: self.init_from_truth,
         }
@@ -193,7 +195,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let network = if args.learned {
         refuse_dvl_states(&survey, "--learned (BeamsNet)")?;
         anyhow::ensure!(
-            survey.files.beams.is_some(),
+            survey.files.sensors.beams.is_some(),
             "--learned takes a DVL beams CSV (--beams) in the network's beam geometry"
         );
         Some(estim::models::beamsnet()?)

@@ -152,13 +152,15 @@ impl Args {
         };
         Mode::Survey(SurveyMode {
             files: crate::navigate::SurveyFiles {
-                imu,
-                dvl: self.dvl,
-                beams: self.beams,
-                pd0: self.pd0,
-                depth: self.depth,
-                fixes: self.fixes,
-                vehicle: self.vehicle,
+                sensors: estim::SurveyFiles {
+                    imu,
+                    dvl: self.dvl,
+                    beams: self.beams,
+                    pd0: self.pd0,
+                    depth: self.depth,
+                    fixes: self.fixes,
+                    vehicle: self.vehicle,
+                },
                 truth: self.truth,
                 init_from_truth: self.init_from_truth,
             },
@@ -175,7 +177,7 @@ impl Args {
 pub fn run(survey: SurveyMode) -> anyhow::Result<()> {
     let files = &survey.files;
     anyhow::ensure!(
-        files.dvl.is_some() || files.beams.is_some() || files.pd0.is_some(),
+        files.sensors.dvl.is_some() || files.sensors.beams.is_some() || files.sensors.pd0.is_some(),
         "estim smooth --imu: give --dvl, --beams or --pd0"
     );
     smooth_survey_files(

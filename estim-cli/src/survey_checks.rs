@@ -49,7 +49,7 @@ pub fn check_dvl_lock(files: &SurveyFiles, inputs: &SurveyInputs) -> anyhow::Res
     if inputs.dvl.iter().any(|r| usable(&r.input)) {
         return Ok(Vec::new());
     }
-    let path = [&files.dvl, &files.beams, &files.pd0]
+    let path = [&files.sensors.dvl, &files.sensors.beams, &files.sensors.pd0]
         .into_iter()
         .flatten()
         .next()

@@ -215,13 +215,13 @@ pub fn run(args: SurveyMode) -> anyhow::Result<()> {
         anyhow::bail!("--imu needs --dvl or --beams");
     }
     let files = crate::navigate::SurveyFiles {
-        imu: args.imu.clone(),
-        dvl: args.dvl.clone(),
-        beams: args.beams.clone(),
-        pd0: None,
-        depth: None,
-        fixes: None,
-        vehicle: args.vehicle.clone(),
+        sensors: estim::SurveyFiles {
+            imu: args.imu.clone(),
+            dvl: args.dvl.clone(),
+            beams: args.beams.clone(),
+            vehicle: args.vehicle.clone(),
+            ..Default::default()
+        },
         truth: args.truth.clone(),
         init_from_truth: args.init_from_truth,
     };
@@ -243,10 +243,10 @@ pub fn run(args: SurveyMode) -> anyhow::Result<()> {
     let text = if args.json {
         use crate::schema::path_json;
         let inputs = serde_json::json!({
-            "imu_file": path_json(Some(&loaded.files.imu)),
-            "dvl_file": path_json(loaded.files.dvl.as_deref()),
-            "beams_file": path_json(loaded.files.beams.as_deref()),
-            "vehicle": path_json(loaded.files.vehicle.as_deref()),
+            "imu_file": path_json(Some(&loaded.files.sensors.imu)),
+            "dvl_file": path_json(loaded.files.sensors.dvl.as_deref()),
+            "beams_file": path_json(loaded.files.sensors.beams.as_deref()),
+            "vehicle": path_json(loaded.files.sensors.vehicle.as_deref()),
             "linearizations": args.linearizations,
             "dvl_rows_skipped": measurements.skipped,
         });
@@ -255,7 +255,7 @@ pub fn run(args: SurveyMode) -> anyhow::Result<()> {
         let head = format!(
             "Maximum likelihood on the survey {} ({} DVL epochs; {} rows skipped: no \
              bottom lock, fewer than 3 beams, or outside the IMU's span).",
-            loaded.files.imu.display(),
+            loaded.files.sensors.imu.display(),
             measurements.dvl.len(),
             measurements.skipped,
         );

@@ -77,7 +77,7 @@ pub fn evaluation_json(truth: Option<&Truth>) -> Value {
 
 /// Which DVL sensor a run used, for the summary.
 pub fn dvl_source(files: &SurveyFiles) -> &'static str {
-    match (&files.dvl, &files.beams, &files.pd0) {
+    match (&files.sensors.dvl, &files.sensors.beams, &files.sensors.pd0) {
         (Some(_), _, _) => "velocity_csv",
         (None, Some(_), _) => "beams_csv",
         _ => "pd0",
@@ -149,13 +149,13 @@ pub fn summary_json(
 pub fn inputs_json(survey: &Survey, rate: Option<f64>) -> Value {
     let files = &survey.files;
     json!({
-        "imu": schema::path_json(Some(&files.imu)),
-        "dvl": schema::path_json(files.dvl.as_deref()),
-        "beams": schema::path_json(files.beams.as_deref()),
-        "pd0": schema::path_json(files.pd0.as_deref()),
-        "depth": schema::path_json(files.depth.as_deref()),
-        "fixes": schema::path_json(files.fixes.as_deref()),
-        "vehicle": schema::path_json(files.vehicle.as_deref()),
+        "imu": schema::path_json(Some(&files.sensors.imu)),
+        "dvl": schema::path_json(files.sensors.dvl.as_deref()),
+        "beams": schema::path_json(files.sensors.beams.as_deref()),
+        "pd0": schema::path_json(files.sensors.pd0.as_deref()),
+        "depth": schema::path_json(files.sensors.depth.as_deref()),
+        "fixes": schema::path_json(files.sensors.fixes.as_deref()),
+        "vehicle": schema::path_json(files.sensors.vehicle.as_deref()),
         "truth": schema::path_json(files.truth.as_deref()),
         "rate_hz": rate,
         "configuration": survey.config,

@@ -9,23 +9,12 @@ use estim::truth::Truth;
 use estim::{Pd0Load, SurveyError};
 use serde_json::{json, Value};
 
-/// The survey's input files, shared by `estim navigate` and `estim smooth`.
+/// The survey's input files, shared by `estim navigate` and `estim smooth`: the
+/// library's sensor files and the evaluation's truth.
 #[derive(Debug, Clone, Default)]
 pub struct SurveyFiles {
-    /// IMU CSV.
-    pub imu: PathBuf,
-    /// DVL velocity CSV.
-    pub dvl: Option<PathBuf>,
-    /// DVL beams CSV.
-    pub beams: Option<PathBuf>,
-    /// Teledyne RDI PD0 file.
-    pub pd0: Option<PathBuf>,
-    /// Depth CSV.
-    pub depth: Option<PathBuf>,
-    /// Position fixes CSV.
-    pub fixes: Option<PathBuf>,
-    /// Vehicle TOML.
-    pub vehicle: Option<PathBuf>,
+    /// The sensors' files and the vehicle file (read by [`estim::SurveyFiles::read`]).
+    pub sensors: estim::SurveyFiles,
     /// Ground truth CSV.
     pub truth: Option<PathBuf>,
     /// Start from the truth's state at the first IMU sample (position, velocity,
@@ -37,19 +26,20 @@ impl SurveyFiles {
     /// Every input path given (for
     /// [`StagedDir::keep_inputs`](crate::output::StagedDir::keep_inputs)).
     pub fn paths(&self) -> impl Iterator<Item = &Path> {
+        let s = &self.sensors;
         [
-            &self.dvl,
-            &self.beams,
-            &self.pd0,
-            &self.depth,
-            &self.fixes,
-            &self.vehicle,
+            &s.dvl,
+            &s.beams,
+            &s.pd0,
+            &s.depth,
+            &s.fixes,
+            &s.vehicle,
             &self.truth,
         ]
         .into_iter()
         .flatten()
         .map(PathBuf::as_path)
-        .chain([self.imu.as_path()])
+        .chain([s.imu.as_path()])
     }
 }
 
@@ -116,35 +106,31 @@ pub fn load_survey(files: SurveyFiles) -> anyhow::Result<Survey> {
 /// [`load_survey`] with a `--columns` file whose `[columns]` entries override the
 /// vehicle file's.
 pub fn load_survey_with(files: SurveyFiles, columns: Option<&Path>) -> anyhow::Result<Survey> {
-    let mut config = match &files.vehicle {
+    let mut config = match &files.sensors.vehicle {
         Some(p) => vehicle_config(p)?,
         None => NavigatorConfig::default(),
     };
     if let Some(path) = columns {
         let over = crate::survey_checks::columns_file(path)?;
         config.columns = config.columns.overridden_by(&over).map_err(|e| {
-            let vehicle = files.vehicle.as_deref().unwrap_or(Path::new("vehicle"));
+            let vehicle = files
+                .sensors
+                .vehicle
+                .as_deref()
+                .unwrap_or(Path::new("vehicle"));
             anyhow::anyhow!("{}: {e}", vehicle.display())
         })?;
     }
     load_survey_from(files, config)
 }
 
-/// [`load_survey`] with the vehicle configuration already read (`files.vehicle` only
+/// [`load_survey`] with the vehicle configuration already read (`files.sensors.vehicle` only
 /// names it in messages), e.g. a vehicle embedded in the binary.
 pub fn load_survey_from(files: SurveyFiles, config: NavigatorConfig) -> anyhow::Result<Survey> {
-    let sensors = estim::SurveyFiles {
-        imu: files.imu.clone(),
-        dvl: files.dvl.clone(),
-        beams: files.beams.clone(),
-        pd0: files.pd0.clone(),
-        depth: files.depth.clone(),
-        fixes: files.fixes.clone(),
-        vehicle: files.vehicle.clone(),
-    };
     // Skipped PD0 spans are warned about on stderr with their byte offsets as they are
     // found, and listed in the summary's `pd0` block.
-    let mut loaded = sensors
+    let mut loaded = files
+        .sensors
         .read(&config, &mut |path, skip| {
             eprintln!("warning: {}: {skip}", path.display());
         })
@@ -189,7 +175,7 @@ pub fn refuse_dvl_states(survey: &Survey, what: &str) -> anyhow::Result<()> {
     if survey.config.dvl_states.is_none() {
         return Ok(());
     }
-    let file = survey.files.vehicle.as_deref().map_or_else(
+    let file = survey.files.sensors.vehicle.as_deref().map_or_else(
         || "vehicle configuration".to_string(),
         |p| p.display().to_string(),
     );

@@ -189,12 +189,14 @@ impl Scenario {
         let dvl_offset = nav_config.dvl.time_offset_s;
         // As `estim navigate --imu --dvl --vehicle --truth` reads them.
         let files = crate::navigate::SurveyFiles {
-            imu: imu_path.to_path_buf(),
-            dvl: Some(dvl_path.to_path_buf()),
-            vehicle: vehicle.map(Path::to_path_buf),
+            sensors: estim::SurveyFiles {
+                imu: imu_path.to_path_buf(),
+                dvl: Some(dvl_path.to_path_buf()),
+                vehicle: vehicle.map(Path::to_path_buf),
+                ..Default::default()
+            },
             truth: Some(gt_path.to_path_buf()),
             init_from_truth: true,
-            ..Default::default()
         };
         let survey = crate::navigate::load_survey_from(files, nav_config).map_err(invalid)?;
         let truth = survey
