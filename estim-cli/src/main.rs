@@ -10,6 +10,7 @@ mod compare;
 mod dataset;
 mod dvl;
 mod evaluate;
+mod experiment;
 mod imu;
 mod imu_choice;
 mod learned;
@@ -22,6 +23,7 @@ mod plots;
 mod report;
 mod reproduce;
 mod schema;
+mod simulate;
 mod smooth;
 mod stream;
 mod survey_checks;
@@ -69,7 +71,7 @@ enum Command {
     /// navigation solution with its 1-sigma out; no ground truth needed.
     Navigate(navigate::Args),
     /// Synthesize sensor files from a recorded trajectory (IMU, beams): a simulation.
-    Simulate(study::cli::simulate::Args),
+    Simulate(simulate::Args),
     /// Fit the INS/DVL noise parameters (IMU densities, DVL noise and mismatch, the M
     /// scale) by maximum likelihood on A-KIT training trajectories, with standard
     /// errors and a likelihood-ratio test of M = 0.
@@ -101,7 +103,7 @@ fn main() -> ExitCode {
             smooth::Mode::Scenarios(scenarios) => study::cli::smooth::run(scenarios),
         },
         Command::Navigate(args) => navigate::run(args),
-        Command::Simulate(args) => study::cli::simulate::run(args),
+        Command::Simulate(args) => simulate::run(args),
         Command::Tune(args) => args.into_mode().and_then(|mode| match mode {
             tune::Mode::Survey(survey) => tune::run(survey),
             tune::Mode::Trajectories(trajectories) => study::cli::tune::run(trajectories),

@@ -147,7 +147,7 @@ type DrawResult<T = ()> = Result<T, Box<dyn std::error::Error>>;
 pub const STANDARD_GRAVITY: f64 = 9.80665;
 
 /// The unit a state group's standard deviation is plotted in and the factor from the
-/// study's SI value to it: position m, velocity m/s, misalignment deg, gyroscope bias
+/// SI value to it: position m, velocity m/s, misalignment deg, gyroscope bias
 /// deg/h, accelerometer bias mg, or µg when every value is below 1 mg (`values`: the
 /// SI values to be plotted). An unknown group stays in its SI value with unit "?".
 pub fn plot_unit(group: &str, values: impl IntoIterator<Item = f64>) -> (&'static str, f64) {
@@ -596,8 +596,8 @@ pub struct BarChart<'a> {
     /// `values[variant][group]`.
     pub values: &'a [Vec<f64>],
     /// `positive_definite[variant][group]`: whether the value was computed from
-    /// covariances that were positive definite throughout (see
-    /// `study::stats::group_std_positive_definite`); a missing entry counts as `true`.
+    /// covariances that were positive definite throughout (the caller's statistics);
+    /// a missing entry counts as `true`.
     /// A `false` bar is drawn hatched and labelled "not PD".
     pub positive_definite: &'a [Vec<bool>],
 }

@@ -126,10 +126,10 @@ pub fn check_count(flag: &str, value: usize, min: usize, max: usize) -> anyhow::
     }
 }
 
-/// The seeds `first ..= first + span` all at most [`crate::study::MAX_SEED`] (2^53):
+/// The seeds `first ..= first + span` all at most [`crate::experiment::MAX_SEED`] (2^53):
 /// a seed never wraps around to 0, and JSON readers keep every seed exactly.
 pub fn check_seeds(flag: &str, first: u64, span: u64) -> anyhow::Result<()> {
-    let max = crate::study::MAX_SEED;
+    let max = crate::experiment::MAX_SEED;
     match first.checked_add(span) {
         Some(last) if last <= max => Ok(()),
         _ => anyhow::bail!(

@@ -1,22 +1,20 @@
 //! `estim simulate`: synthesize sensor files from a recorded trajectory (a
 //! simulation, never a default path for user data): `simulate imu --gt GT.csv` writes
-//! the study's IMU (the estim-ins simulator on the GT spline, corrupted by the
-//! configured error model with the configured seed) as an IMU CSV on stdout;
-//! `simulate beams --gt GT.csv --dvl DVL.csv` writes the study's BeamsNet-protocol
+//! the synthesized IMU of `estim reproduce` (the estim-ins simulator on the GT spline,
+//! corrupted by the configured error model with the configured seed) as an IMU CSV on
+//! stdout; `simulate beams --gt GT.csv --dvl DVL.csv` writes its BeamsNet-protocol
 //! beams of the DVL velocity, at the DVL's time stamps. With `--vehicle-out V.toml`,
-//! `simulate imu` also writes the vehicle configuration of the study's run (noise,
-//! lever arm, A-KIT DVL time offset, gate, the seeded initial state), so that `estim
-//! navigate --imu ... --beams ... --vehicle V.toml --truth GT.csv` is the study's LS
-//! filter.
+//! `simulate imu` also writes the vehicle configuration of that run (noise, lever arm,
+//! A-KIT DVL time offset, gate, the seeded initial state), so that `estim navigate
+//! --imu ... --beams ... --vehicle V.toml --truth GT.csv` is `reproduce`'s LS filter.
+//! Built on the experiments' layer ([`crate::experiment`]).
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
-use crate::study::{
-    initial_covariance, initial_nominal, synthesize_imu, Config, ImuSource, Scenario,
-};
+use crate::experiment::{dvl_epochs, initial_covariance, initial_nominal, synthesize_imu, Config};
 use anyhow::Context;
-use estim::datasets::{load_dvl_with, load_gt_with};
+use estim::datasets::{check_spans, load_dvl_with, load_gt_with, SPAN_TIME_OFFSET_ALLOWANCE_S};
 
 /// Arguments of `estim simulate`.
 #[derive(Debug, clap::Args)]
@@ -38,24 +36,25 @@ struct ImuArgs {
     /// Ground-truth CSV (columns by name, as for `estim reproduce --gt`).
     #[arg(long, value_name = "FILE")]
     gt: PathBuf,
-    /// TOML configuration of the study (IMU preset, rate, seed; see `estim reproduce
-    /// --print-config`).
+    /// TOML configuration of the experiments (IMU preset, rate, seed; see `estim
+    /// reproduce --print-config`).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
-    /// Also write the study's vehicle configuration for `estim navigate --vehicle`.
+    /// Also write the vehicle configuration of `reproduce`'s LS run for `estim
+    /// navigate --vehicle`.
     #[arg(long, value_name = "FILE")]
     vehicle_out: Option<PathBuf>,
 }
 
 #[derive(Debug, clap::Args)]
 struct BeamsArgs {
-    /// Ground-truth CSV (the span the study keeps).
+    /// Ground-truth CSV (the span `reproduce` keeps).
     #[arg(long, value_name = "FILE")]
     gt: PathBuf,
     /// DVL velocity CSV.
     #[arg(long, value_name = "FILE")]
     dvl: PathBuf,
-    /// TOML configuration of the study.
+    /// TOML configuration of the experiments.
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
 }
@@ -107,27 +106,14 @@ fn imu(args: ImuArgs) -> anyhow::Result<()> {
     crate::output::emit(&out)
 }
 
-/// The vehicle TOML of the study's LS filter run on this trajectory.
+/// The vehicle TOML of `reproduce`'s LS filter run on this trajectory.
 fn vehicle_toml(
     config: &Config,
     truth: &[estim::ins::InsState],
     spec: &estim::ins::ImuSpec,
 ) -> anyhow::Result<String> {
     let truth0 = truth.first().context("no truth")?;
-    let scenario = Scenario {
-        name: String::new(),
-        trajectory: Some(0),
-        truth: vec![*truth0],
-        imu: Vec::new(),
-        clean_imu: Vec::new(),
-        imu_dt: 1.0 / config.mission.imu_rate_hz,
-        imu_spec: *spec,
-        dvl: Vec::new(),
-        span: None,
-        imu_source: ImuSource::Synthesized,
-        recorded: None,
-    };
-    let p0 = initial_covariance(config, &scenario);
+    let p0 = initial_covariance(config, spec);
     let x0 = initial_nominal(truth0, &p0, config.seed);
     let (r, p, y) = x0.attitude.euler_angles();
     let f = &config.filter;
@@ -143,7 +129,7 @@ fn vehicle_toml(
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# The study's LS filter (estim simulate imu --vehicle-out)."
+        "# estim reproduce's LS filter (estim simulate imu --vehicle-out)."
     );
     let _ = writeln!(
         s,
@@ -188,28 +174,18 @@ fn vehicle_toml(
 
 fn beams(args: BeamsArgs) -> anyhow::Result<()> {
     let config = config(&args.config)?;
-    let scenario = Scenario::recorded(&args.gt, &args.dvl, &config, config.seed, false)?;
-    // The rows the study kept, in order (its rule: the offset-corrected time rounds
-    // to an IMU sample after the first and within the truth).
+    let gt = load_gt_with(&args.gt, &config.columns)?;
     let dvl = load_dvl_with(&args.dvl, &config.columns)?;
-    let t0 = scenario.truth.first().map_or(0.0, |s| s.time);
-    let dt = scenario.imu_dt;
-    let kept: Vec<f64> = dvl
-        .iter()
-        .map(|d| d.time)
-        .filter(|&time| {
-            let i = ((time - config.dvl.akit_time_offset_s - t0) / dt).round();
-            i >= 1.0 && i < scenario.truth.len() as f64
-        })
-        .collect();
-    anyhow::ensure!(
-        kept.len() == scenario.dvl.len(),
-        "internal: {} DVL rows kept, {} epochs",
-        kept.len(),
-        scenario.dvl.len()
-    );
+    // The two files must cover the same span (as `reproduce --gt --dvl` reads them).
+    let allowance = SPAN_TIME_OFFSET_ALLOWANCE_S.max(config.dvl.akit_time_offset_s.abs());
+    check_spans(&args.gt, &gt, &args.dvl, &dvl, allowance, false)?;
+    let (truth, _, _, dt, _) = synthesize_imu(&gt, &args.gt, &args.dvl, &config, config.seed)?;
+    let t0 = truth.first().map_or(0.0, |s| s.time);
+    // The rows kept, in order: the offset-corrected time rounds to an IMU sample after
+    // the first and within the truth.
+    let epochs = dvl_epochs(&dvl, &args.dvl, [t0, dt], truth.len(), &config, config.seed)?;
     let mut out = String::from("time_s,beam1_mps,beam2_mps,beam3_mps,beam4_mps\n");
-    for (time, epoch) in kept.iter().zip(&scenario.dvl) {
+    for (time, epoch) in &epochs {
         let b = epoch.beams;
         let cell = |x: f64| {
             if x.is_finite() {

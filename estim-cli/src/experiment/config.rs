@@ -1,4 +1,5 @@
-//! The TOML configuration of `estim reproduce` / `estim montecarlo`.
+//! The TOML configuration of the experiments (`estim reproduce`, `montecarlo`,
+//! `evaluate`, `simulate`, ...).
 //!
 //! Every field has a default ([`Config::default`]); `estim reproduce --print-config`
 //! prints them all as TOML. Unknown keys are rejected.
@@ -88,7 +89,7 @@ pub const LIMITS: &[(&str, f64, f64, &str)] = &[
 
 /// Most IMU samples of the simulated mission (`mission.duration_s *
 /// mission.imu_rate_hz`), as for a recorded trajectory.
-pub const MAX_MISSION_IMU_SAMPLES: f64 = super::scenario::MAX_SYNTHESIZED_IMU_SAMPLES;
+pub const MAX_MISSION_IMU_SAMPLES: f64 = super::synthesis::MAX_SYNTHESIZED_IMU_SAMPLES;
 
 /// Largest seed (`seed`, `--seed`; and `--seed` + runs - 1): 2^53, the largest integer
 /// every JSON reader keeps exactly, far from wrapping around u64.
@@ -164,7 +165,7 @@ pub struct ImuSection {
     pub akit_truth: AkitTruth,
 }
 
-/// How recorded ground truth (A-KIT) becomes the smooth trajectory the study's IMU is
+/// How recorded ground truth (A-KIT) becomes the smooth trajectory the synthesized IMU is
 /// synthesized from ([`estim_ins::Trajectory`]).
 ///
 /// A-KIT's recorded positions and velocities disagree (on trajectory 4, 6.6 cm per
@@ -289,7 +290,7 @@ pub enum PaperMBasis {
     PerStep,
 }
 
-// The study's tests name the basis by its configuration value; the binary does not.
+// The tests name the basis by its configuration value; the binary does not.
 #[cfg(test)]
 impl PaperMBasis {
     /// The configuration value (`accumulated`, `per_step`).
@@ -683,7 +684,7 @@ mod tests {
         assert_eq!(without_imu, c);
         // With listed outages and gaps, their tables are commented too.
         let mut c = Config::default();
-        c.faults.dvl_outages.push(super::super::DvlOutage {
+        c.faults.dvl_outages.push(super::super::faults::DvlOutage {
             start_s: 1.0,
             duration_s: 2.0,
         });

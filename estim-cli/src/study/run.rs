@@ -11,13 +11,12 @@ use estim_core::{
     Fixed, JointCovariance, MeasurementModel, NoObserver, Observer, ProcessModel,
     ScaledCorrelation, Zero,
 };
-use estim_ins::{inject, ImuSpec, InsErrorModel, InsState, ATT, ERROR_STATES, POS, VEL};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-use rand_distr::{Distribution, StandardNormal};
+use estim_ins::{ImuSpec, InsErrorModel, InsState, ATT, ERROR_STATES, POS, VEL};
 use serde::Serialize;
 
-use super::{Config, PaperMBasis, PipelineError, Result, Scenario};
+use super::{
+    initial_covariance, initial_nominal, Config, PaperMBasis, PipelineError, Result, Scenario,
+};
 
 /// 15 x 3 cross-covariance of the INS/DVL filter.
 pub type CrossMatrix = SMatrix<f64, ERROR_STATES, 3>;
@@ -129,62 +128,6 @@ pub fn error_state(truth: &InsState, nominal: &InsState) -> SVector<f64, ERROR_S
 /// sensor drift's driving-noise PSD).
 pub fn filter_imu_spec(spec: &ImuSpec) -> Result<ImuSpec> {
     Ok(estim::navigator::filter_imu_spec(spec)?)
-}
-
-/// Initial covariance from the configuration and the IMU spec.
-pub fn initial_covariance(
-    config: &Config,
-    scenario: &Scenario,
-) -> SMatrix<f64, ERROR_STATES, ERROR_STATES> {
-    let f = &config.filter;
-    let (a, g) = (
-        scenario.imu_spec.accelerometer(),
-        scenario.imu_spec.gyroscope(),
-    );
-    let acc =
-        f.initial_bias_std_scale * (a.turn_on_bias.powi(2) + a.bias_instability.powi(2)).sqrt();
-    let gyro =
-        f.initial_bias_std_scale * (g.turn_on_bias.powi(2) + g.bias_instability.powi(2)).sqrt();
-    let level = f.initial_level_std_deg.to_radians();
-    let heading = f.initial_heading_std_deg.to_radians();
-    let std = [
-        f.initial_position_std_m,
-        f.initial_position_std_m,
-        f.initial_position_std_m,
-        f.initial_velocity_std_mps,
-        f.initial_velocity_std_mps,
-        f.initial_velocity_std_mps,
-        level,
-        level,
-        heading,
-        acc.max(1e-9),
-        acc.max(1e-9),
-        acc.max(1e-9),
-        gyro.max(1e-12),
-        gyro.max(1e-12),
-        gyro.max(1e-12),
-    ];
-    SMatrix::from_diagonal(&SVector::from_iterator(std.iter().map(|s| s * s)))
-}
-
-/// The initial nominal state: truth minus an error drawn from the initial covariance
-/// (position, velocity, attitude; the bias estimates start at zero, so their initial
-/// error is the true bias).
-pub fn initial_nominal(
-    truth: &InsState,
-    p0: &SMatrix<f64, ERROR_STATES, ERROR_STATES>,
-    seed: u64,
-) -> InsState {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x1417);
-    let mut e = SVector::<f64, ERROR_STATES>::zeros();
-    for i in 0..9 {
-        let n: f64 = StandardNormal.sample(&mut rng);
-        e[i] = n * p0[(i, i)].sqrt();
-    }
-    let mut nominal = inject(truth, &(-e));
-    nominal.acc_bias = Vector3::zeros();
-    nominal.gyro_bias = Vector3::zeros();
-    nominal
 }
 
 /// Run the error-state EKF over `scenario` with `measurements` and `cross`.
@@ -322,7 +265,7 @@ fn run_filter_inner<O: Observer<f64, InsState, ERROR_STATES>>(
         .ok_or_else(|| PipelineError::NoData {
             what: format!("truth samples in {}", scenario.name),
         })?;
-    let p0 = initial_covariance(config, scenario);
+    let p0 = initial_covariance(config, &scenario.imu_spec);
     let nominal0 = initial_nominal(truth0, &p0, seed);
     let settings = navigator_settings(config, scenario, measurements.noise_covariance)?;
     let imu = &scenario.imu;
@@ -633,6 +576,7 @@ fn check_imu_timestamps(scenario: &Scenario) -> Result<()> {
 mod tests {
     use super::*;
     use estim_core::nalgebra::UnitQuaternion;
+    use estim_ins::inject;
 
     #[test]
     fn error_state_inverts_inject() {

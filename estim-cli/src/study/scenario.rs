@@ -3,36 +3,20 @@
 use std::path::Path;
 
 use estim_core::nalgebra::{Vector3, Vector4};
-use estim_dvl::{dvl_frame_velocity, BeamsNetProtocol};
-use estim_ins::{
-    ImuErrorGenerator, ImuSample, ImuSpec, InsState, Mission, MissionConfig, Trajectory,
-};
+use estim_dvl::dvl_frame_velocity;
+use estim_ins::{ImuSample, ImuSpec, InsState, Mission, MissionConfig};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use super::{AkitTruth, Config, PipelineError, Result};
+use super::{Config, PipelineError, Result};
+use crate::experiment::{dvl_epochs, protocol, synthesize_imu, DvlEpoch};
 use estim::datasets::{
     check_spans, load_dvl_with, load_gt_with, trajectory_files, DatasetError, SpanCheck,
     SPAN_TIME_OFFSET_ALLOWANCE_S,
 };
 
-/// Most IMU samples synthesized from a recorded trajectory (13.9 h at 100 Hz, about
-/// 1.4 GB of states and samples): a longer span is refused before allocating.
-pub const MAX_SYNTHESIZED_IMU_SAMPLES: f64 = 5e6;
-
 /// Fewest DVL updates a recorded trajectory must give for its figures to be defined.
 pub const MIN_DVL_EPOCHS: usize = 2;
-
-/// One DVL epoch: what the DVL measured and the beams simulated from it.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct DvlEpoch {
-    /// The update is applied after IMU sample `imu_index - 1`, i.e. at `truth[imu_index]`.
-    pub imu_index: usize,
-    /// Velocity at the DVL in its frame \[m/s\] (the real DVL's on A-KIT, exact in simulation).
-    pub reference_velocity: Vector3<f64>,
-    /// Beam velocities from the BeamsNet protocol (NaN for a missing beam).
-    pub beams: Vector4<f64>,
-}
 
 /// Everything a filter run needs.
 #[derive(Debug, Clone)]
@@ -62,22 +46,10 @@ pub struct Scenario {
     pub recorded: Option<std::sync::Arc<super::RecordedSurvey>>,
 }
 
-fn protocol(config: &Config) -> BeamsNetProtocol {
-    if config.dvl.protocol == "v2" {
-        BeamsNetProtocol::v2()
-    } else {
-        BeamsNetProtocol::v1()
-    }
-}
-
-fn imu_spec(config: &Config) -> Result<ImuSpec> {
-    config.imu_spec()
-}
-
 impl Scenario {
     /// The embedded default: a seeded simulated AUV mission.
     pub fn simulated(config: &Config, seed: u64) -> Result<Self> {
-        let spec = imu_spec(config)?;
+        let spec = config.imu_spec()?;
         let mission_config = MissionConfig::builder()
             .duration(config.mission.duration_s)
             .imu_rate_hz(config.mission.imu_rate_hz)
@@ -193,40 +165,12 @@ impl Scenario {
             _ => gt,
         };
         let (truth, imu, clean, dt, spec) = synthesize_imu(&gt, gt_path, dvl_path, config, seed)?;
-        let protocol = protocol(config);
-        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xD71);
         let t0 = truth.first().map_or(0.0, |s| s.time);
-        let mut dvl: Vec<DvlEpoch> = Vec::with_capacity(dvl_log.len());
-        let mut previous_line: Option<u64> = None;
-        for d in &dvl_log {
-            // A sample stamped t measures the motion at t - tau.
-            let t = d.time - config.dvl.akit_time_offset_s;
-            let i = ((t - t0) / dt).round();
-            if i < 1.0 || i >= truth.len() as f64 {
-                continue;
-            }
-            // Two DVL rows on one IMU sample would be applied twice at one instant.
-            if let (Some(last), Some(line)) = (dvl.last(), previous_line) {
-                if last.imu_index == i as usize {
-                    return Err(PipelineError::Dataset(DatasetError::Unusable {
-                        path: dvl_path.to_path_buf(),
-                        message: format!(
-                            "lines {line} and {} fall on the same IMU sample at \
-                             mission.imu_rate_hz = {} (DVL rows must be at least one IMU \
-                             period apart; refused, not merged)",
-                            d.line, config.mission.imu_rate_hz
-                        ),
-                    }));
-                }
-            }
-            previous_line = Some(d.line);
-            let reference = Vector3::from(d.velocity_body);
-            dvl.push(DvlEpoch {
-                imu_index: i as usize,
-                reference_velocity: reference,
-                beams: protocol.beams(&reference, &mut rng),
-            });
-        }
+        let dvl: Vec<DvlEpoch> =
+            dvl_epochs(&dvl_log, dvl_path, [t0, dt], truth.len(), config, seed)?
+                .into_iter()
+                .map(|(_, epoch)| epoch)
+                .collect();
         // Fewer updates than that give no finite figure to report (a two-row
         // trajectory would end with NaN statistics).
         if dvl.len() < MIN_DVL_EPOCHS {
@@ -258,79 +202,6 @@ impl Scenario {
             recorded: None,
         })
     }
-}
-
-/// The IMU synthesized from recorded ground truth (the study's simulation): truth at
-/// the configured IMU rate from the GT spline, the error-free IMU, and the IMU
-/// corrupted by the configured error model with `seed` (truth carries its true
-/// biases). Returns (truth, imu, clean imu, dt, spec).
-///
-/// # Errors
-/// [`DatasetError::Unusable`] naming `gt_path` for fewer than 2 rows, a span too long
-/// to synthesize or a trajectory the simulator refuses.
-#[allow(clippy::type_complexity)]
-pub fn synthesize_imu(
-    gt: &[estim::datasets::GtSample],
-    gt_path: &Path,
-    other: &Path,
-    config: &Config,
-    seed: u64,
-) -> Result<(Vec<InsState>, Vec<ImuSample>, Vec<ImuSample>, f64, ImuSpec)> {
-    let unusable = |message: String| {
-        PipelineError::Dataset(DatasetError::Unusable {
-            path: gt_path.to_path_buf(),
-            message,
-        })
-    };
-    let dvl_path = other;
-    let (first, last) = match (gt.first(), gt.last()) {
-        (Some(a), Some(b)) if gt.len() >= 2 => (*a, *b),
-        _ => {
-            return Err(unusable(format!(
-                "fewer than 2 GT rows inside the overlap with {}",
-                dvl_path.display()
-            )))
-        }
-    };
-    let samples = (last.time - first.time) * config.mission.imu_rate_hz;
-    if samples > MAX_SYNTHESIZED_IMU_SAMPLES {
-        return Err(unusable(format!(
-            "lines {}-{} span {} s, {samples:.0} IMU samples at {} Hz; at most {MAX_SYNTHESIZED_IMU_SAMPLES:.0} are synthesized",
-            first.line, last.line, last.time - first.time, config.mission.imu_rate_hz
-        )));
-    }
-    let samples = gt.iter().map(|g| g.trajectory_sample()).collect();
-    // The loader checked every value the trajectory checks; an error here still
-    // names the file.
-    let trajectory = match config.imu.akit_truth {
-        AkitTruth::PositionAndVelocity => Trajectory::new(samples),
-        AkitTruth::Velocity => Trajectory::velocity_driven(samples),
-    }
-    .map_err(|e| unusable(e.to_string()))?;
-    let (mut truth, clean) = trajectory
-        .simulate(config.mission.imu_rate_hz)
-        .map_err(|e| {
-            unusable(format!(
-                "lines {}-{} (span {} s): {e}",
-                first.line,
-                last.line,
-                last.time - first.time
-            ))
-        })?;
-    let dt = 1.0 / config.mission.imu_rate_hz;
-    let spec = imu_spec(config)?;
-    let mut errors = ImuErrorGenerator::new(spec, seed);
-    let mut imu = Vec::with_capacity(clean.len());
-    for (k, sample) in clean.iter().enumerate() {
-        truth[k].acc_bias = errors.acc_bias();
-        truth[k].gyro_bias = errors.gyro_bias();
-        imu.push(errors.corrupt(sample, dt));
-    }
-    if let Some(last) = truth.last_mut() {
-        last.acc_bias = errors.acc_bias();
-        last.gyro_bias = errors.gyro_bias();
-    }
-    Ok((truth, imu, clean, dt, spec))
 }
 
 /// A scripted beam loss: from `start_s` (after the scenario's start) for `duration_s`,
@@ -425,6 +296,7 @@ impl Scenario {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::experiment::AkitTruth;
 
     /// A vehicle at a constant 1.5 m/s north, level, whose recorded positions step
     /// 1.6 m per second (positions and velocities disagree, as A-KIT's do). Through

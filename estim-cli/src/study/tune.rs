@@ -116,7 +116,7 @@ pub fn tune_akit(
             .ok_or_else(|| PipelineError::NoData {
                 what: format!("truth samples in {}", scenario.name),
             })?;
-        let covariance = initial_covariance(config, scenario);
+        let covariance = initial_covariance(config, &scenario.imu_spec);
         inputs.push(TuneTrajectory {
             imu: &scenario.imu,
             imu_period: scenario.imu_dt,

@@ -34,7 +34,7 @@ impl Run<'_> {
             .ok_or_else(|| PipelineError::NoData {
                 what: format!("truth samples in {}", scenario.name),
             })?;
-        let p0 = initial_covariance(config, scenario);
+        let p0 = initial_covariance(config, &scenario.imu_spec);
         let nominal0 = initial_nominal(truth0, &p0, seed);
         let nav_config = NavigatorConfig {
             dvl: DvlConfig {

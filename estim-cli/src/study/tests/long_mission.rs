@@ -125,7 +125,7 @@ impl Observer<f64, InsState, ERROR_STATES> for PositiveDefinite {
 /// accumulated over the first DVL interval (from the truth's start).
 fn valid_fixed_m(scenario: &Scenario, config: &Config, r: &Matrix3<f64>) -> CrossMatrix {
     let process = InsErrorModel::new(scenario.imu_spec);
-    let p0 = crate::study::initial_covariance(config, scenario);
+    let p0 = crate::study::initial_covariance(config, &scenario.imu_spec);
     let mut filter = ErrorStateKalmanFilter::new(process, scenario.truth[0], p0).unwrap();
     let steps = scenario.dvl[0].imu_index;
     for sample in &scenario.imu[..steps] {

@@ -145,7 +145,7 @@ fn square_root_mission(hours: f64, refuse_paper_rho: bool) -> Health {
         .noise_covariance(r)
         .build()
         .unwrap();
-    let p0 = initial_covariance(&config, &scenario);
+    let p0 = initial_covariance(&config, &scenario.imu_spec);
     let nominal0 = scenario.truth[0];
     let process = InsErrorModel::new(scenario.imu_spec);
     let dt = scenario.imu_dt;

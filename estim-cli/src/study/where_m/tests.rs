@@ -123,7 +123,7 @@ fn beams_only_m_is_zero() {
 /// The A-KIT IMU level with the accelerometer white noise x 3.
 fn noisy_accelerometer(mut config: Config) -> Config {
     let acc = *ImuSpec::akit_observed().accelerometer();
-    config.imu.accelerometer = Some(super::super::config::SensorSection {
+    config.imu.accelerometer = Some(crate::experiment::SensorSection {
         white_noise_density: 3.0 * acc.white_noise_density,
         bias_instability: acc.bias_instability,
         bias_time_constant: acc.bias_time_constant,
