@@ -12,7 +12,9 @@
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
-use crate::experiment::{dvl_epochs, initial_covariance, initial_nominal, synthesize_imu, Config};
+use crate::experiment::{
+    dvl_epochs, initial_bias_std, initial_covariance, initial_nominal, synthesize_imu, Config,
+};
 use anyhow::Context;
 use estim::datasets::{check_spans, load_dvl_with, load_gt_with, SPAN_TIME_OFFSET_ALLOWANCE_S};
 
@@ -117,11 +119,7 @@ fn vehicle_toml(
     let x0 = initial_nominal(truth0, &p0, config.seed);
     let (r, p, y) = x0.attitude.euler_angles();
     let f = &config.filter;
-    let (a, g) = (spec.accelerometer(), spec.gyroscope());
-    let acc =
-        f.initial_bias_std_scale * (a.turn_on_bias.powi(2) + a.bias_instability.powi(2)).sqrt();
-    let gyro =
-        f.initial_bias_std_scale * (g.turn_on_bias.powi(2) + g.bias_instability.powi(2)).sqrt();
+    let (acc, gyro) = initial_bias_std(config, spec);
     let noise =
         (config.dvl.ls_noise_std.powi(2) + config.dvl.akit_reference_mismatch_std.powi(2)).sqrt();
     let l = config.dvl.lever_arm_m;

@@ -17,5 +17,6 @@ pub use error::{PipelineError, Result};
 pub use faults::ImuGap;
 pub use faults::{DvlOutage, FaultConfig};
 pub use synthesis::{
-    dvl_epochs, initial_covariance, initial_nominal, protocol, synthesize_imu, DvlEpoch,
+    dvl_epochs, initial_bias_std, initial_covariance, initial_nominal, protocol, synthesize_imu,
+    DvlEpoch,
 };

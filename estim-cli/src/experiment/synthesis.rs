@@ -173,17 +173,25 @@ pub fn dvl_epochs(
     Ok(dvl)
 }
 
+/// The initial 1-sigma of the accelerometer and the gyroscope biases: the configured
+/// `filter.initial_bias_std_scale` times the root sum square of each sensor's turn-on
+/// bias and bias instability.
+pub fn initial_bias_std(config: &Config, spec: &ImuSpec) -> (f64, f64) {
+    let scale = config.filter.initial_bias_std_scale;
+    let (a, g) = (spec.accelerometer(), spec.gyroscope());
+    (
+        scale * (a.turn_on_bias.powi(2) + a.bias_instability.powi(2)).sqrt(),
+        scale * (g.turn_on_bias.powi(2) + g.bias_instability.powi(2)).sqrt(),
+    )
+}
+
 /// Initial covariance from the configuration and the IMU spec.
 pub fn initial_covariance(
     config: &Config,
     spec: &ImuSpec,
 ) -> SMatrix<f64, ERROR_STATES, ERROR_STATES> {
     let f = &config.filter;
-    let (a, g) = (spec.accelerometer(), spec.gyroscope());
-    let acc =
-        f.initial_bias_std_scale * (a.turn_on_bias.powi(2) + a.bias_instability.powi(2)).sqrt();
-    let gyro =
-        f.initial_bias_std_scale * (g.turn_on_bias.powi(2) + g.bias_instability.powi(2)).sqrt();
+    let (acc, gyro) = initial_bias_std(config, spec);
     let level = f.initial_level_std_deg.to_radians();
     let heading = f.initial_heading_std_deg.to_radians();
     let std = [
