@@ -8,6 +8,7 @@
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
+use crate::imu_choice::ImuChoice;
 use estim::navigator::tune::{
     TuneFit, TuneOptions, TuneParameters, M_SCALE, PARAMETER_NAMES, PARAMETER_UNITS,
 };
@@ -39,10 +40,18 @@ pub struct Args {
     /// Survey mode: DVL beams CSV (least squares on 3 or 4 beams).
     #[arg(long, value_name = "FILE", requires = "imu")]
     beams: Option<PathBuf>,
-    /// Survey mode: vehicle configuration TOML (IMU spec, DVL lever arm, time offset,
-    /// beam geometry and noise, initial state; as `estim navigate --vehicle`).
-    #[arg(long, value_name = "FILE", requires = "imu")]
+    /// Vehicle configuration TOML (IMU spec, DVL lever arm, time offset, beam geometry
+    /// and noise, initial state; as `estim navigate --vehicle`). With `--trajectories`:
+    /// the file a recorded IMU is read through (default: the embedded
+    /// `vehicles/akit.toml`).
+    #[arg(long, value_name = "FILE")]
     vehicle: Option<PathBuf>,
+    /// With `--trajectories`: which IMU each trajectory runs on: `auto` (the recorded
+    /// IMU where the folder holds `IMU_trajectoryN.csv`, else synthesized), `recorded`
+    /// or `synthesized`. All trajectories of one fit must share one.
+    #[arg(long = "imu-source", value_enum, default_value_t = ImuChoice::Auto,
+          conflicts_with = "imu")]
+    imu_source: ImuChoice,
     /// Survey mode: a reference track (as `estim navigate --truth`), used for the
     /// initial state only (`--init-from-truth`, or `[truth] initial_state` in the
     /// vehicle file); the fit itself sees only the IMU and the DVL.
@@ -142,6 +151,10 @@ pub struct TrajectoryMode {
     pub json: bool,
     /// The fit's options (`--linearizations`, `--fix`).
     pub options: TuneOptions,
+    /// `--imu-source`.
+    pub imu_source: ImuChoice,
+    /// `--vehicle`.
+    pub vehicle: Option<PathBuf>,
 }
 
 impl Args {
@@ -172,6 +185,8 @@ impl Args {
                 linearizations: self.linearizations,
                 json: self.json,
                 options,
+                imu_source: self.imu_source,
+                vehicle: self.vehicle,
             }));
         };
         Ok(Mode::Survey(SurveyMode {
@@ -203,6 +218,9 @@ pub struct TuneReport {
     /// The IMU PSDs the IMU was synthesized with (the values q_a and q_g recover when
     /// the filter's model is right); `None` for a recorded IMU.
     pub synthesized_psd: Option<[f64; 2]>,
+    /// With `--trajectories`: the IMU every trajectory ran on (`recorded` or
+    /// `synthesized`); `None` for a survey.
+    pub imu_source: Option<&'static str>,
     /// The fit.
     pub fit: TuneFit,
 }
@@ -238,6 +256,7 @@ pub fn run(args: SurveyMode) -> anyhow::Result<()> {
         overlapping: vec![measurements.skipped],
         start,
         synthesized_psd: None,
+        imu_source: None,
         fit,
     };
     let text = if args.json {

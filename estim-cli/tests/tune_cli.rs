@@ -40,6 +40,8 @@ fn json_gives_every_parameter_a_standard_error_and_the_test_a_p_value() {
         &root,
         "--trajectories",
         "2",
+        "--imu-source",
+        "synthesized",
         "--linearizations",
         "1",
         "--json",
@@ -52,6 +54,11 @@ fn json_gives_every_parameter_a_standard_error_and_the_test_a_p_value() {
     );
     let doc: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
     assert_eq!(doc["command"], "tune");
+    assert_eq!(
+        doc["inputs"]["imu_source"], "synthesized",
+        "{}",
+        doc["inputs"]
+    );
     let parameters = doc["parameters"].as_array().expect("parameters");
     assert_eq!(parameters.len(), 5);
     for p in parameters {
@@ -72,6 +79,47 @@ fn json_gives_every_parameter_a_standard_error_and_the_test_a_p_value() {
         "{}",
         doc["epochs"]
     );
+}
+
+#[test]
+fn trajectories_run_on_the_recorded_imu_where_it_exists() {
+    // Trajectory 2's folder holds its recorded IMU: the default reads it through the
+    // embedded vehicle file and says so. A fit that cannot be used (on trajectory 2 the
+    // accelerometer's density goes to 0: degenerate) is reported with its figures and
+    // exit status 3, a usable one with 0.
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    let root = root.to_string_lossy().into_owned();
+    let out = estim(&[
+        "tune",
+        "--data",
+        &root,
+        "--trajectories",
+        "2",
+        "--linearizations",
+        "1",
+        "--json",
+    ]);
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    assert_eq!(doc["inputs"]["imu_source"], "recorded", "{}", doc["inputs"]);
+    assert_eq!(doc["inputs"]["vehicle"], "vehicles/akit.toml (embedded)");
+    let usable = doc["fit_status"] == "converged" || doc["fit_status"] == "converged_on_bound";
+    assert_eq!(
+        out.status.code(),
+        Some(if usable { 0 } else { 3 }),
+        "{}",
+        doc["fit_status"]
+    );
+    assert!(
+        doc["epochs"][0].as_u64().is_some_and(|n| n > 300),
+        "{}",
+        doc["epochs"]
+    );
+    // No synthesized densities to compare with.
+    for p in doc["parameters"].as_array().expect("parameters") {
+        assert!(p["synthesized"].is_null(), "{p}");
+    }
 }
 
 fn tune_json(args: &[&str]) -> serde_json::Value {
@@ -130,10 +178,13 @@ fn survey_files_give_the_fit_of_the_study_trajectory() {
         &root,
         "--trajectories",
         "2",
+        "--imu-source",
+        "synthesized",
         "--linearizations",
         "1",
         "--json",
     ]);
+    assert_eq!(study["inputs"]["imu_source"], "synthesized");
     assert_eq!(survey["epochs"], study["epochs"]);
     let (a, b) = (
         survey["parameters"].as_array().unwrap(),

@@ -1,12 +1,20 @@
 //! `estim tune` on A-KIT: the maximum-likelihood noise parameters of the LS-aided
 //! INS/DVL filter ([`estim::navigator::tune`]) on chosen training trajectories.
 //!
-//! Each trajectory is the study's scenario (IMU synthesized from the ground truth with
-//! the configured error model and `seed`, the real DVL velocity through the BeamsNet
-//! beam protocol and least squares, the configured lever arm and time offset). The
-//! test trajectories 4 and 13 are refused, and every DVL epoch whose row also occurs in
-//! one of them (the A-KIT segments overlap) is left out of the likelihood: the filter
-//! propagates through it without an update.
+//! Each trajectory is the study's scenario with the IMU the selection picks
+//! ([`ImuSelection`]: the recorded IMU where the folder holds one, by default):
+//! - recorded: the IMU as the vehicle file reads it (axes, clock, offsets), the run
+//!   starting at the reference's state, the vehicle's IMU spec and DVL model (lever
+//!   arm, mounting, scale factor; its DVL error states are not part of the 15-state
+//!   fit);
+//! - synthesized: the IMU synthesized from the ground truth with the configured error
+//!   model and `seed`, a seeded initial error, the configured lever arm and time offset.
+//!
+//! Both take the real DVL velocity through the BeamsNet beam protocol and least
+//! squares, and the configuration's initial covariance. All trajectories of one fit
+//! share one IMU source. The test trajectories 4 and 13 are refused, and every DVL
+//! epoch whose row also occurs in one of them (the A-KIT segments overlap) is left out
+//! of the likelihood: the filter propagates through it without an update.
 
 use std::collections::HashSet;
 use std::path::Path;
@@ -15,12 +23,13 @@ use estim::datasets::{load_dvl_with, trajectory_files};
 use estim::navigator::tune::{tune, TuneModel, TuneOptions, TuneParameters, TuneTrajectory};
 use estim::navigator::{DvlConfig, NavigatorConfig};
 use estim_core::nalgebra::Vector3;
+use estim_ins::InsState;
 
 use crate::tune::TuneReport;
 
 use super::{
-    initial_covariance, initial_nominal, least_squares_velocities, Config, PipelineError, Result,
-    Scenario, AKIT_TEST_TRAJECTORIES,
+    initial_covariance, initial_nominal, least_squares_velocities, Config, ImuSelection, ImuSource,
+    PipelineError, Result, Scenario, AKIT_TEST_TRAJECTORIES,
 };
 
 fn bits(v: &Vector3<f64>) -> [u64; 3] {
@@ -64,6 +73,7 @@ pub fn tune_akit(
     trajectories: &[u32],
     config: &Config,
     seed: u64,
+    selection: &ImuSelection,
     options: &TuneOptions,
 ) -> Result<TuneReport> {
     const FLAG: &str = "--trajectories";
@@ -81,8 +91,20 @@ pub fn tune_akit(
     }
     let scenarios = trajectories
         .iter()
-        .map(|&n| Scenario::akit(dir, n, config, seed))
+        .map(|&n| Scenario::akit_selected(dir, n, config, seed, selection))
         .collect::<Result<Vec<_>>>()?;
+    let first = scenarios.first().ok_or_else(no_trajectory)?;
+    let source = first.imu_source;
+    if let Some(other) = scenarios.iter().find(|s| s.imu_source != source) {
+        return Err(PipelineError::Argument {
+            flag: "--imu-source".into(),
+            reason: format!(
+                "{} and {} run on different IMUs (one fit has one model); give \
+                 --imu-source synthesized, or trajectories that all have a recorded IMU",
+                first.name, other.name
+            ),
+        });
+    }
     let mut measurements = Vec::with_capacity(scenarios.len());
     let mut overlapping = Vec::with_capacity(scenarios.len());
     for scenario in &scenarios {
@@ -117,24 +139,37 @@ pub fn tune_akit(
                 what: format!("truth samples in {}", scenario.name),
             })?;
         let covariance = initial_covariance(config, &scenario.imu_spec);
+        let initial = match &scenario.recorded {
+            // The recorded runs start at the reference's state, the biases unknown.
+            Some(_) => InsState {
+                acc_bias: Vector3::zeros(),
+                gyro_bias: Vector3::zeros(),
+                ..*truth0
+            },
+            None => initial_nominal(truth0, &covariance, seed),
+        };
         inputs.push(TuneTrajectory {
             imu: &scenario.imu,
             imu_period: scenario.imu_dt,
             dvl,
-            initial: initial_nominal(truth0, &covariance, seed),
+            initial,
             covariance,
         });
     }
-    let first = scenarios.first().ok_or_else(no_trajectory)?;
     let spec = first.imu_spec;
-    let settings = NavigatorConfig {
-        dvl: DvlConfig {
-            lever_arm_m: config.dvl.lever_arm_m,
-            ..DvlConfig::default()
-        },
-        ..NavigatorConfig::default()
-    }
-    .check()?;
+    let dvl_model = match &first.recorded {
+        Some(recorded) => recorded.settings.dvl_model().clone(),
+        None => NavigatorConfig {
+            dvl: DvlConfig {
+                lever_arm_m: config.dvl.lever_arm_m,
+                ..DvlConfig::default()
+            },
+            ..NavigatorConfig::default()
+        }
+        .check()?
+        .dvl_model()
+        .clone(),
+    };
     let protocol = if config.dvl.protocol == "v2" {
         estim_dvl::BeamsNetProtocol::v2()
     } else {
@@ -142,7 +177,7 @@ pub fn tune_akit(
     };
     let model = TuneModel {
         sensor_spec: spec,
-        dvl: settings.dvl_model().clone(),
+        dvl: dvl_model,
         geometry: protocol.geometry().clone(),
     };
     let psd = [
@@ -162,7 +197,8 @@ pub fn tune_akit(
         epochs: measurements.iter().map(Vec::len).collect(),
         overlapping,
         start,
-        synthesized_psd: Some(psd),
+        synthesized_psd: (source == ImuSource::Synthesized).then_some(psd),
+        imu_source: Some(source.as_str()),
         fit,
     })
 }
