@@ -106,16 +106,8 @@ fn benches(c: &mut Criterion<ThreadCpuTime>) {
 
 /// One IMU step's parts, and the peer's predict.
 fn step_benches(c: &mut Criterion<ThreadCpuTime>, setup: &Setup) {
-    let Setup {
-        mission,
-        dt,
-        model,
-        mech,
-        start,
-        p0,
-        n,
-    } = setup;
-    let (dt, start, p0, n) = (*dt, *start, *p0, *n);
+    let (mission, model, mech) = (&setup.mission, &setup.model, &setup.mech);
+    let (dt, start, p0, n) = (setup.dt, setup.start, setup.p0, setup.n);
     let mut g = c.benchmark_group("ins_step");
     g.throughput(criterion::Throughput::Elements(1));
     g.bench_function("mechanization", |b| {
@@ -217,16 +209,8 @@ fn step_benches(c: &mut Criterion<ThreadCpuTime>, setup: &Setup) {
 
 /// The whole 400 s mission, and the peer's.
 fn mission_benches(c: &mut Criterion<ThreadCpuTime>, setup: &Setup) {
-    let Setup {
-        mission,
-        dt,
-        model,
-        mech,
-        start,
-        p0,
-        ..
-    } = setup;
-    let (dt, start, p0) = (*dt, *start, *p0);
+    let (mission, model, mech) = (&setup.mission, &setup.model, &setup.mech);
+    let (dt, start, p0) = (setup.dt, setup.start, setup.p0);
     let mut g = c.benchmark_group("ins_mission_400s_100hz");
     g.sample_size(10);
     g.bench_function("mechanization+covariance every step", |b| {
@@ -297,15 +281,8 @@ fn mission_benches(c: &mut Criterion<ThreadCpuTime>, setup: &Setup) {
 /// The error-state filter over the same mission with a learned-style DVL velocity
 /// update every second (WINDOW predicts), without and with the exact windowed M.
 fn filter_benches(c: &mut Criterion<ThreadCpuTime>, setup: &Setup) {
-    let Setup {
-        mission,
-        dt,
-        start,
-        p0,
-        n,
-        ..
-    } = setup;
-    let (dt, start, p0, n) = (*dt, *start, *p0, *n);
+    let mission = &setup.mission;
+    let (dt, start, p0, n) = (setup.dt, setup.start, setup.p0, setup.n);
     let spec = ImuSpec::akit_observed();
     let dvl = DvlVelocityModel::builder()
         .lever_arm(nalgebra::Vector3::new(0.5, 0.0, 0.3))
