@@ -26,6 +26,10 @@ use crate::survey::{LoadedSurvey, Result, SurveyError};
 /// The half-width \[s\] of the search for the reference's clock offset.
 pub const TRUTH_TIME_OFFSET_SEARCH_S: f64 = 5.0;
 
+/// The half-width \[s\] of the window of IMU samples whose mean angular rate carries
+/// the reference's velocity to the IMU's point ([`Truth::kinematics`]).
+pub const LEVER_ARM_RATE_HALF_WINDOW_S: f64 = 0.05;
+
 /// True accelerometer and gyroscope biases of one simulated IMU sample.
 type TrueBiases = (Vector3<f64>, Vector3<f64>);
 
@@ -165,6 +169,8 @@ pub struct Truth {
     trajectory: Trajectory,
     /// The reference's point relative to the IMU, body frame \[m\].
     lever_arm: Vector3<f64>,
+    /// The IMU's samples (navigator clock, body-frame angular rate \[rad/s\]).
+    rates: Vec<(f64, Vector3<f64>)>,
     epochs: Vec<f64>,
     span: [f64; 2],
     biases: Option<(Vec<f64>, Vec<TrueBiases>)>,
@@ -266,6 +272,7 @@ impl Truth {
             path: path.to_path_buf(),
             trajectory,
             lever_arm: lever,
+            rates: imu.iter().map(|s| (s.time, s.angular_rate)).collect(),
             epochs,
             span,
             biases,
@@ -316,8 +323,26 @@ impl Truth {
         }
     }
 
+    /// The IMU's mean angular rate over its samples within
+    /// +-[`LEVER_ARM_RATE_HALF_WINDOW_S`] of `time` (`None` where it has none).
+    fn measured_rate(&self, time: f64) -> Option<Vector3<f64>> {
+        let h = LEVER_ARM_RATE_HALF_WINDOW_S;
+        let lo = self.rates.partition_point(|r| r.0 < time - h);
+        let hi = self.rates.partition_point(|r| r.0 <= time + h);
+        let window = self.rates.get(lo..hi).filter(|w| !w.is_empty())?;
+        let sum: Vector3<f64> = window.iter().map(|r| r.1).sum();
+        Some(sum / window.len() as f64)
+    }
+
     /// The truth at `time` with its error-free specific force at the IMU (`None`
     /// outside the reference's span).
+    ///
+    /// The reference's velocity is its point's; the IMU's lacks C_b^n (omega x l).
+    /// omega is the IMU's own measured angular rate about `time`: a reference sampled
+    /// at 1 Hz does not resolve the vehicle's rotation above 0.5 Hz (waves near the
+    /// surface), and with l about 2 m its spline's rate put up to 0.1 m/s of error into
+    /// the carried velocity there. The spline's rate stands in where the IMU has no
+    /// sample.
     ///
     /// # Errors
     /// The spline's error for a time it cannot evaluate.
@@ -331,8 +356,8 @@ impl Truth {
         let kinematics = self.trajectory.evaluate(time)?;
         let w = kinematics.angular_rate;
         let mut state = carried(kinematics.state, &self.lever_arm);
-        // The reference's velocity is its point's: the IMU's lacks omega x l.
-        state.velocity_ned -= state.attitude * w.cross(&self.lever_arm);
+        let measured = self.measured_rate(time).unwrap_or(w);
+        state.velocity_ned -= state.attitude * measured.cross(&self.lever_arm);
         if let Some((times, biases)) = &self.biases {
             let i = times
                 .partition_point(|&t| t < time)
@@ -575,6 +600,73 @@ mod tests {
             );
         }
         assert!(!b.removed);
+    }
+
+    /// The reference's velocity is carried to the IMU with the IMU's measured angular
+    /// rate, which the 1 Hz reference cannot resolve: a pitch oscillation at exactly
+    /// 1 Hz is at the same phase at every reference epoch, so the reference is level
+    /// throughout and its spline's rate is zero.
+    #[test]
+    fn the_velocity_is_carried_with_the_imus_measured_rate() {
+        let dir = tempfile::tempdir().unwrap();
+        let gt = dir.path().join("gt.csv");
+        let (latitude0, speed) = (0.57_f64, 1.5);
+        let mut text = String::from(
+            "Time [s],Longitude [rad],Latitude [rad],Altitude [m],V North [m/s],\
+             V East [m/s],V Down [m/s],Roll [rad],Pitch [rad],Yaw [rad]\n",
+        );
+        for k in 0..=60 {
+            let t = f64::from(k);
+            let latitude = latitude0 + speed * t / 6_378_137.0;
+            text.push_str(&format!("{t},0.61,{latitude},-20,{speed},0,0,0,0,0\n"));
+        }
+        std::fs::write(&gt, text).unwrap();
+        let amplitude = 0.2;
+        let rate = |t: f64| amplitude * (2.0 * std::f64::consts::PI * t).cos();
+        let imu: Vec<estim_ins::ImuSample> = (0..6000)
+            .map(|j| {
+                // Stamps half a period off the reference's, clear of the window's edges.
+                let t = f64::from(j) * 0.01 + 0.005;
+                estim_ins::ImuSample::new(
+                    t,
+                    Vector3::new(0.0, 0.0, -9.8),
+                    Vector3::new(0.0, rate(t), 0.0),
+                )
+            })
+            .collect();
+        let mut config = NavigatorConfig::default();
+        config.truth.lever_arm_m = [2.0, 0.0, 0.5];
+        config.truth.time_offset_s = Some(0.0);
+        let survey = LoadedSurvey {
+            inputs: crate::navigator::SurveyInputs {
+                imu,
+                dvl: Vec::new(),
+                depth: Vec::new(),
+                fixes: Vec::new(),
+                output_epochs: Vec::new(),
+            },
+            settings: config.check().unwrap(),
+            epoch: 0.0,
+            true_biases: None,
+            pd0: None,
+        };
+        let truth = Truth::load(&gt, &survey, &config).unwrap();
+        for k in [10, 30, 45] {
+            let t = f64::from(k);
+            // The samples within 0.05 s of t: t + 0.005 + j / 100, j = -5..=4.
+            let mean = (-5..=4)
+                .map(|j| rate(t + 0.005 + f64::from(j) * 0.01))
+                .sum::<f64>()
+                / 10.0;
+            // omega x l with omega = (0, w, 0), l = (2, 0, 0.5): (0.5 w, 0, -2 w).
+            let expected = Vector3::new(speed - 0.5 * mean, 0.0, 2.0 * mean);
+            let v = truth.at(t).unwrap().unwrap().velocity_ned;
+            assert!(
+                (v - expected).norm() < 1e-9,
+                "t = {t}: {v:?} against {expected:?}"
+            );
+            assert!(mean > 0.19, "{mean}");
+        }
     }
 
     #[test]
