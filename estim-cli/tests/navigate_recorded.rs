@@ -441,3 +441,56 @@ fn the_dvl_mounting_is_the_training_calibrations_mean_and_spread() {
         );
     }
 }
+
+/// The vehicle file's starting accelerometer bias is the mean of `estim imu
+/// calibrate`'s estimate over the training trajectories, and its turn-on 1-sigma the
+/// largest per-axis spread (sample std) of those estimates, both as the file rounds
+/// them (0.1 mm/s^2).
+#[test]
+fn the_accelerometer_bias_is_the_training_calibrations_mean_and_spread() {
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    let mut biases: Vec<[f64; 3]> = Vec::new();
+    for n in TRAINING {
+        let [imu, _, gt] = files(&root, n);
+        let out = estim(&[
+            "imu",
+            "calibrate",
+            "--imu",
+            &imu.to_string_lossy(),
+            "--truth",
+            &gt.to_string_lossy(),
+            "--json",
+        ]);
+        assert_eq!(out.status.code(), Some(0), "trajectory {n}");
+        let s = json(&out);
+        let e = &s["accelerometer_bias_mps2"]["estimate"];
+        biases.push([0, 1, 2].map(|a| e[a].as_f64().unwrap()));
+    }
+    let count = biases.len() as f64;
+    let mean = [0, 1, 2].map(|a| biases.iter().map(|x| x[a]).sum::<f64>() / count);
+    let std = [0, 1, 2].map(|a| {
+        (biases.iter().map(|x| (x[a] - mean[a]).powi(2)).sum::<f64>() / (count - 1.0)).sqrt()
+    });
+    println!("accelerometer bias mean {mean:?} m/s^2, spread {std:?} m/s^2");
+    let text = std::fs::read_to_string(vehicle()).unwrap();
+    let file: toml::Value = toml::from_str(&text).unwrap();
+    let start = file["imu"]["accelerometer_bias"].as_array().unwrap();
+    for a in 0..3 {
+        let value = start[a].as_float().unwrap();
+        assert!(
+            (value - mean[a]).abs() <= 0.5e-4 + 1e-12,
+            "axis {a}: file {value} vs mean {}",
+            mean[a]
+        );
+    }
+    let turn_on = file["imu"]["accelerometer"]["turn_on_bias"]
+        .as_float()
+        .unwrap();
+    let widest = std.iter().copied().fold(0.0, f64::max);
+    assert!(
+        (turn_on - widest).abs() <= 0.5e-4 + 1e-12,
+        "turn-on {turn_on} vs largest spread {widest}"
+    );
+}
