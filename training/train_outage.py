@@ -1,6 +1,7 @@
 """Train OutageNet (IMU window + last valid DVL velocity + time since it -> body
 velocity) on the dataset written by `estim dataset beamsnet` and export
-models/outage.onnx, models/outage.json (metadata) and models/outage_parity.json.
+models/NAME.onnx, models/NAME.json (metadata) and models/NAME_parity.json (NAME: --name,
+default outage).
 
 Examples: for each dataset row k (the target is the DVL velocity at t_k, the IMU window
 the second before it) and `--pairs` earlier rows j of the same trajectory and
@@ -41,6 +42,7 @@ def parse_args():
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--dataset", required=True)
     p.add_argument("--out-dir", default="models")
+    p.add_argument("--name", default="outage", help="output files NAME.onnx, NAME.json, NAME_parity.json")
     p.add_argument("--epochs", type=int, default=20)
     p.add_argument("--batch-size", type=int, default=128)
     p.add_argument("--lr", type=float, default=2e-3)
@@ -48,6 +50,13 @@ def parse_args():
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--pairs", type=int, default=4)
     p.add_argument("--validation", default="3,10")
+    p.add_argument(
+        "--parity-inputs",
+        choices=["validation", "synthetic"],
+        default="validation",
+        help="parity cases from the validation split, or seeded synthetic inputs (for a dataset of "
+        "recorded IMU windows, which must not be committed)",
+    )
     return p.parse_args()
 
 
@@ -188,7 +197,8 @@ def main():
         print(f"elapsed {b['elapsed_s']}: residual std {b['residual_std_mps']}, hold-last rmse {b['hold_last_rmse_mps']}")
 
     os.makedirs(args.out_dir, exist_ok=True)
-    onnx_path = os.path.join(args.out_dir, "outage.onnx")
+    onnx_name = f"{args.name}.onnx"
+    onnx_path = os.path.join(args.out_dir, onnx_name)
     torch.onnx.export(
         model,
         (va[0][:2], va[1][:2], va[2][:2], va[3][:2]),
@@ -199,14 +209,19 @@ def main():
         opset_version=13,
         do_constant_folding=True,
     )
+    # Whether the dataset's IMU was recorded or synthesized (older datasets have no
+    # `imu_source` and were synthesized).
+    imu_source = meta.get("imu_source", "synthesized")
+    imu_words = "" if imu_source == "synthesized" else f"{imu_source} IMU, "
     meta_out = {
         "format": "estim-learned-model/1",
+        "imu_source": imu_source,
         "name": "OutageNet",
-        "model": "outage.onnx",
+        "model": onnx_name,
         "inputs": [
             {"name": "acc", "stream": "acc", "channels": 3, "window": WINDOW, "sample_rate_hz": 100.0,
              "shape": [3, WINDOW], "mean": acc_mean.tolist(), "std": acc_std.tolist(),
-             "unit": "m/s^2", "description": "specific force, body frame, the 100 samples before the filter's update (DVL stamp shifted by the DVL time offset, dataset window_alignment)"},
+             "unit": "m/s^2", "description": f"specific force, body frame, {imu_words}the 100 samples before the filter's update (DVL stamp shifted by the DVL time offset, dataset window_alignment)"},
             {"name": "gyro", "stream": "gyro", "channels": 3, "window": WINDOW, "sample_rate_hz": 100.0,
              "shape": [3, WINDOW], "mean": gyro_mean.tolist(), "std": gyro_std.tolist(),
              "unit": "rad/s", "description": "angular rate, body frame, same window as acc"},
@@ -223,6 +238,7 @@ def main():
         "beam_protocol": meta["beam_protocol"],
         "training": {
             "dataset": os.path.basename(args.dataset),
+            "imu_source": imu_source,
             "dataset_metadata": meta,
             "max_elapsed_s": MAX_ELAPSED_S,
             "pairs_per_row": args.pairs,
@@ -243,24 +259,42 @@ def main():
         },
         "imu_dependence": imu_dependence,
     }
-    with open(os.path.join(args.out_dir, "outage.json"), "w") as f:
+    with open(os.path.join(args.out_dir, f"{args.name}.json"), "w") as f:
         json.dump(meta_out, f, indent=1)
-    cnt = min(4, len(va[0]))
-    rows = np.linspace(0, len(va[0]) - 1, cnt).astype(int)
+
+    # Parity vectors: model-level (normalised) inputs and the PyTorch outputs in eval mode.
+    description = "OutageNet inputs (already normalised, as fed to the ONNX graph) and PyTorch eval-mode outputs"
+    if args.parity_inputs == "synthetic":
+        # Recorded IMU windows stay out of the repository: standard normal normalised
+        # windows (the training split's scale), last velocities around the A-KIT cruise
+        # (2, 0, 0) m/s with the spread of the dataset's targets, and elapsed times
+        # uniform in 1-60 s (divided by 60, as fed to the graph), from a generator of
+        # their own (training is unaffected).
+        g = torch.Generator().manual_seed(args.seed + 1)
+        cnt = 4
+        p_acc = torch.randn(cnt, 3, WINDOW, generator=g)
+        p_gyro = torch.randn(cnt, 3, WINDOW, generator=g)
+        p_last = torch.tensor([2.0, 0.0, 0.0]) + torch.randn(cnt, 3, generator=g) * torch.tensor([0.4, 0.3, 0.07])
+        p_elapsed = (1.0 + (MAX_ELAPSED_S - 1.0) * torch.rand(cnt, 1, generator=g)) / MAX_ELAPSED_S
+        description += "; seeded synthetic inputs (normal windows, last velocities, elapsed times), no recorded data"
+    else:
+        cnt = min(4, len(va[0]))
+        rows = np.linspace(0, len(va[0]) - 1, cnt).astype(int)
+        p_acc, p_gyro, p_last, p_elapsed = va[0][rows], va[1][rows], va[2][rows], va[3][rows]
     with torch.no_grad():
-        out = model(va[0][rows], va[1][rows], va[2][rows], va[3][rows])
+        out = model(p_acc, p_gyro, p_last, p_elapsed)
     parity = {
-        "description": "OutageNet inputs (already normalised, as fed to the ONNX graph) and PyTorch eval-mode outputs",
+        "description": description,
         "cases": [
-            {"acc": va[0][i].tolist(), "gyro": va[1][i].tolist(), "last_velocity": va[2][i].tolist(),
-             "elapsed": va[3][i].tolist(), "velocity": out[jj].tolist()}
-            for jj, i in enumerate(rows)
+            {"acc": p_acc[jj].tolist(), "gyro": p_gyro[jj].tolist(), "last_velocity": p_last[jj].tolist(),
+             "elapsed": p_elapsed[jj].tolist(), "velocity": out[jj].tolist()}
+            for jj in range(cnt)
         ],
     }
-    with open(os.path.join(args.out_dir, "outage_parity.json"), "w") as f:
+    with open(os.path.join(args.out_dir, f"{args.name}_parity.json"), "w") as f:
         json.dump(parity, f)
     print(f"validation R diag sqrt: {np.sqrt(np.diag(r))}")
-    print(f"wrote {onnx_path}, outage.json, outage_parity.json in {time.time() - t0:.1f} s")
+    print(f"wrote {onnx_path}, {args.name}.json, {args.name}_parity.json in {time.time() - t0:.1f} s")
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Train TwoBeamsNet (IMU window + beams 1 and 2 -> body velocity) on the dataset written
-by `estim dataset beamsnet` and export models/two_beams.onnx, models/two_beams.json
-(metadata) and models/two_beams_parity.json.
+by `estim dataset beamsnet` and export models/NAME.onnx, models/NAME.json (metadata) and
+models/NAME_parity.json (NAME: --name, default two_beams).
 
 Same rules as train_beamsnet.py: seeded, CPU, deterministic algorithms; trajectories 4
 and 13 refused; the validation split may not separate trajectories that share rows.
@@ -30,12 +30,20 @@ def parse_args():
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--dataset", required=True)
     p.add_argument("--out-dir", default="models")
+    p.add_argument("--name", default="two_beams", help="output files NAME.onnx, NAME.json, NAME_parity.json")
     p.add_argument("--epochs", type=int, default=30)
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--lr", type=float, default=2e-3)
     p.add_argument("--seed", type=int, default=5)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--validation", default="3,10")
+    p.add_argument(
+        "--parity-inputs",
+        choices=["validation", "synthetic"],
+        default="validation",
+        help="parity cases from the validation split, or seeded synthetic inputs (for a dataset of "
+        "recorded IMU windows, which must not be committed)",
+    )
     return p.parse_args()
 
 
@@ -143,7 +151,8 @@ def main():
     print(f"IMU dependence (validation): {imu_dependence}")
 
     os.makedirs(args.out_dir, exist_ok=True)
-    onnx_path = os.path.join(args.out_dir, "two_beams.onnx")
+    onnx_name = f"{args.name}.onnx"
+    onnx_path = os.path.join(args.out_dir, onnx_name)
     torch.onnx.export(
         model,
         (va[0][:2], va[1][:2], va[2][:2]),
@@ -154,14 +163,19 @@ def main():
         opset_version=13,
         do_constant_folding=True,
     )
+    # Whether the dataset's IMU was recorded or synthesized (older datasets have no
+    # `imu_source` and were synthesized).
+    imu_source = meta.get("imu_source", "synthesized")
+    imu_words = "" if imu_source == "synthesized" else f"{imu_source} IMU, "
     meta_out = {
         "format": "estim-learned-model/1",
+        "imu_source": imu_source,
         "name": "TwoBeamsNet",
-        "model": "two_beams.onnx",
+        "model": onnx_name,
         "inputs": [
             {"name": "acc", "stream": "acc", "channels": 3, "window": WINDOW, "sample_rate_hz": 100.0,
              "shape": [3, WINDOW], "mean": acc_mean.tolist(), "std": acc_std.tolist(),
-             "unit": "m/s^2", "description": "specific force, body frame, the 100 samples before the filter's update for the DVL sample (stamp shifted by the DVL time offset, dataset window_alignment)"},
+             "unit": "m/s^2", "description": f"specific force, body frame, {imu_words}the 100 samples before the filter's update for the DVL sample (stamp shifted by the DVL time offset, dataset window_alignment)"},
             {"name": "gyro", "stream": "gyro", "channels": 3, "window": WINDOW, "sample_rate_hz": 100.0,
              "shape": [3, WINDOW], "mean": gyro_mean.tolist(), "std": gyro_std.tolist(),
              "unit": "rad/s", "description": "angular rate, body frame, same window as acc"},
@@ -175,6 +189,7 @@ def main():
         "beam_protocol": meta["beam_protocol"],
         "training": {
             "dataset": os.path.basename(args.dataset),
+            "imu_source": imu_source,
             "dataset_metadata": meta,
             "beams_used": [c - 599 for c in BEAM_COLUMNS],
             "train_trajectories": sorted(set(int(t) for t in np.unique(traj[~is_val]))),
@@ -193,23 +208,39 @@ def main():
         },
         "imu_dependence": imu_dependence,
     }
-    with open(os.path.join(args.out_dir, "two_beams.json"), "w") as f:
+    with open(os.path.join(args.out_dir, f"{args.name}.json"), "w") as f:
         json.dump(meta_out, f, indent=1)
-    k = min(4, len(va[0]))
-    rows = np.linspace(0, len(va[0]) - 1, k).astype(int)
+
+    # Parity vectors: model-level (normalised) inputs and the PyTorch outputs in eval mode.
+    description = "TwoBeamsNet inputs (already normalised, as fed to the ONNX graph) and PyTorch eval-mode outputs"
+    if args.parity_inputs == "synthetic":
+        # Recorded IMU windows stay out of the repository: standard normal normalised
+        # windows (the training split's scale) and beams 1 and 2 of A v (1.007) for seeded
+        # velocities, from a generator of their own (training is unaffected).
+        g = torch.Generator().manual_seed(args.seed + 1)
+        k = 4
+        p_acc = torch.randn(k, 3, WINDOW, generator=g)
+        p_gyro = torch.randn(k, 3, WINDOW, generator=g)
+        v = torch.randn(k, 3, generator=g, dtype=torch.float64) * torch.tensor([1.0, 0.3, 0.1], dtype=torch.float64)
+        p_beams = (1.007 * v @ torch.tensor(a2, dtype=torch.float64).T).float()
+        description += "; seeded synthetic inputs (normal windows, beams 1 and 2 of seeded velocities), no recorded data"
+    else:
+        k = min(4, len(va[0]))
+        rows = np.linspace(0, len(va[0]) - 1, k).astype(int)
+        p_acc, p_gyro, p_beams = va[0][rows], va[1][rows], va[2][rows]
     with torch.no_grad():
-        out = model(va[0][rows], va[1][rows], va[2][rows])
+        out = model(p_acc, p_gyro, p_beams)
     parity = {
-        "description": "TwoBeamsNet inputs (already normalised, as fed to the ONNX graph) and PyTorch eval-mode outputs",
+        "description": description,
         "cases": [
-            {"acc": va[0][i].tolist(), "gyro": va[1][i].tolist(), "beams": va[2][i].tolist(), "velocity": out[j].tolist()}
-            for j, i in enumerate(rows)
+            {"acc": p_acc[j].tolist(), "gyro": p_gyro[j].tolist(), "beams": p_beams[j].tolist(), "velocity": out[j].tolist()}
+            for j in range(k)
         ],
     }
-    with open(os.path.join(args.out_dir, "two_beams_parity.json"), "w") as f:
+    with open(os.path.join(args.out_dir, f"{args.name}_parity.json"), "w") as f:
         json.dump(parity, f)
     print(f"validation R diag sqrt: {np.sqrt(np.diag(r))}")
-    print(f"wrote {onnx_path}, two_beams.json, two_beams_parity.json in {time.time() - t0:.1f} s")
+    print(f"wrote {onnx_path}, {args.name}.json, {args.name}_parity.json in {time.time() - t0:.1f} s")
 
 
 if __name__ == "__main__":

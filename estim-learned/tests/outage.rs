@@ -18,9 +18,22 @@ use nalgebra::Vector3;
 
 #[test]
 fn tract_matches_pytorch_within_1e_5() {
+    check_parity("outage");
+}
+
+/// The outage network trained on recorded IMU windows (its parity inputs are seeded
+/// synthetic ones: no recorded window is committed).
+#[test]
+fn recorded_tract_matches_pytorch_within_1e_5() {
+    check_parity("outage_recorded");
+}
+
+/// `models/NAME.onnx` run by tract on the cases of `models/NAME_parity.json`, within
+/// 1e-5 of PyTorch's outputs.
+fn check_parity(name: &str) {
     let dir = common::models_dir();
-    let model = OnnxMeasurement::<3>::from_model_path(&dir.join("outage.onnx")).unwrap();
-    let text = std::fs::read_to_string(dir.join("outage_parity.json")).unwrap();
+    let model = OnnxMeasurement::<3>::from_model_path(&dir.join(format!("{name}.onnx"))).unwrap();
+    let text = std::fs::read_to_string(dir.join(format!("{name}_parity.json"))).unwrap();
     let parity: serde_json::Value = serde_json::from_str(&text).unwrap();
     let cases = parity["cases"].as_array().unwrap();
     assert!(cases.len() >= 2);
@@ -37,7 +50,7 @@ fn tract_matches_pytorch_within_1e_5() {
             worst = worst.max((g - f64::from(*w)).abs());
         }
     }
-    println!("worst |tract - pytorch| = {worst:e}");
+    println!("{name}: worst |tract - pytorch| = {worst:e}");
     assert!(worst <= 1e-5, "worst deviation {worst:e}");
 }
 

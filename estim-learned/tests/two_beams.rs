@@ -25,9 +25,22 @@ use rand_distr::{Distribution, StandardNormal};
 
 #[test]
 fn tract_matches_pytorch_within_1e_5() {
+    check_parity("two_beams");
+}
+
+/// The two-beams network trained on recorded IMU windows (its parity inputs are seeded
+/// synthetic ones: no recorded window is committed).
+#[test]
+fn recorded_tract_matches_pytorch_within_1e_5() {
+    check_parity("two_beams_recorded");
+}
+
+/// `models/NAME.onnx` run by tract on the cases of `models/NAME_parity.json`, within
+/// 1e-5 of PyTorch's outputs.
+fn check_parity(name: &str) {
     let dir = common::models_dir();
-    let model = OnnxMeasurement::<3>::from_model_path(&dir.join("two_beams.onnx")).unwrap();
-    let text = std::fs::read_to_string(dir.join("two_beams_parity.json")).unwrap();
+    let model = OnnxMeasurement::<3>::from_model_path(&dir.join(format!("{name}.onnx"))).unwrap();
+    let text = std::fs::read_to_string(dir.join(format!("{name}_parity.json"))).unwrap();
     let parity: serde_json::Value = serde_json::from_str(&text).unwrap();
     let cases = parity["cases"].as_array().unwrap();
     assert!(cases.len() >= 2);
@@ -44,7 +57,7 @@ fn tract_matches_pytorch_within_1e_5() {
             worst = worst.max((g - f64::from(*w)).abs());
         }
     }
-    println!("worst |tract - pytorch| = {worst:e}");
+    println!("{name}: worst |tract - pytorch| = {worst:e}");
     assert!(worst <= 1e-5, "worst deviation {worst:e}");
 }
 
