@@ -207,6 +207,28 @@ impl DvlVelocityModel {
         &self.mounting_misalignment
     }
 
+    /// The same model with R replaced by `r` (finite, symmetric, positive definite), e.g.
+    /// a learned sensor's R for an update whose velocity the network gave.
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for an `r` that is not finite, symmetric and positive
+    /// definite.
+    pub fn with_noise_covariance(&self, r: Matrix3<f64>) -> Result<Self> {
+        let ok = r.iter().all(|x| x.is_finite())
+            && (r - r.transpose()).abs().max() <= 1e-12 * r.abs().max()
+            && r.cholesky().is_some();
+        if !ok {
+            return Err(Error::InvalidParameter {
+                name: "noise covariance",
+                reason: format!("{r} is not symmetric positive definite"),
+            });
+        }
+        Ok(Self {
+            noise_covariance: r,
+            ..self.clone()
+        })
+    }
+
     /// The same model with R multiplied by `scale` (finite, > 0), e.g. a noise level
     /// adapted online (`estim_core::noise::adaptive::NoiseScale`).
     ///

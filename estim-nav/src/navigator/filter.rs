@@ -62,6 +62,14 @@ pub trait NavigationModel<const N: usize>:
     /// [`NavigatorError::InvalidValue`] for a scale that is not finite and positive.
     fn scale_dvl_noise(model: &Self::Dvl, scale: f64) -> Result<Self::Dvl>;
 
+    /// `model` with its noise covariance replaced by `r` (the noise of a velocity that
+    /// is not the DVL's own, e.g. a learned sensor's).
+    ///
+    /// # Errors
+    /// [`NavigatorError::InvalidValue`] for an `r` that is not finite, symmetric and
+    /// positive definite.
+    fn replace_dvl_noise(model: &Self::Dvl, r: Matrix3<f64>) -> Result<Self::Dvl>;
+
     /// After a propagation step of length `dt` ending at `end`, at the new nominal.
     fn after_step(
         &self,
@@ -118,6 +126,15 @@ impl NavigationModel<ERROR_STATES> for InsErrorModel {
             NavigatorError::invalid(
                 "DVL noise scale",
                 format!("{scale} is not finite and positive"),
+            )
+        })
+    }
+
+    fn replace_dvl_noise(model: &DvlVelocityModel, r: Matrix3<f64>) -> Result<DvlVelocityModel> {
+        model.with_noise_covariance(r).map_err(|_| {
+            NavigatorError::invalid(
+                "DVL noise covariance",
+                format!("{r} is not symmetric positive definite"),
             )
         })
     }
@@ -480,6 +497,24 @@ impl<E: NavigationModel<N>, O: Observer<f64, E::State, N>, const N: usize> Navig
             }
         }
         Ok(report)
+    }
+
+    /// DVL velocity update at `time` with the noise covariance `r` in place of the
+    /// configured R and its adapted level (e.g. a learned sensor's R for a velocity the
+    /// network gave); the adapted level is neither used nor updated.
+    ///
+    /// # Errors
+    /// As [`Navigator::dvl_velocity`]; [`NavigatorError::InvalidValue`] for an `r` that
+    /// is not finite, symmetric and positive definite.
+    pub fn dvl_velocity_with_noise(
+        &mut self,
+        time: f64,
+        velocity: &Vector3<f64>,
+        r: &Matrix3<f64>,
+        cross: &DvlCross<'_, E::State, N>,
+    ) -> Result<UpdateReport<f64, N, 3>> {
+        let model = E::replace_dvl_noise(&self.dvl, *r)?;
+        self.dvl_velocity_with(time, velocity, &model, cross)
     }
 
     /// [`Navigator::dvl_velocity`] with another DVL model (e.g. another R for a

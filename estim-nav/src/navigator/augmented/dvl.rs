@@ -73,6 +73,19 @@ impl AugmentedDvlModel {
         Ok(self)
     }
 
+    /// The same model with R replaced by `r` and no rate-dependent noise (κ = 0): the
+    /// noise of a velocity that is not the DVL's own, e.g. a learned sensor's.
+    ///
+    /// # Errors
+    /// [`NavigatorError::InvalidValue`] for an `r` that is not finite, symmetric and
+    /// positive definite.
+    pub fn with_noise_covariance(&self, r: Matrix3<f64>) -> Result<Self> {
+        Ok(Self {
+            acceleration_offset: self.acceleration_offset,
+            ..Self::new(r)?
+        })
+    }
+
     /// The same model with its noise scaled by `scale` (finite, > 0): R by the
     /// scale, κ by its square root (so κ² |ω|² scales with R).
     ///

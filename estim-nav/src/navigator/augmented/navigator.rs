@@ -219,6 +219,10 @@ impl NavigationModel<AUGMENTED_STATES> for AugmentedErrorModel {
         model.with_noise_scale(scale)
     }
 
+    fn replace_dvl_noise(model: &AugmentedDvlModel, r: Matrix3<f64>) -> Result<AugmentedDvlModel> {
+        model.with_noise_covariance(r)
+    }
+
     fn after_step(
         &self,
         memory: &mut AccelerationWindow,

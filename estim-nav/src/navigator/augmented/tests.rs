@@ -416,6 +416,88 @@ fn noise_scale_scales_r_and_the_rate_noise() {
     }
 }
 
+/// `with_noise_covariance` replaces R and drops the rate noise: its R is the given
+/// one at any angular rate; a matrix that is not a covariance is refused.
+#[test]
+fn noise_covariance_replaces_r_and_drops_the_rate_noise() {
+    let x = state(0.0);
+    let model = AugmentedDvlModel::new(Matrix3::identity() * 1e-4)
+        .unwrap()
+        .with_rate_noise(0.5)
+        .unwrap();
+    let r = Matrix3::new(4e-4, 1e-5, 0.0, 1e-5, 9e-4, 0.0, 0.0, 0.0, 1e-4);
+    let got = model
+        .with_noise_covariance(r)
+        .unwrap()
+        .noise_covariance(&x)
+        .unwrap();
+    assert_eq!(got, r);
+    assert!(model
+        .noise_covariance(&x)
+        .unwrap()
+        .iter()
+        .zip(r.iter())
+        .any(|(a, b)| a != b));
+    let not_symmetric = Matrix3::new(1.0, 0.5, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0);
+    for bad in [
+        not_symmetric,
+        -Matrix3::identity(),
+        Matrix3::identity() * f64::NAN,
+    ] {
+        assert!(model.with_noise_covariance(bad).is_err());
+    }
+}
+
+/// An update with its R given (`dvl_velocity_with_noise`) equals `dvl_velocity_with`
+/// on a model built with that R and no rate noise, to 1e-12; the adapted level stays.
+#[test]
+fn an_update_with_a_given_r_equals_the_model_built_with_it() {
+    use crate::navigator::NavigatorConfig;
+    let mission = mission(30.0, 6);
+    let mut config = NavigatorConfig::default();
+    config.dvl.noise_std_mps = 0.01;
+    config.dvl.adaptive_noise_window = Some(20);
+    config.gate.probability = 0.0;
+    let settings = config.check().unwrap();
+    let states = DvlStatesConfig {
+        bias: BiasConfig {
+            estimate: true,
+            std_mps: 0.01,
+            time_constant_s: 30.0,
+        },
+        ..DvlStatesConfig::default()
+    };
+    let x0 = mission.truth[0];
+    let p0 = ErrorMatrix::identity() * 1e-3;
+    let dt = mission.imu_dt;
+    let mut given = AugmentedNavigator::with_states(&settings, &states, x0, p0, dt).unwrap();
+    let mut built = AugmentedNavigator::with_states(&settings, &states, x0, p0, dt).unwrap();
+    let r = Matrix3::from_diagonal(&Vector3::new(2.5e-5, 1.6e-3, 1e-4));
+    let model = AugmentedDvlModel::new(r).unwrap();
+    for k in 0..mission.imu.len() {
+        given.imu(&mission.imu[k]).unwrap();
+        built.imu(&mission.imu[k]).unwrap();
+        if (k + 1) % 100 != 0 {
+            continue;
+        }
+        let truth = &mission.truth[k + 1];
+        let y = truth.attitude.inverse() * truth.velocity_ned + Vector3::new(0.01, -0.02, 0.0);
+        let a = given
+            .dvl_velocity_with_noise(truth.time, &y, &r, &Zero)
+            .unwrap();
+        let b = built
+            .dvl_velocity_with(truth.time, &y, &model, &Zero)
+            .unwrap();
+        assert!((a.nis - b.nis).abs() <= 1e-12 * b.nis.max(1.0));
+        assert_eq!(given.dvl_noise_scale(), Some(1.0));
+    }
+    let d = (given.covariance() - built.covariance()).abs().max();
+    assert!(
+        d <= 1e-12 * built.covariance().abs().max(),
+        "P differs by {d}"
+    );
+}
+
 /// With `dvl.adaptive_noise_window`, `dvl_velocity` equals a loop coded here
 /// again: update with the model at λ, feed the innovation, S and λR + the bias
 /// block of the prior P to a `NoiseScale`, then set the bias sigma to σ √λ. The

@@ -267,3 +267,65 @@ fn out_of_order_and_early_inputs_are_typed_errors() {
     assert!(nav.position_fix(5.02, 30.0, 30.0, 0.0).is_err());
     assert!(Navigator::new(&settings, x0, ErrorMatrix::identity(), 0.0).is_err());
 }
+
+/// An update with its R given (`dvl_velocity_with_noise`) is the update of a navigator
+/// configured with that R, to 1e-12; the adapted noise level is neither used nor moved.
+#[test]
+fn an_update_with_a_given_r_is_the_update_of_a_navigator_configured_with_it() {
+    let mission = Mission::generate(
+        &MissionConfig::builder().duration(30.0).build().unwrap(),
+        12,
+    )
+    .unwrap();
+    let settings_of = |std: f64, window: Option<usize>| {
+        let mut config = NavigatorConfig::default();
+        config.dvl.noise_std_mps = std;
+        config.dvl.adaptive_noise_window = window;
+        config.gate.probability = 0.0;
+        config.check().unwrap()
+    };
+    let x0 = mission.truth[0];
+    let p0 = ErrorMatrix::identity() * 1e-3;
+    let dt = mission.imu_dt;
+    let mut given = Navigator::new(&settings_of(0.02, Some(5)), x0, p0, dt).unwrap();
+    let mut configured = Navigator::new(&settings_of(0.05, None), x0, p0, dt).unwrap();
+    let r = Matrix3::identity() * 0.05 * 0.05;
+    for nav in [&mut given, &mut configured] {
+        nav.imu(&mission.imu[0]).unwrap();
+    }
+    let mut updates = 0;
+    for k in 1..mission.imu.len() {
+        for nav in [&mut given, &mut configured] {
+            nav.imu(&mission.imu[k]).unwrap();
+        }
+        if k % 100 == 0 {
+            let truth = &mission.truth[k];
+            let v = truth.attitude.inverse() * truth.velocity_ned + Vector3::new(0.03, -0.02, 0.01);
+            let t = truth.time;
+            let a = given.dvl_velocity_with_noise(t, &v, &r, &Zero).unwrap();
+            let b = configured.dvl_velocity(t, &v, &Zero).unwrap();
+            assert!((a.nis - b.nis).abs() <= 1e-12 * b.nis.abs().max(1.0));
+            assert_eq!(given.dvl_noise_scale(), Some(1.0));
+            updates += 1;
+        }
+    }
+    assert_eq!(updates, 29);
+    let (pa, pb) = (
+        given.filter().covariance(),
+        configured.filter().covariance(),
+    );
+    assert!(
+        (pa - pb).abs().max() <= 1e-12 * pb.abs().max(),
+        "{}",
+        (pa - pb).abs().max()
+    );
+    let (xa, xb) = (given.nominal(), configured.nominal());
+    assert!((xa.velocity_ned - xb.velocity_ned).norm() < 1e-12);
+    assert!((xa.latitude - xb.latitude).abs() < 1e-15);
+    // An R that is not a covariance is refused.
+    let bad = Matrix3::new(1.0, 2.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0);
+    let t = mission.truth[mission.imu.len() - 1].time;
+    assert!(given
+        .dvl_velocity_with_noise(t, &Vector3::zeros(), &bad, &Zero)
+        .is_err());
+}
