@@ -2,7 +2,7 @@
 //! learned sensors that must use the IMU.
 
 use crate::study::{
-    learned_monte_carlo, learned_study, BeamLoss, Config, DvlOutage, LearnedEvent,
+    learned_monte_carlo, learned_study, BeamLoss, Config, DvlOutage, ImuSource, LearnedEvent,
     LearnedMonteCarlo, LearnedStudy, Scenario,
 };
 use estim::learned::{BeamsNet, OutageNet, TwoBeamsNet};
@@ -51,19 +51,33 @@ pub struct Networks {
 }
 
 impl Networks {
-    /// BeamsNet and the network of `outage` (true) or the two-beams scenario.
-    pub fn load(outage: bool) -> anyhow::Result<Self> {
-        let beamsnet = estim::models::beamsnet().context("the committed BeamsNet model")?;
-        let (two_beams, outage) = if outage {
-            (
-                None,
-                Some(estim::models::outage().context("the committed outage model")?),
-            )
+    /// BeamsNet and the network of `outage` (true) or the two-beams scenario, trained
+    /// on windows of the IMU `source`: on the recorded IMU windows of the A-KIT training
+    /// trajectories (`models/*_recorded.onnx`) for a recorded IMU, else on synthesized
+    /// ones.
+    pub fn load(outage: bool, source: ImuSource) -> anyhow::Result<Self> {
+        use estim::models;
+        let recorded = source == ImuSource::Recorded;
+        let beamsnet = if recorded {
+            models::beamsnet_recorded()
         } else {
-            (
-                Some(estim::models::two_beams().context("the committed two-beams model")?),
-                None,
-            )
+            models::beamsnet()
+        }
+        .context("the committed BeamsNet model")?;
+        let (two_beams, outage) = if outage {
+            let net = if recorded {
+                models::outage_recorded()
+            } else {
+                models::outage()
+            };
+            (None, Some(net.context("the committed outage model")?))
+        } else {
+            let net = if recorded {
+                models::two_beams_recorded()
+            } else {
+                models::two_beams()
+            };
+            (Some(net.context("the committed two-beams model")?), None)
         };
         Ok(Self {
             beamsnet,
@@ -87,17 +101,18 @@ impl Networks {
     }
 }
 
-/// The learned study (`outage` or two-beams) on each scenario.
+/// The learned study (`outage` or two-beams) on each scenario, with the networks
+/// trained on windows of its IMU ([`Networks::load`]).
 pub fn reproduce_learned(
     scenarios: &[Scenario],
     config: &Config,
     outage: bool,
 ) -> anyhow::Result<Vec<LearnedStudy>> {
-    let nets = Networks::load(outage)?;
-    let event = nets.event()?;
     scenarios
         .iter()
         .map(|s| {
+            let nets = Networks::load(outage, s.imu_source)?;
+            let event = nets.event()?;
             Ok(learned_study(
                 s,
                 config,
@@ -114,9 +129,22 @@ pub fn reproduce_learned(
 pub fn print_study(out: &mut String, s: &LearnedStudy) -> std::fmt::Result {
     writeln!(
         out,
-        "== {} ({}): {} ({} network updates); paper rho used {:.3}",
-        s.scenario, s.event, s.description, s.loss_epochs, s.paper_rho
+        "== {} ({}, IMU {}): {} ({} network updates); paper rho used {:.3}",
+        s.scenario,
+        s.event,
+        s.imu_source.as_str(),
+        s.description,
+        s.loss_epochs,
+        s.paper_rho
     )?;
+    if s.imu_source == ImuSource::Recorded {
+        writeln!(
+            out,
+            "   recorded IMU read with the vehicle file, networks trained on recorded windows; \
+             errors and NEES (over {} states with truth) at the reference's epochs",
+            s.nees_states
+        )?;
+    }
     writeln!(
         out,
         "   correlation network output error / IMU-driven INS error (mean over the loss of the largest |rho_ij|): {:.3e}",
@@ -166,7 +194,7 @@ pub fn monte_carlo_learned(
     empirical_realizations: usize,
     tick: &(dyn Fn() + Sync),
 ) -> anyhow::Result<LearnedMonteCarlo> {
-    let nets = Networks::load(outage)?;
+    let nets = Networks::load(outage, ImuSource::Synthesized)?;
     let event = nets.event()?;
     Ok(learned_monte_carlo(
         config,

@@ -57,8 +57,8 @@ pub struct Args {
     scenario: crate::learned_scenarios::ScenarioKind,
     /// Which IMU an A-KIT trajectory uses: `auto` (the recorded `IMU_trajectoryN.csv`
     /// where the folder holds one, else synthesized from the reference), `recorded`
-    /// (an error where there is none) or `synthesized`. `--scenario two-beams` and
-    /// `outage` always synthesize (`recorded` is refused with them).
+    /// (an error where there is none) or `synthesized`. On a recorded IMU `--scenario
+    /// two-beams` and `outage` use the networks trained on recorded windows.
     #[arg(long = "imu", value_enum, default_value = "auto")]
     imu: crate::study::ImuChoice,
     /// Vehicle file a recorded IMU is read with (axes, clocks, offsets, lever arms);
@@ -93,18 +93,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .map(std::path::PathBuf::as_path),
         );
     }
-    // The two-beams and outage studies run the study's own 15-state filter, which is
-    // not defined on a recorded IMU: they keep the synthesized one.
-    let learned_event = args.scenario != crate::learned_scenarios::ScenarioKind::Paper;
-    let imu = match (learned_event, args.imu) {
-        (true, crate::study::ImuChoice::Recorded) => anyhow::bail!(
-            "--imu recorded: --scenario two-beams and outage run on the IMU synthesized \
-             from the reference only (use --imu synthesized or auto)"
-        ),
-        (true, _) => crate::study::ImuChoice::Synthesized,
-        (false, choice) => choice,
-    };
-    let (scenarios, trajectories) = load_scenarios(&args, &config, imu)?;
+    let (scenarios, trajectories) = load_scenarios(&args, &config, args.imu)?;
     if args.scenario != crate::learned_scenarios::ScenarioKind::Paper {
         return run_learned(&args, &scenarios, &config, trajectories);
     }

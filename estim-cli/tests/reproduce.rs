@@ -191,18 +191,28 @@ fn reproduce_uses_the_recorded_imu_where_there_is_one() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("IMU_trajectory2.csv"), "{stderr}");
 
-    // What runs only on a synthesized IMU is refused on a recorded one, naming why.
-    let out = Command::new(env!("CARGO_BIN_EXE_estim"))
-        .args(["reproduce", "--data", d, "--trajectory", "2"])
-        .args(["--scenario", "two-beams", "--imu", "recorded"])
-        .output()
-        .expect("run estim");
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    // The two-beams study on the recorded IMU: the networks trained on recorded
+    // windows, NEES over the 9 states with truth, the five variants.
+    let doc = reproduce_json(&["--data", d, "--trajectory", "2", "--scenario", "two-beams"]);
+    let study = &doc["studies"][0];
+    assert_eq!(study["imu_source"], "recorded");
+    assert_eq!(study["nees_states"], 9);
+    assert_eq!(study["event"], "two-beams");
     assert!(
-        stderr.contains("--scenario") && stderr.contains("synthesized"),
-        "{stderr}"
+        study["loss_epochs"].as_u64() > Some(100),
+        "{}",
+        study["loss_epochs"]
     );
+    let filters = study["filters"].as_array().expect("filters");
+    let windows = study["loss_window"].as_array().expect("loss window");
+    assert_eq!(filters.len(), 5);
+    assert_eq!(windows.len(), 5);
+    for (f, w) in filters.iter().zip(windows) {
+        assert_eq!(f["nees_states"], 9, "{}", f["id"]);
+        for key in ["nees_mean", "position_rmse_m", "velocity_rmse_mps"] {
+            assert!(w[key].as_f64().is_some_and(f64::is_finite), "{key}: {w}");
+        }
+    }
 
     // --smooth smooths the recorded trajectory with the navigator's own pass (M = 0),
     // NEES over the 9 states with truth.

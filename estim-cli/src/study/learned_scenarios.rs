@@ -11,6 +11,11 @@
 //! Carlo over IMU noise), neglected, or the paper's rho-heuristic at its largest valid
 //! rho; a fifth variant receives no update during the loss (INS only; least squares
 //! needs three beams).
+//!
+//! On a recorded IMU ([`Scenario::imu_source`]) every variant runs through the
+//! navigator ([`super::run_recorded`]: the vehicle's DVL model and R outside the event,
+//! the network's R during it) and the event window is scored at the reference's epochs
+//! inside it, over the 9 states with truth.
 
 mod monte_carlo;
 
@@ -32,8 +37,8 @@ use super::run::filter_imu_spec;
 use super::stats::finite_mean;
 use super::{
     beamsnet_inputs, run_filter_per_epoch_noise, summarise, BeamLoss, Config, CrossMatrix,
-    CrossSource, DvlOutage, FilterRun, FilterSummary, MeasurementSet, PipelineError, Result,
-    Scenario,
+    CrossSource, DvlOutage, FilterRun, FilterSummary, ImuSource, MeasurementSet, PipelineError,
+    Result, Scenario,
 };
 
 /// Filter id: two-beams network, M from its sensitivity.
@@ -363,7 +368,8 @@ pub fn max_correlation(
 /// Summary of one variant over the loss window.
 #[derive(Debug, Clone, Serialize)]
 pub struct LossWindowSummary {
-    /// Mean NEES over the DVL epochs of the loss (NaN epochs skipped).
+    /// Mean NEES over the DVL epochs of the loss (on a recorded IMU over the
+    /// reference's epochs within it, and over 9 states; NaN epochs skipped).
     pub nees_mean: f64,
     /// Position error RMSE over the loss epochs \[m\].
     pub position_rmse_m: f64,
@@ -382,6 +388,10 @@ pub struct LearnedStudy {
     pub description: String,
     /// Scenario name.
     pub scenario: String,
+    /// The IMU the filter integrated and the networks were fed.
+    pub imu_source: ImuSource,
+    /// The states with truth over which NEES is taken (9 on a recorded IMU).
+    pub nees_states: usize,
     /// DVL epochs of the event with a network measurement.
     pub loss_epochs: usize,
     /// rho used by the paper's variant (largest valid over the run, times 0.99).
@@ -494,7 +504,7 @@ pub fn learned_study(
         .collect();
     let loss_window = runs
         .iter()
-        .map(|run| loss_summary(run, &epochs, &set))
+        .map(|run| loss_summary(run, &loss_samples(&scenario, run, &epochs), &epochs, &set))
         .collect();
     let network_vs_empirical_relative = two.empirical_m.as_ref().map(|emp| {
         let (mut diff, mut scale) = (0.0_f64, 0.0_f64);
@@ -508,6 +518,8 @@ pub fn learned_study(
         event: event.name().into(),
         description: event.describe(),
         scenario: scenario.name.clone(),
+        imu_source: scenario.imu_source,
+        nees_states: runs.first().map_or(ERROR_STATES, |r| r.nees_states),
         loss_epochs: in_loss.len(),
         paper_rho,
         output_imu_correlation: finite_mean(&two.output_imu_correlation),
@@ -518,10 +530,37 @@ pub fn learned_study(
     })
 }
 
-/// NEES, errors and NIS of `run` over the DVL epochs `epochs`.
-fn loss_summary(run: &FilterRun, epochs: &[usize], set: &MeasurementSet) -> LossWindowSummary {
+/// The samples of `run`'s time series inside the loss (the DVL epochs `epochs`): those
+/// epochs themselves, or on a recorded IMU (series at the reference's epochs) the
+/// reference's epochs from the loss's first DVL epoch to its last.
+fn loss_samples(scenario: &Scenario, run: &FilterRun, epochs: &[usize]) -> Vec<usize> {
+    if scenario.recorded.is_none() {
+        return epochs.to_vec();
+    }
+    let t0 = scenario.truth.first().map_or(0.0, |s| s.time);
+    let times: Vec<f64> = epochs
+        .iter()
+        .filter_map(|&k| scenario.dvl.get(k))
+        .filter_map(|e| scenario.truth.get(e.imu_index))
+        .map(|s| s.time - t0)
+        .collect();
+    let first = times.iter().copied().fold(f64::INFINITY, f64::min);
+    let last = times.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    (0..run.time.len())
+        .filter(|&i| run.time[i] >= first && run.time[i] <= last)
+        .collect()
+}
+
+/// NEES and errors of `run` at its samples `samples`, and the NIS of its updates at the
+/// DVL epochs `epochs`.
+fn loss_summary(
+    run: &FilterRun,
+    samples: &[usize],
+    epochs: &[usize],
+    set: &MeasurementSet,
+) -> LossWindowSummary {
     let pick =
-        |xs: &[f64]| -> Vec<f64> { epochs.iter().filter_map(|&k| xs.get(k).copied()).collect() };
+        |xs: &[f64]| -> Vec<f64> { samples.iter().filter_map(|&k| xs.get(k).copied()).collect() };
     let rms = |xs: Vec<f64>| finite_mean(&xs.iter().map(|x| x * x).collect::<Vec<_>>()).sqrt();
     // NIS is recorded per attempted update: map epochs to update indices.
     let mut update_index = Vec::with_capacity(set.velocities.len());

@@ -467,14 +467,45 @@ pub fn run_recorded(
     measurements: &MeasurementSet,
     cross: &CrossSource,
 ) -> Result<FilterRun> {
+    run_recorded_with_noise(id, scenario, recorded, measurements, None, cross)
+}
+
+/// [`run_recorded`] with an R of its own at the epochs where `noise_per_epoch` has one
+/// (a learned sensor's, during a scripted loss): there the update uses that R, not the
+/// vehicle's adapted one, and leaves the adapted level alone.
+///
+/// # Errors
+/// As [`run_recorded`].
+pub fn run_recorded_with_noise(
+    id: &str,
+    scenario: &Scenario,
+    recorded: &RecordedSurvey,
+    measurements: &MeasurementSet,
+    noise_per_epoch: Option<&[Option<Matrix3<f64>>]>,
+    cross: &CrossSource,
+) -> Result<FilterRun> {
+    let variant = Variant {
+        id,
+        measurements,
+        noise_per_epoch,
+        cross,
+    };
     match recorded.settings.dvl_states().copied() {
-        Some(states) => run_on(id, scenario, recorded, measurements, cross, |s, p, dt| {
+        Some(states) => run_on(&variant, scenario, recorded, |s, p, dt| {
             AugmentedNavigator::with_states(&recorded.settings, &states, s, p, dt)
         }),
-        None => run_on(id, scenario, recorded, measurements, cross, |s, p, dt| {
+        None => run_on(&variant, scenario, recorded, |s, p, dt| {
             Navigator::new(&recorded.settings, s, p, dt)
         }),
     }
+}
+
+/// What one variant feeds the navigator.
+struct Variant<'a> {
+    id: &'a str,
+    measurements: &'a MeasurementSet,
+    noise_per_epoch: Option<&'a [Option<Matrix3<f64>>]>,
+    cross: &'a CrossSource,
 }
 
 /// What the variant's updates did, per DVL epoch.
@@ -488,11 +519,9 @@ struct Updates {
 }
 
 fn run_on<E: NavigationModel<N>, const N: usize>(
-    id: &str,
+    variant: &Variant<'_>,
     scenario: &Scenario,
     recorded: &RecordedSurvey,
-    measurements: &MeasurementSet,
-    cross: &CrossSource,
     make: impl FnOnce(
         InsState,
         ErrorMatrix,
@@ -514,6 +543,12 @@ fn run_on<E: NavigationModel<N>, const N: usize>(
         largest_valid_rho: Vec::with_capacity(n),
         epoch: 0,
     };
+    let &Variant {
+        id,
+        measurements,
+        noise_per_epoch,
+        cross,
+    } = variant;
     if let CrossSource::ScaledPerStep(_) = cross {
         return Err(PipelineError::Setting {
             key: "filter.paper_m_basis".into(),
@@ -535,10 +570,17 @@ fn run_on<E: NavigationModel<N>, const N: usize>(
             return Ok(None);
         };
         nav.propagate_to(time)?;
-        // R of this update: the vehicle's, times the adapted noise level.
-        let r = estim_core::MeasurementModel::noise_covariance(nav.dvl_model(), nav.nominal())
-            .map_err(|source| NavigatorError::Filter { time, source })?
-            * nav.dvl_noise_scale().unwrap_or(1.0);
+        // R of this update: the variant's own at this epoch, else the vehicle's times
+        // the adapted noise level.
+        let given = noise_per_epoch.and_then(|n| n.get(k).copied().flatten());
+        let r = match given {
+            Some(r) => r,
+            None => {
+                estim_core::MeasurementModel::noise_covariance(nav.dvl_model(), nav.nominal())
+                    .map_err(|source| NavigatorError::Filter { time, source })?
+                    * nav.dvl_noise_scale().unwrap_or(1.0)
+            }
+        };
         let (unit, largest_valid_rho) = paper_unit(nav.filter().accumulated_process_noise(), &r);
         updates.largest_valid_rho.push(largest_valid_rho);
         let fixed;
@@ -556,7 +598,10 @@ fn run_on<E: NavigationModel<N>, const N: usize>(
                 &fixed
             }
         };
-        let report = nav.dvl_velocity(time, &y, source)?;
+        let report = match given {
+            Some(r) => nav.dvl_velocity_with_noise(time, &y, &r, source)?,
+            None => nav.dvl_velocity(time, &y, source)?,
+        };
         updates.nis.push(report.nis);
         if let Some(eig) = report.joint_min_eigenvalue {
             updates.joint_min_eigenvalue.push(eig);

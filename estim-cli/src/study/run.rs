@@ -193,7 +193,8 @@ pub fn run_filter_with_observer<O: Observer<f64, InsState, ERROR_STATES>>(
 
 /// [`run_filter`] with R chosen per DVL epoch: `noise_per_epoch[k]` (when `Some`)
 /// replaces `measurements.noise_covariance` at epoch k (e.g. two learned sensors of
-/// different accuracy sharing one run).
+/// different accuracy sharing one run). A scenario of a recorded IMU runs through
+/// [`super::recorded::run_recorded_with_noise`] (the vehicle's R where `noise_per_epoch` has none).
 ///
 /// # Errors
 /// As [`run_filter_with_observer`]; a non-finite or invalid R.
@@ -206,6 +207,16 @@ pub fn run_filter_per_epoch_noise(
     cross: &CrossSource,
     seed: u64,
 ) -> Result<FilterRun> {
+    if let Some(recorded) = &scenario.recorded {
+        return super::recorded::run_recorded_with_noise(
+            name,
+            scenario,
+            recorded,
+            measurements,
+            Some(noise_per_epoch),
+            cross,
+        );
+    }
     run_filter_inner(
         name,
         scenario,
