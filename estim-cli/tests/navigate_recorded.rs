@@ -389,6 +389,36 @@ fn the_smoother_reports_at_the_forward_filters_epochs() {
     assert!(rmse.is_finite() && rmse < 3.5, "{rmse}");
 }
 
+/// The mean and the sample standard deviation over the training trajectories of the
+/// 3-vector `key` (`{"estimate": [..]}`) of `estim <command> calibrate --json`, run with
+/// the arguments `args` gives for a trajectory's IMU, DVL and GT files.
+fn training_mean_and_spread(
+    root: &Path,
+    command: &str,
+    key: &str,
+    args: impl Fn(&[PathBuf; 3]) -> [String; 4],
+) -> ([f64; 3], [f64; 3]) {
+    let mut values: Vec<[f64; 3]> = Vec::new();
+    for n in TRAINING {
+        let files = files(root, n);
+        let a = args(&files);
+        let mut all = vec![command, "calibrate"];
+        all.extend(a.iter().map(String::as_str));
+        all.push("--json");
+        let out = estim(&all);
+        assert_eq!(out.status.code(), Some(0), "trajectory {n}");
+        let s = json(&out);
+        let e = &s[key]["estimate"];
+        values.push([0, 1, 2].map(|a| e[a].as_f64().unwrap()));
+    }
+    let count = values.len() as f64;
+    let mean = [0, 1, 2].map(|a| values.iter().map(|x| x[a]).sum::<f64>() / count);
+    let std = [0, 1, 2].map(|a| {
+        (values.iter().map(|x| (x[a] - mean[a]).powi(2)).sum::<f64>() / (count - 1.0)).sqrt()
+    });
+    (mean, std)
+}
+
 /// The vehicle file's DVL mounting (`[dvl] mounting_misalignment_rad`) is the mean of
 /// `estim dvl calibrate` over the training trajectories, and the misalignment state's
 /// prior (`[dvl_states] misalignment.prior_std_rad`) its sample standard deviation
@@ -398,28 +428,15 @@ fn the_dvl_mounting_is_the_training_calibrations_mean_and_spread() {
     let Some(root) = common::data_root() else {
         return;
     };
-    let mut angles: Vec<[f64; 3]> = Vec::new();
-    for n in TRAINING {
-        let [_, dvl, gt] = files(&root, n);
-        let out = estim(&[
-            "dvl",
-            "calibrate",
-            "--gt",
-            &gt.to_string_lossy(),
-            "--dvl",
-            &dvl.to_string_lossy(),
-            "--json",
-        ]);
-        assert_eq!(out.status.code(), Some(0), "trajectory {n}");
-        let s = json(&out);
-        let e = &s["mounting_misalignment_rad"]["estimate"];
-        angles.push([0, 1, 2].map(|a| e[a].as_f64().unwrap()));
-    }
-    let count = angles.len() as f64;
-    let mean = [0, 1, 2].map(|a| angles.iter().map(|x| x[a]).sum::<f64>() / count);
-    let std = [0, 1, 2].map(|a| {
-        (angles.iter().map(|x| (x[a] - mean[a]).powi(2)).sum::<f64>() / (count - 1.0)).sqrt()
-    });
+    let (mean, std) =
+        training_mean_and_spread(&root, "dvl", "mounting_misalignment_rad", |[_, dvl, gt]| {
+            [
+                "--gt".into(),
+                gt.to_string_lossy().into_owned(),
+                "--dvl".into(),
+                dvl.to_string_lossy().into_owned(),
+            ]
+        });
     println!("mounting mean {mean:?} rad, spread {std:?} rad");
     let text = std::fs::read_to_string(vehicle()).unwrap();
     let file: toml::Value = toml::from_str(&text).unwrap();
@@ -451,28 +468,15 @@ fn the_accelerometer_bias_is_the_training_calibrations_mean_and_spread() {
     let Some(root) = common::data_root() else {
         return;
     };
-    let mut biases: Vec<[f64; 3]> = Vec::new();
-    for n in TRAINING {
-        let [imu, _, gt] = files(&root, n);
-        let out = estim(&[
-            "imu",
-            "calibrate",
-            "--imu",
-            &imu.to_string_lossy(),
-            "--truth",
-            &gt.to_string_lossy(),
-            "--json",
-        ]);
-        assert_eq!(out.status.code(), Some(0), "trajectory {n}");
-        let s = json(&out);
-        let e = &s["accelerometer_bias_mps2"]["estimate"];
-        biases.push([0, 1, 2].map(|a| e[a].as_f64().unwrap()));
-    }
-    let count = biases.len() as f64;
-    let mean = [0, 1, 2].map(|a| biases.iter().map(|x| x[a]).sum::<f64>() / count);
-    let std = [0, 1, 2].map(|a| {
-        (biases.iter().map(|x| (x[a] - mean[a]).powi(2)).sum::<f64>() / (count - 1.0)).sqrt()
-    });
+    let (mean, std) =
+        training_mean_and_spread(&root, "imu", "accelerometer_bias_mps2", |[imu, _, gt]| {
+            [
+                "--imu".into(),
+                imu.to_string_lossy().into_owned(),
+                "--truth".into(),
+                gt.to_string_lossy().into_owned(),
+            ]
+        });
     println!("accelerometer bias mean {mean:?} m/s^2, spread {std:?} m/s^2");
     let text = std::fs::read_to_string(vehicle()).unwrap();
     let file: toml::Value = toml::from_str(&text).unwrap();
