@@ -578,13 +578,17 @@ fn compare(
     }
 }
 
-/// The committed BeamsNet model as this study's sensor, without its sensitivity (the
-/// study does not use the network-derived M; computing it would triple the cost).
+/// The committed BeamsNet for each IMU source as this study's sensor, without its
+/// sensitivity (the study does not use the network-derived M; computing it would
+/// triple the cost): on a recorded IMU the network trained on recorded windows, on a
+/// synthesized one the network trained on synthesized windows (as
+/// [`super::committed_beamsnet`]).
 ///
 /// # Errors
-/// The committed model cannot be loaded.
+/// The committed models cannot be loaded.
 pub fn beamsnet_without_sensitivity(config: &Config) -> Result<Box<LearnedSource>> {
-    let net = estim::models::beamsnet()?;
+    let synthesized = estim::models::beamsnet()?;
+    let recorded = estim::models::beamsnet_recorded()?;
     let protocol = if config.dvl.protocol == "v2" {
         estim_dvl::BeamsNetProtocol::v2()
     } else {
@@ -592,7 +596,11 @@ pub fn beamsnet_without_sensitivity(config: &Config) -> Result<Box<LearnedSource
     };
     let geometry = protocol.geometry().clone();
     Ok(Box::new(move |scenario| {
-        super::beamsnet_inputs(&net, scenario, &geometry, false)
+        let net = match scenario.imu_source {
+            super::ImuSource::Recorded => &recorded,
+            super::ImuSource::Synthesized => &synthesized,
+        };
+        super::beamsnet_inputs(net, scenario, &geometry, false)
     }))
 }
 
