@@ -13,12 +13,21 @@ fn estim(args: &[&str]) -> Output {
         .expect("run estim")
 }
 
-/// `estim evaluate --data ROOT --fit-trajectories 2,7 ARGS --json` (fitted on two
-/// training trajectories to keep CI cheap): exit 0 and the JSON document.
+/// `estim evaluate --data ROOT --fit-trajectories 2,7 --imu synthesized ARGS --json`
+/// (fitted on two training trajectories to keep CI cheap; the synthesized IMU, whatever
+/// IMU files the folders hold): exit 0 and the JSON document.
 fn evaluate_json(root: &str, args: &[&str]) -> serde_json::Value {
     let out = estim(
         &[
-            &["evaluate", "--data", root, "--fit-trajectories", "2,7"][..],
+            &[
+                "evaluate",
+                "--data",
+                root,
+                "--fit-trajectories",
+                "2,7",
+                "--imu",
+                "synthesized",
+            ][..],
             args,
             &["--json"],
         ]
@@ -164,7 +173,7 @@ fn evaluation_on_the_test_trajectories_reports_every_run() {
     assert_eq!(text.status.code(), Some(0));
     let text = String::from_utf8_lossy(&text.stdout);
     assert!(
-        text.contains("IMU synthesized from the ground truth"),
+        text.contains("Synthesized IMU: from the ground truth"),
         "{text}"
     );
     assert!(text.contains("| 4 (test) |") && text.contains("| 13 (test) |"));
@@ -317,4 +326,100 @@ fn the_fifteen_state_comparison_is_reproduce_paired_by_seed() {
         near("lo", mean - half);
         near("hi", mean + half);
     }
+}
+
+/// On a recorded IMU (the default `--imu auto` where the folder holds one) a cell is
+/// `estim reproduce --data`'s recorded run: the same seed gives the same NEES (over the
+/// 9 states with truth), NIS and position RMSE to 1e-12 for both variants; options
+/// that change the synthesized runs only are refused with exit 2.
+#[test]
+fn a_recorded_cell_is_reproduces_recorded_run() {
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    let root = root.to_string_lossy().into_owned();
+    let out = estim(&[
+        "evaluate",
+        "--data",
+        &root,
+        "--trajectory",
+        "2",
+        "--first-seed",
+        "7",
+        "--seeds",
+        "1",
+        "--json",
+    ]);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    let runs = doc["evaluation"]["runs"].as_array().expect("runs");
+    assert_eq!(runs.len(), 2);
+    let dir = tempfile::tempdir().expect("temp dir");
+    let config = dir.path().join("seed7.toml");
+    std::fs::write(&config, "seed = 7\n").expect("write");
+    let out = estim(&[
+        "reproduce",
+        "--data",
+        &root,
+        "--trajectory",
+        "2",
+        "--config",
+        config.to_str().expect("utf-8 path"),
+        "--json",
+    ]);
+    assert_eq!(out.status.code(), Some(0));
+    let reproduced: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    let t = &reproduced["trajectories"][0];
+    assert_eq!(t["imu_source"], "recorded");
+    let filters = t["filters"].as_array().expect("filters");
+    for run in runs {
+        assert_eq!(run["imu_source"], "recorded");
+        assert_eq!(run["nees_states"], 9);
+        let f = filters
+            .iter()
+            .find(|f| f["id"] == run["id"])
+            .expect("the same variant");
+        for (mine, theirs) in [
+            (&run["nees"], &f["nees_average"]),
+            (&run["position_rmse_m"], &f["position_error_m"]["rmse"]),
+        ] {
+            let (a, b) = (
+                mine.as_f64().expect("number"),
+                theirs.as_f64().expect("number"),
+            );
+            assert!(
+                (a - b).abs() <= 1e-12 * b.abs().max(1.0),
+                "{}: {a} vs {b}",
+                run["id"]
+            );
+        }
+        let comparison = run["fifteen_state_position_rmse_m"].as_f64().expect("rmse");
+        assert!(comparison.is_finite() && comparison > 0.0, "{run}");
+    }
+    let rows = doc["evaluation"]["rows"].as_array().expect("rows");
+    assert!(rows
+        .iter()
+        .all(|r| r["imu_source"] == "recorded" && r["nees_states"] == 9));
+    let out = estim(&[
+        "evaluate",
+        "--data",
+        &root,
+        "--trajectory",
+        "2",
+        "--seeds",
+        "1",
+        "--adaptive-noise",
+        "50",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--imu synthesized") && err.contains("trajectory 2"),
+        "{err}"
+    );
 }

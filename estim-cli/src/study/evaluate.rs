@@ -62,6 +62,20 @@
 //! synthesized IMU; per trajectory and variant the position RMSE difference is
 //! summarised as a mean paired difference with its 95 % Student t interval over the
 //! seeds ([`PairedInterval`]).
+//!
+//! # On a recorded IMU
+//!
+//! Where the trajectory's folder holds `IMU_trajectoryN.csv` (`--imu auto`, the
+//! default, or `recorded`) the cell is the study's recorded scenario
+//! ([`Scenario::akit_selected`]: the IMU read through the vehicle file) and both
+//! variants run through the navigator ([`super::run_recorded`]) with the vehicle
+//! file's DVL model: its `[dvl_states]` (fitted on the training trajectories by the
+//! procedures of docs/results.md, "The A-KIT vehicle file"), its time offset and
+//! its adapted R, in place of the fit above, which applies to the synthesized IMU's
+//! clock. NEES is over the 9 states with truth at the reference's epochs; the
+//! comparison run is the same navigator without DVL error states. A seed redraws only
+//! the protocol's beam noise. `--states`, `--rate-noise` and `--adaptive-noise`
+//! change the synthesized runs only and are refused with a recorded IMU.
 
 use std::collections::HashSet;
 use std::path::Path;
@@ -84,9 +98,9 @@ use super::paired::{recorded_sets, LEVEL};
 use super::stats::{error_summary, finite_mean};
 use super::{
     beamsnet_without_sensitivity, error_state, initial_covariance, initial_nominal,
-    least_squares_velocities, run_variant, summarise, Config, CrossSource, LearnedSource,
-    PairedInterval, PipelineError, Result, Scenario, AKIT_TEST_TRAJECTORIES, BEAMSNET_NEGLECTED,
-    LS,
+    least_squares_velocities, run_variant, summarise, Config, CrossSource, ImuSelection, ImuSource,
+    LearnedSource, PairedInterval, PipelineError, RecordedSurvey, Result, Scenario,
+    AKIT_TEST_TRAJECTORIES, BEAMSNET_NEGLECTED, LS,
 };
 
 mod report;
@@ -517,7 +531,12 @@ pub struct EvaluationRun {
     pub seed: u64,
     /// Variant id.
     pub id: String,
-    /// Time-averaged NEES of the 15 INS states.
+    /// The IMU the run integrated.
+    pub imu_source: ImuSource,
+    /// The states with truth NEES is over (15 on a synthesized IMU, 9 on a recorded
+    /// one).
+    pub nees_states: usize,
+    /// Time-averaged NEES over `nees_states` INS states.
     pub nees: f64,
     /// Time-averaged NIS (3 dof).
     pub nis: f64,
@@ -527,6 +546,9 @@ pub struct EvaluationRun {
     pub accepted: usize,
     /// Rejected.
     pub rejected: usize,
+    /// The DVL stamp shift applied \[s\]: the fit's on a synthesized IMU, the vehicle
+    /// file's (on the IMU's clock) on a recorded one.
+    pub applied_time_offset_s: f64,
     /// Final time-offset estimate beyond the stamp shift \[s\] and its 1-sigma.
     pub time_offset_s: [f64; 2],
     /// Final scale-factor error and its 1-sigma.
@@ -546,6 +568,10 @@ pub struct EvaluationRow {
     pub trajectory: u32,
     /// Variant id.
     pub id: String,
+    /// The IMU its runs integrated (`None` when none completed).
+    pub imu_source: Option<ImuSource>,
+    /// The states with truth NEES is over.
+    pub nees_states: usize,
     /// Runs that completed.
     pub runs: usize,
     /// Mean NEES.
@@ -576,7 +602,7 @@ pub struct EvaluationCount {
     pub id: String,
     /// Trajectories evaluated.
     pub trajectories: usize,
-    /// Within [0.5, 2] x 15 (NEES).
+    /// Within [0.5, 2] x the states with truth (NEES).
     pub nees_in_band: usize,
     /// Within [0.5, 2] x 3 (NIS).
     pub nis_in_band: usize,
@@ -612,11 +638,14 @@ fn in_band(value: f64, dof: f64) -> bool {
 
 /// Run the augmented filter on `trajectories` x `seeds` with the fit (and `states`
 /// in place of the fitted DVL states when given), with the DVL noise level adapted
-/// online when `adaptive_noise` gives its memory in updates (module docs, step 6).
+/// online when `adaptive_noise` gives its memory in updates (module docs, step 6),
+/// on the IMU `imu` selects (module docs, "On a recorded IMU").
 ///
 /// # Errors
-/// An empty or repeated trajectory or seed list, a zero memory; loader and settings
-/// errors (a run's numerical failure is recorded in [`Evaluation::failures`]).
+/// An empty or repeated trajectory or seed list, a zero memory; `states`, a rate
+/// noise or `adaptive_noise` with a recorded IMU; loader and settings errors (a run's
+/// numerical failure is recorded in [`Evaluation::failures`]).
+#[allow(clippy::too_many_arguments)]
 pub fn evaluate(
     dir: &Path,
     config: &Config,
@@ -625,7 +654,10 @@ pub fn evaluate(
     adaptive_noise: Option<usize>,
     trajectories: &[u32],
     seeds: &[u64],
+    imu: &ImuSelection,
 ) -> Result<Evaluation> {
+    let synthesized_only =
+        states.is_some() || adaptive_noise.is_some() || fit.rate_noise_mps_per_radps != 0.0;
     check_lists(trajectories, seeds)?;
     let states = states.unwrap_or_else(|| fit.states());
     states.check()?;
@@ -650,7 +682,20 @@ pub fn evaluate(
                 ..config.clone()
             };
             cfg.dvl.akit_time_offset_s = fit.time_offset_s;
-            let scenario = Scenario::akit(dir, n, &cfg, seed)?;
+            let scenario = Scenario::akit_selected(dir, n, &cfg, seed, imu)?;
+            if let Some(recorded) = &scenario.recorded {
+                if synthesized_only {
+                    return Err(PipelineError::Argument {
+                        flag: "--imu".into(),
+                        reason: format!(
+                            "trajectory {n} runs on its recorded IMU, with the vehicle file's DVL \
+                             model: --states, --rate-noise and --adaptive-noise change the \
+                             synthesized runs only (give --imu synthesized)"
+                        ),
+                    });
+                }
+                return recorded_cell(n, seed, &scenario, recorded, &cfg, learned.as_ref());
+            }
             let white = Matrix3::identity() * fit.white_std_mps.powi(2);
             let ls = least_squares_velocities(&scenario, &cfg);
             let ls_r = Matrix3::identity() * cfg.dvl.ls_noise_std.powi(2) + white;
@@ -765,7 +810,13 @@ fn evaluation_rows(
                 .map(|r| r.position_rmse_m - r.fifteen_state_position_rmse_m)
                 .filter(|d| d.is_finite())
                 .collect();
+            let nees_states = mine.first().map_or(ERROR_STATES, |r| r.nees_states);
+            let applied = mine
+                .first()
+                .map_or(fit.time_offset_s, |r| r.applied_time_offset_s);
             rows.push(EvaluationRow {
+                imu_source: mine.first().map(|r| r.imu_source),
+                nees_states,
                 fifteen_state_position_rmse_m: mean(&|r| r.fifteen_state_position_rmse_m),
                 position_rmse_difference_m: PairedInterval::of(&differences, LEVEL),
                 trajectory: t,
@@ -774,12 +825,74 @@ fn evaluation_rows(
                 nees,
                 nis,
                 position_rmse_m: mean(&|r| r.position_rmse_m),
-                nees_in_band: in_band(nees, ERROR_STATES as f64),
+                nees_in_band: in_band(nees, nees_states as f64),
                 nis_in_band: in_band(nis, 3.0),
-                time_offset_s: fit.time_offset_s + mean(&|r| r.time_offset_s[0]),
+                time_offset_s: applied + mean(&|r| r.time_offset_s[0]),
                 noise_scale: mean(&|r| r.noise_scale),
             });
         }
     }
     rows
+}
+
+/// The two variants on a recorded IMU's cell (module docs, "On a recorded IMU"): the
+/// vehicle file's navigator, and the same without DVL error states for the comparison.
+fn recorded_cell(
+    n: u32,
+    seed: u64,
+    scenario: &Scenario,
+    recorded: &RecordedSurvey,
+    config: &Config,
+    learned: &LearnedSource,
+) -> Result<Vec<std::result::Result<EvaluationRun, String>>> {
+    let [ls, net] = recorded_sets(scenario, config, learned)?;
+    let fifteen = recorded.without_dvl_states()?;
+    let applied = recorded.settings.config().dvl.time_offset_s;
+    let mut out = Vec::with_capacity(2);
+    for (id, set) in [(LS, ls), (BEAMSNET_NEGLECTED, net)] {
+        let finding = |e: PipelineError| -> Result<String> {
+            match e {
+                e @ (PipelineError::FilterStopped { .. } | PipelineError::NavigatorAt { .. }) => {
+                    Ok(format!("trajectory {n}, seed {seed}, {id}: {e}"))
+                }
+                e => Err(e),
+            }
+        };
+        let comparison = match super::run_recorded(id, scenario, &fifteen, &set, &CrossSource::Zero)
+        {
+            Ok(run) => summarise(&run)?.position_error_m.rmse,
+            Err(e) => {
+                finding(e)?;
+                f64::NAN
+            }
+        };
+        let run = match super::run_recorded(id, scenario, recorded, &set, &CrossSource::Zero) {
+            Ok(run) => run,
+            Err(e) => {
+                out.push(Err(finding(e)?));
+                continue;
+            }
+        };
+        let states = run.final_dvl_states;
+        out.push(Ok(EvaluationRun {
+            trajectory: n,
+            seed,
+            id: id.to_string(),
+            imu_source: ImuSource::Recorded,
+            nees_states: run.nees_states,
+            nees: finite_mean(&run.nees),
+            nis: finite_mean(&run.nis),
+            position_rmse_m: summarise(&run)?.position_error_m.rmse,
+            accepted: run.accepted,
+            rejected: run.rejected,
+            applied_time_offset_s: applied,
+            time_offset_s: states.map_or([0.0, 0.0], |s| [s.time_offset_s, s.time_offset_sigma_s]),
+            scale_factor_error: states.map_or([f64::NAN, f64::NAN], |s| {
+                [s.scale_factor_error, s.scale_factor_sigma]
+            }),
+            noise_scale: run.final_noise_scale.unwrap_or(1.0),
+            fifteen_state_position_rmse_m: comparison,
+        }));
+    }
+    Ok(out)
 }

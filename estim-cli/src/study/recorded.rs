@@ -437,8 +437,22 @@ impl RecordedSurvey {
     /// # Errors
     /// The navigator's check of the changed configuration.
     pub fn without_gate(&self) -> Result<Self> {
+        self.rechecked(|config| config.gate.probability = 0.0)
+    }
+
+    /// The same survey without DVL error states (the 15-state navigator, the vehicle's
+    /// DVL mounting fixed).
+    ///
+    /// # Errors
+    /// As [`RecordedSurvey::without_gate`].
+    pub fn without_dvl_states(&self) -> Result<Self> {
+        self.rechecked(|config| config.dvl_states = None)
+    }
+
+    /// The same survey with its configuration changed by `change` and checked again.
+    fn rechecked(&self, change: impl FnOnce(&mut NavigatorConfig)) -> Result<Self> {
         let mut config = self.settings.config().clone();
-        config.gate.probability = 0.0;
+        change(&mut config);
         let settings = config
             .check()
             .map_err(|e| PipelineError::Data {
@@ -641,6 +655,8 @@ fn run_on<E: NavigationModel<N>, const N: usize>(
     out.update_accepted = updates.accepted;
     out.joint_min_eigenvalue = updates.joint_min_eigenvalue;
     out.largest_valid_rho = updates.largest_valid_rho;
+    out.final_dvl_states = run.dvl_states;
+    out.final_noise_scale = run.dvl_noise_scale;
     Ok(out)
 }
 

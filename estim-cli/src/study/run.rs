@@ -114,6 +114,14 @@ pub struct FilterRun {
     pub north_east: Vec<[f64; 2]>,
     /// Epochs at which P was not positive definite (NEES recorded as NaN).
     pub covariance_not_positive_definite: usize,
+    /// The navigator's final DVL error states with their 1-sigma (a recorded IMU's
+    /// run with `[dvl_states]`; not serialised).
+    #[serde(skip)]
+    pub final_dvl_states: Option<estim::navigator::DvlStateSolution>,
+    /// The navigator's final adapted DVL noise level (a recorded IMU's run with
+    /// `dvl.adaptive_noise_window`; not serialised).
+    #[serde(skip)]
+    pub final_noise_scale: Option<f64>,
 }
 
 /// The error state of `nominal` against `truth` (the library's
@@ -336,6 +344,8 @@ impl FilterRun {
             paper_cross_term_over_r: Vec::with_capacity(n),
             north_east: Vec::with_capacity(n),
             covariance_not_positive_definite: 0,
+            final_dvl_states: None,
+            final_noise_scale: None,
         }
     }
 }

@@ -18,7 +18,7 @@ pub fn markdown(e: &Evaluation) -> String {
     for c in &e.counts {
         let _ = writeln!(
             s,
-            "{}: NEES within [0.5, 2] x 15 on {} of {} trajectories; NIS within [0.5, 2] x 3 on {} of {}.",
+            "{}: NEES within [0.5, 2] x its states with truth on {} of {} trajectories; NIS within [0.5, 2] x 3 on {} of {}.",
             super::super::filter_label(&c.id, f64::NAN),
             c.nees_in_band,
             c.trajectories,
@@ -99,14 +99,10 @@ fn variants_table(s: &mut String, e: &Evaluation, trajectories: &[u32]) {
         };
         let offset = |r: Option<&EvaluationRow>| r.map_or(f64::NAN, |r| r.time_offset_s);
         let scale = |r: Option<&EvaluationRow>| r.map_or(f64::NAN, |r| r.noise_scale);
-        let test = if AKIT_TEST_TRAJECTORIES.contains(&t) {
-            " (test)"
-        } else {
-            ""
-        };
         let _ = write!(
             s,
-            "| {t}{test} | {} | {} | {:.2} / {:.2} |",
+            "| {} | {} | {} | {:.2} / {:.2} |",
+            trajectory_label(e, t),
             text(cell(LS)),
             text(cell(BEAMSNET_NEGLECTED)),
             offset(cell(LS)),
@@ -131,9 +127,9 @@ fn comparison_table(s: &mut String, e: &Evaluation, trajectories: &[u32]) {
     let _ = writeln!(
         s,
         "Position RMSE against the 15-state filter of `estim reproduce --data` (no DVL states, \
-         fixed R, time offset {:.2} s) on the same seeds, so on the same synthesized IMU: \
-         this filter minus that one, mean [95 % t interval over the seeds; the seeds redraw \
-         synthetic noise only].\n",
+         fixed R, time offset {:.2} s; on a recorded IMU the vehicle file's navigator without \
+         its DVL states) on the same seeds, so on the same IMU: this filter minus that one, \
+         mean [95 % t interval over the seeds; the seeds redraw synthetic noise only].\n",
         e.fifteen_state_time_offset_s
     );
     s.push_str(
@@ -150,7 +146,8 @@ fn comparison_table(s: &mut String, e: &Evaluation, trajectories: &[u32]) {
         };
         let _ = writeln!(
             s,
-            "| {t} | {:.2} / {:.2} | {} | {} |",
+            "| {} | {:.2} / {:.2} | {} | {} |",
+            trajectory_label(e, *t),
             base(cell(LS)),
             base(cell(BEAMSNET_NEGLECTED)),
             diff(cell(LS)),
@@ -158,4 +155,21 @@ fn comparison_table(s: &mut String, e: &Evaluation, trajectories: &[u32]) {
         );
     }
     s.push('\n');
+}
+
+/// `t`, marked `(test)` for a held-out trajectory and `(recorded)` where its runs
+/// integrated the recorded IMU.
+fn trajectory_label(e: &Evaluation, t: u32) -> String {
+    let mut label = t.to_string();
+    if AKIT_TEST_TRAJECTORIES.contains(&t) {
+        label.push_str(" (test)");
+    }
+    let recorded = e
+        .rows
+        .iter()
+        .any(|r| r.trajectory == t && r.imu_source == Some(ImuSource::Recorded));
+    if recorded {
+        label.push_str(" (recorded)");
+    }
+    label
 }
