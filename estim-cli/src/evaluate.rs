@@ -11,7 +11,8 @@ use estim::navigator::DvlStatesConfig;
 use crate::output::emit;
 use crate::schema::{document, path_json, status_result};
 use crate::study::{
-    evaluate, evaluation_markdown, fit_training, Config, ImuSelection, ImuSource, MAX_SEED,
+    evaluate, evaluation_markdown, fit_training, Config, Evaluation, ImuSelection, ImuSource,
+    MAX_SEED,
 };
 
 /// Arguments of `estim evaluate`.
@@ -159,54 +160,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let doc = document("evaluate", inputs, failures, body);
         emit(&format!("{}\n", serde_json::to_string_pretty(&doc)?))?;
     } else {
-        let mut text = String::new();
-        let recorded: Vec<u32> = evaluation
-            .rows
-            .iter()
-            .filter(|r| r.imu_source == Some(ImuSource::Recorded))
-            .map(|r| r.trajectory)
-            .fold(Vec::new(), |mut v, t| {
-                if !v.contains(&t) {
-                    v.push(t);
-                }
-                v
-            });
-        if !recorded.is_empty() {
-            writeln!(
-                text,
-                "Recorded IMU on trajectories {recorded:?} (marked \"recorded\" below): read \
-                 with {}, the vehicle file's navigator (its DVL error states, time offset and \
-                 R) in place of the fit; NEES over the 9 states with truth at the reference's \
-                 epochs; the seeds redraw only the protocol's beam noise. The rest below is \
-                 the synthesized IMU's.",
-                args.vehicle
-                    .as_deref()
-                    .map_or("the embedded vehicles/akit.toml".into(), |p| p
-                        .display()
-                        .to_string()),
-            )?;
-        }
-        writeln!(
-            text,
-            "INS/DVL filter with DVL error states (scale factor, misalignment, Gauss-Markov \
-             bias, lever arm, time offset); {} trajectories x {} seeds ({}-{}), gate \
-             probability {}.\n\
-             Synthesized IMU: from the ground truth (error model `{}`), DVL real (LS: beams by \
-             the BeamsNet protocol from the real DVL); the seeds redraw only the synthetic \
-             noise. NEES over the 15 INS states against truth. {}\n",
-            trajectories.len(),
-            seeds.len(),
-            args.first_seed,
+        let mut text = header(
+            &args,
+            &config,
+            &evaluation,
+            [trajectories.len(), seeds.len()],
             last,
-            config.filter.gate_probability,
-            config.imu.preset,
-            match args.adaptive_noise {
-                Some(n) => format!(
-                    "DVL noise level adapted online (memory {n} updates): the NIS is near 3 \
-                     by construction, the NEES is the check."
-                ),
-                None => "DVL noise level fixed by the fit.".into(),
-            },
         )?;
         text.push_str(&evaluation_markdown(&evaluation));
         for f in &evaluation.failures {
@@ -215,4 +174,65 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         emit(&text)?;
     }
     status_result(failures)
+}
+
+/// The text's opening lines: which trajectories ran on a recorded IMU, the filter,
+/// seeds and the synthesized IMU's model.
+fn header(
+    args: &Args,
+    config: &Config,
+    evaluation: &Evaluation,
+    [trajectories, seeds]: [usize; 2],
+    last: u64,
+) -> anyhow::Result<String> {
+    let mut text = String::new();
+    let recorded: Vec<u32> = evaluation
+        .rows
+        .iter()
+        .filter(|r| r.imu_source == Some(ImuSource::Recorded))
+        .map(|r| r.trajectory)
+        .fold(Vec::new(), |mut v, t| {
+            if !v.contains(&t) {
+                v.push(t);
+            }
+            v
+        });
+    if !recorded.is_empty() {
+        writeln!(
+            text,
+            "Recorded IMU on trajectories {recorded:?} (marked \"recorded\" below): read \
+             with {}, the vehicle file's navigator (its DVL error states, time offset and \
+             R) in place of the fit; NEES over the 9 states with truth at the reference's \
+             epochs; the seeds redraw only the protocol's beam noise. The rest below is \
+             the synthesized IMU's.",
+            args.vehicle
+                .as_deref()
+                .map_or("the embedded vehicles/akit.toml".into(), |p| p
+                    .display()
+                    .to_string()),
+        )?;
+    }
+    writeln!(
+        text,
+        "INS/DVL filter with DVL error states (scale factor, misalignment, Gauss-Markov \
+         bias, lever arm, time offset); {} trajectories x {} seeds ({}-{}), gate \
+         probability {}.\n\
+         Synthesized IMU: from the ground truth (error model `{}`), DVL real (LS: beams by \
+         the BeamsNet protocol from the real DVL); the seeds redraw only the synthetic \
+         noise. NEES over the 15 INS states against truth. {}\n",
+        trajectories,
+        seeds,
+        args.first_seed,
+        last,
+        config.filter.gate_probability,
+        config.imu.preset,
+        match args.adaptive_noise {
+            Some(n) => format!(
+                "DVL noise level adapted online (memory {n} updates): the NIS is near 3 \
+                 by construction, the NEES is the check."
+            ),
+            None => "DVL noise level fixed by the fit.".into(),
+        },
+    )?;
+    Ok(text)
 }

@@ -103,7 +103,11 @@ use super::{
     AKIT_TEST_TRAJECTORIES, BEAMSNET_NEGLECTED, LS,
 };
 
+mod recorded;
+use recorded::recorded_cell;
 mod report;
+mod rows;
+use rows::evaluation_rows;
 mod runs;
 #[cfg(test)]
 mod tests;
@@ -785,114 +789,4 @@ fn check_lists(trajectories: &[u32], seeds: &[u64]) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// Per trajectory and variant, the means over the seeds' runs.
-fn evaluation_rows(
-    trajectories: &[u32],
-    runs: &[EvaluationRun],
-    fit: &TrainingFit,
-) -> Vec<EvaluationRow> {
-    let mut rows = Vec::new();
-    for &t in trajectories {
-        for id in EVALUATED_VARIANTS {
-            let mine: Vec<&EvaluationRun> = runs
-                .iter()
-                .filter(|r| r.trajectory == t && r.id == id)
-                .collect();
-            let mean = |f: &dyn Fn(&EvaluationRun) -> f64| {
-                finite_mean(&mine.iter().map(|r| f(r)).collect::<Vec<_>>())
-            };
-            let nees = mean(&|r| r.nees);
-            let nis = mean(&|r| r.nis);
-            let differences: Vec<f64> = mine
-                .iter()
-                .map(|r| r.position_rmse_m - r.fifteen_state_position_rmse_m)
-                .filter(|d| d.is_finite())
-                .collect();
-            let nees_states = mine.first().map_or(ERROR_STATES, |r| r.nees_states);
-            let applied = mine
-                .first()
-                .map_or(fit.time_offset_s, |r| r.applied_time_offset_s);
-            rows.push(EvaluationRow {
-                imu_source: mine.first().map(|r| r.imu_source),
-                nees_states,
-                fifteen_state_position_rmse_m: mean(&|r| r.fifteen_state_position_rmse_m),
-                position_rmse_difference_m: PairedInterval::of(&differences, LEVEL),
-                trajectory: t,
-                id: id.to_string(),
-                runs: mine.len(),
-                nees,
-                nis,
-                position_rmse_m: mean(&|r| r.position_rmse_m),
-                nees_in_band: in_band(nees, nees_states as f64),
-                nis_in_band: in_band(nis, 3.0),
-                time_offset_s: applied + mean(&|r| r.time_offset_s[0]),
-                noise_scale: mean(&|r| r.noise_scale),
-            });
-        }
-    }
-    rows
-}
-
-/// The two variants on a recorded IMU's cell (module docs, "On a recorded IMU"): the
-/// vehicle file's navigator, and the same without DVL error states for the comparison.
-fn recorded_cell(
-    n: u32,
-    seed: u64,
-    scenario: &Scenario,
-    recorded: &RecordedSurvey,
-    config: &Config,
-    learned: &LearnedSource,
-) -> Result<Vec<std::result::Result<EvaluationRun, String>>> {
-    let [ls, net] = recorded_sets(scenario, config, learned)?;
-    let fifteen = recorded.without_dvl_states()?;
-    let applied = recorded.settings.config().dvl.time_offset_s;
-    let mut out = Vec::with_capacity(2);
-    for (id, set) in [(LS, ls), (BEAMSNET_NEGLECTED, net)] {
-        let finding = |e: PipelineError| -> Result<String> {
-            match e {
-                e @ (PipelineError::FilterStopped { .. } | PipelineError::NavigatorAt { .. }) => {
-                    Ok(format!("trajectory {n}, seed {seed}, {id}: {e}"))
-                }
-                e => Err(e),
-            }
-        };
-        let comparison = match super::run_recorded(id, scenario, &fifteen, &set, &CrossSource::Zero)
-        {
-            Ok(run) => summarise(&run)?.position_error_m.rmse,
-            Err(e) => {
-                finding(e)?;
-                f64::NAN
-            }
-        };
-        let run = match super::run_recorded(id, scenario, recorded, &set, &CrossSource::Zero) {
-            Ok(run) => run,
-            Err(e) => {
-                out.push(Err(finding(e)?));
-                continue;
-            }
-        };
-        let states = run.final_dvl_states;
-        out.push(Ok(EvaluationRun {
-            trajectory: n,
-            seed,
-            id: id.to_string(),
-            imu_source: ImuSource::Recorded,
-            nees_states: run.nees_states,
-            nees: finite_mean(&run.nees),
-            nis: finite_mean(&run.nis),
-            position_rmse_m: summarise(&run)?.position_error_m.rmse,
-            accepted: run.accepted,
-            rejected: run.rejected,
-            applied_time_offset_s: applied,
-            time_offset_s: states.map_or([0.0, 0.0], |s| [s.time_offset_s, s.time_offset_sigma_s]),
-            scale_factor_error: states.map_or([f64::NAN, f64::NAN], |s| {
-                [s.scale_factor_error, s.scale_factor_sigma]
-            }),
-            noise_scale: run.final_noise_scale.unwrap_or(1.0),
-            fifteen_state_position_rmse_m: comparison,
-        }));
-    }
-    Ok(out)
 }

@@ -28,7 +28,7 @@ pub use crate::experiment::{
     PipelineError, Result, MAX_SEED,
 };
 pub use evaluate::{
-    check_fit_trajectories, evaluate, fit_training, markdown as evaluation_markdown,
+    check_fit_trajectories, evaluate, fit_training, markdown as evaluation_markdown, Evaluation,
 };
 pub use faults::apply_faults;
 pub use learned::{beamsnet_inputs, committed_beamsnet};

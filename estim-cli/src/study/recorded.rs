@@ -597,20 +597,10 @@ fn run_on<E: NavigationModel<N>, const N: usize>(
         };
         let (unit, largest_valid_rho) = paper_unit(nav.filter().accumulated_process_noise(), &r);
         updates.largest_valid_rho.push(largest_valid_rho);
-        let fixed;
-        let source: &DvlCross<'_, E::State, N> = match cross {
-            CrossSource::Zero | CrossSource::ScaledPerStep(_) => &Zero,
-            CrossSource::Scaled(rho) => {
-                fixed = Fixed(unit * *rho);
-                &fixed
-            }
-            CrossSource::PerEpoch(ms) => {
-                let m = ms.get(k).copied().unwrap_or_else(super::CrossMatrix::zeros);
-                let mut padded = SMatrix::<f64, N, 3>::zeros();
-                padded.fixed_rows_mut::<ERROR_STATES>(0).copy_from(&m);
-                fixed = Fixed(padded);
-                &fixed
-            }
+        let fixed = cross_matrix(cross, k, &unit).map(Fixed);
+        let source: &DvlCross<'_, E::State, N> = match &fixed {
+            Some(m) => m,
+            None => &Zero,
         };
         let report = match given {
             Some(r) => nav.dvl_velocity_with_noise(time, &y, &r, source)?,
@@ -623,17 +613,7 @@ fn run_on<E: NavigationModel<N>, const N: usize>(
         updates.accepted[k] = Some(report.is_accepted());
         Ok(Some(report))
     };
-    // Every row with this variant's measurement reaches the update above, whatever
-    // beams a scripted loss removed (the velocity comes from `measurements`: least
-    // squares on the beams left, or a network's); a row without one gets no update at
-    // all (not least squares on its beams): it is a no-lock row.
-    let mut inputs = recorded.inputs.clone();
-    for (row, velocity) in inputs.dvl.iter_mut().zip(&measurements.velocities) {
-        row.input = match velocity {
-            Some(_) => DvlInput::Beams([Some(0.0); 4]),
-            None => DvlInput::NoLock,
-        };
-    }
+    let inputs = variant_rows(recorded, measurements);
     let mut observer = Scorer::new(id, recorded, n);
     let outcome = navigate_beams_with(
         &inputs,
@@ -658,6 +638,40 @@ fn run_on<E: NavigationModel<N>, const N: usize>(
     out.final_dvl_states = run.dvl_states;
     out.final_noise_scale = run.dvl_noise_scale;
     Ok(out)
+}
+
+/// The M of a variant's update at DVL epoch `k` (`unit`: the paper's M at rho = 1),
+/// padded to the navigator's `N` states; `None` for M = 0.
+fn cross_matrix<const N: usize>(
+    cross: &CrossSource,
+    k: usize,
+    unit: &SMatrix<f64, N, 3>,
+) -> Option<SMatrix<f64, N, 3>> {
+    match cross {
+        CrossSource::Zero | CrossSource::ScaledPerStep(_) => None,
+        CrossSource::Scaled(rho) => Some(unit * *rho),
+        CrossSource::PerEpoch(ms) => {
+            let m = ms.get(k).copied().unwrap_or_else(super::CrossMatrix::zeros);
+            let mut padded = SMatrix::<f64, N, 3>::zeros();
+            padded.fixed_rows_mut::<ERROR_STATES>(0).copy_from(&m);
+            Some(padded)
+        }
+    }
+}
+
+/// The survey's inputs for a variant: every row with the variant's measurement
+/// reaches its update, whatever beams a scripted loss removed (the velocity comes from
+/// `measurements`: least squares on the beams left, or a network's); a row without
+/// one gets no update at all (not least squares on its beams): it is a no-lock row.
+fn variant_rows(recorded: &RecordedSurvey, measurements: &MeasurementSet) -> SurveyInputs {
+    let mut inputs = recorded.inputs.clone();
+    for (row, velocity) in inputs.dvl.iter_mut().zip(&measurements.velocities) {
+        row.input = match velocity {
+            Some(_) => DvlInput::Beams([Some(0.0); 4]),
+            None => DvlInput::NoLock,
+        };
+    }
+    inputs
 }
 
 /// The paper's M at rho = 1 on the INS states' accumulated noise `q_acc` (the IMU
