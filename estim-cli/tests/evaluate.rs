@@ -13,6 +13,33 @@ fn estim(args: &[&str]) -> Output {
         .expect("run estim")
 }
 
+/// `estim reproduce --data ROOT --trajectory N --imu IMU --json` with the study's
+/// configuration `seed = SEED` (written into `dir`): exit 0 and the JSON document.
+fn reproduce_json(
+    root: &str,
+    trajectory: &str,
+    seed: u64,
+    imu: &str,
+    dir: &std::path::Path,
+) -> serde_json::Value {
+    let config = dir.join(format!("seed{seed}.toml"));
+    std::fs::write(&config, format!("seed = {seed}\n")).expect("write");
+    let out = estim(&[
+        "reproduce",
+        "--data",
+        root,
+        "--trajectory",
+        trajectory,
+        "--imu",
+        imu,
+        "--config",
+        config.to_str().expect("utf-8 path"),
+        "--json",
+    ]);
+    assert_eq!(out.status.code(), Some(0));
+    serde_json::from_slice(&out.stdout).expect("JSON")
+}
+
 /// `estim evaluate --data ROOT --fit-trajectories 2,7 --imu synthesized ARGS --json`
 /// (fitted on two training trajectories to keep CI cheap; the synthesized IMU, whatever
 /// IMU files the folders hold): exit 0 and the JSON document.
@@ -267,23 +294,8 @@ fn the_fifteen_state_comparison_is_reproduce_paired_by_seed() {
     let runs = e["runs"].as_array().expect("runs");
     assert_eq!(runs.len(), 4, "2 seeds x 2 variants");
     for seed in [31u64, 32] {
-        let config = dir.path().join(format!("seed{seed}.toml"));
-        std::fs::write(&config, format!("seed = {seed}\n")).expect("write");
-        let out = estim(&[
-            "reproduce",
-            "--data",
-            &root,
-            "--trajectory",
-            "13",
-            // evaluate's runs are on the synthesized IMU, whatever IMU files exist.
-            "--imu",
-            "synthesized",
-            "--config",
-            config.to_str().expect("utf-8 path"),
-            "--json",
-        ]);
-        assert_eq!(out.status.code(), Some(0));
-        let doc: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+        // evaluate's runs are on the synthesized IMU, whatever IMU files exist.
+        let doc = reproduce_json(&root, "13", seed, "synthesized", dir.path());
         let filters = doc["trajectories"][0]["filters"]
             .as_array()
             .expect("filters");
@@ -360,20 +372,7 @@ fn a_recorded_cell_is_reproduces_recorded_run() {
     let runs = doc["evaluation"]["runs"].as_array().expect("runs");
     assert_eq!(runs.len(), 2);
     let dir = tempfile::tempdir().expect("temp dir");
-    let config = dir.path().join("seed7.toml");
-    std::fs::write(&config, "seed = 7\n").expect("write");
-    let out = estim(&[
-        "reproduce",
-        "--data",
-        &root,
-        "--trajectory",
-        "2",
-        "--config",
-        config.to_str().expect("utf-8 path"),
-        "--json",
-    ]);
-    assert_eq!(out.status.code(), Some(0));
-    let reproduced: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    let reproduced = reproduce_json(&root, "2", 7, "auto", dir.path());
     let t = &reproduced["trajectories"][0];
     assert_eq!(t["imu_source"], "recorded");
     let filters = t["filters"].as_array().expect("filters");
