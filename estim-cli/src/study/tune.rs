@@ -61,6 +61,48 @@ fn check_trajectories(trajectories: &[u32], flag: &str) -> Result<()> {
     Ok(())
 }
 
+/// One trajectory's DVL velocities for the fit: (time of the IMU sample, velocity).
+type DvlMeasurements = Vec<(f64, Vector3<f64>)>;
+
+/// Per scenario, the least-squares DVL velocities the fit uses (time of their IMU
+/// sample, velocity), and how many rows were left out because a held-out
+/// trajectory shares them (`test_rows`, the bits of their velocities).
+///
+/// # Errors
+/// [`PipelineError::DvlEpoch`] for an epoch beyond its scenario's IMU.
+fn dvl_measurements(
+    scenarios: &[Scenario],
+    config: &Config,
+    test_rows: &HashSet<[u64; 3]>,
+) -> Result<(Vec<DvlMeasurements>, Vec<usize>)> {
+    let mut measurements = Vec::with_capacity(scenarios.len());
+    let mut overlapping = Vec::with_capacity(scenarios.len());
+    for scenario in scenarios {
+        let velocities = least_squares_velocities(scenario, config);
+        let mut used = Vec::with_capacity(velocities.len());
+        let mut left_out = 0;
+        for (k, (epoch, v)) in scenario.dvl.iter().zip(velocities).enumerate() {
+            if test_rows.contains(&bits(&epoch.reference_velocity)) {
+                left_out += 1;
+            } else if let Some(v) = v {
+                let time = scenario
+                    .imu
+                    .get(epoch.imu_index)
+                    .map(|s| s.time)
+                    .ok_or_else(|| PipelineError::DvlEpoch {
+                        scenario: scenario.name.clone(),
+                        epoch: k,
+                        reason: format!("at IMU index {}, beyond the IMU", epoch.imu_index),
+                    })?;
+                used.push((time, v));
+            }
+        }
+        measurements.push(used);
+        overlapping.push(left_out);
+    }
+    Ok((measurements, overlapping))
+}
+
 /// Fit on A-KIT `trajectories` under `dir` (module docs), from the configuration's
 /// noise values (IMU densities, beam noise of the protocol, the reference mismatch,
 /// rho = 0).
@@ -105,31 +147,7 @@ pub fn tune_akit(
             ),
         });
     }
-    let mut measurements = Vec::with_capacity(scenarios.len());
-    let mut overlapping = Vec::with_capacity(scenarios.len());
-    for scenario in &scenarios {
-        let velocities = least_squares_velocities(scenario, config);
-        let mut used = Vec::with_capacity(velocities.len());
-        let mut left_out = 0;
-        for (k, (epoch, v)) in scenario.dvl.iter().zip(velocities).enumerate() {
-            if test_rows.contains(&bits(&epoch.reference_velocity)) {
-                left_out += 1;
-            } else if let Some(v) = v {
-                let time = scenario
-                    .imu
-                    .get(epoch.imu_index)
-                    .map(|s| s.time)
-                    .ok_or_else(|| PipelineError::DvlEpoch {
-                        scenario: scenario.name.clone(),
-                        epoch: k,
-                        reason: format!("at IMU index {}, beyond the IMU", epoch.imu_index),
-                    })?;
-                used.push((time, v));
-            }
-        }
-        measurements.push(used);
-        overlapping.push(left_out);
-    }
+    let (measurements, overlapping) = dvl_measurements(&scenarios, config, &test_rows)?;
     let mut inputs = Vec::with_capacity(scenarios.len());
     for (scenario, dvl) in scenarios.iter().zip(&measurements) {
         let truth0 = scenario
