@@ -345,7 +345,7 @@ fn the_fifteen_state_comparison_is_reproduce_paired_by_seed() {
 /// 9 states with truth), NIS and position RMSE to 1e-12 for both variants; options
 /// that change the synthesized runs only are refused with exit 2.
 #[test]
-fn a_recorded_cell_is_reproduces_recorded_run() {
+fn a_recorded_cell_is_the_recorded_reproduce_run() {
     let Some(root) = common::data_root() else {
         return;
     };
@@ -385,6 +385,7 @@ fn a_recorded_cell_is_reproduces_recorded_run() {
             .expect("the same variant");
         for (mine, theirs) in [
             (&run["nees"], &f["nees_average"]),
+            (&run["nis"], &f["nis_average"]),
             (&run["position_rmse_m"], &f["position_error_m"]["rmse"]),
         ] {
             let (a, b) = (
