@@ -185,6 +185,11 @@ fn table(args: &CalibrateArgs, log: &ImuLog, c: &ImuCalibration) -> String {
     let _ = writeln!(out, "clock_scale = {}    # 1-sigma {}", value(s), sigma(s));
     let _ = writeln!(
         out,
+        "clock_origin_s = {:?}    # the scale acts about the IMU file's epoch",
+        log.epoch_s
+    );
+    let _ = writeln!(
+        out,
         "time_offset_s = {}    # 1-sigma {}",
         value(tau),
         sigma(tau)

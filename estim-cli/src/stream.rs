@@ -213,7 +213,8 @@ impl Run {
         let admission = match record {
             Record::Imu { time, acc, gyro } => {
                 let t = time - epoch;
-                let t0 = *self.first_imu.get_or_insert(t);
+                let frame = &self.frame;
+                let t0 = *self.first_imu.get_or_insert_with(|| frame.origin(epoch, t));
                 let sample = self
                     .frame
                     .sample(t0, t, Vector3::from(acc), Vector3::from(gyro));

@@ -122,6 +122,7 @@ fn akit_trajectory_2_has_its_y_axes_reversed_and_a_stretched_clock() {
         [
             "accelerometer_bias",
             "axes",
+            "clock_origin_s",
             "clock_scale",
             "gyroscope_bias",
             "gyroscope_scale",
@@ -129,6 +130,9 @@ fn akit_trajectory_2_has_its_y_axes_reversed_and_a_stretched_clock() {
         ]
     );
     assert!((imu["clock_scale"].as_float().unwrap() - scale).abs() < 1e-5);
+    // The scale acts about the IMU file's epoch, its first whole second (0 here).
+    assert_eq!(imu["clock_origin_s"].as_float(), doc["epoch_s"].as_f64());
+    assert_eq!(doc["epoch_s"].as_f64(), Some(0.0));
     // Trajectory 2 turns about z (327 deg net): the gyroscope's scale there is fitted,
     // and reads the clock's 1.0025 (the rates are per second of the IMU's clock).
     let z = &doc["gyroscope_scale"];

@@ -10,6 +10,8 @@
 //!   separately coded flat-Earth fit finds it, and `remove_velocity_bias` removes it;
 //! - a rotated and re-timed copy of an IMU log, described by `[imu]` keys, gives the
 //!   same solution;
+//! - a copy of the logs cut to start 150 s later keeps the reference's clock offset
+//!   and the DVL's timing (the IMU clock's scale acts about `clock_origin_s`);
 //! - the raw files read as if their axes were the body's end `diverged` (exit 3).
 
 mod common;
@@ -252,8 +254,9 @@ fn a_rotated_and_retimed_copy_gives_the_same_solution() {
     let copy = dir.path().join("imu_rotated.csv");
     rotated_copy(&imu, &copy);
     // body = diag(1, -1, 1) raw, raw = R file with R = [[0,1,0],[1,0,0],[0,0,-1]]:
-    // body x = file y, body y = -file x, body z = -file z. The copy's clock runs
-    // 1/1.001 of the navigator's, from 0.3 / 1.001 s.
+    // body x = file y, body y = -file x, body z = -file z. The copy's stamp t' of a
+    // sample taken at navigator time T = 1.0025 t satisfies T = 1.001 t' - 0.3 (the
+    // vehicle file's clock origin, stamp 0, stays).
     let base = std::fs::read_to_string(vehicle()).unwrap();
     let described = base
         .replace(
@@ -262,7 +265,7 @@ fn a_rotated_and_retimed_copy_gives_the_same_solution() {
         )
         .replace(
             "clock_scale = 1.0025",
-            &format!("clock_scale = 1.001\ntime_offset_s = {:e}", 0.3 / 1.001),
+            "clock_scale = 1.001\ntime_offset_s = 0.3",
         );
     assert_ne!(described, base);
     let vehicle_copy = dir.path().join("rotated.toml");
@@ -299,6 +302,76 @@ fn a_rotated_and_retimed_copy_gives_the_same_solution() {
         b["evaluation"]["position_rmse_m"].as_f64().unwrap(),
     );
     assert!((x - y).abs() <= 1e-6 * x, "RMSE {x} vs {y}");
+}
+
+/// Copy `from`'s header and its rows stamped at `start` or later to `to`.
+fn cut_copy(from: &Path, to: &Path, start: f64) {
+    let text = std::fs::read_to_string(from).unwrap();
+    let mut lines = text.lines();
+    let mut out = format!("{}\n", lines.next().unwrap());
+    for line in lines {
+        let t: f64 = line.split(',').next().unwrap().parse().unwrap();
+        if t >= start {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    std::fs::write(to, out).unwrap();
+}
+
+#[test]
+fn a_log_cut_to_start_later_keeps_its_timing() {
+    let Some(root) = common::data_root() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    // The vehicle file's IMU clock acts about stamp 0 (`clock_origin_s`); without it
+    // the scale would act about the cut log's first stamp, (1.0025 - 1) 150 s = 0.375 s
+    // away.
+    let base = std::fs::read_to_string(vehicle()).unwrap();
+    let about_first = base.replace("clock_origin_s = 0.0", "");
+    assert_ne!(about_first, base);
+    let about_first_vehicle = dir.path().join("about_first.toml");
+    std::fs::write(&about_first_vehicle, about_first).unwrap();
+    // One trajectory of each clock group (reference offsets about +0.45 and -0.47 s).
+    for n in [2, 5] {
+        let [imu, dvl, gt] = files(&root, n);
+        let cut = |file: &Path, start: f64| {
+            let to = dir.path().join(format!(
+                "cut_{}",
+                file.file_name().unwrap().to_string_lossy()
+            ));
+            cut_copy(file, &to, start);
+            to
+        };
+        // IMU stamp 150 is DVL / reference stamp 150.375.
+        let (imu_cut, dvl_cut, gt_cut) = (cut(&imu, 150.0), cut(&dvl, 150.4), cut(&gt, 150.4));
+        let whole = json(&navigate(&imu, &dvl, &gt, &vehicle(), None));
+        let part = json(&navigate(&imu_cut, &dvl_cut, &gt_cut, &vehicle(), None));
+        let shifted = json(&navigate(
+            &imu_cut,
+            &dvl_cut,
+            &gt_cut,
+            &about_first_vehicle,
+            None,
+        ));
+        let offset = |s: &Value| s["evaluation"]["truth_time_offset_s"].as_f64().unwrap();
+        assert_eq!(part["status"], "ok", "trajectory {n}");
+        assert!(
+            (offset(&part) - offset(&whole)).abs() < 0.03,
+            "trajectory {n}: reference offset {} cut, {} whole",
+            offset(&part),
+            offset(&whole)
+        );
+        assert!(
+            (offset(&shifted) - offset(&whole) - 0.375).abs() < 0.03,
+            "trajectory {n}: reference offset {} about the first stamp, {} whole",
+            offset(&shifted),
+            offset(&whole)
+        );
+        let nis = part["nis"]["dvl"]["mean"].as_f64().unwrap();
+        assert!((1.5..=6.0).contains(&nis), "trajectory {n}: DVL NIS {nis}");
+    }
 }
 
 #[test]

@@ -225,7 +225,10 @@ impl Truth {
             )));
         }
         let c = &config.truth;
-        let t0 = times.first().copied().unwrap_or(0.0);
+        // The stamp the clock scale acts about, on the navigator's clock.
+        let t0 = c
+            .clock_origin_s
+            .map_or(times.first().copied().unwrap_or(0.0), |o| o - epoch);
         let lever = Vector3::from(c.lever_arm_m);
         let mut samples: Vec<TrajectorySample> = gt
             .iter()
@@ -637,20 +640,7 @@ mod tests {
         let mut config = NavigatorConfig::default();
         config.truth.lever_arm_m = [2.0, 0.0, 0.5];
         config.truth.time_offset_s = Some(0.0);
-        let survey = LoadedSurvey {
-            inputs: crate::navigator::SurveyInputs {
-                imu,
-                dvl: Vec::new(),
-                depth: Vec::new(),
-                fixes: Vec::new(),
-                output_epochs: Vec::new(),
-            },
-            settings: config.check().unwrap(),
-            epoch: 0.0,
-            true_biases: None,
-            pd0: None,
-        };
-        let truth = Truth::load(&gt, &survey, &config).unwrap();
+        let truth = Truth::load(&gt, &survey(imu, &config), &config).unwrap();
         for k in [10, 30, 45] {
             let t = f64::from(k);
             // The samples within 0.05 s of t: t + 0.005 + j / 100, j = -5..=4.
@@ -667,6 +657,67 @@ mod tests {
             );
             assert!(mean > 0.19, "{mean}");
         }
+    }
+
+    /// A survey of `imu` alone on epoch 0.
+    fn survey(imu: Vec<estim_ins::ImuSample>, config: &NavigatorConfig) -> LoadedSurvey {
+        LoadedSurvey {
+            inputs: crate::navigator::SurveyInputs {
+                imu,
+                dvl: Vec::new(),
+                depth: Vec::new(),
+                fixes: Vec::new(),
+                output_epochs: Vec::new(),
+            },
+            settings: config.check().unwrap(),
+            epoch: 0.0,
+            true_biases: None,
+            pd0: None,
+        }
+    }
+
+    /// A reference cut to start at 20 s, on a clock that runs 1.01 times the
+    /// navigator's from stamp 0: with `clock_origin_s = 0` its epochs are 1.01 t - tau;
+    /// without, the scale acts about its first stamp, 20 + 1.01 (t - 20) - tau.
+    #[test]
+    fn the_reference_clock_scale_acts_about_its_origin() {
+        let dir = tempfile::tempdir().unwrap();
+        let gt = dir.path().join("gt.csv");
+        let mut text = String::from(
+            "Time [s],Longitude [rad],Latitude [rad],Altitude [m],V North [m/s],\
+             V East [m/s],V Down [m/s],Roll [rad],Pitch [rad],Yaw [rad]\n",
+        );
+        for k in 20..=40 {
+            let latitude = 0.57 + f64::from(k) / 6_378_137.0;
+            text.push_str(&format!("{k},0.61,{latitude},-20,1,0,0,0,0,0\n"));
+        }
+        std::fs::write(&gt, text).unwrap();
+        let imu = (0..6000)
+            .map(|j| {
+                let (f, w) = (Vector3::new(0.0, 0.0, -9.8), Vector3::zeros());
+                estim_ins::ImuSample::new(f64::from(j) * 0.01, f, w)
+            })
+            .collect::<Vec<_>>();
+        let mut config = NavigatorConfig::default();
+        config.truth.clock_scale = 1.01;
+        config.truth.time_offset_s = Some(0.3);
+        let about_first = Truth::load(&gt, &survey(imu.clone(), &config), &config).unwrap();
+        config.truth.clock_origin_s = Some(0.0);
+        let about_zero = Truth::load(&gt, &survey(imu, &config), &config).unwrap();
+        for (k, (a, z)) in about_first
+            .epochs()
+            .iter()
+            .zip(about_zero.epochs())
+            .enumerate()
+        {
+            let t = 20.0 + k as f64;
+            assert!(
+                (a - (20.0 + 1.01 * (t - 20.0) - 0.3)).abs() < 1e-9,
+                "{t}: {a}"
+            );
+            assert!((z - (1.01 * t - 0.3)).abs() < 1e-9, "{t}: {z}");
+        }
+        assert_eq!(about_zero.epochs().len(), 21);
     }
 
     #[test]

@@ -75,7 +75,7 @@ mod tests {
             estim_ins::ImuSample::new(10.0, v, v * 0.01),
             estim_ins::ImuSample::new(20.0, v, v * 0.01),
         ];
-        frame.apply(&mut samples);
+        frame.apply(&mut samples, 0.0);
         assert_eq!(samples[0].time, 10.0 - 0.5);
         assert!((samples[1].time - (10.0 + 1.0025 * 10.0 - 0.5)).abs() < 1e-12);
         assert_eq!(
@@ -87,6 +87,44 @@ mod tests {
             samples[1].angular_rate,
             nalgebra::Vector3::new(0.001, -0.002, -0.098)
         );
+    }
+
+    #[test]
+    fn a_clock_origin_keeps_the_timing_of_a_cut_log() {
+        // A clock stamped t relates to the navigator's as 1.0025 t - 0.5 from stamp 0.
+        // The same sample, stamped 200 s, read from the whole log (epoch 0) and from a
+        // copy cut to start at 150 s (epoch 150), must land at the same navigator time.
+        let v = nalgebra::Vector3::new(0.1, 0.2, -9.8);
+        let whole_and_cut = |vehicle: &str| {
+            let frame = parse(vehicle).unwrap().imu_frame().unwrap();
+            let mut whole = vec![
+                estim_ins::ImuSample::new(0.0, v, v),
+                estim_ins::ImuSample::new(200.0, v, v),
+            ];
+            let mut cut = vec![
+                estim_ins::ImuSample::new(0.0, v, v),
+                estim_ins::ImuSample::new(50.0, v, v),
+            ];
+            frame.apply(&mut whole, 0.0);
+            frame.apply(&mut cut, 150.0);
+            (whole[1].time, 150.0 + cut[1].time)
+        };
+        let (whole, cut) = whole_and_cut(
+            "[imu]\nclock_scale = 1.0025\nclock_origin_s = 0.0\ntime_offset_s = 0.5\n",
+        );
+        assert!((whole - (1.0025 * 200.0 - 0.5)).abs() < 1e-12, "{whole}");
+        assert!((cut - whole).abs() < 1e-12, "{cut} vs {whole}");
+        // Without an origin the scale acts about each log's first stamp: the cut copy
+        // is then early by (s - 1) 150 s.
+        let (whole, cut) = whole_and_cut("[imu]\nclock_scale = 1.0025\ntime_offset_s = 0.5\n");
+        assert!(
+            (whole - cut - 0.0025 * 150.0).abs() < 1e-9,
+            "{cut} vs {whole}"
+        );
+        assert!(parse("[imu]\nclock_origin_s = nan\n")
+            .unwrap()
+            .check()
+            .is_err());
     }
 
     #[test]

@@ -32,6 +32,9 @@ pub struct ImuFrame {
     pub rotation: Matrix3<f64>,
     /// Clock scale s.
     pub clock_scale: f64,
+    /// The IMU stamp about which the scale acts \[s\] (`imu.clock_origin_s`); `None`:
+    /// the log's first stamp.
+    pub clock_origin_s: Option<f64>,
     /// Time offset tau \[s\].
     pub time_offset_s: f64,
     /// Gyroscope scale factor per body axis: body rates are divided by it.
@@ -47,27 +50,35 @@ impl ImuFrame {
             && self.gyroscope_scale == Vector3::repeat(1.0)
     }
 
-    /// The navigator time of a stamp `t`, for a log whose first stamp is `t0`:
-    /// `t0 + s (t - t0) - tau`.
+    /// The navigator time of a stamp `t` for a clock scale about the stamp `t0`
+    /// ([`ImuFrame::origin`]): `t0 + s (t - t0) - tau`.
     pub fn time(&self, t0: f64, t: f64) -> f64 {
         t0 + self.clock_scale * (t - t0) - self.time_offset_s
     }
 
+    /// The stamp the clock scale acts about, for stamps taken relative to `epoch`
+    /// (the log's epoch on its own clock) and a log whose first relative stamp is
+    /// `first`: `clock_origin_s - epoch` when it is given, else `first`.
+    pub fn origin(&self, epoch: f64, first: f64) -> f64 {
+        self.clock_origin_s.map_or(first, |o| o - epoch)
+    }
+
     /// Rotate every sample into the body frame, correct the gyroscope's scale and put
-    /// its stamp on the navigator's clock (relative to the first sample's stamp).
-    pub fn apply(&self, samples: &mut [estim_ins::ImuSample]) {
+    /// its stamp on the navigator's clock; the stamps are relative to `epoch`, the
+    /// log's epoch on its own clock.
+    pub fn apply(&self, samples: &mut [estim_ins::ImuSample], epoch: f64) {
         if self.is_identity() {
             return;
         }
-        let t0 = samples.first().map_or(0.0, |s| s.time);
+        let t0 = self.origin(epoch, samples.first().map_or(0.0, |s| s.time));
         for s in samples {
             *s = self.sample(t0, s.time, s.specific_force, s.angular_rate);
         }
     }
 
-    /// One sample as the IMU logged it (stamp `t`, the log's first stamp `t0`, IMU
-    /// axes), in the body frame on the navigator's clock with the gyroscope's scale
-    /// corrected.
+    /// One sample as the IMU logged it (stamp `t`, `t0` the stamp the clock scale acts
+    /// about, IMU axes), in the body frame on the navigator's clock with the gyroscope's
+    /// scale corrected.
     pub fn sample(
         &self,
         t0: f64,
@@ -135,6 +146,7 @@ impl NavigatorConfig {
         }
         finite("imu.mounting_rpy_deg", &imu.mounting_rpy_deg)?;
         finite("imu.time_offset_s", &[imu.time_offset_s])?;
+        finite("imu.clock_origin_s", &[imu.clock_origin_s.unwrap_or(0.0)])?;
         finite("imu.accelerometer_bias", &imu.accelerometer_bias)?;
         finite("imu.gyroscope_bias", &imu.gyroscope_bias)?;
         for (axis, scale) in ["x", "y", "z"].iter().zip(imu.gyroscope_scale) {
@@ -156,6 +168,7 @@ impl NavigatorConfig {
         Ok(ImuFrame {
             rotation: mounting * permutation,
             clock_scale: imu.clock_scale,
+            clock_origin_s: imu.clock_origin_s,
             time_offset_s: imu.time_offset_s,
             gyroscope_scale: Vector3::from(imu.gyroscope_scale),
         })
@@ -275,6 +288,7 @@ impl NavigatorConfig {
         let t = &self.truth;
         finite("truth.lever_arm_m", &t.lever_arm_m)?;
         positive("truth.clock_scale", t.clock_scale)?;
+        finite("truth.clock_origin_s", &[t.clock_origin_s.unwrap_or(0.0)])?;
         finite("truth.time_offset_s", &[t.time_offset_s.unwrap_or(0.0)])?;
         Ok(NavigatorSettings {
             config: self.clone(),

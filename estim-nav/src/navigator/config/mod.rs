@@ -59,8 +59,11 @@ pub struct TruthConfig {
     #[serde(deserialize_with = "super::fixed::three")]
     pub lever_arm_m: [f64; 3],
     /// Clock scale s of the reference's stamps: a row stamped t refers to navigator
-    /// time `t0 + s (t - t0) - time_offset_s`, t0 the first stamp (default 1).
+    /// time `o + s (t - o) - time_offset_s`, o = `clock_origin_s` (default 1).
     pub clock_scale: f64,
+    /// The stamp o \[s\] about which `clock_scale` acts, on the reference file's own
+    /// clock. Unset (default): the reference's first stamp.
+    pub clock_origin_s: Option<f64>,
     /// Time offset of the reference's stamps \[s\]; unset (default): estimated by
     /// [`Truth::load`](crate::truth::Truth::load) against the IMU's angular rate
     /// (`evaluation.truth_time_offset_s`).
@@ -82,6 +85,7 @@ impl Default for TruthConfig {
         Self {
             lever_arm_m: [0.0; 3],
             clock_scale: 1.0,
+            clock_origin_s: None,
             time_offset_s: None,
             initial_state: false,
             remove_velocity_bias: false,
@@ -114,8 +118,13 @@ pub struct ImuConfig {
     #[serde(deserialize_with = "super::fixed::three")]
     pub mounting_rpy_deg: [f64; 3],
     /// Clock scale s of the IMU's time stamps: a sample stamped t was taken at
-    /// navigator time `s t - time_offset_s` (default 1).
+    /// navigator time `o + s (t - o) - time_offset_s`, o = `clock_origin_s` (default 1).
     pub clock_scale: f64,
+    /// The stamp o \[s\] about which `clock_scale` acts, on the IMU file's own clock.
+    /// Unset (default): the IMU's first stamp. Give it when the clock's relation holds
+    /// from a fixed stamp (for example 0 of a time column), so that a log cut to start
+    /// later keeps the same timing.
+    pub clock_origin_s: Option<f64>,
     /// Time offset tau of the IMU's stamps \[s\] (see `clock_scale`; default 0).
     pub time_offset_s: f64,
     /// Initial accelerometer bias in body axes \[m/s^2\] (the filter's starting
@@ -147,6 +156,7 @@ impl Default for ImuConfig {
             axes: identity_axes(),
             mounting_rpy_deg: [0.0; 3],
             clock_scale: 1.0,
+            clock_origin_s: None,
             time_offset_s: 0.0,
             accelerometer_bias: [0.0; 3],
             gyroscope_bias: [0.0; 3],
