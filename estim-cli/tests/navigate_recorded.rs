@@ -372,6 +372,24 @@ fn a_log_cut_to_start_later_keeps_its_timing() {
         let nis = part["nis"]["dvl"]["mean"].as_f64().unwrap();
         assert!((1.5..=6.0).contains(&nis), "trajectory {n}: DVL NIS {nis}");
     }
+    // An origin so far from the stamps that the scale loses their digits: exit 2
+    // naming the vehicle file and the key, nothing written.
+    let far = dir.path().join("far.toml");
+    std::fs::write(
+        &far,
+        base.replace("clock_origin_s = 0.0", "clock_origin_s = 1e300"),
+    )
+    .unwrap();
+    let [imu, dvl, gt] = files(&root, 2);
+    let out_dir = dir.path().join("far_out");
+    let out = navigate(&imu, &dvl, &gt, &far, Some(&out_dir));
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("far.toml") && stderr.contains("imu.clock_origin_s"),
+        "{stderr}"
+    );
+    assert!(!out_dir.join("solution.csv").exists());
 }
 
 #[test]

@@ -201,7 +201,8 @@ impl SurveyFiles {
         config
             .imu_frame()
             .map_err(in_vehicle)?
-            .apply(&mut imu.samples, imu.epoch_s);
+            .apply(&mut imu.samples, imu.epoch_s)
+            .map_err(in_vehicle)?;
         let epoch = imu.epoch_s;
         let mut pd0 = None;
         let dvl = match (&self.dvl, &self.beams, &self.pd0) {

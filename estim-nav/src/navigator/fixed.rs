@@ -75,7 +75,7 @@ mod tests {
             estim_ins::ImuSample::new(10.0, v, v * 0.01),
             estim_ins::ImuSample::new(20.0, v, v * 0.01),
         ];
-        frame.apply(&mut samples, 0.0);
+        frame.apply(&mut samples, 0.0).unwrap();
         assert_eq!(samples[0].time, 10.0 - 0.5);
         assert!((samples[1].time - (10.0 + 1.0025 * 10.0 - 0.5)).abs() < 1e-12);
         assert_eq!(
@@ -105,8 +105,8 @@ mod tests {
                 estim_ins::ImuSample::new(0.0, v, v),
                 estim_ins::ImuSample::new(50.0, v, v),
             ];
-            frame.apply(&mut whole, 0.0);
-            frame.apply(&mut cut, 150.0);
+            frame.apply(&mut whole, 0.0).unwrap();
+            frame.apply(&mut cut, 150.0).unwrap();
             (whole[1].time, 150.0 + cut[1].time)
         };
         let (whole, cut) = whole_and_cut(
@@ -121,6 +121,19 @@ mod tests {
             (whole - cut - 0.0025 * 150.0).abs() < 1e-9,
             "{cut} vs {whole}"
         );
+        // An origin so far from the stamps that their digits are lost is refused,
+        // naming the key, and leaves the samples as they were.
+        let frame = parse("[imu]\nclock_scale = 1.0025\nclock_origin_s = 1e300\n")
+            .unwrap()
+            .imu_frame()
+            .unwrap();
+        let mut samples = vec![
+            estim_ins::ImuSample::new(0.0, v, v),
+            estim_ins::ImuSample::new(0.01, v, v),
+        ];
+        let error = frame.apply(&mut samples, 0.0).unwrap_err().to_string();
+        assert!(error.contains("imu.clock_origin_s"), "{error}");
+        assert_eq!(samples[1].time, 0.01);
         assert!(parse("[imu]\nclock_origin_s = nan\n")
             .unwrap()
             .check()

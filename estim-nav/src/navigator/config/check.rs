@@ -66,14 +66,42 @@ impl ImuFrame {
     /// Rotate every sample into the body frame, correct the gyroscope's scale and put
     /// its stamp on the navigator's clock; the stamps are relative to `epoch`, the
     /// log's epoch on its own clock.
-    pub fn apply(&self, samples: &mut [estim_ins::ImuSample], epoch: f64) {
+    ///
+    /// # Errors
+    /// [`NavigatorError::InvalidValue`] (`imu.clock_origin_s`) when the clock's
+    /// mapping makes a stamp non-finite or puts two stamps that were in order out of
+    /// order (an origin too far from the stamps for their digits); the samples are
+    /// then left as they were.
+    pub fn apply(&self, samples: &mut [estim_ins::ImuSample], epoch: f64) -> Result<()> {
         if self.is_identity() {
-            return;
+            return Ok(());
         }
         let t0 = self.origin(epoch, samples.first().map_or(0.0, |s| s.time));
+        let mut previous: Option<(f64, f64)> = None;
+        for s in samples.iter() {
+            let mapped = self.time(t0, s.time);
+            let broken = !mapped.is_finite()
+                || previous.is_some_and(|(raw, at)| s.time > raw && mapped <= at);
+            if broken {
+                return Err(NavigatorError::invalid(
+                    "imu.clock_origin_s",
+                    format!(
+                        "with clock_scale {} about stamp {:e} the IMU stamp {} s maps to {:e} s, \
+                         out of order with the stamp before it: the origin is too far from \
+                         the log's stamps",
+                        self.clock_scale,
+                        t0 + epoch,
+                        s.time + epoch,
+                        mapped + epoch
+                    ),
+                ));
+            }
+            previous = Some((s.time, mapped));
+        }
         for s in samples {
             *s = self.sample(t0, s.time, s.specific_force, s.angular_rate);
         }
+        Ok(())
     }
 
     /// One sample as the IMU logged it (stamp `t`, `t0` the stamp the clock scale acts
