@@ -6,8 +6,8 @@
 use std::path::PathBuf;
 
 use estim_nav::navigator::{
-    navigate as run_navigator, NavSolution, NavigationObserver, NavigatorConfig, NavigatorError,
-    SolutionKind, UpdateCounts,
+    navigate as run_navigator, NavSolution, NavigationObserver, NavigationRun, NavigatorConfig,
+    NavigatorError, SolutionKind, UpdateCounts,
 };
 use estim_nav::truth::{read_vehicle, Truth, TruthTimeOffset};
 use estim_nav::{SurveyError, SurveyFiles};
@@ -131,52 +131,86 @@ fn navigate<'py>(
         pd0,
         depth,
         fixes,
-        vehicle: vehicle.clone(),
+        vehicle,
     };
-    let (collector, run, epoch) = py.detach(move || {
-        let config = match &vehicle {
-            Some(p) => read_vehicle(p).map_err(survey_err)?,
-            None => NavigatorConfig::default(),
-        };
-        let mut loaded = files.read(&config, &mut |_, _| {}).map_err(|e| match e {
-            SurveyError::NoDvl => EstimError::new_err("no DVL file: give dvl=, beams= or pd0="),
-            e => survey_err(e),
-        })?;
-        let truth = match &truth {
-            Some(p) => Some(Truth::load(p, &loaded, &config).map_err(survey_err)?),
-            None => None,
-        };
-        let mut config = config;
-        if let Some(t) = &truth {
-            if init_from_truth || config.truth.initial_state {
-                t.set_initial(&loaded, &mut config).map_err(survey_err)?;
-            }
-            loaded.inputs.output_epochs = t.epochs().to_vec();
+    let (collector, run, epoch) =
+        py.detach(move || run_survey(&files, truth.as_deref(), init_from_truth, rate_hz))?;
+    let out = solution(py, &collector.rows, &run, epoch)?;
+    match &collector.truth {
+        None => {
+            out.set_item("evaluation", py.None())?;
+            out.set_item("errors", py.None())?;
         }
-        loaded.settle_initial(&config).map_err(survey_err)?;
-        let mut collector = Collector {
-            rows: Vec::new(),
-            truth,
-        };
-        let epoch = loaded.epoch;
-        let run = run_navigator(&loaded.inputs, &loaded.settings, rate_hz, &mut collector)
-            .map_err(|e| match e {
+        Some(t) => {
+            out.set_item("evaluation", evaluation(py, t)?)?;
+            out.set_item("errors", errors(py, t, epoch)?)?;
+        }
+    }
+    Ok(out)
+}
+
+/// Read the survey `files` (with the truth `truth`, scored at its own epochs) and run
+/// the navigator: the solutions, the run's counts and the epoch every time is
+/// relative to.
+fn run_survey(
+    files: &SurveyFiles,
+    truth: Option<&std::path::Path>,
+    init_from_truth: bool,
+    rate_hz: Option<f64>,
+) -> PyResult<(Collector, NavigationRun, f64)> {
+    let mut config = match &files.vehicle {
+        Some(p) => read_vehicle(p).map_err(survey_err)?,
+        None => NavigatorConfig::default(),
+    };
+    let mut loaded = files.read(&config, &mut |_, _| {}).map_err(|e| match e {
+        SurveyError::NoDvl => EstimError::new_err("no DVL file: give dvl=, beams= or pd0="),
+        e => survey_err(e),
+    })?;
+    let truth = match truth {
+        Some(p) => Some(Truth::load(p, &loaded, &config).map_err(survey_err)?),
+        None => None,
+    };
+    if let Some(t) = &truth {
+        if init_from_truth || config.truth.initial_state {
+            t.set_initial(&loaded, &mut config).map_err(survey_err)?;
+        }
+        loaded.inputs.output_epochs = t.epochs().to_vec();
+    }
+    loaded.settle_initial(&config).map_err(survey_err)?;
+    let mut collector = Collector {
+        rows: Vec::new(),
+        truth,
+    };
+    let epoch = loaded.epoch;
+    let run =
+        run_navigator(&loaded.inputs, &loaded.settings, rate_hz, &mut collector).map_err(|e| {
+            match e {
                 NavigatorError::Diverged { time, reason } => EstimError::new_err(format!(
                     "navigate diverged at t = {} s ({time} s after the IMU's first sample): \
-                     {reason}; no solution is returned",
+                 {reason}; no solution is returned",
                     epoch + time
                 )),
                 NavigatorError::Filter { time, source } => EstimError::new_err(format!(
                     "navigate stopped at t = {} s ({time} s after the IMU's first sample): \
-                     {source}; no solution is returned",
+                 {source}; no solution is returned",
                     epoch + time
                 )),
                 e => EstimError::new_err(e.to_string()),
-            })?;
-        Ok::<_, PyErr>((collector, run, epoch))
-    })?;
+            }
+        })?;
+    Ok((collector, run, epoch))
+}
 
-    let rows = &collector.rows;
+/// One (n, 3) column of the solution from its row.
+type Triple = fn(&NavSolution) -> [f64; 3];
+
+/// The solution's columns, update counts and DVL NIS (times on the files' clock).
+fn solution<'py>(
+    py: Python<'py>,
+    rows: &[(SolutionKind, NavSolution)],
+    run: &NavigationRun,
+    epoch: f64,
+) -> PyResult<Bound<'py, PyDict>> {
     let out = PyDict::new(py);
     out.set_item("status", "ok")?;
     out.set_item("epoch_s", epoch)?;
@@ -186,36 +220,20 @@ fn navigate<'py>(
     out.set_item("latitude_deg", column(py, rows, |s| s.latitude_deg))?;
     out.set_item("longitude_deg", column(py, rows, |s| s.longitude_deg))?;
     out.set_item("depth_m", column(py, rows, |s| s.depth_m))?;
-    out.set_item(
-        "velocity_ned_mps",
-        triples(py, rows, |s| s.velocity_ned_mps),
-    )?;
-    out.set_item(
-        "attitude_deg",
-        triples(py, rows, |s| [s.roll_deg, s.pitch_deg, s.heading_deg]),
-    )?;
-    out.set_item("acc_bias_mps2", triples(py, rows, |s| s.acc_bias_mps2))?;
-    out.set_item("gyro_bias_radps", triples(py, rows, |s| s.gyro_bias_radps))?;
-    out.set_item(
-        "position_sigma_m",
-        triples(py, rows, |s| s.position_sigma_m),
-    )?;
-    out.set_item(
-        "velocity_sigma_mps",
-        triples(py, rows, |s| s.velocity_sigma_mps),
-    )?;
-    out.set_item(
-        "attitude_sigma_deg",
-        triples(py, rows, |s| s.attitude_sigma_deg),
-    )?;
-    out.set_item(
-        "acc_bias_sigma_mps2",
-        triples(py, rows, |s| s.acc_bias_sigma_mps2),
-    )?;
-    out.set_item(
-        "gyro_bias_sigma_radps",
-        triples(py, rows, |s| s.gyro_bias_sigma_radps),
-    )?;
+    let triple_columns: [(&str, Triple); 9] = [
+        ("velocity_ned_mps", |s| s.velocity_ned_mps),
+        ("attitude_deg", |s| [s.roll_deg, s.pitch_deg, s.heading_deg]),
+        ("acc_bias_mps2", |s| s.acc_bias_mps2),
+        ("gyro_bias_radps", |s| s.gyro_bias_radps),
+        ("position_sigma_m", |s| s.position_sigma_m),
+        ("velocity_sigma_mps", |s| s.velocity_sigma_mps),
+        ("attitude_sigma_deg", |s| s.attitude_sigma_deg),
+        ("acc_bias_sigma_mps2", |s| s.acc_bias_sigma_mps2),
+        ("gyro_bias_sigma_radps", |s| s.gyro_bias_sigma_radps),
+    ];
+    for (name, f) in triple_columns {
+        out.set_item(name, triples(py, rows, f))?;
+    }
     out.set_item("dvl", counts(py, &run.dvl)?)?;
     out.set_item("depth", counts(py, &run.depth)?)?;
     out.set_item("fixes", counts(py, &run.fixes)?)?;
@@ -224,58 +242,57 @@ fn navigate<'py>(
         "dvl_nis_time_s",
         numpy::PyArray1::from_iter(py, run.dvl_nis_times.iter().map(|t| epoch + t)),
     )?;
-    match &collector.truth {
-        None => {
-            out.set_item("evaluation", py.None())?;
-            out.set_item("errors", py.None())?;
-        }
-        Some(t) => {
-            let e = t.evaluation();
-            let ev = PyDict::new(py);
-            ev.set_item("epochs", e.epochs)?;
-            ev.set_item("epochs_outside_truth", e.epochs_outside_truth)?;
-            ev.set_item("position_rmse_m", e.position_rmse_m)?;
-            ev.set_item("horizontal_position_rmse_m", e.horizontal_position_rmse_m)?;
-            ev.set_item("final_position_error_m", e.final_position_error_m)?;
-            ev.set_item("nees_average", e.nees_average)?;
-            ev.set_item("nees_states", e.nees_states)?;
-            ev.set_item("nees_per_group", e.nees_per_group.to_vec())?;
-            ev.set_item(
-                "covariance_not_positive_definite_epochs",
-                e.covariance_not_positive_definite_epochs,
-            )?;
-            ev.set_item("truth_time_offset_s", t.time_offset().offset_s())?;
-            let source = match t.time_offset() {
-                TruthTimeOffset::Vehicle(_) => "vehicle",
-                TruthTimeOffset::Estimated(_) => "estimated",
-            };
-            ev.set_item("truth_time_offset_source", source)?;
-            if let Some(b) = t.velocity_bias() {
-                ev.set_item("truth_velocity_bias_mps", b.bias_mps.to_vec())?;
-                ev.set_item("truth_velocity_bias_removed", b.removed)?;
-            }
-            out.set_item("evaluation", ev)?;
-            let scored = t.rows();
-            let errors = PyDict::new(py);
-            errors.set_item(
-                "time_s",
-                numpy::PyArray1::from_iter(py, scored.iter().map(|r| epoch + r[0])),
-            )?;
-            errors.set_item(
-                "error",
-                Array2::from_shape_fn((scored.len(), 9), |(i, j)| scored[i][1 + j])
-                    .into_pyarray(py),
-            )?;
-            errors.set_item(
-                "sigma",
-                Array2::from_shape_fn((scored.len(), 9), |(i, j)| scored[i][10 + j])
-                    .into_pyarray(py),
-            )?;
-            errors.set_item("nees", numpy::PyArray1::from_slice(py, t.nees()))?;
-            out.set_item("errors", errors)?;
-        }
-    }
     Ok(out)
+}
+
+/// The evaluation against the truth `t`: RMSE, NEES and the reference's clock offset
+/// and velocity bias.
+fn evaluation<'py>(py: Python<'py>, t: &Truth) -> PyResult<Bound<'py, PyDict>> {
+    let e = t.evaluation();
+    let ev = PyDict::new(py);
+    ev.set_item("epochs", e.epochs)?;
+    ev.set_item("epochs_outside_truth", e.epochs_outside_truth)?;
+    ev.set_item("position_rmse_m", e.position_rmse_m)?;
+    ev.set_item("horizontal_position_rmse_m", e.horizontal_position_rmse_m)?;
+    ev.set_item("final_position_error_m", e.final_position_error_m)?;
+    ev.set_item("nees_average", e.nees_average)?;
+    ev.set_item("nees_states", e.nees_states)?;
+    ev.set_item("nees_per_group", e.nees_per_group.to_vec())?;
+    ev.set_item(
+        "covariance_not_positive_definite_epochs",
+        e.covariance_not_positive_definite_epochs,
+    )?;
+    ev.set_item("truth_time_offset_s", t.time_offset().offset_s())?;
+    let source = match t.time_offset() {
+        TruthTimeOffset::Vehicle(_) => "vehicle",
+        TruthTimeOffset::Estimated(_) => "estimated",
+    };
+    ev.set_item("truth_time_offset_source", source)?;
+    if let Some(b) = t.velocity_bias() {
+        ev.set_item("truth_velocity_bias_mps", b.bias_mps.to_vec())?;
+        ev.set_item("truth_velocity_bias_removed", b.removed)?;
+    }
+    Ok(ev)
+}
+
+/// The errors and 1-sigmas at the truth's scored epochs (times on the files' clock).
+fn errors<'py>(py: Python<'py>, t: &Truth, epoch: f64) -> PyResult<Bound<'py, PyDict>> {
+    let scored = t.rows();
+    let errors = PyDict::new(py);
+    errors.set_item(
+        "time_s",
+        numpy::PyArray1::from_iter(py, scored.iter().map(|r| epoch + r[0])),
+    )?;
+    errors.set_item(
+        "error",
+        Array2::from_shape_fn((scored.len(), 9), |(i, j)| scored[i][1 + j]).into_pyarray(py),
+    )?;
+    errors.set_item(
+        "sigma",
+        Array2::from_shape_fn((scored.len(), 9), |(i, j)| scored[i][10 + j]).into_pyarray(py),
+    )?;
+    errors.set_item("nees", numpy::PyArray1::from_slice(py, t.nees()))?;
+    Ok(errors)
 }
 
 /// Register `navigate`.
