@@ -81,9 +81,11 @@ fn every_training_trajectory_navigates_on_its_recorded_imu() {
     // The table of docs/results.md ("The A-KIT vehicle file"), printed with
     // `-- --nocapture`.
     println!(
-        "| trajectory | horizontal RMSE [m] | 3-D RMSE [m] | NEES (9 states) | NEES pos / vel / att | mean DVL NIS | DVL gated | truth offset [s] | truth velocity bias N / E [mm/s] |"
+        "| trajectory | horizontal RMSE [m] | 3-D RMSE [m] | NEES (9 states) | NEES pos / vel / att | mean DVL NIS | DVL gated | truth offset [s] | truth velocity bias N / E [mm/s] | reference mean \\|yaw rate\\| [mrad/s] |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    let mut nees_in_band = 0;
+    let mut nees_and_turning = Vec::new();
     for n in TRAINING {
         let [imu, dvl, gt] = files(&root, n);
         let out = navigate(&imu, &dvl, &gt, &vehicle(), None);
@@ -125,10 +127,15 @@ fn every_training_trajectory_navigates_on_its_recorded_imu() {
             nees.is_finite() && nees > 0.0,
             "trajectory {n}: NEES {nees}"
         );
+        if (4.5..=18.0).contains(&nees) {
+            nees_in_band += 1;
+        }
+        let yaw_rate = mean_yaw_rate(&gt);
+        nees_and_turning.push((nees, yaw_rate));
         let g = &e["nees_per_group"];
         let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
         println!(
-            "| {n} | {rmse:.2} | {rmse_3d:.2} | {nees:.1} | {:.1} / {:.1} / {:.1} | {:.2} | {gated} of {} | {tau:+.3} | {:+.1} / {:+.1} |",
+            "| {n} | {rmse:.2} | {rmse_3d:.2} | {nees:.1} | {:.1} / {:.1} / {:.1} | {:.2} | {gated} of {} | {tau:+.3} | {:+.1} / {:+.1} | {:.1} |",
             f(&g["position"]),
             f(&g["velocity"]),
             f(&g["attitude"]),
@@ -136,8 +143,54 @@ fn every_training_trajectory_navigates_on_its_recorded_imu() {
             gated + accepted,
             1e3 * f(&e["truth_velocity_bias"]["bias_mps"][0]),
             1e3 * f(&e["truth_velocity_bias"]["bias_mps"][1]),
+            1e3 * yaw_rate,
         );
     }
+    println!(
+        "Spearman rank correlation of NEES with the reference's mean |yaw rate|: {:.2}",
+        spearman(&nees_and_turning)
+    );
+    // A regression guard on consistency: the issue asks for 10 of 11 and the vehicle
+    // file reaches 9 (8 and 9 above the band, docs/results.md).
+    println!("NEES (9 states) within [4.5, 18] on {nees_in_band} of 11");
+    assert!(nees_in_band >= 9, "NEES in band on {nees_in_band} of 11");
+}
+
+/// Spearman's rank correlation of the pairs (no ties): 1 - 6 sum d^2 / (n (n^2 - 1)).
+fn spearman(pairs: &[(f64, f64)]) -> f64 {
+    let rank = |key: &dyn Fn(&(f64, f64)) -> f64| {
+        let mut order: Vec<usize> = (0..pairs.len()).collect();
+        order.sort_by(|&i, &j| key(&pairs[i]).total_cmp(&key(&pairs[j])));
+        let mut ranks = vec![0.0; pairs.len()];
+        for (r, i) in order.into_iter().enumerate() {
+            ranks[i] = r as f64;
+        }
+        ranks
+    };
+    let (a, b) = (rank(&|p| p.0), rank(&|p| p.1));
+    let n = pairs.len() as f64;
+    let d2: f64 = a.iter().zip(&b).map(|(x, y)| (x - y).powi(2)).sum();
+    1.0 - 6.0 * d2 / (n * (n * n - 1.0))
+}
+
+/// The reference's mean absolute yaw rate \[rad/s\]: its yaw column's wrapped
+/// differences over its time column's.
+fn mean_yaw_rate(gt: &Path) -> f64 {
+    let text = std::fs::read_to_string(gt).unwrap();
+    let rows: Vec<(f64, f64)> = text
+        .lines()
+        .skip(1)
+        .map(|line| {
+            let v: Vec<f64> = line.split(',').map(|c| c.parse().unwrap()).collect();
+            (v[0], v[9])
+        })
+        .collect();
+    let pi = std::f64::consts::PI;
+    let rates: Vec<f64> = rows
+        .windows(2)
+        .map(|w| ((w[1].1 - w[0].1 + pi).rem_euclid(2.0 * pi) - pi).abs() / (w[1].0 - w[0].0))
+        .collect();
+    rates.iter().sum::<f64>() / rates.len() as f64
 }
 
 /// The reference's velocity minus its positions' change, fitted the simple way: a
