@@ -242,6 +242,21 @@ impl Truth {
                 s
             })
             .collect();
+        let broken = samples.iter().zip(&times).enumerate().find(|(k, (s, &t))| {
+            !s.time.is_finite() || (*k > 0 && t > times[k - 1] && s.time <= samples[k - 1].time)
+        });
+        if let Some((k, (s, &t))) = broken {
+            return Err(fail(format!(
+                "truth.clock_origin_s: with clock_scale {} about stamp {:e} the data row {} \
+                 stamped {} s maps to {:e} s, not after the row before it or not finite: the \
+                 origin is too far from the reference's stamps",
+                c.clock_scale,
+                t0 + epoch,
+                k + 1,
+                t + epoch,
+                s.time + epoch
+            )));
+        }
         let mut velocity_bias = velocity_bias(&samples);
         if let Some(b) = velocity_bias.as_mut().filter(|_| c.remove_velocity_bias) {
             let bias = Vector3::from(b.bias_mps);
@@ -718,6 +733,18 @@ mod tests {
             assert!((z - (1.01 * t - 0.3)).abs() < 1e-9, "{t}: {z}");
         }
         assert_eq!(about_zero.epochs().len(), 21);
+        // An origin that loses the stamps' digits is refused, naming the key.
+        config.truth.clock_origin_s = Some(1e300);
+        let imu = (0..100)
+            .map(|j| {
+                let (f, w) = (Vector3::new(0.0, 0.0, -9.8), Vector3::zeros());
+                estim_ins::ImuSample::new(f64::from(j) * 0.01, f, w)
+            })
+            .collect::<Vec<_>>();
+        let error = Truth::load(&gt, &survey(imu, &config), &config)
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("truth.clock_origin_s"), "{error}");
     }
 
     #[test]

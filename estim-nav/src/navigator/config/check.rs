@@ -87,8 +87,8 @@ impl ImuFrame {
                     "imu.clock_origin_s",
                     format!(
                         "with clock_scale {} about stamp {:e} the IMU stamp {} s maps to {:e} s, \
-                         out of order with the stamp before it: the origin is too far from \
-                         the log's stamps",
+                         not after the stamp before it or not finite: the origin is too far \
+                         from the log's stamps",
                         self.clock_scale,
                         t0 + epoch,
                         s.time + epoch,
