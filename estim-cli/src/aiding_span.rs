@@ -38,19 +38,28 @@ pub fn check_in_imu_span(
         return Ok(());
     }
     anyhow::bail!(
-        "{}: none of its {} records falls in the IMU's span: its times run {:.3}..{:.3} s \
-         (after {} = {} s), {} runs {:.3}..{:.3} s; are both on one clock (Unix seconds \
+        "{}: none of its {} records falls in the IMU's span: its times run {}..{} s \
+         (after {} = {:?} s), {} runs {}..{} s; are both on one clock (Unix seconds \
          against relative seconds?) and is the offset right?",
         aiding.path.display(),
         aiding.times.len(),
-        epoch + first,
-        epoch + last,
+        seconds(epoch + first),
+        seconds(epoch + last),
         aiding.offset_key,
         aiding.offset_s,
         imu.display(),
-        epoch + imu_span[0],
-        epoch + imu_span[1]
+        seconds(epoch + imu_span[0]),
+        seconds(epoch + imu_span[1])
     )
+}
+
+/// A time for a message: to the millisecond, or in exponent form beyond any clock.
+fn seconds(t: f64) -> String {
+    if t.abs() < 1e12 {
+        format!("{t:.3}")
+    } else {
+        format!("{t:e}")
+    }
 }
 
 /// [`check_in_imu_span`] for each aiding file of a survey: the DVL (velocity,

@@ -1,5 +1,6 @@
 //! Checks of a survey's inputs beside their readers (`navigate`, `smooth`, `tune
-//! --imu`): the `--columns` file, and a DVL file with no lock at all.
+//! --imu`): the `--columns` file, a DVL file with no lock at all, and an IMU rate that
+//! does not describe the IMU file.
 
 use std::path::Path;
 
@@ -80,4 +81,44 @@ pub fn check_dvl_lock(files: &SurveyFiles, inputs: &SurveyInputs) -> anyhow::Res
         "file": path,
         "message": message,
     })])
+}
+
+/// An `imu.rate_hz` more than 1 % from the IMU file's median sample rate (on the
+/// navigator's clock, after `imu.clock_scale`) is a warning, printed on stderr and
+/// returned for the summary's `warnings`: the run then integrates each sample's own
+/// interval, as without the key, but the key was meant to describe this file.
+pub fn check_imu_rate(
+    files: &SurveyFiles,
+    config: &estim::navigator::NavigatorConfig,
+    inputs: &SurveyInputs,
+) -> Option<Value> {
+    let declared = config.imu.rate_hz?;
+    let mut steps: Vec<f64> = inputs
+        .imu
+        .windows(2)
+        .map(|w| w[1].time - w[0].time)
+        .filter(|dt| dt.is_finite() && *dt > 0.0)
+        .collect();
+    steps.sort_by(f64::total_cmp);
+    let median = *steps.get(steps.len() / 2)?;
+    let measured = 1.0 / median;
+    if (declared / measured - 1.0).abs() <= 0.01 {
+        return None;
+    }
+    let path = files.sensors.imu.display().to_string();
+    let message = format!(
+        "{}: imu.rate_hz = {declared:?} Hz, but {path}'s median sample interval is \
+         {median:.6} s ({measured:.4} Hz on the navigator's clock); each sample's own \
+         interval is integrated",
+        files.sensors.vehicle.as_ref().map_or_else(
+            || "the vehicle file".to_string(),
+            |p| p.display().to_string()
+        ),
+    );
+    eprintln!("warning: {message}");
+    Some(json!({
+        "code": "imu_rate_mismatch",
+        "file": path,
+        "message": message,
+    }))
 }

@@ -1,7 +1,8 @@
 //! Hostile input, round three (issue 46), the CLI classes: an aiding file outside
 //! the IMU span, malformed study settings, an evaluation with nothing scored, a unit
 //! that cannot be read, optional outputs that fail, unbounded inputs, outputs over
-//! inputs, write errors that name no path, --out committed all or nothing. Every
+//! inputs, write errors that name no path, --out committed all or nothing, an IMU
+//! rate that does not describe its file, numbers quoted in exponent form. Every
 //! case is deterministic and built from a tiny synthetic survey (no data needed).
 
 use std::path::{Path, PathBuf};
@@ -851,4 +852,102 @@ fn navigate_stops_at_an_imu_hole() {
     let rows = std::fs::read_to_string(out_dir.join("solution.csv")).expect("solution.csv");
     assert_eq!(rows.lines().count(), 1, "header only: {rows}");
     assert!(stderr(&out).contains("the 0 solution rows before the stop"));
+}
+
+/// An `imu.rate_hz` that does not describe the IMU file (here 100 Hz for a 10 Hz
+/// file) is a warning on stderr and in the summary's `warnings`, and the run is the
+/// one without the key (each sample's own interval); within 1 % of the file's rate
+/// it is silent.
+#[test]
+fn an_imu_rate_that_does_not_fit_the_file_is_warned_about() {
+    let v = survey();
+    let d = v.dir.path();
+    let run = |vehicle: &Path| {
+        let out = estim(&[
+            "navigate",
+            "--imu",
+            s(&v.imu),
+            "--dvl",
+            s(&v.dvl),
+            "--vehicle",
+            s(vehicle),
+            "--json",
+        ]);
+        assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+        let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+        (summary, stderr(&out))
+    };
+    let (plain, plain_err) = run(&v.vehicle);
+    assert_eq!(plain["warnings"], serde_json::json!([]), "{plain_err}");
+    let wrong = write(
+        d,
+        "wrong.toml",
+        &format!("{VEHICLE}\n[imu]\nrate_hz = 100.0\n"),
+    );
+    let (summary, e) = run(&wrong);
+    assert!(
+        e.contains("warning:") && e.contains("imu.rate_hz = 100.0") && e.contains("10.0000 Hz"),
+        "{e}"
+    );
+    let warnings = summary["warnings"].as_array().expect("warnings");
+    assert_eq!(warnings.len(), 1, "{summary}");
+    assert_eq!(warnings[0]["code"], "imu_rate_mismatch");
+    assert!(warnings[0]["file"]
+        .as_str()
+        .is_some_and(|f| f.ends_with("imu.csv")));
+    // The same run up to rounding: the nominal period enters the clock's arithmetic.
+    for key in [
+        "latitude_deg",
+        "longitude_deg",
+        "depth_m",
+        "heading_deg",
+        "time_s",
+    ] {
+        let (a, b) = (&summary["final"][key], &plain["final"][key]);
+        let (a, b) = (a.as_f64().expect("number"), b.as_f64().expect("number"));
+        assert!(
+            (a - b).abs() <= 1e-9 * b.abs().max(1.0),
+            "{key}: {a} vs {b}"
+        );
+    }
+    let close = write(
+        d,
+        "close.toml",
+        &format!("{VEHICLE}\n[imu]\nrate_hz = 10.05\n"),
+    );
+    let (summary, e) = run(&close);
+    assert_eq!(summary["warnings"], serde_json::json!([]), "{e}");
+    assert!(!e.contains("warning:"), "{e}");
+}
+
+/// A huge or tiny number in a file or a key is quoted in exponent form (`1e300`), not
+/// as 300 digits: the refusal stays one readable line.
+#[test]
+fn extreme_numbers_are_quoted_in_exponent_form() {
+    let v = survey();
+    let d = v.dir.path();
+    let huge_imu = imu("gz", 60, |_| 0.0).replacen("0,0,-9.81,0,0,0\n", "0,0,1e300,0,0,0\n", 1);
+    let huge_imu = write(d, "huge_imu.csv", &huge_imu);
+    let huge_scale = write(
+        d,
+        "scale.toml",
+        &format!("{VEHICLE}\n[imu]\nclock_scale = 1e300\n"),
+    );
+    let cases = [
+        (huge_imu, v.vehicle.clone(), "1e300 m/s^2"),
+        (v.imu.clone(), huge_scale, "1e300 is not within 10 % of 1"),
+    ];
+    for (imu_file, vehicle, needle) in cases {
+        let out = estim(&[
+            "navigate",
+            "--imu",
+            s(&imu_file),
+            "--dvl",
+            s(&v.dvl),
+            "--vehicle",
+            s(&vehicle),
+        ]);
+        let e = refused(&out, &[needle]);
+        assert!(e.len() < 300, "{e}");
+    }
 }

@@ -67,7 +67,7 @@ impl SensorSpec {
             if !(value.is_finite() && value >= 0.0) {
                 return Err(Error::InvalidParameter {
                     name: sensor,
-                    reason: format!("{field} must be finite and >= 0, got {value}"),
+                    reason: format!("{field} must be finite and >= 0, got {value:?}"),
                 });
             }
         }
@@ -75,7 +75,7 @@ impl SensorSpec {
         if tau.is_nan() || tau <= 0.0 {
             return Err(Error::InvalidParameter {
                 name: sensor,
-                reason: format!("bias_time_constant must be > 0 (or infinite), got {tau}"),
+                reason: format!("bias_time_constant must be > 0 (or infinite), got {tau:?}"),
             });
         }
         Ok(())

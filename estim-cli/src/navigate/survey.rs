@@ -156,7 +156,10 @@ pub fn load_survey_from(files: SurveyFiles, config: NavigatorConfig) -> anyhow::
     let pd0 = loaded.pd0.as_ref().map(pd0_json);
     let (settings, inputs) = (loaded.settings, loaded.inputs);
     crate::aiding_span::check_survey(&files, &config, &inputs, epoch)?;
-    let warnings = crate::survey_checks::check_dvl_lock(&files, &inputs)?;
+    let mut warnings = crate::survey_checks::check_dvl_lock(&files, &inputs)?;
+    warnings.extend(crate::survey_checks::check_imu_rate(
+        &files, &config, &inputs,
+    ));
     Ok(Survey {
         files,
         config,

@@ -143,7 +143,7 @@ pub enum DatasetError {
         message: String,
     },
     /// A value outside the range the navigator models.
-    #[error("{}:{line}: column `{column}`: {value} {unit} is outside +-{limit} {unit}{}", path.display(), range_hint(unit))]
+    #[error("{}:{line}: column `{column}`: {value:?} {unit} is outside +-{limit:?} {unit}{}", path.display(), range_hint(unit))]
     OutOfRange {
         /// The file.
         path: PathBuf,
@@ -231,7 +231,7 @@ pub enum DatasetError {
         column: String,
     },
     /// Time does not strictly increase.
-    #[error("{}:{line}: time {time} does not increase (previous {previous})", path.display())]
+    #[error("{}:{line}: time {time:?} does not increase (previous {previous:?})", path.display())]
     TimeNotIncreasing {
         /// The file.
         path: PathBuf,

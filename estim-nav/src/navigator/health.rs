@@ -78,7 +78,7 @@ impl HealthConfig {
             if !(value.is_finite() && value > 0.0) {
                 return Err(NavigatorError::invalid(
                     key,
-                    format!("{value} is not a positive finite number"),
+                    format!("{value:?} is not a positive finite number"),
                 ));
             }
         }

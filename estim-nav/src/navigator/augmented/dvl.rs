@@ -66,7 +66,7 @@ impl AugmentedDvlModel {
         if !(kappa.is_finite() && kappa >= 0.0) {
             return Err(NavigatorError::invalid(
                 "DVL rate noise",
-                format!("{kappa} m/s per rad/s is not finite and >= 0"),
+                format!("{kappa:?} m/s per rad/s is not finite and >= 0"),
             ));
         }
         self.rate_noise = kappa;
@@ -95,7 +95,7 @@ impl AugmentedDvlModel {
         if !(scale.is_finite() && scale > 0.0) {
             return Err(NavigatorError::invalid(
                 "DVL noise scale",
-                format!("{scale} is not finite and positive"),
+                format!("{scale:?} is not finite and positive"),
             ));
         }
         Ok(Self {

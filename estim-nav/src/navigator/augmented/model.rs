@@ -55,7 +55,7 @@ impl AugmentedErrorModel {
             }
             Some(_) => Err(NavigatorError::invalid(
                 "DVL bias sigma",
-                format!("{sigma} m/s is not finite and positive"),
+                format!("{sigma:?} m/s is not finite and positive"),
             )),
             None => Err(NavigatorError::conflict(
                 "DVL bias sigma",

@@ -55,7 +55,7 @@ impl AxisSigma {
         match *self {
             Self::All(s) if !(in_range(s) && s > 0.0) => Err(NavigatorError::invalid(
                 format!("dvl_states.{key}"),
-                format!("{s} is not in (0, {max}]"),
+                format!("{s:?} is not in (0, {max}]"),
             )),
             Self::PerAxis(axes) if !axes.iter().all(|&s| in_range(s)) => {
                 Err(NavigatorError::invalid(
@@ -205,13 +205,13 @@ impl DvlStatesConfig {
             if !(b.std_mps.is_finite() && b.std_mps > 0.0 && b.std_mps <= 1.0) {
                 return Err(NavigatorError::invalid(
                     "dvl_states.bias.std_mps",
-                    format!("{} is not in (0, 1]", b.std_mps),
+                    format!("{:?} is not in (0, 1]", b.std_mps),
                 ));
             }
             if !(b.time_constant_s.is_finite() && b.time_constant_s > 0.0) {
                 return Err(NavigatorError::invalid(
                     "dvl_states.bias.time_constant_s",
-                    format!("{} is not positive and finite", b.time_constant_s),
+                    format!("{:?} is not positive and finite", b.time_constant_s),
                 ));
             }
         }

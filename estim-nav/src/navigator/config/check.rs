@@ -17,7 +17,7 @@ fn positive(name: &str, value: f64) -> Result<()> {
     } else {
         Err(NavigatorError::invalid(
             name,
-            format!("{value} is not a positive finite number"),
+            format!("{value:?} is not a positive finite number"),
         ))
     }
 }
@@ -181,14 +181,14 @@ impl NavigatorConfig {
             if !(scale.is_finite() && (scale - 1.0).abs() <= 0.1) {
                 return Err(NavigatorError::invalid(
                     "imu.gyroscope_scale",
-                    format!("{scale} on body {axis} is not within 10 % of 1"),
+                    format!("{scale:?} on body {axis} is not within 10 % of 1"),
                 ));
             }
         }
         if !(imu.clock_scale.is_finite() && (imu.clock_scale - 1.0).abs() <= 0.1) {
             return Err(NavigatorError::invalid(
                 "imu.clock_scale",
-                format!("{} is not within 10 % of 1", imu.clock_scale),
+                format!("{:?} is not within 10 % of 1", imu.clock_scale),
             ));
         }
         let [r, p, y] = imu.mounting_rpy_deg.map(f64::to_radians);
@@ -242,7 +242,7 @@ impl NavigatorConfig {
         if !(d.beam_angle_deg > 0.0 && d.beam_angle_deg < 90.0) {
             return Err(NavigatorError::invalid(
                 "dvl.beam_angle_deg",
-                format!("{} is not in (0, 90)", d.beam_angle_deg),
+                format!("{:?} is not in (0, 90)", d.beam_angle_deg),
             ));
         }
         finite("dvl.beam1_azimuth_deg", &[d.beam1_azimuth_deg])?;
@@ -271,7 +271,7 @@ impl NavigatorConfig {
         if !(g.probability == 0.0 || (g.probability > 0.0 && g.probability < 1.0)) {
             return Err(NavigatorError::invalid(
                 "gate.probability",
-                format!("{} is not 0 (off) or in (0, 1)", g.probability),
+                format!("{:?} is not 0 (off) or in (0, 1)", g.probability),
             ));
         }
         let i = &self.initial;
@@ -280,7 +280,7 @@ impl NavigatorConfig {
                 if !(lat.abs() < 85.0 && lon.is_finite()) {
                     return Err(NavigatorError::invalid(
                         "initial.latitude_deg / longitude_deg",
-                        format!("{lat} deg / {lon} deg out of range (|lat| < 85)"),
+                        format!("{lat:?} deg / {lon:?} deg out of range (|lat| < 85)"),
                     ));
                 }
             }
