@@ -32,9 +32,12 @@ pub use estim_learned as learned;
 #[cfg(feature = "nav")]
 pub use estim_nav::truth;
 #[cfg(feature = "nav")]
-pub use estim_nav::{datasets, navigator};
+pub use estim_nav::{
+    check_in_imu_span, check_survey, AidingTimes, LoadedSurvey, Pd0Load, SurveyError, SurveyFiles,
+    SurveyWarning,
+};
 #[cfg(feature = "nav")]
-pub use estim_nav::{LoadedSurvey, Pd0Load, SurveyError, SurveyFiles};
+pub use estim_nav::{datasets, navigator};
 
 /// The README's Rust code blocks, compiled and run as doc-tests (`cargo test` runs
 /// them; nothing of it is part of the API).

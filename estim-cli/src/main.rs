@@ -4,7 +4,6 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-mod aiding_span;
 mod beamsnet;
 mod compare;
 mod dataset;

@@ -20,6 +20,8 @@
 pub mod datasets;
 pub mod navigator;
 mod survey;
+mod survey_checks;
 pub mod truth;
 
 pub use survey::{LoadedSurvey, Pd0Load, SurveyError, SurveyFiles};
+pub use survey_checks::{check_in_imu_span, check_survey, AidingTimes, SurveyWarning};

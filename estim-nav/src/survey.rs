@@ -158,6 +158,24 @@ pub enum SurveyError {
         /// What is wrong (the TOML reader's message: the key, the expected type).
         message: String,
     },
+    /// An aiding file none of whose records falls in the IMU's span
+    /// ([`check_survey`](crate::check_survey)).
+    #[error("{message}")]
+    OutsideImuSpan {
+        /// The aiding file.
+        path: PathBuf,
+        /// Both spans, the offset key and its value.
+        message: String,
+    },
+    /// A DVL file with no bottom lock at all and nothing else aiding the INS
+    /// ([`check_survey`](crate::check_survey)).
+    #[error("{message}")]
+    NoLock {
+        /// The DVL file.
+        path: PathBuf,
+        /// What its rows hold.
+        message: String,
+    },
 }
 
 /// `Result` of [`SurveyInputs::load`].

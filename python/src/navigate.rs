@@ -10,7 +10,7 @@ use estim_nav::navigator::{
     NavigatorError, SolutionKind, UpdateCounts,
 };
 use estim_nav::truth::{read_vehicle, Truth, TruthTimeOffset};
-use estim_nav::{SurveyError, SurveyFiles};
+use estim_nav::{check_survey, SurveyError, SurveyFiles, SurveyWarning};
 use numpy::ndarray::Array2;
 use numpy::IntoPyArray;
 use pyo3::prelude::*;
@@ -91,11 +91,16 @@ fn counts<'py>(py: Python<'py>, c: &UpdateCounts) -> PyResult<Bound<'py, PyDict>
 /// heading), ``acc_bias_mps2``, ``gyro_bias_radps``, their 1-sigmas
 /// ``position_sigma_m`` (N, E, D), ``velocity_sigma_mps``, ``attitude_sigma_deg``,
 /// ``acc_bias_sigma_mps2``, ``gyro_bias_sigma_radps``; ``epoch_s``; ``dvl``,
-/// ``depth``, ``fixes`` update counts; ``dvl_nis`` and ``dvl_nis_time_s``; and with a
+/// ``depth``, ``fixes`` update counts; ``dvl_nis`` and ``dvl_nis_time_s``;
+/// ``warnings`` (dicts of ``code``, ``file``, ``message``: a DVL file without lock
+/// beside depth or fixes, an ``imu.rate_hz`` that does not fit the IMU file; each is
+/// also issued as a ``UserWarning``); and with a
 /// truth ``evaluation`` (RMSE, NEES) and ``errors`` (``time_s``, ``error`` and
 /// ``sigma`` (m, 9): position N, E, D [m], velocity [m/s], misalignment [deg]).
 ///
-/// Raises ``EstimError`` naming the file and line or the key for bad input, and for a
+/// Raises ``EstimError`` naming the file and line or the key for bad input (an aiding
+/// file none of whose records falls in the IMU's span, a DVL file without lock and
+/// nothing else aiding the INS, among others), and for a
 /// run that diverged or failed (its epoch and reason): a diverged solution is never
 /// returned.
 #[pyfunction]
@@ -133,9 +138,10 @@ fn navigate<'py>(
         fixes,
         vehicle,
     };
-    let (collector, run, epoch) =
+    let (collector, run, epoch, found) =
         py.detach(move || run_survey(&files, truth.as_deref(), init_from_truth, rate_hz))?;
     let out = solution(py, &collector.rows, &run, epoch)?;
+    out.set_item("warnings", warnings(py, &found)?)?;
     match &collector.truth {
         None => {
             out.set_item("evaluation", py.None())?;
@@ -157,7 +163,7 @@ fn run_survey(
     truth: Option<&std::path::Path>,
     init_from_truth: bool,
     rate_hz: Option<f64>,
-) -> PyResult<(Collector, NavigationRun, f64)> {
+) -> PyResult<(Collector, NavigationRun, f64, Vec<SurveyWarning>)> {
     let mut config = match &files.vehicle {
         Some(p) => read_vehicle(p).map_err(survey_err)?,
         None => NavigatorConfig::default(),
@@ -177,6 +183,7 @@ fn run_survey(
         loaded.inputs.output_epochs = t.epochs().to_vec();
     }
     loaded.settle_initial(&config).map_err(survey_err)?;
+    let found = check_survey(files, &config, &loaded.inputs, loaded.epoch).map_err(survey_err)?;
     let mut collector = Collector {
         rows: Vec::new(),
         truth,
@@ -198,7 +205,28 @@ fn run_survey(
                 e => EstimError::new_err(e.to_string()),
             }
         })?;
-    Ok((collector, run, epoch))
+    Ok((collector, run, epoch, found))
+}
+
+/// Each warning of the survey's checks issued as a Python `UserWarning` and listed as
+/// a dict (`code`, `file`, `message`).
+fn warnings<'py>(
+    py: Python<'py>,
+    found: &[SurveyWarning],
+) -> PyResult<Bound<'py, pyo3::types::PyList>> {
+    let list = pyo3::types::PyList::empty(py);
+    for w in found {
+        let message = std::ffi::CString::new(w.message.replace('\0', " "))
+            .map_err(|e| EstimError::new_err(e.to_string()))?;
+        let category = py.get_type::<pyo3::exceptions::PyUserWarning>();
+        PyErr::warn(py, category.as_any(), &message, 1)?;
+        let d = PyDict::new(py);
+        d.set_item("code", w.code)?;
+        d.set_item("file", w.file.display().to_string())?;
+        d.set_item("message", &w.message)?;
+        list.append(d)?;
+    }
+    Ok(list)
 }
 
 /// One (n, 3) column of the solution from its row.

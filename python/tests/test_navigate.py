@@ -206,3 +206,37 @@ def test_a_diverging_run_raises_instead_of_returning(tmp_path):
     with pytest.raises(estim.EstimError, match="diverged at t = ") as raised:
         estim.navigate(imu=imu, dvl=dvl, vehicle=vehicle)
     assert "no solution is returned" in str(raised.value)
+
+
+def test_the_survey_checks_of_the_binary_hold_in_python(tmp_path):
+    """The library's survey checks, as `estim navigate` applies them: a DVL file on
+    another clock (Unix seconds beside relative ones) or without lock and nothing else
+    aiding raises; an `imu.rate_hz` that does not fit the IMU file (100 Hz declared,
+    the file at 100 Hz is fine; 10 Hz declared is not) is a UserWarning and an entry of
+    `warnings`, and the run equals the one without the key."""
+    imu, dvl, vehicle = write_stationary(tmp_path, seconds=20.0)
+    plain = estim.navigate(imu=imu, dvl=dvl, vehicle=vehicle)
+    assert plain["warnings"] == []
+    unix = tmp_path / "unix.csv"
+    rows = dvl.read_text().splitlines()
+    unix.write_text(
+        "\n".join([rows[0]] + [f"{1.7e9 + float(r.split(',')[0])},0,0,0" for r in rows[1:]])
+        + "\n"
+    )
+    with pytest.raises(estim.EstimError, match=r"unix\.csv: none of its .* records falls in the IMU's span.*dvl\.time_offset_s"):
+        estim.navigate(imu=imu, dvl=unix, vehicle=vehicle)
+    lost = tmp_path / "lost.csv"
+    lost.write_text("\n".join([rows[0]] + [f"{r.split(',')[0]},nan,nan,nan" for r in rows[1:]]) + "\n")
+    with pytest.raises(estim.EstimError, match=r"lost\.csv: none of its .* rows has bottom lock.*nothing would aid"):
+        estim.navigate(imu=imu, dvl=lost, vehicle=vehicle)
+    right = tmp_path / "right.toml"
+    right.write_text(vehicle.read_text() + "\n[imu]\nrate_hz = 100.0\n")
+    assert estim.navigate(imu=imu, dvl=dvl, vehicle=right)["warnings"] == []
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text(vehicle.read_text() + "\n[imu]\nrate_hz = 10.0\n")
+    with pytest.warns(UserWarning, match=r"imu\.rate_hz = 10\.0 Hz.*100\.0000 Hz"):
+        out = estim.navigate(imu=imu, dvl=dvl, vehicle=wrong)
+    assert [w["code"] for w in out["warnings"]] == ["imu_rate_mismatch"]
+    assert out["warnings"][0]["file"].endswith("imu.csv")
+    for key in ("latitude_deg", "longitude_deg", "depth_m"):
+        np.testing.assert_allclose(out[key], plain[key], rtol=0, atol=1e-9)

@@ -155,11 +155,17 @@ pub fn load_survey_from(files: SurveyFiles, config: NavigatorConfig) -> anyhow::
     loaded.settle_initial(&config)?;
     let pd0 = loaded.pd0.as_ref().map(pd0_json);
     let (settings, inputs) = (loaded.settings, loaded.inputs);
-    crate::aiding_span::check_survey(&files, &config, &inputs, epoch)?;
-    let mut warnings = crate::survey_checks::check_dvl_lock(&files, &inputs)?;
-    warnings.extend(crate::survey_checks::check_imu_rate(
-        &files, &config, &inputs,
-    ));
+    let warnings = estim::check_survey(&files.sensors, &config, &inputs, epoch)?
+        .into_iter()
+        .map(|w| {
+            eprintln!("warning: {}", w.message);
+            serde_json::json!({
+                "code": w.code,
+                "file": w.file.display().to_string(),
+                "message": w.message,
+            })
+        })
+        .collect();
     Ok(Survey {
         files,
         config,
