@@ -93,6 +93,23 @@ fn seconds(t: f64) -> String {
 /// (`inputs` on the navigator's clock, `epoch` the IMU file's): the warnings, in the
 /// order found.
 ///
+/// ```no_run
+/// use estim_nav::navigator::{NavigatorConfig, SurveyInputs};
+/// use estim_nav::{check_survey, SurveyFiles};
+///
+/// let files = SurveyFiles {
+///     imu: "imu.csv".into(),
+///     dvl: Some("dvl.csv".into()),
+///     ..SurveyFiles::default()
+/// };
+/// let config = NavigatorConfig::default();
+/// let survey = SurveyInputs::load(&files, &config)?;
+/// for warning in check_survey(&files, &config, &survey.inputs, survey.epoch)? {
+///     eprintln!("warning ({}): {}", warning.code, warning.message);
+/// }
+/// # Ok::<(), estim_nav::SurveyError>(())
+/// ```
+///
 /// # Errors
 /// [`SurveyError::OutsideImuSpan`] for an aiding file outside the IMU's span,
 /// [`SurveyError::NoLock`] for a DVL file without lock and nothing else aiding.
