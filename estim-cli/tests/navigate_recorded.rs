@@ -665,40 +665,18 @@ struct Scored {
 /// have no neighbour for the rate, are left out.
 fn scored_epochs(out: &Path, gt: &Path, offset: f64) -> Vec<Scored> {
     use nalgebra::{Matrix3, Rotation3, Vector3};
-    let numbers = |line: &str| -> Vec<f64> {
-        line.split(',')
-            .map(|c| c.trim().parse::<f64>().unwrap())
-            .collect()
-    };
-    let reference: Vec<Vec<f64>> = std::fs::read_to_string(gt)
-        .unwrap()
-        .lines()
-        .skip(1)
-        .filter(|l| !l.trim().is_empty())
-        .map(numbers)
-        .collect();
+    let reference = csv_numbers(gt);
     let rotation =
         |r: &[f64]| -> Matrix3<f64> { Rotation3::from_euler_angles(r[7], r[8], r[9]).into_inner() };
-    let text = std::fs::read_to_string(out.join("errors.csv")).unwrap();
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
-    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
-    let [t, n, e, vn, ve] = [
+    let names = [
         "time_s",
         "error_north_m",
         "error_east_m",
         "error_v_north_mps",
         "error_v_east_mps",
-    ]
-    .map(col);
+    ];
     let mut epochs = Vec::new();
-    for line in lines.filter(|l| !l.trim().is_empty()) {
-        let row = numbers(line);
-        let time = row[t] + offset;
-        let k = reference
-            .iter()
-            .position(|r| (r[0] - time).abs() <= 0.05)
-            .unwrap_or_else(|| panic!("{}: no reference row at {time} s", gt.display()));
+    for (k, [t, n, e, vn, ve]) in scored_rows(out, gt, &reference, offset, names) {
         if k == 0 || k + 1 == reference.len() {
             continue;
         }
@@ -706,14 +684,55 @@ fn scored_epochs(out: &Path, gt: &Path, offset: f64) -> Vec<Scored> {
         let w = (before.transpose() * after - after.transpose() * before)
             / (2.0 * (reference[k + 1][0] - reference[k - 1][0]));
         epochs.push(Scored {
-            time: row[t],
-            position: [row[n], row[e]],
-            velocity: [row[vn], row[ve]],
+            time: t,
+            position: [n, e],
+            velocity: [vn, ve],
             rotation: rotation(&reference[k]),
             rate: Vector3::new(w[(2, 1)], w[(0, 2)], w[(1, 0)]),
         });
     }
     epochs
+}
+
+/// The numbers of a CSV file's rows after its header.
+fn csv_numbers(path: &Path) -> Vec<Vec<f64>> {
+    rows_after_header(&std::fs::read_to_string(path).unwrap())
+}
+
+/// The numbers of a CSV text's rows after its header.
+fn rows_after_header(text: &str) -> Vec<Vec<f64>> {
+    text.lines()
+        .skip(1)
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| l.split(',').map(|c| c.trim().parse().unwrap()).collect())
+        .collect()
+}
+
+/// The rows of a run's `errors.csv` (in `out`), each as the index of the row of the
+/// reference `gt` (`reference`, its numbers) at the same time (reference time =
+/// navigator time + `offset`, within 0.05 s) and the columns `names`.
+fn scored_rows<const N: usize>(
+    out: &Path,
+    gt: &Path,
+    reference: &[Vec<f64>],
+    offset: f64,
+    names: [&str; N],
+) -> Vec<(usize, [f64; N])> {
+    let text = std::fs::read_to_string(out.join("errors.csv")).unwrap();
+    let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+    let columns = names.map(|name| header.iter().position(|h| *h == name).unwrap());
+    let time = header.iter().position(|h| *h == "time_s").unwrap();
+    rows_after_header(&text)
+        .into_iter()
+        .map(|row| {
+            let t = row[time] + offset;
+            let k = reference
+                .iter()
+                .position(|r| (r[0] - t).abs() <= 0.05)
+                .unwrap_or_else(|| panic!("{}: no reference row at {t} s", gt.display()));
+            (k, columns.map(|c| row[c]))
+        })
+        .collect()
 }
 
 /// The correction to the reference's point (body x and y) that least-squares explains
@@ -850,41 +869,22 @@ fn the_reference_point_fits_recover_a_known_correction() {
 /// `errors.csv` in `out`) on the reference's accumulated yaw since the first scored
 /// epoch (a constant beside it), the residual's RMS \[deg\] and the net turn \[deg\].
 fn heading_error_on_turn(out: &Path, gt: &Path, offset: f64) -> (f64, f64, f64) {
-    let reference: Vec<(f64, f64)> = std::fs::read_to_string(gt)
-        .unwrap()
-        .lines()
-        .skip(1)
-        .filter(|l| !l.trim().is_empty())
-        .map(|l| {
-            let c: Vec<f64> = l.split(',').map(|c| c.trim().parse().unwrap()).collect();
-            (c[0], c[9])
-        })
-        .collect();
+    let reference = csv_numbers(gt);
     // The yaw unwrapped along the file.
     let mut yaw = Vec::with_capacity(reference.len());
-    let mut turned = reference[0].1;
-    for (k, &(_, y)) in reference.iter().enumerate() {
+    let mut turned = reference[0][9];
+    for (k, r) in reference.iter().enumerate() {
         if k > 0 {
-            let step = y - reference[k - 1].1;
+            let step = r[9] - reference[k - 1][9];
             turned +=
                 step - (2.0 * std::f64::consts::PI) * (step / (2.0 * std::f64::consts::PI)).round();
         }
         yaw.push(turned.to_degrees());
     }
-    let text = std::fs::read_to_string(out.join("errors.csv")).unwrap();
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
-    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
-    let (t, h) = (col("time_s"), col("error_heading_deg"));
-    let mut points = Vec::new();
-    for line in lines.filter(|l| !l.trim().is_empty()) {
-        let c: Vec<f64> = line.split(',').map(|c| c.trim().parse().unwrap()).collect();
-        let k = reference
-            .iter()
-            .position(|r| (r.0 - (c[t] + offset)).abs() <= 0.05)
-            .unwrap();
-        points.push((yaw[k], c[h]));
-    }
+    let points: Vec<(f64, f64)> = scored_rows(out, gt, &reference, offset, ["error_heading_deg"])
+        .into_iter()
+        .map(|(k, [h])| (yaw[k], h))
+        .collect();
     let first = points[0].0;
     let n = points.len() as f64;
     let mean_x = points.iter().map(|p| p.0 - first).sum::<f64>() / n;

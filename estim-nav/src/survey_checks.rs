@@ -226,14 +226,7 @@ fn check_imu_rate(
     inputs: &SurveyInputs,
 ) -> Option<SurveyWarning> {
     let declared = config.imu.rate_hz?;
-    let mut steps: Vec<f64> = inputs
-        .imu
-        .windows(2)
-        .map(|w| w[1].time - w[0].time)
-        .filter(|dt| dt.is_finite() && *dt > 0.0)
-        .collect();
-    steps.sort_by(f64::total_cmp);
-    let median = *steps.get(steps.len() / 2)?;
+    let median = crate::navigator::median_interval(&inputs.imu)?;
     let measured = 1.0 / median;
     if (declared / measured - 1.0).abs() <= 0.01 {
         return None;

@@ -57,14 +57,19 @@ pub(super) fn imu_period(imu: &[ImuSample], settings: &NavigatorSettings) -> Res
     if let Some(rate) = settings.config.imu.rate_hz {
         return Ok(1.0 / rate);
     }
+    median_interval(imu).ok_or_else(|| {
+        NavigatorError::Inputs("the IMU needs at least 2 samples with increasing times".into())
+    })
+}
+
+/// The median interval between consecutive samples of `imu` \[s\], when positive and
+/// finite.
+pub(crate) fn median_interval(imu: &[ImuSample]) -> Option<f64> {
     let mut dts: Vec<f64> = imu.windows(2).map(|w| w[1].time - w[0].time).collect();
     dts.sort_by(f64::total_cmp);
-    match dts.get(dts.len() / 2) {
-        Some(&dt) if dt.is_finite() && dt > 0.0 => Ok(dt),
-        _ => Err(NavigatorError::Inputs(
-            "the IMU needs at least 2 samples with increasing times".into(),
-        )),
-    }
+    dts.get(dts.len() / 2)
+        .copied()
+        .filter(|dt| dt.is_finite() && *dt > 0.0)
 }
 
 /// The index of the first IMU sample the run uses: the first one, or the first at or

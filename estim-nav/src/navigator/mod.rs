@@ -72,6 +72,7 @@ pub use config::{
 };
 pub use filter::{beams_from_nan, DvlCross, InsFilter, NavigationModel, Navigator};
 pub use health::{Divergence, HealthConfig, HealthMonitor};
+pub(crate) use initial::median_interval;
 pub use initial::{coarse_alignment, nominal_imu_period, Alignment, InitialAttitude};
 pub use inputs::{
     DepthSample, DvlInput, DvlRecord, NavigationObserver, PositionFix, SolutionKind, SurveyInputs,
