@@ -358,8 +358,8 @@ impl Truth {
     /// The reference's velocity is its point's; the IMU's lacks C_b^n (omega x l).
     /// omega is the IMU's own measured angular rate about `time`: a reference sampled
     /// at 1 Hz does not resolve the vehicle's rotation above 0.5 Hz (waves near the
-    /// surface), and with l about 2 m its spline's rate put up to 0.1 m/s of error into
-    /// the carried velocity there. The spline's rate stands in where the IMU has no
+    /// surface), and with l about 2 m its spline's rate would carry that error, times
+    /// 2 m, into the velocity there. The spline's rate stands in where the IMU has no
     /// sample.
     ///
     /// # Errors
