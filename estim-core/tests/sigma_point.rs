@@ -215,7 +215,7 @@ fn range_bearing_nees(first: u64, runs: u64, steps: usize) -> MonteCarlo {
 }
 
 /// The Monte Carlo of estim-core/README.md ("Sigma-point update"):
-/// `cargo test --release -p estim-core --test sigma_point -- --nocapture range_bearing`.
+/// `cargo test --release -p estim-core-tests --test sigma_point -- --nocapture range_bearing`.
 ///
 /// Asserted in each of three seed blocks (runs 0.., 10,000.., 20,000..): the UKF's
 /// time-mean NEES lies inside the 95 % band of one step's average over the runs (a
