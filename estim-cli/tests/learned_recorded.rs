@@ -10,19 +10,26 @@
 
 mod common;
 
-use std::process::Command;
+use std::process::{Child, Command, Stdio};
 
 use serde_json::Value;
 
 const TRAINING: [u32; 11] = [1, 2, 3, 5, 6, 7, 8, 9, 10, 11, 12];
 
-/// The study of `scenario` on training trajectory `n`.
-fn study(root: &str, n: u32, scenario: &str) -> Value {
-    let out = Command::new(env!("CARGO_BIN_EXE_estim"))
+/// The study of `scenario` on training trajectory `n`, started.
+fn start_study(root: &str, n: u32, scenario: &str) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_estim"))
         .args(["reproduce", "--data", root, "--trajectory", &n.to_string()])
         .args(["--scenario", scenario, "--json"])
-        .output()
-        .expect("run estim");
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run estim")
+}
+
+/// The study of a started `child` (trajectory `n`), finished.
+fn study(child: Child, n: u32, scenario: &str) -> Value {
+    let out = child.wait_with_output().expect("run estim");
     assert_eq!(
         out.status.code(),
         Some(0),
@@ -53,8 +60,13 @@ fn two_beams_and_outage_run_on_the_recorded_imu() {
         );
         println!("|---|---|---|---|---|---|---|---|");
         let mut network_better = 0;
-        for n in TRAINING {
-            let s = study(root, n, scenario);
+        // The 11 runs are independent processes: all started at once, read in order.
+        let children: Vec<Child> = TRAINING
+            .iter()
+            .map(|&n| start_study(root, n, scenario))
+            .collect();
+        for (n, child) in TRAINING.into_iter().zip(children) {
+            let s = study(child, n, scenario);
             assert_eq!(s["imu_source"], "recorded", "trajectory {n}");
             assert_eq!(s["nees_states"], 9, "trajectory {n}");
             let ids: Vec<&str> = s["filters"]

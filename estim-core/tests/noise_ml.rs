@@ -21,6 +21,7 @@ use estim_core::noise::ml::{
     gradient, likelihood_ratio_test, maximize, observed_information, Bounds, FitOptions,
     LogLikelihood, MaximumLikelihood,
 };
+use rayon::prelude::*;
 use shared_noise::{Dataset, Setup};
 
 const TRUTH: [f64; 4] = [0.5, 0.2, 0.0025, 0.6];
@@ -203,7 +204,9 @@ fn fit(data: &Dataset, bounds: &Bounds<4>, start: [f64; 4]) -> MaximumLikelihood
 fn recovers_known_noise_within_two_standard_errors() {
     let datasets = 200;
     let start = [1.0, 1.0, 0.01, 0.1];
+    // Independent seeded fits, on every core (rayon keeps their order).
     let fits: Vec<MaximumLikelihood<4>> = (0..datasets)
+        .into_par_iter()
         .map(|seed| {
             fit(
                 &Dataset::simulate(Setup::default(), TRUTH, 1000 + seed),
@@ -260,25 +263,28 @@ fn likelihood_ratio_test_of_m_zero_has_its_size() {
     let rejection_rate = |c: f64, runs: u64, seed0: u64| -> f64 {
         let truth = [TRUTH[0], TRUTH[1], TRUTH[2], c];
         let known_r = bounds().fix(2, TRUTH[2]).expect("fix r");
-        let mut rejected = 0;
-        for seed in seed0..seed0 + runs {
-            let data = Dataset::simulate(setup, truth, seed);
-            let full = fit(&data, &known_r, [1.0, 1.0, TRUTH[2], 0.1]);
-            let restricted = fit(
-                &data,
-                &known_r.fix(3, 0.0).expect("fix c"),
-                [1.0, 1.0, TRUTH[2], 0.0],
-            );
-            assert!(
-                full.converged && restricted.converged,
-                "seed {seed}: {} / {}",
-                full.termination,
-                restricted.termination
-            );
-            let test = likelihood_ratio_test(full.log_likelihood, restricted.log_likelihood, 1)
-                .expect("test");
-            rejected += usize::from(test.p_value < 0.05);
-        }
+        // Independent seeded datasets, on every core.
+        let rejected: usize = (seed0..seed0 + runs)
+            .into_par_iter()
+            .map(|seed| {
+                let data = Dataset::simulate(setup, truth, seed);
+                let full = fit(&data, &known_r, [1.0, 1.0, TRUTH[2], 0.1]);
+                let restricted = fit(
+                    &data,
+                    &known_r.fix(3, 0.0).expect("fix c"),
+                    [1.0, 1.0, TRUTH[2], 0.0],
+                );
+                assert!(
+                    full.converged && restricted.converged,
+                    "seed {seed}: {} / {}",
+                    full.termination,
+                    restricted.termination
+                );
+                let test = likelihood_ratio_test(full.log_likelihood, restricted.log_likelihood, 1)
+                    .expect("test");
+                usize::from(test.p_value < 0.05)
+            })
+            .sum();
         rejected as f64 / runs as f64
     };
     let size = rejection_rate(0.0, 1000, 50_000);
