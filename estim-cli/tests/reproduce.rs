@@ -240,3 +240,59 @@ fn reproduce_uses_the_recorded_imu_where_there_is_one() {
     assert_eq!(smoothing["nees_states"], 9);
     assert_eq!(smoothing["cross"], "M = 0");
 }
+
+/// The held-out trajectories take the recorded-IMU path as soon as their folders hold
+/// an IMU file, as they do where this project is evaluated: in a data folder whose
+/// trajectories 4 and 13 are stand-ins (trajectory 2's and 12's three files under the
+/// held-out names; nothing of 4 or 13 is read), `estim reproduce --data DIR --json`
+/// (4 and 13 by default) says `imu_source: recorded` for both and gives, filter by
+/// filter, the figures of `--trajectory 2` and `--trajectory 12` on the real folder.
+#[test]
+fn held_out_trajectories_with_an_imu_file_run_on_it() {
+    let Some(dir) = data_dir() else { return };
+    let akit = if dir.join("a-kit").is_dir() {
+        dir.join("a-kit")
+    } else {
+        dir.clone()
+    };
+    let root = tempfile::tempdir().expect("temp dir");
+    for (held_out, stand_in) in [(4, 2), (13, 12)] {
+        let folder = root.path().join(format!("a-kit/Trajectory{held_out}"));
+        std::fs::create_dir_all(&folder).expect("folder");
+        for kind in ["GT", "DVL", "IMU"] {
+            std::fs::copy(
+                akit.join(format!(
+                    "Trajectory{stand_in}/{kind}_trajectory{stand_in}.csv"
+                )),
+                folder.join(format!("{kind}_trajectory{held_out}.csv")),
+            )
+            .expect("copy");
+        }
+    }
+    let r = root.path().to_str().expect("utf-8 path");
+    let held = reproduce_json(&["--data", r]);
+    let d = dir.to_str().expect("utf-8 path");
+    let runs = held["trajectories"].as_array().expect("trajectories");
+    assert_eq!(runs.len(), 2);
+    for (t, stand_in) in runs.iter().zip(["2", "12"]) {
+        assert_eq!(t["imu_source"], "recorded", "{}", t["name"]);
+        check_trajectory(t, learned_available());
+        let own = reproduce_json(&["--data", d, "--trajectory", stand_in]);
+        let own = &own["trajectories"][0];
+        assert_eq!(own["imu_source"], "recorded");
+        let filters = t["filters"].as_array().expect("filters");
+        let own_filters = own["filters"].as_array().expect("filters");
+        assert_eq!(filters.len(), own_filters.len());
+        for (f, g) in filters.iter().zip(own_filters) {
+            assert_eq!(f["id"], g["id"]);
+            for key in ["nees_average", "nis_average", "updates_rejected"] {
+                assert_eq!(f[key], g[key], "{stand_in} {}: {key}", f["id"]);
+            }
+            assert_eq!(
+                f["horizontal_position_error_m"]["rmse"], g["horizontal_position_error_m"]["rmse"],
+                "{stand_in} {}",
+                f["id"]
+            );
+        }
+    }
+}
