@@ -951,3 +951,55 @@ fn extreme_numbers_are_quoted_in_exponent_form() {
         assert!(e.len() < 300, "{e}");
     }
 }
+
+/// A lever arm beyond 1 km (a unit slip: millimetres, or a position) is refused naming
+/// its key and component, for every sensor and the reference; with `truth.initial_state`
+/// it no longer surfaces as a latitude out of range under `initial.time_s`.
+#[test]
+fn a_lever_arm_beyond_a_kilometre_is_refused_naming_its_key() {
+    let v = survey();
+    let d = v.dir.path();
+    let gt_file = write(d, "gt.csv", &gt(60));
+    let vehicle = VEHICLE.replace("[truth]\n", "[truth]\ninitial_state = true\n");
+    for (section, key) in [
+        ("dvl", "dvl.lever_arm_m"),
+        ("depth", "depth.lever_arm_m"),
+        ("fixes", "fixes.lever_arm_m"),
+        ("truth", "truth.lever_arm_m"),
+    ] {
+        let text = if section == "truth" {
+            vehicle.replace("[truth]\n", "[truth]\nlever_arm_m = [0.5, 1e9, 0]\n")
+        } else {
+            format!("{vehicle}\n[{section}]\nlever_arm_m = [0.5, 1e9, 0]\n")
+        };
+        let file = write(d, &format!("{section}.toml"), &text);
+        let out = estim(&[
+            "navigate",
+            "--imu",
+            s(&v.imu),
+            "--dvl",
+            s(&v.dvl),
+            "--vehicle",
+            s(&file),
+            "--truth",
+            s(&gt_file),
+        ]);
+        refused(&out, &[key, "[1] = 1e9", "[-1e3, 1e3] m"]);
+        // 1 km itself is a lever arm (a long ship's antenna), so it is not refused here.
+        let edge = write(
+            d,
+            &format!("{section}_edge.toml"),
+            &text.replace("1e9", "1000.0"),
+        );
+        let out = estim(&[
+            "navigate",
+            "--imu",
+            s(&v.imu),
+            "--dvl",
+            s(&v.dvl),
+            "--vehicle",
+            s(&edge),
+        ]);
+        assert!(!stderr(&out).contains(key), "{section}: {}", stderr(&out));
+    }
+}

@@ -11,6 +11,25 @@ fn finite(name: &str, values: &[f64]) -> Result<()> {
     }
 }
 
+/// The largest lever-arm component accepted \[m\]: a lever arm joins two points of one
+/// rigid vehicle, so anything longer is a unit slip (millimetres) or a position.
+const MAX_LEVER_ARM_M: f64 = 1000.0;
+
+fn lever_arm(name: &str, values: &[f64; 3]) -> Result<()> {
+    finite(name, values)?;
+    match values.iter().position(|v| v.abs() > MAX_LEVER_ARM_M) {
+        Some(i) => Err(NavigatorError::invalid(
+            name,
+            format!(
+                "[{i}] = {:e} is outside [-{MAX_LEVER_ARM_M:e}, {MAX_LEVER_ARM_M:e}] m: a lever \
+                 arm joins two points of one vehicle (body frame, metres)",
+                values[i]
+            ),
+        )),
+        None => Ok(()),
+    }
+}
+
 fn positive(name: &str, value: f64) -> Result<()> {
     if value.is_finite() && value > 0.0 {
         Ok(())
@@ -231,7 +250,7 @@ impl NavigatorConfig {
         }
         let filter_spec = filter_imu_spec(&sensor)?;
         let d = &self.dvl;
-        finite("dvl.lever_arm_m", &d.lever_arm_m)?;
+        lever_arm("dvl.lever_arm_m", &d.lever_arm_m)?;
         finite("dvl.time_offset_s", &[d.time_offset_s])?;
         positive("dvl.scale_factor", d.scale_factor)?;
         positive("dvl.noise_std_mps", d.noise_std_mps)?;
@@ -262,10 +281,10 @@ impl NavigatorConfig {
         let geometry = BeamGeometry::janus(d.beam_angle_deg)
             .azimuth_offset(d.beam1_azimuth_deg)
             .build()?;
-        finite("depth.lever_arm_m", &self.depth.lever_arm_m)?;
+        lever_arm("depth.lever_arm_m", &self.depth.lever_arm_m)?;
         finite("depth.time_offset_s", &[self.depth.time_offset_s])?;
         positive("depth.noise_std_m", self.depth.noise_std_m)?;
-        finite("fixes.lever_arm_m", &self.fixes.lever_arm_m)?;
+        lever_arm("fixes.lever_arm_m", &self.fixes.lever_arm_m)?;
         finite("fixes.time_offset_s", &[self.fixes.time_offset_s])?;
         let g = &self.gate;
         if !(g.probability == 0.0 || (g.probability > 0.0 && g.probability < 1.0)) {
@@ -314,7 +333,7 @@ impl NavigatorConfig {
         self.health.check()?;
         self.imu_frame()?;
         let t = &self.truth;
-        finite("truth.lever_arm_m", &t.lever_arm_m)?;
+        lever_arm("truth.lever_arm_m", &t.lever_arm_m)?;
         positive("truth.clock_scale", t.clock_scale)?;
         finite("truth.clock_origin_s", &[t.clock_origin_s.unwrap_or(0.0)])?;
         finite("truth.time_offset_s", &[t.time_offset_s.unwrap_or(0.0)])?;
