@@ -1003,3 +1003,52 @@ fn a_lever_arm_beyond_a_kilometre_is_refused_naming_its_key() {
         assert!(!stderr(&out).contains(key), "{section}: {}", stderr(&out));
     }
 }
+
+/// The reference's clock keys: a clock scale beyond 10 % of 1 is refused as the IMU's
+/// is, and a time offset that moves the reference off the IMU's span (or so far that
+/// its stamps collapse) is refused naming the key, both spans in readable form.
+#[test]
+fn a_truth_clock_off_the_imus_span_is_refused_naming_its_key() {
+    let v = survey();
+    let d = v.dir.path();
+    let gt_file = write(d, "gt.csv", &gt(60));
+    let cases = [
+        (
+            "clock_scale = 2.0\n",
+            vec!["truth.clock_scale", "2.0 is not within 10 % of 1"],
+        ),
+        (
+            "clock_scale = 1e-300\n",
+            vec!["truth.clock_scale", "1e-300 is not within 10 % of 1"],
+        ),
+        (
+            "time_offset_s = 1000.0\n",
+            vec![
+                "truth.time_offset_s = 1000.000 s",
+                "-1000.000..-941.000 s",
+                "0.000..59.900 s",
+            ],
+        ),
+        (
+            "time_offset_s = 1e300\n",
+            vec!["truth.time_offset_s = 1e300 s", "-1e300..-1e300 s"],
+        ),
+    ];
+    for (key, needles) in cases {
+        let text = VEHICLE.replace("time_offset_s = 0.0\n", key);
+        let file = write(d, "truth_clock.toml", &text);
+        let out = estim(&[
+            "navigate",
+            "--imu",
+            s(&v.imu),
+            "--dvl",
+            s(&v.dvl),
+            "--vehicle",
+            s(&file),
+            "--truth",
+            s(&gt_file),
+        ]);
+        let e = refused(&out, &needles);
+        assert!(e.len() < 300, "{e}");
+    }
+}

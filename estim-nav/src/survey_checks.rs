@@ -81,7 +81,7 @@ pub fn check_in_imu_span(
 }
 
 /// A time for a message: to the millisecond, or in exponent form beyond any clock.
-fn seconds(t: f64) -> String {
+pub(crate) fn seconds(t: f64) -> String {
     if t.abs() < 1e12 {
         format!("{t:.3}")
     } else {

@@ -22,6 +22,7 @@ use crate::navigator::{
     error_state, nees_of_block, reference_time_offset, NavigatorConfig, ReferenceOffset,
 };
 use crate::survey::{LoadedSurvey, Result, SurveyError};
+use crate::survey_checks::seconds;
 
 /// The half-width \[s\] of the search for the reference's clock offset.
 pub const TRUTH_TIME_OFFSET_SEARCH_S: f64 = 5.0;
@@ -280,6 +281,29 @@ impl Truth {
             samples.first().map_or(0.0, |s| s.time),
             samples.last().map_or(0.0, |s| s.time),
         ];
+        // A configured offset that moves the reference off the IMU's span, or so far
+        // that its stamps no longer increase, is refused naming the key.
+        let shifted_apart = samples
+            .iter()
+            .enumerate()
+            .any(|(k, s)| !s.time.is_finite() || (k > 0 && s.time <= samples[k - 1].time));
+        let imu_span = [
+            imu.first().map_or(0.0, |s| s.time),
+            imu.last().map_or(0.0, |s| s.time),
+        ];
+        if let TruthTimeOffset::Vehicle(tau) = time_offset {
+            if shifted_apart || span[1] < imu_span[0] || span[0] > imu_span[1] {
+                return Err(fail(format!(
+                    "truth.time_offset_s = {} s puts the reference at {}..{} s, outside \
+                     the IMU's span {}..{} s",
+                    seconds(tau),
+                    seconds(span[0] + epoch),
+                    seconds(span[1] + epoch),
+                    seconds(imu_span[0] + epoch),
+                    seconds(imu_span[1] + epoch)
+                )));
+            }
+        }
         let epochs = samples.iter().map(|s| s.time).collect();
         let trajectory = Trajectory::new(samples).map_err(|e| fail(e.to_string()))?;
         let biases = survey

@@ -334,7 +334,12 @@ impl NavigatorConfig {
         self.imu_frame()?;
         let t = &self.truth;
         lever_arm("truth.lever_arm_m", &t.lever_arm_m)?;
-        positive("truth.clock_scale", t.clock_scale)?;
+        if !(t.clock_scale.is_finite() && (t.clock_scale - 1.0).abs() <= 0.1) {
+            return Err(NavigatorError::invalid(
+                "truth.clock_scale",
+                format!("{:?} is not within 10 % of 1", t.clock_scale),
+            ));
+        }
         finite("truth.clock_origin_s", &[t.clock_origin_s.unwrap_or(0.0)])?;
         finite("truth.time_offset_s", &[t.time_offset_s.unwrap_or(0.0)])?;
         Ok(NavigatorSettings {

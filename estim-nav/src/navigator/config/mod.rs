@@ -59,7 +59,8 @@ pub struct TruthConfig {
     #[serde(deserialize_with = "super::fixed::three")]
     pub lever_arm_m: [f64; 3],
     /// Clock scale s of the reference's stamps: a row stamped t refers to navigator
-    /// time `o + s (t - o) - time_offset_s`, o = `clock_origin_s` (default 1).
+    /// time `o + s (t - o) - time_offset_s`, o = `clock_origin_s` (default 1; within
+    /// 10 % of 1, as `imu.clock_scale`).
     pub clock_scale: f64,
     /// The stamp o \[s\] about which `clock_scale` acts, on the reference file's own
     /// clock. Unset (default): the reference's first stamp.
