@@ -2,7 +2,8 @@
 //! needed). Writes, through a staged `--out DIR`, `solution.csv` (the input's own
 //! time epoch; position, velocity, attitude, IMU biases, a 1-sigma for each),
 //! `track.geojson` and `summary.json`; prints the summary (text, or JSON with
-//! `--json`). `--truth GT.csv` adds errors against truth and NEES at the DVL epochs.
+//! `--json`). `--truth GT.csv` adds errors against truth and NEES at the truth's own
+//! epochs.
 //!
 //! The survey's files are read in `survey`, the run's observer is `writer`, the
 //! summary is built in `summary`, and a run that stops early is reported by `stop`;

@@ -241,10 +241,16 @@ pub fn summary_text(
     if let Some(reason) = evaluation.and_then(|e| e["not_scored_reason"].as_str()) {
         let _ = writeln!(text, "against truth: not scored: {reason}");
     } else if let Some(e) = evaluation {
+        let number = |key: &str| e[key].as_f64().unwrap_or(f64::NAN);
         let _ = writeln!(
             text,
-            "against truth: position RMSE {} m, average NEES {} ({} states)",
-            e["position_rmse_m"], e["nees_average"], e["nees_states"]
+            "against truth: position RMSE {:.3} m (horizontal {:.3} m), average NEES {:.3} \
+             over {} states at {} epochs",
+            number("position_rmse_m"),
+            number("horizontal_position_rmse_m"),
+            number("nees_average"),
+            e["nees_states"],
+            e["epochs"]
         );
     }
     text
