@@ -200,7 +200,7 @@ fn smooth_survey_files(
     plots: bool,
     epochs: estim::core::smoother::RecordAt,
 ) -> anyhow::Result<()> {
-    use crate::navigate::{evaluation_json, load_survey_with, summary_json, summary_text, Writer};
+    use crate::navigate::{load_survey_with, summary_json, summary_text, Writer};
     use estim::navigator::{smooth_survey_at, NavigationObserver, NavigatorError};
 
     let mut staged = out.map(crate::output::StagedDir::new).transpose()?;
@@ -209,7 +209,12 @@ fn smooth_survey_files(
     }
     let mut survey = load_survey_with(files, columns)?;
     let truth = survey.truth.take();
-    let mut forward = Writer::new(None, survey.epoch, truth.clone())?;
+    // Both passes are scored at the reference's own epochs, as `navigate` scores: the
+    // forward pass marks them, so the smoother gives a value there too.
+    if let Some(truth) = &truth {
+        survey.inputs.output_epochs = truth.epochs().to_vec();
+    }
+    let mut forward = Writer::new(None, survey.epoch, truth.clone())?.scored_at_reference_epochs();
     let run = match smooth_survey_at(&survey.inputs, &survey.settings, None, &mut forward, epochs) {
         Ok(run) => run,
         Err(e @ (NavigatorError::Filter { .. } | NavigatorError::Diverged { .. })) => {
@@ -224,7 +229,9 @@ fn smooth_survey_files(
         .smoothed
         .last()
         .map_or(run.forward.final_solution, |s| s.solution);
-    let mut writer = Writer::new(staged.as_ref(), survey.epoch, truth)?.with_plot_rows(plots);
+    let mut writer = Writer::new(staged.as_ref(), survey.epoch, truth)?
+        .with_plot_rows(plots)
+        .scored_at_reference_epochs();
     for s in &run.smoothed {
         writer
             .on_solution(s.kind, &s.solution, &s.state, &s.covariance)
@@ -243,7 +250,7 @@ fn smooth_survey_files(
                 "depth_m": f.depth_m,
                 "position_sigma_m": f.position_sigma_m,
             },
-            "forward_evaluation": evaluation_json(forward.truth()),
+            "forward_evaluation": scored_json(&forward),
         },
     });
     let mut summary = summary_json(
@@ -252,7 +259,7 @@ fn smooth_survey_files(
         &run.forward,
         &last,
         None,
-        evaluation_json(writer.truth()),
+        scored_json(&writer),
         extra,
     );
     if let Some(dir) = staged {
@@ -268,6 +275,20 @@ fn smooth_survey_files(
         return crate::output::emit(&format!("{}\n", serde_json::to_string_pretty(&summary)?));
     }
     crate::output::emit(&summary_text("smoothed", &run.forward, &last, &summary))
+}
+
+/// A pass's evaluation: at the reference's own epochs, with the same at the DVL epochs
+/// (the truth interpolated there) as `at_dvl_epochs`, as `navigate` reports it.
+fn scored_json(writer: &crate::navigate::Writer) -> serde_json::Value {
+    let mut evaluation = crate::navigate::evaluation_json(writer.truth());
+    if let (Some(e), Some(dvl)) = (evaluation.as_object_mut(), writer.dvl_epoch_truth()) {
+        e.insert("scored_at".into(), serde_json::json!("reference_epochs"));
+        e.insert(
+            "at_dvl_epochs".into(),
+            crate::navigate::evaluation_json(Some(dvl)),
+        );
+    }
+    evaluation
 }
 
 /// The forward pass stopped (divergence or a numerical failure): nothing was

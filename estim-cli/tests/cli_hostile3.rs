@@ -275,7 +275,7 @@ fn doubled_dvl_rows_are_refused_as_reproduce_refuses_them() {
 }
 
 /// Class 4: with no DVL update at all, nothing scored at the DVL epochs is null with
-/// a reason (navigate's at_dvl_epochs, smooth's evaluation), never an RMSE of 0.
+/// a reason (navigate's and smooth's at_dvl_epochs), never an RMSE of 0.
 #[test]
 fn an_evaluation_with_nothing_scored_is_null_with_a_reason() {
     let v = survey();
@@ -323,11 +323,24 @@ fn an_evaluation_with_nothing_scored_is_null_with_a_reason() {
         s(&v.vehicle),
         "--truth",
         s(&truth),
+        "--json",
     ]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert!(text.contains("against truth: not scored"), "{text}");
-    assert!(!text.contains("RMSE 0"), "{text}");
+    let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+    for evaluation in [
+        &summary["evaluation"],
+        &summary["smoother"]["forward_evaluation"],
+    ] {
+        let at_dvl = &evaluation["at_dvl_epochs"];
+        assert_eq!(at_dvl["epochs"], 0, "{at_dvl}");
+        assert!(at_dvl["position_rmse_m"].is_null(), "{at_dvl}");
+        assert!(at_dvl["not_scored_reason"]
+            .as_str()
+            .is_some_and(|r| r.contains("no solution epoch")));
+        assert!(evaluation["position_rmse_m"]
+            .as_f64()
+            .is_some_and(|r| r > 0.0));
+    }
 }
 
 /// A depth file of the stationary vehicle (20 m), 1 Hz.

@@ -16,7 +16,9 @@
 //!   same solution;
 //! - a copy of the logs cut to start 150 s later keeps the reference's clock offset
 //!   and the DVL's timing (the IMU clock's scale acts about `clock_origin_s`);
-//! - the raw files read as if their axes were the body's end `diverged` (exit 3).
+//! - the raw files read as if their axes were the body's end `diverged` (exit 3);
+//! - `estim smooth` runs on every training trajectory, scored as `navigate` at the
+//!   reference's own epochs, and no smoothed 1-sigma exceeds the filter's.
 
 mod common;
 
@@ -497,44 +499,108 @@ fn rows_of(dir: &Path, kind: &str) -> Vec<String> {
         .collect()
 }
 
-/// `estim smooth` on a recorded IMU with the shipped vehicle file (DVL error states,
-/// gate recovery on) runs where the forward filter ran, and reports at the same DVL
-/// epochs as `navigate`, gated ones included (trajectory 11 has gated updates).
+/// `estim smooth` on every training trajectory's recorded IMU with the shipped vehicle
+/// file (DVL error states, gate recovery on): it runs where the forward filter ran,
+/// writes a row at each of the forward pass's DVL epochs (gated ones included), and is
+/// scored, as `navigate` is, at the reference's own epochs: its forward evaluation is
+/// `navigate`'s, and at every reference epoch no smoothed 1-sigma exceeds the
+/// filter's (the smoother only adds information). Prints the table of
+/// docs/results.md ("Smoothing a survey", recorded IMU).
 #[test]
-fn the_smoother_reports_at_the_forward_filters_epochs() {
+fn the_smoother_on_every_training_trajectory() {
     let Some(root) = common::data_root() else {
         return;
     };
-    let [imu, dvl, gt] = files(&root, 11);
     let dir = tempfile::tempdir().unwrap();
-    let (forward_dir, smooth_dir) = (dir.path().join("forward"), dir.path().join("smooth"));
-    let forward = json(&navigate(&imu, &dvl, &gt, &vehicle(), Some(&forward_dir)));
-    assert_eq!(forward["status"], "ok");
-    assert!(forward["updates"]["dvl"]["gated"].as_u64().unwrap() > 0);
-    let out = estim(&[
-        "smooth",
-        "--imu",
-        &imu.to_string_lossy(),
-        "--dvl",
-        &dvl.to_string_lossy(),
-        "--vehicle",
-        &vehicle().to_string_lossy(),
-        "--truth",
-        &gt.to_string_lossy(),
-        "--out",
-        &smooth_dir.to_string_lossy(),
-        "--json",
-    ]);
-    let smoothed = json(&out);
-    assert_eq!(out.status.code(), Some(0));
-    assert_eq!(smoothed["status"], "ok");
-    let epochs = rows_of(&forward_dir, "dvl");
-    assert_eq!(epochs.len(), 399);
-    assert_eq!(rows_of(&smooth_dir, "dvl"), epochs);
-    let rmse = smoothed["evaluation"]["horizontal_position_rmse_m"]
-        .as_f64()
-        .unwrap();
-    assert!(rmse.is_finite() && rmse < 3.5, "{rmse}");
+    let command = |name: &str, n: u32, out: &Path| {
+        let [imu, dvl, gt] = files(&root, n);
+        let mut c = Command::new(env!("CARGO_BIN_EXE_estim"));
+        c.arg(name)
+            .args(["--imu", &imu.to_string_lossy()])
+            .args(["--dvl", &dvl.to_string_lossy()])
+            .args(["--vehicle", &vehicle().to_string_lossy()])
+            .args(["--truth", &gt.to_string_lossy()])
+            .args(["--out", &out.to_string_lossy()])
+            .arg("--json")
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped());
+        c.spawn().expect("run estim")
+    };
+    // Every run at once (the machine's cores share them), read in order.
+    let children: Vec<_> = TRAINING
+        .iter()
+        .map(|&n| {
+            let (f, s) = (
+                dir.path().join(format!("forward{n}")),
+                dir.path().join(format!("smooth{n}")),
+            );
+            (
+                n,
+                command("navigate", n, &f),
+                command("smooth", n, &s),
+                f,
+                s,
+            )
+        })
+        .collect();
+    println!(
+        "| trajectory | horizontal RMSE [m], filter / smoother | NEES / 9, filter / smoother | \
+         epochs |"
+    );
+    println!("|---|---|---|---|");
+    for (n, forward, smooth, forward_dir, smooth_dir) in children {
+        let (forward, smooth) = (
+            forward.wait_with_output().unwrap(),
+            smooth.wait_with_output().unwrap(),
+        );
+        let (forward_json, smoothed) = (json(&forward), json(&smooth));
+        assert_eq!(smooth.status.code(), Some(0), "{n}");
+        assert_eq!(smoothed["status"], "ok", "{n}");
+        // Rows at the forward pass's DVL epochs.
+        let epochs = rows_of(&forward_dir, "dvl");
+        assert!(epochs.len() >= 298, "{n}: {}", epochs.len());
+        assert_eq!(rows_of(&smooth_dir, "dvl"), epochs, "{n}");
+        // The smoother's forward pass is navigate's, scored the same way.
+        let f = &smoothed["smoother"]["forward_evaluation"];
+        let e = &forward_json["evaluation"];
+        assert_eq!(f["scored_at"], "reference_epochs");
+        for key in ["nees_average", "horizontal_position_rmse_m", "epochs"] {
+            assert_eq!(f[key], e[key], "{n}: {key}");
+        }
+        let s = &smoothed["evaluation"];
+        assert_eq!(s["scored_at"], "reference_epochs");
+        assert_eq!(s["epochs"], e["epochs"], "{n}");
+        // At each reference epoch, every smoothed 1-sigma is at most the filter's.
+        let (fe, se) = (
+            csv_numbers(&forward_dir.join("errors.csv")),
+            csv_numbers(&smooth_dir.join("errors.csv")),
+        );
+        assert_eq!(fe.len(), se.len(), "{n}");
+        for (a, b) in fe.iter().zip(&se) {
+            assert_eq!(a[0], b[0], "{n}: epochs differ");
+            for i in 10..19 {
+                assert!(
+                    b[i] <= a[i] * (1.0 + 1e-9),
+                    "{n} t = {}: sigma {i} {} > {}",
+                    a[0],
+                    b[i],
+                    a[i]
+                );
+            }
+        }
+        let number = |v: &Value, key: &str| v[key].as_f64().unwrap();
+        let (ns, nf) = (
+            number(s, "nees_average") / 9.0,
+            number(e, "nees_average") / 9.0,
+        );
+        assert!(ns.is_finite() && ns > 0.0, "{n}: {ns}");
+        println!(
+            "| {n} | {:.2} / {:.2} | {nf:.2} / {ns:.2} | {} |",
+            number(e, "horizontal_position_rmse_m"),
+            number(s, "horizontal_position_rmse_m"),
+            e["epochs"]
+        );
+    }
 }
 
 /// The mean and the sample standard deviation over the training trajectories of the

@@ -271,7 +271,9 @@ pub use cross::{Fixed, JointCovariance, ScaledCorrelation, Zero};
 pub use dynamic::{DynKalmanFilter, MeasurementSeries};
 pub use error::{Error, Result};
 pub use gaussian::StateAndCovariance;
-pub use observer::{NisRecorder, NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus};
+pub use observer::{
+    MarkEvent, NisRecorder, NoObserver, Observer, PredictEvent, UpdateEvent, UpdateStatus,
+};
 pub use runner::FilteredBatch;
 pub use runner::{
     ErrorStateKalmanFilter, ExtendedKalmanFilter, KalmanFilter, SquareRootKalmanFilter,

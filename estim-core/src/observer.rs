@@ -23,6 +23,16 @@ pub struct PredictEvent<'a, T: Scalar, S, const N: usize> {
     pub process_noise: &'a SMatrix<T, N, N>,
 }
 
+/// Reported when the runner's owner marks the current step ([`Observer::on_mark`]):
+/// the estimate there, with no measurement.
+#[derive(Debug, Clone, Copy)]
+pub struct MarkEvent<'a, T: Scalar, S, const N: usize> {
+    /// The (nominal) state at the marked step.
+    pub state: &'a S,
+    /// The covariance at the marked step.
+    pub covariance: &'a SMatrix<T, N, N>,
+}
+
 /// Whether an update was applied.
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -121,6 +131,14 @@ pub trait Observer<T: Scalar, S, const N: usize> {
         Ok(())
     }
 
+    /// When the runner's owner marks the current step as one to report (a runner
+    /// never calls it itself): e.g. the time of a reference sample between two
+    /// measurements. A [`crate::smoother::ForwardRecorder`] closes its epoch there, so
+    /// that the smoother gives a value at that step.
+    fn on_mark(&mut self, _event: &MarkEvent<'_, T, S, N>) -> Result<()> {
+        Ok(())
+    }
+
     /// Whether accepted windowed updates should carry their recorded window
     /// ([`UpdateEvent::window`]). The runner then asks the windowed model for every
     /// step's D_j once more (and keeps them in a buffer); `false` by default. The
@@ -147,6 +165,9 @@ impl<T: Scalar, S, const N: usize, O: Observer<T, S, N> + ?Sized> Observer<T, S,
     fn on_rejected(&mut self, event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
         (**self).on_rejected(event)
     }
+    fn on_mark(&mut self, event: &MarkEvent<'_, T, S, N>) -> Result<()> {
+        (**self).on_mark(event)
+    }
     fn wants_window(&self) -> bool {
         (**self).wants_window()
     }
@@ -166,6 +187,10 @@ impl<T: Scalar, S, const N: usize, A: Observer<T, S, N>, B: Observer<T, S, N>> O
     fn on_rejected(&mut self, event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
         self.0.on_rejected(event)?;
         self.1.on_rejected(event)
+    }
+    fn on_mark(&mut self, event: &MarkEvent<'_, T, S, N>) -> Result<()> {
+        self.0.on_mark(event)?;
+        self.1.on_mark(event)
     }
     fn wants_window(&self) -> bool {
         self.0.wants_window() || self.1.wants_window()

@@ -12,7 +12,13 @@
 //! epoch is a moment of the forward pass: with [`RecordAt::EveryStep`] every predict
 //! opens one (the updates that follow belong to it); with [`RecordAt::Updates`] the
 //! predicts between two updates are composed into one transition and an epoch ends
-//! with its updates (memory: one epoch per update, not per IMU sample).
+//! with its updates (memory: one epoch per update, not per IMU sample). The runner's
+//! owner can also end an epoch at a step with no measurement
+//! ([`Observer::on_mark`](crate::Observer::on_mark), e.g. at the epochs of a reference
+//! to score against): the smoother then gives a value at that step, the same as a
+//! recording at every step gives there (`tests/smoother.rs`, uncorrelated updates). A
+//! one-step correlated update whose interval a mark split is refused
+//! ([`crate::Error::SmootherUnsupported`]).
 //!
 //! ## The smoother with correlated noise (derivation)
 //!
@@ -287,6 +293,9 @@ pub struct ForwardRecorder<T: Scalar, S, const N: usize> {
     /// Index (in the whole recording) of `epochs[0]`.
     first_index: usize,
     predicts_since_update: usize,
+    /// A mark closed an epoch since the last measurement (its accumulation interval
+    /// then spans two epochs).
+    marked_since_update: bool,
     unsupported: Option<(usize, &'static str)>,
 }
 
@@ -300,6 +309,7 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
             epochs: VecDeque::new(),
             first_index: 0,
             predicts_since_update: 0,
+            marked_since_update: false,
             unsupported: None,
         }
     }

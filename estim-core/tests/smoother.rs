@@ -1309,3 +1309,91 @@ fn measurements_mode_smooths_at_rejected_epochs_too() {
         );
     }
 }
+
+/// A mark ([`estim_core::Observer::on_mark`]) closes the recorder's epoch at a step
+/// with no measurement: recorded at updates with marks, the smoothed mean and
+/// covariance at each marked step (and at the first, marked before any predict) are
+/// those of the recording at every step, to 1e-10. A one-step correlated update
+/// whose accumulation interval a mark split is refused, never approximated.
+#[test]
+fn marks_give_smoothed_values_between_updates() {
+    use estim_core::{KalmanFilter, MarkEvent, Observer, StateAndCovariance, Zero};
+    type M2 = SMatrix<f64, 2, 2>;
+    let f = M2::new(1.0, 0.4, 0.0, 0.95);
+    let q = M2::new(0.03, 0.01, 0.01, 0.05);
+    let h = SMatrix::<f64, 1, 2>::new(1.0, 0.0);
+    let r = SMatrix::<f64, 1, 1>::new(0.2);
+    let initial = StateAndCovariance::new(SVector::from([0.3, 1.0]), M2::identity()).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let zs: Vec<f64> = (0..40).map(|_| rng.random::<f64>() - 0.5).collect();
+    // A measurement every fifth step; marks two and three steps after each one.
+    let measured = |k: usize| k % 5 == 4;
+    let marked = |k: usize| k % 5 == 1 || k % 5 == 2;
+    let mark = |kf: &mut KalmanFilter<f64, 2, 1, ForwardRecorder<f64, SVector<f64, 2>, 2>>| {
+        let (state, covariance) = (*kf.estimate().state(), *kf.estimate().covariance());
+        kf.observer_mut()
+            .on_mark(&MarkEvent {
+                state: &state,
+                covariance: &covariance,
+            })
+            .unwrap();
+    };
+    let mut every = KalmanFilter::new(f, q, h, r, initial.clone())
+        .unwrap()
+        .with_observer(ForwardRecorder::from_initial(RecordAt::EveryStep, &initial));
+    let mut with_marks = KalmanFilter::new(f, q, h, r, initial.clone())
+        .unwrap()
+        .with_observer(ForwardRecorder::new(RecordAt::Updates));
+    mark(&mut with_marks);
+    let mut marked_steps = vec![0];
+    for (k, z) in zs.iter().enumerate() {
+        for kf in [&mut every, &mut with_marks] {
+            kf.predict().unwrap();
+            if measured(k) {
+                kf.update(&SVector::from([*z]), &Zero).unwrap();
+            }
+        }
+        if marked(k) {
+            mark(&mut with_marks);
+            marked_steps.push(k + 1);
+        }
+    }
+    let every = every.observer().smooth().unwrap();
+    let with_marks = with_marks.observer().smooth().unwrap();
+    // The initial epoch, one per mark and one per update (the last ends the run).
+    assert_eq!(with_marks.len(), 1 + 16 + 8);
+    let mut checked = 0;
+    for epoch in &with_marks {
+        // The step this epoch ends at: the every-step recording's epoch with the same
+        // filtered covariance (every step's differs).
+        let step = every
+            .iter()
+            .position(|e| (e.filtered_covariance - epoch.filtered_covariance).amax() < 1e-14)
+            .expect("an epoch of the every-step recording");
+        let dx = (epoch.state() - every[step].state()).amax();
+        let dp = (epoch.covariance - every[step].covariance).amax();
+        assert!(dx < 1e-10 && dp < 1e-10, "step {step}: {dx:e} {dp:e}");
+        if marked_steps.contains(&step) {
+            checked += 1;
+        }
+    }
+    assert_eq!(checked, marked_steps.len());
+
+    // A one-step correlated update after a mark inside its interval.
+    let mut split = KalmanFilter::new(f, q, h, r, initial.clone())
+        .unwrap()
+        .with_observer(ForwardRecorder::from_initial(RecordAt::Updates, &initial));
+    split.predict().unwrap();
+    mark(&mut split);
+    split.predict().unwrap();
+    let m = estim_core::Fixed(SMatrix::<f64, 2, 1>::new(0.01, 0.0));
+    split.update(&SVector::from([0.1]), &m).unwrap();
+    assert!(
+        matches!(
+            split.observer().smooth(),
+            Err(Error::SmootherUnsupported { .. })
+        ),
+        "{:?}",
+        split.observer().smooth().err()
+    );
+}

@@ -226,7 +226,7 @@ pub fn smooth_scenario(
     })
 }
 
-/// The forward pass's state and covariance at each DVL epoch, by time.
+/// The forward pass's state and covariance at each reference epoch, by time.
 #[derive(Default)]
 struct ForwardEpochs(HashMap<u64, (InsState, ErrorMatrix)>);
 
@@ -238,7 +238,7 @@ impl NavigationObserver for ForwardEpochs {
         state: &InsState,
         covariance: &ErrorMatrix,
     ) -> std::result::Result<(), Box<dyn std::error::Error + Send + Sync>> {
-        if kind == SolutionKind::Dvl {
+        if kind == SolutionKind::Epoch {
             self.0
                 .insert(solution.time.to_bits(), (*state, *covariance));
         }
@@ -248,10 +248,10 @@ impl NavigationObserver for ForwardEpochs {
 
 /// [`smooth_scenario`] on a recorded IMU: the navigator's own forward pass on the
 /// survey as the vehicle file describes it (its DVL model and error states, the least
-/// squares velocities of the protocol's beams as DVL rows, M = 0), smoothed over its DVL
-/// epochs ([`estim::navigator::smooth_survey_at`], as `estim smooth --imu` does), the
-/// filtered and smoothed solutions scored against the reference at those epochs
-/// (interpolated to the IMU sample of each), NEES over the 9 states with truth.
+/// squares velocities of the protocol's beams as DVL rows, M = 0), smoothed over its
+/// measurement epochs and the reference's ([`estim::navigator::smooth_survey_at`], as
+/// `estim smooth --imu --truth` does), the filtered and smoothed solutions scored
+/// against the reference at its own epochs, NEES over the 9 states with truth.
 ///
 /// # Errors
 /// The navigator's and the smoother's errors; a smoothed epoch without a forward
@@ -262,7 +262,7 @@ pub fn smooth_recorded(
     config: &Config,
 ) -> Result<SmoothReport> {
     let mut inputs = recorded.inputs.clone();
-    inputs.output_epochs.clear();
+    inputs.output_epochs = recorded.truth_epochs.iter().map(|(t, _)| *t).collect();
     let velocities = least_squares_velocities(scenario, config);
     for (row, v) in inputs.dvl.iter_mut().zip(&velocities) {
         row.input = match v {
@@ -278,17 +278,26 @@ pub fn smooth_recorded(
         &mut forward,
         RecordAt::Measurements,
     )?;
-    let start = scenario
-        .truth
+    let start = recorded
+        .truth_epochs
         .first()
         .ok_or_else(|| PipelineError::NoData {
-            what: format!("truth samples in {}", scenario.name),
+            what: format!("reference epochs in {}", scenario.name),
         })?
-        .time;
+        .0;
+    let truth: HashMap<u64, &InsState> = recorded
+        .truth_epochs
+        .iter()
+        .map(|(t, s)| (t.to_bits(), s))
+        .collect();
     let mut time = Vec::with_capacity(run.smoothed.len());
     let mut filtered = EstimateSeries::default();
     let mut smooth = EstimateSeries::default();
-    for s in run.smoothed.iter().filter(|s| s.kind == SolutionKind::Dvl) {
+    for s in run
+        .smoothed
+        .iter()
+        .filter(|s| s.kind == SolutionKind::Epoch)
+    {
         let t = s.solution.time;
         let (state, covariance) =
             forward
@@ -298,8 +307,13 @@ pub fn smooth_recorded(
                     within: scenario.name.clone(),
                     what: format!("forward solution at the smoothed epoch t = {t} s"),
                 })?;
-        let truth = truth_at(scenario, t)?;
-        time.push(truth.time - start);
+        let truth = truth
+            .get(&t.to_bits())
+            .ok_or_else(|| PipelineError::Missing {
+                within: scenario.name.clone(),
+                what: format!("reference sample at the smoothed epoch t = {t} s"),
+            })?;
+        time.push(t - start);
         filtered.push(truth, state, covariance, RECORDED_NEES_STATES);
         smooth.push(truth, &s.state, &s.covariance, RECORDED_NEES_STATES);
     }

@@ -5,7 +5,7 @@ use nalgebra::{SMatrix, SVector};
 
 use super::link::{DynamicLink, UpdateTerms};
 use super::{Epoch, ForwardRecorder, Link, RecordAt};
-use crate::observer::{Observer, PredictEvent, UpdateEvent};
+use crate::observer::{MarkEvent, Observer, PredictEvent, UpdateEvent};
 use crate::{Result, Scalar};
 
 impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
@@ -67,10 +67,14 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
         };
         // A correlated window that reaches back past this epoch's start, or follows
         // another update of the epoch: smoothed with the augmented state.
+        // (An epoch a mark closed starts a new one inside the accumulation interval:
+        // its own steps then bound the window, not the predicts since the update.)
         let augment = correlated
             && match (event.window_steps, self.mode) {
                 (Some(window), RecordAt::Updates | RecordAt::Measurements) => {
-                    window > self.predicts_since_update || last.accepted_updates > 0
+                    window > self.predicts_since_update
+                        || window > last.steps
+                        || last.accepted_updates > 0
                 }
                 (Some(window), RecordAt::EveryStep) => window > 1 || last.accepted_updates > 0,
                 (None, _) => false,
@@ -78,6 +82,11 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
         if correlated && !augment && last.accepted_updates > 0 {
             self.mark_unsupported(
                 "correlated one-step update after another update at the same epoch (its noise is then correlated with the previous epoch's error; state the window with a WindowedCrossCovariance)",
+            );
+        }
+        if correlated && event.window_steps.is_none() && self.marked_since_update {
+            self.mark_unsupported(
+                "correlated one-step update whose accumulation interval a mark split into two epochs (its noise is then correlated with both; state the window with a WindowedCrossCovariance)",
             );
         }
         // A one-step M after several predicts does not say which of them v shares; a
@@ -92,6 +101,7 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
             );
         }
         self.predicts_since_update = 0;
+        self.marked_since_update = false;
         let Some(gain) = event.gain else {
             return Ok(());
         };
@@ -159,10 +169,37 @@ impl<T: Scalar, S: Clone, const N: usize> Observer<T, S, N> for ForwardRecorder<
         Ok(())
     }
 
+    fn on_mark(&mut self, event: &MarkEvent<'_, T, S, N>) -> Result<()> {
+        match self.epochs.back_mut() {
+            // The open epoch ends here (its state and covariance are the event's: the
+            // last predict's). Every step is an epoch already with RecordAt::EveryStep.
+            Some(last) => {
+                if !last.closed {
+                    last.closed = true;
+                    self.marked_since_update = true;
+                }
+            }
+            // Nothing recorded yet: the marked estimate is the first epoch, as with
+            // `from_initial_parts`.
+            None => self.push_epoch(Epoch {
+                state: event.state.clone(),
+                covariance: *event.covariance,
+                link: None,
+                closed: true,
+                accepted_updates: 0,
+                steps: 0,
+                transition: SMatrix::identity(),
+                augmented: None,
+            }),
+        }
+        Ok(())
+    }
+
     fn on_rejected(&mut self, _event: &UpdateEvent<'_, T, S, N>) -> Result<()> {
         // Observed nothing; it still closes the filter's accumulation interval, and
         // with RecordAt::Measurements its epoch.
         self.predicts_since_update = 0;
+        self.marked_since_update = false;
         if self.mode == RecordAt::Measurements {
             if let Some(last) = self.epochs.back_mut() {
                 last.closed = true;

@@ -72,6 +72,23 @@ pub struct NavigationRun {
     pub final_solution: NavSolution,
     /// The final DVL error states with their 1-sigma, when estimated (`[dvl_states]`).
     pub dvl_states: Option<DvlStateSolution>,
+    /// Each output epoch ([`SurveyInputs::output_epochs`]) as the run met it, in
+    /// order; the filter's observer was told of it with a mark (a smoother's recorder
+    /// closes its epoch there: [`estim_core::Observer::on_mark`]). Not serialized.
+    #[serde(skip)]
+    pub output_marks: Vec<OutputMark>,
+}
+
+/// An output epoch of a batch run: the estimate there is the filter's at `at`
+/// predicted over `time - at` with `sample` ([`Navigator::predicted`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OutputMark {
+    /// The output epoch \[s\].
+    pub time: f64,
+    /// The navigator's time then \[s\] (at or before `time`).
+    pub at: f64,
+    /// The IMU sample it held (`None` before the first).
+    pub sample: Option<ImuSample>,
 }
 
 /// What [`navigate_learned`] did with the beam rows.
@@ -482,6 +499,7 @@ struct BatchHook<'a, 'l, E: NavigationModel<N>, O, const N: usize> {
     depth_nis: Vec<f64>,
     fix_nis: Vec<f64>,
     insufficient: usize,
+    marks: Vec<OutputMark>,
 }
 
 impl<E, O, const N: usize> BatchHook<'_, '_, E, O, N>
@@ -585,7 +603,15 @@ where
 
     fn on_epoch(&mut self, nav: &mut Navigator<E, O, N>, t: f64, event: Event) -> Result<()> {
         match event {
-            Event::Output => self.output(nav, t)?,
+            Event::Output => {
+                nav.mark()?;
+                self.marks.push(OutputMark {
+                    time: t,
+                    at: nav.clock(),
+                    sample: nav.held_sample().copied(),
+                });
+                self.output(nav, t)?;
+            }
             Event::Dvl(input) => {
                 if let Some(r) = self.dvl(nav, t, input)? {
                     self.health.record_nis("dvl", t, r.nis, 3)?;
@@ -663,6 +689,7 @@ where
         depth_nis: Vec::new(),
         fix_nis: Vec::new(),
         insufficient: 0,
+        marks: Vec::new(),
     };
     // The samples before the start are skipped but counted as fed, as the run's
     // `imu_samples` counts the IMU's samples up to the last one fed.
@@ -703,6 +730,7 @@ where
         solutions: hook.solutions,
         final_solution: nav.solution(),
         dvl_states: nav.dvl_states(),
+        output_marks: hook.marks,
     };
     Ok((run, nav))
 }

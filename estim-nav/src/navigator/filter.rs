@@ -7,8 +7,8 @@ use std::borrow::Cow;
 
 use estim_core::noise::adaptive::NoiseScale;
 use estim_core::{
-    CrossCovariance, ErrorStateKalmanFilter, ErrorStateModel, MeasurementModel, NoObserver,
-    Observer, UpdateReport, Zero,
+    CrossCovariance, ErrorStateKalmanFilter, ErrorStateModel, MarkEvent, MeasurementModel,
+    NoObserver, Observer, UpdateReport, Zero,
 };
 use estim_dvl::DvlVelocityModel;
 use estim_ins::{ErrorMatrix, ImuSample, InsErrorModel, InsState, ERROR_STATES};
@@ -415,6 +415,25 @@ impl<E: NavigationModel<N>, O, const N: usize> Navigator<E, O, N> {
 }
 
 impl<E: NavigationModel<N>, O: Observer<f64, E::State, N>, const N: usize> Navigator<E, O, N> {
+    /// Tell the filter's observer that the current step is one to report
+    /// ([`Observer::on_mark`]): a smoother's recorder closes its epoch here, so the
+    /// smoother gives a value at this step (a batch run marks each output epoch).
+    ///
+    /// # Errors
+    /// [`NavigatorError::Filter`] when the observer fails.
+    pub fn mark(&mut self) -> Result<()> {
+        let state = self.filter.nominal().clone();
+        let covariance = *self.filter.covariance();
+        let time = self.imu_clock.time();
+        self.filter
+            .observer_mut()
+            .on_mark(&MarkEvent {
+                state: &state,
+                covariance: &covariance,
+            })
+            .map_err(|source| NavigatorError::Filter { time, source })
+    }
+
     /// Integrate the held sample from the clock to `end` in one step.
     fn step_to(&mut self, end: f64) -> Result<()> {
         let (sample, dt) = self.imu_clock.step(end)?;

@@ -63,6 +63,7 @@ pub use augmented::{
 pub use batch::navigate_learned;
 pub use batch::{
     navigate, navigate_beams_with, navigate_with, BeamUpdate, LearnedCounts, NavigationRun,
+    OutputMark,
 };
 pub use clock::IMU_PERIOD_SNAP;
 pub use config::{

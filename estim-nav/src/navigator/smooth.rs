@@ -10,6 +10,7 @@ use estim_ins::{ErrorMatrix, InsErrorModel, InsState, ERROR_STATES};
 
 use super::aiding::InsNominal;
 use super::batch::navigate_augmented_with;
+use super::reference::predict_copy;
 use super::{
     navigate_with, AugmentedErrorModel, AugmentedState, DvlStateSolution, NavSolution,
     NavigationModel, NavigationObserver, NavigationRun, NavigatorError, NavigatorSettings, Result,
@@ -114,7 +115,8 @@ where
 {
     let epochs = recorder.smooth().map_err(NavigatorError::Smoother)?;
     let last = epochs.len().saturating_sub(1);
-    let mut smoothed = Vec::with_capacity(epochs.len());
+    let mut smoothed = Vec::with_capacity(epochs.len() + forward.output_marks.len());
+    let mut marks = forward.output_marks.iter().peekable();
     for (k, epoch) in epochs.iter().enumerate() {
         let nominal = epoch.injected(process).map_err(NavigatorError::Smoother)?;
         let state = *nominal.ins();
@@ -146,6 +148,34 @@ where
             covariance: ins_covariance,
             dvl_states: E::dvl_states(&nominal, covariance),
         });
+        // The output epochs met at this epoch's time (the forward pass marked them, so
+        // an epoch ends there): the smoothed estimate predicted over the rest of the
+        // IMU interval, as the forward pass predicts its own there.
+        while let Some(mark) = marks.next_if(|m| m.at <= state.time + tolerance) {
+            if (mark.at - state.time).abs() > tolerance {
+                continue;
+            }
+            let (at_mark, p) = match (&mark.sample, mark.time - mark.at) {
+                (Some(sample), dt) if dt > 0.0 => {
+                    predict_copy(process, &nominal, covariance, sample, dt).map_err(|source| {
+                        NavigatorError::Filter {
+                            time: mark.time,
+                            source,
+                        }
+                    })?
+                }
+                _ => (nominal.clone(), *covariance),
+            };
+            let ins = *at_mark.ins();
+            let ins_p = E::ins_covariance(&p);
+            smoothed.push(SmoothedSolution {
+                kind: SolutionKind::Epoch,
+                solution: NavSolution::from_state(mark.time, &ins, &ins_p),
+                state: ins,
+                covariance: ins_p,
+                dvl_states: E::dvl_states(&at_mark, &p),
+            });
+        }
     }
     Ok(SmoothingRun { forward, smoothed })
 }
