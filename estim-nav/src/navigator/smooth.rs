@@ -20,8 +20,9 @@ use super::{
 /// One smoothed epoch.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SmoothedSolution {
-    /// [`SolutionKind::Dvl`] at an accepted DVL update, [`SolutionKind::Aiding`] at an
-    /// epoch whose updates are depth or fixes only, [`SolutionKind::End`] for the last
+    /// [`SolutionKind::Dvl`] at a DVL epoch (accepted or gated), [`SolutionKind::Aiding`]
+    /// at an epoch whose updates are depth or fixes only, [`SolutionKind::Epoch`] at one
+    /// of [`SurveyInputs::output_epochs`], [`SolutionKind::End`] for the last
     /// propagation after the last update.
     pub kind: SolutionKind,
     /// The smoothed solution (1-sigma from the smoothed covariance).
@@ -47,10 +48,13 @@ pub struct SmoothingRun {
 /// Navigate a survey forward as [`super::navigate`] does (the forward solutions go to
 /// `observer`; on the DVL error states when the configuration has `dvl_states`), then
 /// smooth it: one smoothed solution per measurement epoch, accepted or gated (the
-/// epochs the forward pass reports; estim-core's `RecordAt::Measurements`), and one
-/// for the last propagation. An update the gate's recovery rule accepted with an
-/// inflated covariance is smoothed as the forward pass ran it (estim-core's smoother:
-/// the model with an extra process noise at that epoch).
+/// epochs the forward pass reports; estim-core's `RecordAt::Measurements`), one at
+/// each of the inputs' output epochs (the forward pass marks the IMU sample before
+/// each, and the smoothed estimate there is predicted over the rest of the interval,
+/// as the forward pass predicts its own), and one for the last propagation. An update
+/// the gate's recovery rule accepted with an inflated covariance is smoothed as the
+/// forward pass ran it (estim-core's smoother: the model with an extra process noise
+/// at that epoch).
 ///
 /// # Errors
 /// As [`super::navigate`]; [`NavigatorError::Smoother`] when the recording cannot be
