@@ -22,7 +22,10 @@ mod survey;
 mod writer;
 
 pub use stop::{stop_json, stopped};
-pub use summary::{evaluation_json, inputs_json, summary_json, summary_text, time_offset_json};
+pub use summary::{
+    evaluation_json, inputs_json, reference_epochs_evaluation_json, summary_json, summary_text,
+    time_offset_json,
+};
 pub use survey::{
     load_survey, load_survey_from, load_survey_with, refuse_dvl_states, vehicle_config, Survey,
     SurveyFiles,
@@ -228,11 +231,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         Err(e) => return Err(e.into()),
     };
-    let mut evaluation = evaluation_json(writer.truth());
-    if let (Some(e), Some(dvl)) = (evaluation.as_object_mut(), writer.dvl_epoch_truth()) {
-        e.insert("scored_at".into(), json!("reference_epochs"));
-        e.insert("at_dvl_epochs".into(), evaluation_json(Some(dvl)));
-    }
+    let evaluation = reference_epochs_evaluation_json(&writer);
     let mut summary = summary_json(
         "navigate",
         &survey,

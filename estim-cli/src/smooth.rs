@@ -250,7 +250,7 @@ fn smooth_survey_files(
                 "depth_m": f.depth_m,
                 "position_sigma_m": f.position_sigma_m,
             },
-            "forward_evaluation": scored_json(&forward),
+            "forward_evaluation": crate::navigate::reference_epochs_evaluation_json(&forward),
         },
     });
     let mut summary = summary_json(
@@ -259,7 +259,7 @@ fn smooth_survey_files(
         &run.forward,
         &last,
         None,
-        scored_json(&writer),
+        crate::navigate::reference_epochs_evaluation_json(&writer),
         extra,
     );
     if let Some(dir) = staged {
@@ -275,20 +275,6 @@ fn smooth_survey_files(
         return crate::output::emit(&format!("{}\n", serde_json::to_string_pretty(&summary)?));
     }
     crate::output::emit(&summary_text("smoothed", &run.forward, &last, &summary))
-}
-
-/// A pass's evaluation: at the reference's own epochs, with the same at the DVL epochs
-/// (the truth interpolated there) as `at_dvl_epochs`, as `navigate` reports it.
-fn scored_json(writer: &crate::navigate::Writer) -> serde_json::Value {
-    let mut evaluation = crate::navigate::evaluation_json(writer.truth());
-    if let (Some(e), Some(dvl)) = (evaluation.as_object_mut(), writer.dvl_epoch_truth()) {
-        e.insert("scored_at".into(), serde_json::json!("reference_epochs"));
-        e.insert(
-            "at_dvl_epochs".into(),
-            crate::navigate::evaluation_json(Some(dvl)),
-        );
-    }
-    evaluation
 }
 
 /// The forward pass stopped (divergence or a numerical failure): nothing was

@@ -211,6 +211,22 @@ struct Epoch<T: Scalar, S, const N: usize> {
     augmented: Option<Augmented<T>>,
 }
 
+impl<T: Scalar, S, const N: usize> Epoch<T, S, N> {
+    /// A first epoch: an estimate with no link back, no step and no update.
+    fn initial(state: S, covariance: SMatrix<T, N, N>) -> Self {
+        Self {
+            state,
+            covariance,
+            link: None,
+            closed: true,
+            accepted_updates: 0,
+            steps: 0,
+            transition: SMatrix::identity(),
+            augmented: None,
+        }
+    }
+}
+
 /// An epoch inside a correlated window that spans several epochs: its Markov state
 /// is e augmented with s, the part of the window's measurement noise shared so far
 /// (module docs, "Windows over several epochs").
@@ -325,16 +341,7 @@ impl<T: Scalar, S: Clone, const N: usize> ForwardRecorder<T, S, N> {
     /// For the error-state filter pass the nominal state and its error covariance.
     pub fn from_initial_parts(mode: RecordAt, state: S, covariance: SMatrix<T, N, N>) -> Self {
         let mut recorder = Self::new(mode);
-        recorder.epochs.push_back(Epoch {
-            state,
-            covariance,
-            link: None,
-            closed: true,
-            accepted_updates: 0,
-            steps: 0,
-            transition: SMatrix::identity(),
-            augmented: None,
-        });
+        recorder.epochs.push_back(Epoch::initial(state, covariance));
         recorder
     }
 

@@ -35,6 +35,18 @@ fn stats(values: &[f64]) -> Value {
     json!({ "count": values.len(), "mean": mean, "max": max })
 }
 
+/// The evaluation of a run scored at the reference's own epochs ([`Writer`]'s
+/// `scored_at_reference_epochs`), with the same scored at the DVL epochs (the truth
+/// interpolated there) as `at_dvl_epochs`.
+pub fn reference_epochs_evaluation_json(writer: &super::Writer) -> Value {
+    let mut evaluation = evaluation_json(writer.truth());
+    if let (Some(e), Some(dvl)) = (evaluation.as_object_mut(), writer.dvl_epoch_truth()) {
+        e.insert("scored_at".into(), json!("reference_epochs"));
+        e.insert("at_dvl_epochs".into(), evaluation_json(Some(dvl)));
+    }
+    evaluation
+}
+
 /// The evaluation block of the summary (position RMSE, final error, NEES at the DVL
 /// epochs).
 pub fn evaluation_json(truth: Option<&Truth>) -> Value {

@@ -181,16 +181,7 @@ impl<T: Scalar, S: Clone, const N: usize> Observer<T, S, N> for ForwardRecorder<
             }
             // Nothing recorded yet: the marked estimate is the first epoch, as with
             // `from_initial_parts`.
-            None => self.push_epoch(Epoch {
-                state: event.state.clone(),
-                covariance: *event.covariance,
-                link: None,
-                closed: true,
-                accepted_updates: 0,
-                steps: 0,
-                transition: SMatrix::identity(),
-                augmented: None,
-            }),
+            None => self.push_epoch(Epoch::initial(event.state.clone(), *event.covariance)),
         }
         Ok(())
     }
