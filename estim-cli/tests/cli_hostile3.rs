@@ -1065,3 +1065,52 @@ fn a_truth_clock_off_the_imus_span_is_refused_naming_its_key() {
         assert!(e.len() < 300, "{e}");
     }
 }
+
+/// One wild DVL row (8 m/s on a stationary vehicle, thousands of standard deviations)
+/// is gated and neither stops the run as diverged (the NIS check takes its window's
+/// median) nor sets the adapted DVL noise level for the rest of it (the innovation
+/// counts on the health check's NIS limit, not at its own size).
+#[test]
+fn one_wild_dvl_row_neither_stops_the_run_nor_sets_its_noise_level() {
+    let v = survey();
+    let d = v.dir.path();
+    let vehicle = write(
+        d,
+        "adaptive.toml",
+        &format!("{VEHICLE}\n[dvl]\nadaptive_noise_window = 20\n"),
+    );
+    let run = |dvl: &Path| -> Value {
+        let out = estim(&[
+            "navigate",
+            "--imu",
+            s(&v.imu),
+            "--dvl",
+            s(dvl),
+            "--vehicle",
+            s(&vehicle),
+            "--json",
+        ]);
+        assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+        serde_json::from_slice(&out.stdout).expect("json")
+    };
+    let mut text = String::from("time_s,v_x_mps,v_y_mps,v_z_mps\n");
+    for t in 0..60 {
+        let vx = if t == 30 { 8.0 } else { 0.0 };
+        text.push_str(&format!("{t},{vx},0,0\n"));
+    }
+    let spiked = write(d, "spike.csv", &text);
+    let (clean, wild) = (run(&v.dvl), run(&spiked));
+    assert_eq!(wild["status"], "ok", "{wild}");
+    assert_eq!(wild["updates"]["dvl"]["gated"], 1, "{wild}");
+    assert_eq!(clean["updates"]["dvl"]["gated"], 0, "{clean}");
+    let scale = |s: &Value| s["dvl_noise_scale"].as_f64().expect("adapted scale");
+    // Counted at its own size the row would hold the scale at its bound, 100, to the
+    // end; counted on the limit it lifts it, and 29 updates later it is back near
+    // the clean run's.
+    let (a, b) = (scale(&clean), scale(&wild));
+    println!("noise scale: clean {a}, with the wild row {b}");
+    assert!(b < 2.0, "with the wild row: {b} (clean {a})");
+    // The stationary position stays put with the row as without it.
+    let north = |s: &Value| s["final"]["latitude_deg"].as_f64().expect("latitude");
+    assert!((north(&clean) - north(&wild)).abs() * 111e3 < 0.05);
+}

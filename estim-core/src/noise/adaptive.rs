@@ -28,6 +28,11 @@
 //! drive λ̄ to its bound. The scale the filter uses next is λ̄_k clamped to
 //! `[min, max]`.
 //!
+//! With a bound `max_nis`, an innovation whose NIS ν' S⁻¹ ν exceeds it counts as
+//! ν √(max_nis / NIS), shrunk onto the bound (a Huber-type limit): a persistent
+//! excess still raises λ̄, while a single wild measurement (a spike of a thousand
+//! standard deviations) moves it no more than an innovation on the bound does.
+//!
 //! The scale at update k comes from innovations before k only, so the NIS of
 //! update k is still a one-step-ahead check of the filter, not of a fit to that
 //! innovation; but with λ adapted the time-averaged NIS is near the measurement
@@ -49,16 +54,20 @@ pub struct NoiseScaleConfig {
     pub min: f64,
     /// Largest scale used (>= min).
     pub max: f64,
+    /// Largest NIS an innovation counts with (finite, > 0): a larger one is shrunk
+    /// onto it before it updates the estimate. `None`: no bound.
+    pub max_nis: Option<f64>,
 }
 
 impl Default for NoiseScaleConfig {
-    /// N = 100, n_0 = 5, λ in [0.01, 100].
+    /// N = 100, n_0 = 5, λ in [0.01, 100], no NIS bound.
     fn default() -> Self {
         Self {
             window: 100,
             prior_weight: 5,
             min: 0.01,
             max: 100.0,
+            max_nis: None,
         }
     }
 }
@@ -76,8 +85,9 @@ impl NoiseScale {
     /// A new estimate at λ = 1.
     ///
     /// # Errors
-    /// [`Error::InvalidParameter`] for a zero window or prior weight, or bounds that
-    /// are not finite with 0 < min <= 1 <= max.
+    /// [`Error::InvalidParameter`] for a zero window or prior weight, bounds that
+    /// are not finite with 0 < min <= 1 <= max, or a `max_nis` that is not a positive
+    /// finite number.
     pub fn new(config: NoiseScaleConfig) -> Result<Self> {
         let bad = |name, reason: String| Err(Error::InvalidParameter { name, reason });
         if config.window == 0 {
@@ -102,6 +112,14 @@ impl NoiseScale {
                     config.min, config.max
                 ),
             );
+        }
+        if let Some(bound) = config.max_nis {
+            if !(bound.is_finite() && bound > 0.0) {
+                return bad(
+                    "max_nis",
+                    format!("{bound} is not a positive finite number"),
+                );
+            }
         }
         Ok(Self {
             config,
@@ -128,11 +146,13 @@ impl NoiseScale {
 
     /// Take one update's innovation ν, its covariance S and the sensor's part D of
     /// S as used (at the scale [`NoiseScale::scale`] returned before this update);
-    /// returns the scale for the next update.
+    /// returns the scale for the next update. With `max_nis`, ν counts shrunk onto
+    /// that NIS when it lies beyond it.
     ///
     /// # Errors
     /// [`Error::NonFinite`] for a non-finite input; [`Error::InvalidCovariance`]
-    /// when tr D <= 0; [`Error::Overflow`] when the sample (|nu|^2 - tr(S - D)) / tr D
+    /// when tr D <= 0 or tr S <= 0, or (with `max_nis`) when S is not positive
+    /// definite; [`Error::Overflow`] when the sample (|nu|^2 - tr(S - D)) / tr D
     /// of finite inputs overflows. The estimate is unchanged on error.
     pub fn update<const M: usize>(
         &mut self,
@@ -163,7 +183,25 @@ impl NoiseScale {
                 reason: format!("its trace {total} is not positive"),
             });
         }
-        let sample = (innovation.norm_squared() - (total - sensor_part.trace())) / unit;
+        let squared = match self.config.max_nis {
+            Some(bound) => {
+                let nis = innovation_covariance
+                    .cholesky()
+                    .map(|c| innovation.dot(&c.solve(innovation)))
+                    .ok_or_else(|| Error::InvalidCovariance {
+                        what: "innovation covariance S",
+                        reason: "it is not positive definite".into(),
+                    })?;
+                // Shrunk onto the bound: |ν|² (bound / NIS).
+                if nis > bound {
+                    innovation.norm_squared() * (bound / nis)
+                } else {
+                    innovation.norm_squared()
+                }
+            }
+            None => innovation.norm_squared(),
+        };
+        let sample = (squared - (total - sensor_part.trace())) / unit;
         if !sample.is_finite() {
             // Finite inputs whose squares or ratio overflow (an innovation of 1e200):
             // refused before the estimate moves.
@@ -250,6 +288,7 @@ mod tests {
             prior_weight: 1,
             min: 0.5,
             max: 2.0,
+            max_nis: None,
         })
         .unwrap();
         let nu = Vector2::new(0.3, -0.4);
@@ -277,6 +316,7 @@ mod tests {
             prior_weight: 1,
             min: 0.5,
             max: 2.0,
+            max_nis: None,
         })
         .unwrap();
         let d = Matrix2::identity() * 0.25;
@@ -302,6 +342,56 @@ mod tests {
         assert!(1.0 + (sample - 1.0) / 6.0 < 0.0);
     }
 
+    /// With a NIS bound, an innovation beyond it counts as the same direction on the
+    /// bound (the estimate equal to one fed that shrunk innovation without a bound),
+    /// and one within it as itself.
+    #[test]
+    fn an_innovation_beyond_the_nis_bound_counts_on_the_bound() {
+        let bounded = NoiseScaleConfig {
+            max_nis: Some(20.0),
+            ..NoiseScaleConfig::default()
+        };
+        let s = Matrix2::new(0.5, 0.1, 0.1, 0.2);
+        let r = Matrix2::new(0.3, 0.0, 0.0, 0.1);
+        // NIS of (30, -10) by the 2x2 inverse written out: det 0.09,
+        // S^-1 = [0.2 -0.1; -0.1 0.5] / 0.09, nu' S^-1 nu = (180 + 60 + 50) / 0.09.
+        let spike = Vector2::new(30.0, -10.0);
+        let nis: f64 = (0.2 * 900.0 + 2.0 * 0.1 * 300.0 + 0.5 * 100.0) / 0.09;
+        assert!(nis > 20.0);
+        let shrunk = spike * (20.0 / nis).sqrt();
+        let mut with_bound = NoiseScale::new(bounded).unwrap();
+        let mut plain = NoiseScale::new(NoiseScaleConfig::default()).unwrap();
+        let mut unbounded = NoiseScale::new(NoiseScaleConfig::default()).unwrap();
+        with_bound.update(&spike, &s, &r).unwrap();
+        plain.update(&shrunk, &s, &r).unwrap();
+        unbounded.update(&spike, &s, &r).unwrap();
+        assert!((with_bound.mean() - plain.mean()).abs() < 1e-12 * plain.mean());
+        // Unbounded, the spike takes the mean to about 150; on the bound, to under 2.
+        assert!(unbounded.mean() > 100.0, "{}", unbounded.mean());
+        assert!(with_bound.mean() < 2.0, "{}", with_bound.mean());
+        // Within the bound nothing changes.
+        let small = Vector2::new(0.4, 0.2);
+        let mut a = NoiseScale::new(bounded).unwrap();
+        let mut b = NoiseScale::new(NoiseScaleConfig::default()).unwrap();
+        assert_eq!(
+            a.update(&small, &s, &r).unwrap(),
+            b.update(&small, &s, &r).unwrap()
+        );
+        // A run of innovations beyond the bound still raises the scale to its bound.
+        let mut c = NoiseScale::new(bounded).unwrap();
+        for _ in 0..2000 {
+            c.update(&spike, &(s * c.scale()), &(r * c.scale()))
+                .unwrap();
+        }
+        assert!(c.scale() > 5.0, "{}", c.scale());
+        // S not positive definite is refused when the NIS is needed.
+        let not_pd = Matrix2::new(1.0, 2.0, 2.0, 1.0);
+        assert!(matches!(
+            a.update(&small, &not_pd, &r),
+            Err(Error::InvalidCovariance { .. })
+        ));
+    }
+
     #[test]
     fn bad_settings_and_inputs_are_typed_errors() {
         for config in [
@@ -323,6 +413,14 @@ mod tests {
             },
             NoiseScaleConfig {
                 max: f64::INFINITY,
+                ..NoiseScaleConfig::default()
+            },
+            NoiseScaleConfig {
+                max_nis: Some(0.0),
+                ..NoiseScaleConfig::default()
+            },
+            NoiseScaleConfig {
+                max_nis: Some(f64::NAN),
                 ..NoiseScaleConfig::default()
             },
         ] {

@@ -30,12 +30,14 @@ pub struct HealthConfig {
     /// DVL updates over which the NIS is averaged (default 30; 0 turns the NIS check
     /// off).
     pub nis_window: usize,
-    /// The run has diverged when the mean NIS of one sensor over `nis_window`
+    /// The run has diverged when the median NIS of one sensor over `nis_window`
     /// consecutive update attempts (gated ones included; `fix_nis_window` for position
     /// fixes) exceeds this many times the measurement size (default 100: a consistent
-    /// filter's mean is 1 times, and a mistuned but converged one stays within tens;
-    /// a filter whose position or attitude has left the measurements behind reaches
-    /// thousands).
+    /// filter's median is about 0.8 times, and a mistuned but converged one stays within
+    /// tens; a filter whose position or attitude has left the measurements behind
+    /// reaches thousands). The median, not the mean: outliers in fewer than half the
+    /// window (a spike of one DVL row, a wild fix) are the gate's business and do not
+    /// stop a run whose other updates agree with it.
     pub nis_limit: f64,
     /// Position-fix update attempts over which the fix NIS is averaged (default 3;
     /// 0 turns the check off).
@@ -141,13 +143,13 @@ pub enum Divergence {
         /// The largest velocity 1-sigma \[m/s\].
         sigma_mps: f64,
     },
-    /// Mean NIS of one sensor over its window above `health.nis_limit` times the
+    /// Median NIS of one sensor over its window above `health.nis_limit` times the
     /// measurement size.
     Nis {
         /// The sensor (`dvl`, `depth`, `fixes`).
         sensor: &'static str,
-        /// The mean NIS over the window.
-        mean: f64,
+        /// The median NIS over the window.
+        median: f64,
         /// Updates in the window.
         window: usize,
     },
@@ -182,12 +184,12 @@ impl fmt::Display for Divergence {
             ),
             Self::Nis {
                 sensor,
-                mean,
+                median,
                 window,
             } => write!(
                 f,
-                "the mean {sensor} NIS over the last {window} updates is {mean:.3e}, above \
-                 health.nis_limit times the measurement size"
+                "the median {sensor} NIS over the last {window} updates is {median:.3e}, \
+                 above health.nis_limit times the measurement size"
             ),
             Self::ImuGap { gap_s } => write!(
                 f,
@@ -204,15 +206,26 @@ struct NisWindow {
 }
 
 impl NisWindow {
-    /// Push a NIS; the window's mean once it holds `length` values.
+    /// Push a NIS; the window's median once it holds `length` values (the mean of the
+    /// two middle values for an even length).
     fn push(&mut self, nis: f64, length: usize) -> Option<f64> {
-        // A non-finite NIS saturates the window (it is not a number to average).
-        let nis = if nis.is_finite() { nis } else { 1e300 };
+        // A non-finite NIS counts as the largest value (it is not a number to sort).
+        let nis = if nis.is_finite() { nis } else { f64::MAX };
         self.values.push_back(nis);
         while self.values.len() > length {
             self.values.pop_front();
         }
-        (self.values.len() == length).then(|| self.values.iter().sum::<f64>() / length as f64)
+        if self.values.len() != length {
+            return None;
+        }
+        let mut sorted: Vec<f64> = self.values.iter().copied().collect();
+        sorted.sort_by(f64::total_cmp);
+        let mid = length / 2;
+        Some(if length % 2 == 1 {
+            sorted[mid]
+        } else {
+            0.5 * sorted[mid - 1] + 0.5 * sorted[mid]
+        })
     }
 }
 
@@ -293,7 +306,7 @@ impl HealthMonitor {
     /// of size `dimension` at `time`.
     ///
     /// # Errors
-    /// [`NavigatorError::Diverged`] when the sensor's window is full and its mean NIS
+    /// [`NavigatorError::Diverged`] when the sensor's window is full and its median NIS
     /// is above `nis_limit` times the size.
     pub fn record_nis(
         &mut self,
@@ -311,11 +324,11 @@ impl HealthMonitor {
             return Ok(());
         }
         match window.push(nis, length) {
-            Some(mean) if mean > self.config.nis_limit * dimension as f64 => Self::stop(
+            Some(median) if median > self.config.nis_limit * dimension as f64 => Self::stop(
                 time,
                 Divergence::Nis {
                     sensor,
-                    mean,
+                    median,
                     window: length,
                 },
             ),
@@ -411,7 +424,7 @@ mod tests {
         for k in 0..4 {
             m.record_nis("dvl", f64::from(k), 1e6, 3).unwrap();
         }
-        // The fifth fills it: mean 8e5 > 100 * 3.
+        // The fifth fills it: median 1e6 > 100 * 3.
         let err = m.record_nis("dvl", 4.0, 1e6, 3).unwrap_err();
         assert!(matches!(
             err,
@@ -429,6 +442,52 @@ mod tests {
         m.record_nis("fixes", 0.0, 1e8, 2).unwrap();
         m.record_nis("fixes", 1.0, 1e8, 2).unwrap();
         assert!(m.record_nis("fixes", 2.0, 1e8, 2).is_err());
+    }
+
+    #[test]
+    fn outliers_in_fewer_than_half_the_window_do_not_stop_a_run() {
+        let config = HealthConfig {
+            nis_window: 7,
+            ..HealthConfig::default()
+        };
+        let nis = |m: &mut HealthMonitor, k: usize, v: f64| m.record_nis("dvl", k as f64, v, 3);
+        // Three wild rows (one not even a number) among seven: the median is the
+        // largest of the four ordinary values, 5.
+        let mut m = HealthMonitor::new(config.clone());
+        for (k, v) in [2.0, 1e9, 3.0, f64::INFINITY, 4.0, 1e12, 5.0]
+            .into_iter()
+            .enumerate()
+        {
+            nis(&mut m, k, v).unwrap();
+        }
+        // A fourth takes the median to the smallest wild value, 1e9: diverged, and the
+        // reason carries it.
+        let err = nis(&mut m, 7, 1e10).unwrap_err();
+        assert!(matches!(
+            err,
+            NavigatorError::Diverged {
+                reason: Divergence::Nis { median, window: 7, .. },
+                ..
+            } if median == 1e9
+        ));
+        // An even window takes the mean of its two middle values: [1, 2, 700, 900]
+        // has median 351: below 100 x 4 for size 4, above 100 x 3 for size 3.
+        let mut m = HealthMonitor::new(HealthConfig {
+            nis_window: 4,
+            ..HealthConfig::default()
+        });
+        for (k, v) in [1.0, 700.0, 2.0].into_iter().enumerate() {
+            m.record_nis("depth", k as f64, v, 4).unwrap();
+        }
+        m.record_nis("depth", 3.0, 900.0, 4).unwrap();
+        let mut m = HealthMonitor::new(HealthConfig {
+            nis_window: 4,
+            ..HealthConfig::default()
+        });
+        for (k, v) in [1.0, 700.0, 2.0].into_iter().enumerate() {
+            m.record_nis("depth", k as f64, v, 3).unwrap();
+        }
+        assert!(m.record_nis("depth", 3.0, 900.0, 3).is_err());
     }
 
     #[test]

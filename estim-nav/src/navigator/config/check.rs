@@ -266,8 +266,12 @@ impl NavigatorConfig {
         }
         finite("dvl.beam1_azimuth_deg", &[d.beam1_azimuth_deg])?;
         let dvl_noise_scale = match d.adaptive_noise_window {
+            // A DVL innovation beyond the health check's NIS limit (none of a filter
+            // that follows its measurements) counts on that limit: one wild row does
+            // not decide the noise level of the next hundreds.
             Some(window) if (1..=100_000).contains(&window) => Some(NoiseScaleConfig {
                 window,
+                max_nis: Some(self.health.nis_limit * 3.0),
                 ..NoiseScaleConfig::default()
             }),
             Some(window) => {

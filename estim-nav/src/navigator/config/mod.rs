@@ -226,8 +226,9 @@ pub struct DvlConfig {
     pub noise_std_mps: f64,
     /// Adapt the DVL noise level online: R = λ diag(`noise_std_mps`²), λ estimated
     /// from the past DVL innovations with a memory of this many updates (1-100000;
-    /// `estim_core::noise::adaptive::NoiseScale`, λ in [0.01, 100]). Unset (default):
-    /// R fixed. BeamsNet updates keep the network's R.
+    /// `estim_core::noise::adaptive::NoiseScale`, λ in [0.01, 100]; an innovation
+    /// whose NIS is above `health.nis_limit` x 3 counts shrunk onto that NIS). Unset
+    /// (default): R fixed. BeamsNet updates keep the network's R.
     pub adaptive_noise_window: Option<usize>,
 }
 
