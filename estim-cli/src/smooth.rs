@@ -241,7 +241,11 @@ fn smooth_survey_files(
     let extra = serde_json::json!({
         "dvl_sensor": "least_squares",
         "smoother": {
-            "method": "Rauch-Tung-Striebel over the measurement epochs, accepted or gated (estim-core ForwardRecorder, RecordAt::Measurements)",
+            "method": if run.forward.output_marks.is_empty() {
+                "Rauch-Tung-Striebel over the measurement epochs, accepted or gated (estim-core ForwardRecorder, RecordAt::Measurements)"
+            } else {
+                "Rauch-Tung-Striebel over the measurement epochs, accepted or gated, and the reference's epochs (estim-core ForwardRecorder, RecordAt::Measurements, marked output epochs)"
+            },
             "epochs": run.smoothed.len(),
             "forward_final": {
                 "time_s": survey.epoch + f.time,

@@ -501,7 +501,8 @@ fn rows_of(dir: &Path, kind: &str) -> Vec<String> {
 
 /// `estim smooth` on every training trajectory's recorded IMU with the shipped vehicle
 /// file (DVL error states, gate recovery on): it runs where the forward filter ran,
-/// writes a row at each of the forward pass's DVL epochs (gated ones included), and is
+/// writes a row at each of the forward pass's DVL epochs (gated ones included) and
+/// one at its last IMU sample, no other, and is
 /// scored, as `navigate` is, at the reference's own epochs: its forward evaluation is
 /// `navigate`'s, and at every reference epoch no smoothed 1-sigma exceeds the
 /// filter's (the smoother only adds information). Prints the table of
@@ -560,6 +561,23 @@ fn the_smoother_on_every_training_trajectory() {
         let epochs = rows_of(&forward_dir, "dvl");
         assert!(epochs.len() >= 298, "{n}: {}", epochs.len());
         assert_eq!(rows_of(&smooth_dir, "dvl"), epochs, "{n}");
+        // And no other row but the end: the epochs the reference's epochs closed give
+        // the scored solutions, not rows of their own (no depth or fixes here: no
+        // `aiding` row).
+        let kinds = |dir: &Path| {
+            let text = std::fs::read_to_string(dir.join("solution.csv")).unwrap();
+            let mut kinds: Vec<String> = text
+                .lines()
+                .skip(1)
+                .filter_map(|l| l.split(',').nth(1).map(str::to_string))
+                .collect();
+            kinds.sort();
+            kinds.dedup();
+            kinds
+        };
+        assert_eq!(kinds(&forward_dir), ["dvl"], "{n}");
+        assert_eq!(kinds(&smooth_dir), ["dvl", "end"], "{n}");
+        assert_eq!(rows_of(&smooth_dir, "end").len(), 1, "{n}");
         // The smoother's forward pass is navigate's, scored the same way.
         let f = &smoothed["smoother"]["forward_evaluation"];
         let e = &forward_json["evaluation"];

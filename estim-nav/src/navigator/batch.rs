@@ -77,6 +77,10 @@ pub struct NavigationRun {
     /// closes its epoch there: [`estim_core::Observer::on_mark`]). Not serialized.
     #[serde(skip)]
     pub output_marks: Vec<OutputMark>,
+    /// Time of each depth and fix update attempt \[s\], in order (accepted or
+    /// gated). Not serialized.
+    #[serde(skip)]
+    pub aiding_times: Vec<f64>,
 }
 
 /// An output epoch of a batch run: the estimate there is the filter's at `at`
@@ -500,6 +504,7 @@ struct BatchHook<'a, 'l, E: NavigationModel<N>, O, const N: usize> {
     fix_nis: Vec<f64>,
     insufficient: usize,
     marks: Vec<OutputMark>,
+    aiding_times: Vec<f64>,
 }
 
 impl<E, O, const N: usize> BatchHook<'_, '_, E, O, N>
@@ -627,6 +632,7 @@ where
                 let nis = nav.depth(t, d)?.nis;
                 self.health.record_nis("depth", t, nis, 1)?;
                 self.depth_nis.push(nis);
+                self.aiding_times.push(t);
             }
             Event::Fix(f) => {
                 let nis = nav
@@ -634,6 +640,7 @@ where
                     .nis;
                 self.health.record_nis("fixes", t, nis, 2)?;
                 self.fix_nis.push(nis);
+                self.aiding_times.push(t);
             }
         }
         Ok(())
@@ -690,6 +697,7 @@ where
         fix_nis: Vec::new(),
         insufficient: 0,
         marks: Vec::new(),
+        aiding_times: Vec::new(),
     };
     // The samples before the start are skipped but counted as fed, as the run's
     // `imu_samples` counts the IMU's samples up to the last one fed.
@@ -731,6 +739,7 @@ where
         final_solution: nav.solution(),
         dvl_states: nav.dvl_states(),
         output_marks: hook.marks,
+        aiding_times: hook.aiding_times,
     };
     Ok((run, nav))
 }

@@ -140,18 +140,34 @@ where
             .copied()
             .filter(|t| (t - state.time).abs() <= tolerance);
         let end = forward.final_solution.time;
-        let (kind, time) = match dvl {
-            Some(t) => (SolutionKind::Dvl, t),
-            None if k == last && (state.time - end).abs() <= tolerance => (SolutionKind::End, end),
-            None => (SolutionKind::Aiding, state.time),
+        let aiding = || {
+            let at = forward
+                .aiding_times
+                .partition_point(|&t| t < state.time - tolerance);
+            forward
+                .aiding_times
+                .get(at)
+                .is_some_and(|t| (t - state.time).abs() <= tolerance)
         };
-        smoothed.push(SmoothedSolution {
-            kind,
-            solution: NavSolution::from_state(time, &state, &ins_covariance),
-            state,
-            covariance: ins_covariance,
-            dvl_states: E::dvl_states(&nominal, covariance),
-        });
+        // An epoch a mark ended with no measurement is not a solution of its own: it
+        // gives the output epochs' solutions below.
+        let kind = match dvl {
+            Some(t) => Some((SolutionKind::Dvl, t)),
+            None if k == last && (state.time - end).abs() <= tolerance => {
+                Some((SolutionKind::End, end))
+            }
+            None if aiding() => Some((SolutionKind::Aiding, state.time)),
+            None => None,
+        };
+        if let Some((kind, time)) = kind {
+            smoothed.push(SmoothedSolution {
+                kind,
+                solution: NavSolution::from_state(time, &state, &ins_covariance),
+                state,
+                covariance: ins_covariance,
+                dvl_states: E::dvl_states(&nominal, covariance),
+            });
+        }
         // The output epochs met at this epoch's time (the forward pass marked them, so
         // an epoch ends there): the smoothed estimate predicted over the rest of the
         // IMU interval, as the forward pass predicts its own there.

@@ -288,3 +288,63 @@ fn runs_on_the_15_state_filter_refuse_dvl_states() {
     let e = config.check().unwrap_err().to_string();
     assert!(e.contains("dvl_states.time_offset.prior_std_s"), "{e}");
 }
+
+/// A smoothed survey with depth and output epochs: one smoothed solution per DVL
+/// epoch, one per depth epoch between them (`Aiding`), one per output epoch
+/// (`Epoch`, at its own time) and the end; the epochs the output epochs closed in
+/// the recording are not solutions of their own.
+#[test]
+fn a_smoothed_survey_has_a_solution_per_measurement_and_output_epoch() {
+    let (mut inputs, config, mission) = survey(
+        "akit_observed",
+        &crate::navigator::DvlConfig::default(),
+        0.0,
+        0.02,
+        7,
+    );
+    // Depth at 1 Hz half-way between the 5 Hz DVL rows (0.1 s after one), output
+    // epochs every 2 s at 0.37 s past the second, over the first 120 s.
+    inputs.dvl.retain(|r| r.time < 120.0);
+    inputs.depth = (1..120)
+        .map(|k| {
+            let t = f64::from(k) + 0.1;
+            let truth = mission.truth.iter().find(|s| s.time >= t).expect("truth");
+            DepthSample {
+                time: t,
+                depth_m: -truth.height,
+            }
+        })
+        .collect();
+    inputs.output_epochs = (0..60).map(|k| 2.0 * f64::from(k) + 0.37).collect();
+    let settings = config.check().unwrap();
+    let run = smooth_survey(&inputs, &settings, None, &mut ()).unwrap();
+    let count = |kind: SolutionKind| run.smoothed.iter().filter(|s| s.kind == kind).count();
+    assert_eq!(count(SolutionKind::Dvl), run.forward.dvl_nis.len());
+    assert_eq!(count(SolutionKind::Aiding), run.forward.depth_nis.len());
+    assert_eq!(run.forward.depth_nis.len(), 119);
+    assert_eq!(count(SolutionKind::Epoch), 60);
+    assert!(count(SolutionKind::End) <= 1);
+    assert_eq!(
+        run.smoothed.len(),
+        count(SolutionKind::Dvl)
+            + count(SolutionKind::Aiding)
+            + count(SolutionKind::Epoch)
+            + count(SolutionKind::End)
+    );
+    // Each output epoch's solution is at its own time, and each depth epoch's within
+    // an IMU period of its measurement.
+    let times = |kind: SolutionKind| -> Vec<f64> {
+        run.smoothed
+            .iter()
+            .filter(|s| s.kind == kind)
+            .map(|s| s.solution.time)
+            .collect()
+    };
+    for (t, want) in times(SolutionKind::Epoch).iter().zip(&inputs.output_epochs) {
+        assert!((t - want).abs() < 1e-9, "{t} vs {want}");
+    }
+    let period = run.forward.imu_period_s;
+    for (t, d) in times(SolutionKind::Aiding).iter().zip(&inputs.depth) {
+        assert!((t - d.time).abs() <= period, "{t} vs {}", d.time);
+    }
+}
