@@ -19,6 +19,21 @@ fn estim(args: &[&str]) -> Output {
         .expect("run estim")
 }
 
+/// `estim navigate --imu IMU --dvl DVL --vehicle VEHICLE` and `extra`.
+fn navigate(imu: &Path, dvl: &Path, vehicle: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "navigate",
+        "--imu",
+        s(imu),
+        "--dvl",
+        s(dvl),
+        "--vehicle",
+        s(vehicle),
+    ];
+    args.extend_from_slice(extra);
+    estim(&args)
+}
+
 fn s(p: &Path) -> &str {
     p.to_str().expect("UTF-8 path")
 }
@@ -209,16 +224,7 @@ fn an_aiding_file_outside_the_imu_span_is_refused() {
     }
     // Half the rows inside: runs, the others counted.
     let half = write(d, "dvl_half.csv", &dvl((30..90).map(f64::from), true));
-    let out = estim(&[
-        "navigate",
-        "--imu",
-        s(&v.imu),
-        "--dvl",
-        s(&half),
-        "--vehicle",
-        s(&v.vehicle),
-        "--json",
-    ]);
+    let out = navigate(&v.imu, &half, &v.vehicle, &["--json"]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
     assert!(
@@ -241,15 +247,7 @@ fn doubled_dvl_rows_are_refused_as_reproduce_refuses_them() {
             true,
         ),
     );
-    let out = estim(&[
-        "navigate",
-        "--imu",
-        s(&v.imu),
-        "--dvl",
-        s(&doubled),
-        "--vehicle",
-        s(&v.vehicle),
-    ]);
+    let out = navigate(&v.imu, &doubled, &v.vehicle, &[]);
     refused(&out, &["dvl_doubled.csv:3:", "duplicated"]);
     let beams = write(
         d,
@@ -429,16 +427,7 @@ fn a_dvl_file_without_any_lock_is_refused_or_warned_about() {
     let mut text = dvl((0..59).map(f64::from), false);
     text.push_str("59,0,0,0\n");
     let one = write(d, "one.csv", &text);
-    let out = estim(&[
-        "navigate",
-        "--imu",
-        s(&v.imu),
-        "--dvl",
-        s(&one),
-        "--vehicle",
-        s(&v.vehicle),
-        "--json",
-    ]);
+    let out = navigate(&v.imu, &one, &v.vehicle, &["--json"]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     assert!(!stderr(&out).contains("warning"), "{}", stderr(&out));
     let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
@@ -480,29 +469,13 @@ fn a_gyroscope_in_degrees_without_a_unit_is_refused() {
     // A turn logged in deg/s: 20 deg/s from t = 10 s.
     let deg = |t: f64| if t >= 10.0 { 20.0 } else { 0.0 };
     let unitless = write(d, "imu_deg.csv", &imu("gz", 60, deg));
-    let out = estim(&[
-        "navigate",
-        "--imu",
-        s(&unitless),
-        "--dvl",
-        s(&v.dvl),
-        "--vehicle",
-        s(&v.vehicle),
-    ]);
+    let out = navigate(&unitless, &v.dvl, &v.vehicle, &[]);
     refused(
         &out,
         &["imu_deg.csv:102:", "`gz`", "states no unit", "deg/s"],
     );
     let declared = write(d, "imu_declared.csv", &imu("gz [deg/s]", 60, deg));
-    let out = estim(&[
-        "navigate",
-        "--imu",
-        s(&declared),
-        "--dvl",
-        s(&v.dvl),
-        "--vehicle",
-        s(&v.vehicle),
-    ]);
+    let out = navigate(&declared, &v.dvl, &v.vehicle, &[]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
 }
 
@@ -643,17 +616,7 @@ fn an_output_over_an_input_is_refused() {
     std::fs::create_dir(&out_dir).expect("mkdir");
     let imu_in_out = out_dir.join("solution.csv");
     std::fs::copy(&v.imu, &imu_in_out).expect("copy");
-    let out = estim(&[
-        "navigate",
-        "--imu",
-        s(&imu_in_out),
-        "--dvl",
-        s(&v.dvl),
-        "--vehicle",
-        s(&v.vehicle),
-        "--out",
-        s(&out_dir),
-    ]);
+    let out = navigate(&imu_in_out, &v.dvl, &v.vehicle, &["--out", s(&out_dir)]);
     refused(&out, &["solution.csv", "would replace its input"]);
     assert_eq!(
         std::fs::read(&imu_in_out).expect("read"),
@@ -662,17 +625,7 @@ fn an_output_over_an_input_is_refused() {
     assert_eq!(names(&out_dir), ["solution.csv"]);
     // A file of an earlier run (in its manifest), given as an input, is not removed.
     let earlier = d.join("e");
-    let out = estim(&[
-        "navigate",
-        "--imu",
-        s(&v.imu),
-        "--dvl",
-        s(&v.dvl),
-        "--vehicle",
-        s(&v.vehicle),
-        "--out",
-        s(&earlier),
-    ]);
+    let out = navigate(&v.imu, &v.dvl, &v.vehicle, &["--out", s(&earlier)]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     let vehicle_in_out = write(&earlier, "vehicle.toml", VEHICLE);
     let listed = std::fs::read_to_string(earlier.join("estim-files.txt")).expect("manifest");
@@ -681,17 +634,7 @@ fn an_output_over_an_input_is_refused() {
         format!("{listed}vehicle.toml\n"),
     )
     .expect("write");
-    let out = estim(&[
-        "navigate",
-        "--imu",
-        s(&v.imu),
-        "--dvl",
-        s(&v.dvl),
-        "--vehicle",
-        s(&vehicle_in_out),
-        "--out",
-        s(&earlier),
-    ]);
+    let out = navigate(&v.imu, &v.dvl, &vehicle_in_out, &["--out", s(&earlier)]);
     refused(&out, &["vehicle.toml", "would replace its input"]);
     assert!(vehicle_in_out.is_file());
 }
@@ -732,32 +675,12 @@ fn write_errors_name_their_path() {
     let v = survey();
     // Writing the summary over a folder of that name fails on every platform.
     let out_dir = v.dir.path().join("w");
-    let out = estim(&[
-        "navigate",
-        "--imu",
-        s(&v.imu),
-        "--dvl",
-        s(&v.dvl),
-        "--vehicle",
-        s(&v.vehicle),
-        "--out",
-        s(&out_dir),
-    ]);
+    let out = navigate(&v.imu, &v.dvl, &v.vehicle, &["--out", s(&out_dir)]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     std::fs::remove_file(out_dir.join("summary.json")).expect("rm");
     std::fs::create_dir(out_dir.join("summary.json")).expect("folder in the way");
     std::fs::write(out_dir.join("summary.json/keep"), "x").expect("write");
-    let out = estim(&[
-        "navigate",
-        "--imu",
-        s(&v.imu),
-        "--dvl",
-        s(&v.dvl),
-        "--vehicle",
-        s(&v.vehicle),
-        "--out",
-        s(&out_dir),
-    ]);
+    let out = navigate(&v.imu, &v.dvl, &v.vehicle, &["--out", s(&out_dir)]);
     let e = stderr(&out);
     assert_eq!(out.status.code(), Some(2), "{e}");
     assert!(e.contains("summary.json"), "{e}");
@@ -807,18 +730,12 @@ fn a_truth_shorter_than_the_survey_keeps_the_run() {
     let v = survey();
     let d = v.dir.path();
     let truth = write(d, "gt30.csv", &gt(30));
-    let out = estim(&[
-        "navigate",
-        "--imu",
-        s(&v.imu),
-        "--dvl",
-        s(&v.dvl),
-        "--vehicle",
-        s(&v.vehicle),
-        "--truth",
-        s(&truth),
-        "--json",
-    ]);
+    let out = navigate(
+        &v.imu,
+        &v.dvl,
+        &v.vehicle,
+        &["--truth", s(&truth), "--json"],
+    );
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
     let e = &summary["evaluation"];
@@ -842,18 +759,12 @@ fn navigate_stops_at_an_imu_hole() {
     let d = v.dir.path();
     let (holed, long_dvl) = imu_hole_files(d);
     let out_dir = d.join("out");
-    let out = estim(&[
-        "navigate",
-        "--imu",
-        s(&holed),
-        "--dvl",
-        s(&long_dvl),
-        "--vehicle",
-        s(&v.vehicle),
-        "--out",
-        s(&out_dir),
-        "--json",
-    ]);
+    let out = navigate(
+        &holed,
+        &long_dvl,
+        &v.vehicle,
+        &["--out", s(&out_dir), "--json"],
+    );
     assert_eq!(out.status.code(), Some(3), "{}", stderr(&out));
     let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
     assert_eq!(summary["status"], "diverged", "{summary}");
@@ -876,16 +787,7 @@ fn an_imu_rate_that_does_not_fit_the_file_is_warned_about() {
     let v = survey();
     let d = v.dir.path();
     let run = |vehicle: &Path| {
-        let out = estim(&[
-            "navigate",
-            "--imu",
-            s(&v.imu),
-            "--dvl",
-            s(&v.dvl),
-            "--vehicle",
-            s(vehicle),
-            "--json",
-        ]);
+        let out = navigate(&v.imu, &v.dvl, vehicle, &["--json"]);
         assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
         let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
         (summary, stderr(&out))
@@ -951,15 +853,7 @@ fn extreme_numbers_are_quoted_in_exponent_form() {
         (v.imu.clone(), huge_scale, "1e300 is not within 10 % of 1"),
     ];
     for (imu_file, vehicle, needle) in cases {
-        let out = estim(&[
-            "navigate",
-            "--imu",
-            s(&imu_file),
-            "--dvl",
-            s(&v.dvl),
-            "--vehicle",
-            s(&vehicle),
-        ]);
+        let out = navigate(&imu_file, &v.dvl, &vehicle, &[]);
         let e = refused(&out, &[needle]);
         assert!(e.len() < 300, "{e}");
     }
@@ -986,17 +880,7 @@ fn a_lever_arm_beyond_a_kilometre_is_refused_naming_its_key() {
             format!("{vehicle}\n[{section}]\nlever_arm_m = [0.5, 1e9, 0]\n")
         };
         let file = write(d, &format!("{section}.toml"), &text);
-        let out = estim(&[
-            "navigate",
-            "--imu",
-            s(&v.imu),
-            "--dvl",
-            s(&v.dvl),
-            "--vehicle",
-            s(&file),
-            "--truth",
-            s(&gt_file),
-        ]);
+        let out = navigate(&v.imu, &v.dvl, &file, &["--truth", s(&gt_file)]);
         refused(&out, &[key, "[1] = 1e9", "[-1e3, 1e3] m"]);
         // 1 km itself is a lever arm (a long ship's antenna), so it is not refused here.
         let edge = write(
@@ -1004,15 +888,7 @@ fn a_lever_arm_beyond_a_kilometre_is_refused_naming_its_key() {
             &format!("{section}_edge.toml"),
             &text.replace("1e9", "1000.0"),
         );
-        let out = estim(&[
-            "navigate",
-            "--imu",
-            s(&v.imu),
-            "--dvl",
-            s(&v.dvl),
-            "--vehicle",
-            s(&edge),
-        ]);
+        let out = navigate(&v.imu, &v.dvl, &edge, &[]);
         assert!(!stderr(&out).contains(key), "{section}: {}", stderr(&out));
     }
 }
@@ -1050,17 +926,7 @@ fn a_truth_clock_off_the_imus_span_is_refused_naming_its_key() {
     for (key, needles) in cases {
         let text = VEHICLE.replace("time_offset_s = 0.0\n", key);
         let file = write(d, "truth_clock.toml", &text);
-        let out = estim(&[
-            "navigate",
-            "--imu",
-            s(&v.imu),
-            "--dvl",
-            s(&v.dvl),
-            "--vehicle",
-            s(&file),
-            "--truth",
-            s(&gt_file),
-        ]);
+        let out = navigate(&v.imu, &v.dvl, &file, &["--truth", s(&gt_file)]);
         let e = refused(&out, &needles);
         assert!(e.len() < 300, "{e}");
     }
@@ -1080,16 +946,7 @@ fn one_wild_dvl_row_neither_stops_the_run_nor_sets_its_noise_level() {
         &format!("{VEHICLE}\n[dvl]\nadaptive_noise_window = 20\n"),
     );
     let run = |dvl: &Path| -> Value {
-        let out = estim(&[
-            "navigate",
-            "--imu",
-            s(&v.imu),
-            "--dvl",
-            s(dvl),
-            "--vehicle",
-            s(&vehicle),
-            "--json",
-        ]);
+        let out = navigate(&v.imu, dvl, &vehicle, &["--json"]);
         assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
         serde_json::from_slice(&out.stdout).expect("json")
     };
