@@ -21,6 +21,9 @@
 //!   possibly at the windowed update's own step before it, and steps that share
 //!   nothing (D_j = 0); recorded either way; EKF, ESKF, UKF (exact on these linear
 //!   models) and the KalmanFilter with its matrices set per step.
+//! - `marks_inside_windows_*`: the window plans on the EKF recorded at updates, with
+//!   marks (`Observer::on_mark`) at random unmeasured steps, inside windows or not:
+//!   every epoch, marked ones included, against the conditioning.
 //! - The ambiguous cases are refused with a typed error.
 //!
 //! Checked also with 200 cases under proptest seeds 1, 2 and 3 (all pass); the
@@ -1396,4 +1399,78 @@ fn marks_give_smoothed_values_between_updates() {
         "{:?}",
         split.observer().smooth().err()
     );
+}
+
+/// A mean and a covariance.
+type Moments = (DVector<f64>, DMatrix<f64>);
+
+/// The EKF over a window plan, recorded at updates, with a mark after every
+/// unmeasured step whose bit of `marks` is set: the smoothed (mean, covariance) and
+/// the step of each epoch.
+fn run_marked<const N: usize, const M: usize>(
+    plan: &Plan,
+    marks: u64,
+) -> Result<(Vec<usize>, Vec<Moments>)> {
+    use estim_core::{MarkEvent, Observer};
+    let x0: SVector<f64, N> = SVector::from_column_slice(plan.x0.as_slice());
+    let initial = StateAndCovariance::new(x0, st(&plan.p0))?;
+    let mut ekf = ExtendedKalmanFilter::new(TimeVarying, initial.clone())
+        .with_config(window_config(plan))
+        .with_observer(ForwardRecorder::from_initial(RecordAt::Updates, &initial));
+    let mut epoch_steps = vec![0];
+    for (j, step) in plan.steps.iter().enumerate() {
+        let input = StepInput::<N> {
+            f: st(&step.f),
+            q: st(&step.q),
+        };
+        ekf.predict(&input, 1.0)?;
+        for meas in &step.measurements {
+            let model = Linear::<N, M> {
+                h: st(&meas.h),
+                r: st(&meas.r),
+            };
+            let y = SVector::<f64, M>::from_column_slice(meas.y.as_slice());
+            if meas.shares.is_empty() {
+                ekf.update(&model, &y, &estim_core::Zero)?;
+            } else {
+                ekf.update_windowed(&model, &y, &PlanWindow::<N, M>::new(meas))?;
+            }
+        }
+        let marked = step.measurements.is_empty() && (marks >> (j % 64)) & 1 == 1;
+        if marked {
+            let (state, covariance) = (*ekf.estimate().state(), *ekf.estimate().covariance());
+            ekf.observer_mut().on_mark(&MarkEvent {
+                state: &state,
+                covariance: &covariance,
+            })?;
+        }
+        if marked || !step.measurements.is_empty() || j + 1 == plan.steps.len() {
+            epoch_steps.push(j + 1);
+        }
+    }
+    let smoothed = ekf.observer().smooth()?;
+    Ok((epoch_steps, to_outputs(&smoothed, Runner::Ekf)?))
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    /// Marks at unmeasured steps, inside and outside windows that span several
+    /// epochs (so a window's update may end an interval that marks cut into several
+    /// epochs): the smoothed values at every epoch, marked ones included, are the
+    /// conditioning's.
+    #[test]
+    fn marks_inside_windows_smooth_as_conditioning(
+        n in 1usize..=6, m in 1usize..=3, k in 1usize..=40, seed in any::<u64>(),
+        marks in any::<u64>(),
+    ) {
+        let plan = make_window_plan(n, m, k, seed);
+        let (steps, smoothed) = dispatch!(n, m, run_marked(&plan, marks))
+            .map_err(|e| TestCaseError::fail(format!("{e}")))?;
+        prop_assert_eq!(steps.len(), smoothed.len());
+        let reference = Reference::new(&plan);
+        for (e, (&step, (mean, cov))) in steps.iter().zip(&smoothed).enumerate() {
+            check("smoothed", e, mean, cov, &reference.state(step, plan.steps.len()))?;
+        }
+    }
 }
