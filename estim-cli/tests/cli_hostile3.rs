@@ -971,3 +971,59 @@ fn one_wild_dvl_row_neither_stops_the_run_nor_sets_its_noise_level() {
     let north = |s: &Value| s["final"]["latitude_deg"].as_f64().expect("latitude");
     assert!((north(&clean) - north(&wild)).abs() * 111e3 < 0.05);
 }
+
+/// A reference row whose position jumps against its velocity (a glitch of the
+/// reference, not of the run) is scored as given and named in a warning: code
+/// `truth_position_jump`, the file and the rows of each interval it spoils.
+#[test]
+fn a_jump_in_the_references_positions_is_warned_about_naming_its_rows() {
+    let v = survey();
+    let d = v.dir.path();
+    let clean = write(d, "gt.csv", &gt(60));
+    // Data row 31 (line 32) moved 1e-4 rad north: 635.6 m at 35 deg, where the
+    // meridian radius of curvature a (1 - e^2) / (1 - e^2 sin^2 35)^1.5 is 6,356.4 km
+    // (WGS-84), 20 m below the surface.
+    let text: String = gt(60)
+        .lines()
+        .enumerate()
+        .map(|(i, line)| {
+            if i == 31 {
+                let mut cells: Vec<String> = line.split(',').map(str::to_string).collect();
+                let latitude: f64 = cells[2].parse().expect("latitude");
+                cells[2] = format!("{}", latitude + 1e-4);
+                cells.join(",") + "\n"
+            } else {
+                format!("{line}\n")
+            }
+        })
+        .collect();
+    let jumped = write(d, "gt_jump.csv", &text);
+    let warnings = |gt: &Path| -> (Value, String) {
+        let out = navigate(&v.imu, &v.dvl, &v.vehicle, &["--truth", s(gt), "--json"]);
+        assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+        let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+        (summary["warnings"].clone(), stderr(&out))
+    };
+    let (none, _) = warnings(&clean);
+    assert!(!none.to_string().contains("truth_position_jump"), "{none}");
+    let (found, err) = warnings(&jumped);
+    let jumps: Vec<&Value> = found
+        .as_array()
+        .expect("warnings")
+        .iter()
+        .filter(|w| w["code"] == "truth_position_jump")
+        .collect();
+    assert_eq!(jumps.len(), 2, "{found}");
+    for (w, rows) in jumps
+        .iter()
+        .zip(["data rows 30 to 31", "data rows 31 to 32"])
+    {
+        let message = w["message"].as_str().expect("message");
+        assert!(
+            message.contains("gt_jump.csv") && message.contains(rows),
+            "{message}"
+        );
+        assert!(message.contains("635.6 m"), "{message}");
+        assert!(err.contains(message), "{err}");
+    }
+}

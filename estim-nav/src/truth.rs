@@ -78,17 +78,8 @@ pub fn velocity_bias(samples: &[TrajectorySample]) -> Option<VelocityBias> {
     let mut d = Vector3::zeros();
     let mut points = vec![(samples[0].time, d)];
     for w in samples.windows(2) {
-        let (a, b) = (&w[0], &w[1]);
-        let latitude = 0.5 * (a.latitude + b.latitude);
-        let height = 0.5 * (a.height + b.height);
-        let (rn, re) = estim_ins::earth::radii_of_curvature(latitude);
-        let moved = Vector3::new(
-            (b.latitude - a.latitude) * (rn + height),
-            (b.longitude - a.longitude) * (re + height) * latitude.cos(),
-            -(b.height - a.height),
-        );
-        d += moved - 0.5 * (a.velocity_ned + b.velocity_ned) * (b.time - a.time);
-        points.push((b.time, d));
+        d += interval_mismatch(&w[0], &w[1]);
+        points.push((w[1].time, d));
     }
     let n = points.len() as f64;
     let t_mean = points.iter().map(|p| p.0).sum::<f64>() / n;
@@ -112,6 +103,70 @@ pub fn velocity_bias(samples: &[TrajectorySample]) -> Option<VelocityBias> {
         intervals: samples.len() - 1,
         removed: false,
     })
+}
+
+/// The position change from `a` to `b` (north, east, down \[m\], in the local frame
+/// of the interval's midpoint) less their velocity integrated by the trapezoid rule.
+fn interval_mismatch(a: &TrajectorySample, b: &TrajectorySample) -> Vector3<f64> {
+    let latitude = 0.5 * (a.latitude + b.latitude);
+    let height = 0.5 * (a.height + b.height);
+    let (rn, re) = estim_ins::earth::radii_of_curvature(latitude);
+    let moved = Vector3::new(
+        (b.latitude - a.latitude) * (rn + height),
+        (b.longitude - a.longitude) * (re + height) * latitude.cos(),
+        -(b.height - a.height),
+    );
+    moved - 0.5 * (a.velocity_ned + b.velocity_ned) * (b.time - a.time)
+}
+
+/// A reference row whose position jumps: it moved from the row before by more than
+/// its velocity says ([`position_jumps`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PositionJump {
+    /// The row (1 = the first data row).
+    pub row: usize,
+    /// |position change - integrated velocity| over the interval that ends there \[m\].
+    pub mismatch_m: f64,
+    /// The median of that figure over the reference's intervals \[m\].
+    pub median_m: f64,
+}
+
+/// Smallest mismatch \[m\] that [`position_jumps`] reports.
+pub const POSITION_JUMP_MIN_M: f64 = 5.0;
+
+/// How many times the median interval's mismatch a jump is at least.
+pub const POSITION_JUMP_MEDIANS: f64 = 100.0;
+
+/// The intervals of the time-ordered `samples` over which the position changes by
+/// more than the velocity integrates to (trapezoid rule, as in [`velocity_bias`]) by
+/// over [`POSITION_JUMP_MIN_M`] and [`POSITION_JUMP_MEDIANS`] times the median interval's
+/// mismatch: a jump in the reference's positions, whose errors there are the
+/// reference's. (On the A-KIT training references the largest is 1.1 m and 36 times
+/// the median.) Empty with fewer than 3 samples.
+pub fn position_jumps(samples: &[TrajectorySample]) -> Vec<PositionJump> {
+    if samples.len() < 3 {
+        return Vec::new();
+    }
+    let mismatch: Vec<f64> = samples
+        .windows(2)
+        .map(|w| interval_mismatch(&w[0], &w[1]).norm())
+        .collect();
+    let mut sorted: Vec<f64> = mismatch.iter().copied().filter(|m| m.is_finite()).collect();
+    sorted.sort_by(f64::total_cmp);
+    let Some(&median) = sorted.get(sorted.len() / 2) else {
+        return Vec::new();
+    };
+    let limit = POSITION_JUMP_MIN_M.max(POSITION_JUMP_MEDIANS * median);
+    mismatch
+        .iter()
+        .enumerate()
+        .filter(|(_, &m)| m > limit)
+        .map(|(k, &m)| PositionJump {
+            row: k + 2,
+            mismatch_m: m,
+            median_m: median,
+        })
+        .collect()
 }
 
 /// `state` at the reference's point carried to the IMU's, `lever_arm` (the
@@ -177,6 +232,7 @@ pub struct Truth {
     biases: Option<(Vec<f64>, Vec<TrueBiases>)>,
     time_offset: TruthTimeOffset,
     velocity_bias: Option<VelocityBias>,
+    jumps: Vec<PositionJump>,
     position_error: Vec<f64>,
     horizontal_error: Vec<f64>,
     nees: Vec<f64>,
@@ -258,6 +314,7 @@ impl Truth {
                 s.time + epoch
             )));
         }
+        let jumps = position_jumps(&samples);
         let mut velocity_bias = velocity_bias(&samples);
         if let Some(b) = velocity_bias.as_mut().filter(|_| c.remove_velocity_bias) {
             let bias = Vector3::from(b.bias_mps);
@@ -320,6 +377,7 @@ impl Truth {
             biases,
             time_offset,
             velocity_bias,
+            jumps,
             position_error: Vec::new(),
             horizontal_error: Vec::new(),
             nees: Vec::new(),
@@ -354,6 +412,12 @@ impl Truth {
     /// rows).
     pub fn velocity_bias(&self) -> Option<&VelocityBias> {
         self.velocity_bias.as_ref()
+    }
+
+    /// The rows where the reference's position jumps against its velocity
+    /// ([`position_jumps`]): the evaluation there scores the reference's error.
+    pub fn position_jumps(&self) -> &[PositionJump] {
+        &self.jumps
     }
 
     /// The states the truth has: 15 with a simulated IMU's true biases, else 9.
@@ -615,6 +679,34 @@ mod tests {
                 }
             })
             .collect()
+    }
+
+    /// A row moved 12 m north is found on both of its intervals with a mismatch of
+    /// 12 m (to the trapezoid rule's centimetres on this circle); 3 m (under the 5 m
+    /// floor) and the clean circle, at 1 Hz or at 0.1 Hz, give none.
+    #[test]
+    fn a_jump_in_the_references_positions_is_found_on_its_rows() {
+        assert!(position_jumps(&circle(Vector3::zeros())).is_empty());
+        let coarse: Vec<TrajectorySample> =
+            circle(Vector3::zeros()).into_iter().step_by(10).collect();
+        assert!(position_jumps(&coarse).is_empty());
+        let moved = |metres: f64| {
+            let mut samples = circle(Vector3::zeros());
+            let s = &mut samples[300];
+            let (rn, _) = estim_ins::earth::radii_of_curvature(s.latitude);
+            s.latitude += metres / (rn + s.height);
+            samples
+        };
+        let jumps = position_jumps(&moved(12.0));
+        assert_eq!(jumps.len(), 2, "{jumps:?}");
+        // Sample 300 is data row 301; the intervals into and out of it.
+        assert_eq!((jumps[0].row, jumps[1].row), (301, 302));
+        for j in &jumps {
+            assert!((j.mismatch_m - 12.0).abs() < 0.1, "{j:?}");
+            assert!(j.median_m < 0.1, "{j:?}");
+        }
+        assert!(position_jumps(&moved(3.0)).is_empty());
+        assert!(position_jumps(&circle(Vector3::zeros())[..2]).is_empty());
     }
 
     #[test]

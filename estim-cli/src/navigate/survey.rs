@@ -155,7 +155,7 @@ pub fn load_survey_from(files: SurveyFiles, config: NavigatorConfig) -> anyhow::
     loaded.settle_initial(&config)?;
     let pd0 = loaded.pd0.as_ref().map(pd0_json);
     let (settings, inputs) = (loaded.settings, loaded.inputs);
-    let warnings = estim::check_survey(&files.sensors, &config, &inputs, epoch)?
+    let mut warnings: Vec<Value> = estim::check_survey(&files.sensors, &config, &inputs, epoch)?
         .into_iter()
         .map(|w| {
             eprintln!("warning: {}", w.message);
@@ -166,6 +166,26 @@ pub fn load_survey_from(files: SurveyFiles, config: NavigatorConfig) -> anyhow::
             })
         })
         .collect();
+    if let Some(truth) = &truth {
+        warnings.extend(truth.position_jumps().iter().map(|j| {
+            let file = truth.path().display().to_string();
+            let message = format!(
+                "{file}: data rows {} to {}: the reference's position change differs by \
+                 {:.1} m from what its velocity integrates to (median over its intervals \
+                 {:.3} m): the errors and NEES there score the reference",
+                j.row - 1,
+                j.row,
+                j.mismatch_m,
+                j.median_m
+            );
+            eprintln!("warning: {message}");
+            serde_json::json!({
+                "code": "truth_position_jump",
+                "file": file,
+                "message": message,
+            })
+        }));
+    }
     Ok(Survey {
         files,
         config,
