@@ -27,20 +27,21 @@ pub struct HealthConfig {
     pub max_position_sigma_m: f64,
     /// Largest velocity 1-sigma \[m/s\] (default 100).
     pub max_velocity_sigma_mps: f64,
-    /// DVL updates over which the NIS is averaged (default 30; 0 turns the NIS check
-    /// off).
+    /// DVL updates over which the NIS's median is taken (default 30; 0 turns the NIS
+    /// check off).
     pub nis_window: usize,
     /// The run has diverged when the median NIS of one sensor over `nis_window`
     /// consecutive update attempts (gated ones included; `fix_nis_window` for position
     /// fixes) exceeds this many times the measurement size (default 100: a consistent
-    /// filter's median is about 0.8 times, and a mistuned but converged one stays within
-    /// tens; a filter whose position or attitude has left the measurements behind
-    /// reaches thousands). The median, not the mean: outliers in fewer than half the
-    /// window (a spike of one DVL row, a wild fix) are the gate's business and do not
-    /// stop a run whose other updates agree with it.
+    /// filter's median is below 1 times (0.79 for the DVL's 3 components, the chi-square
+    /// median), and a mistuned but converged one stays within tens; a filter whose
+    /// position or attitude has left the measurements behind reaches thousands). The
+    /// median, not the mean: outliers in fewer than half the window (a spike of one DVL
+    /// row, a wild fix) are the gate's business and do not stop a run whose other
+    /// updates agree with it.
     pub nis_limit: f64,
-    /// Position-fix update attempts over which the fix NIS is averaged (default 3;
-    /// 0 turns the check off).
+    /// Position-fix update attempts over which the fix NIS's median is taken (default
+    /// 3; 0 turns the check off).
     pub fix_nis_window: usize,
     /// Longest interval between consecutive IMU samples \[s\] (default 1): a longer
     /// hole cannot be integrated and stops the run.
