@@ -108,6 +108,14 @@ pub fn smooth_survey_at(
     smoothed(forward, &recorder, &process)
 }
 
+/// The entry of the increasing `times` within `tolerance` of `time`, if any.
+fn time_in(times: &[f64], time: f64, tolerance: f64) -> Option<f64> {
+    times
+        .get(times.partition_point(|&t| t < time - tolerance))
+        .copied()
+        .filter(|t| (t - time).abs() <= tolerance)
+}
+
 /// The smoothed epochs of `recorder` (the forward pass `forward` on `process`).
 fn smoothed<E: NavigationModel<N>, const N: usize>(
     forward: NavigationRun,
@@ -130,25 +138,8 @@ where
         // the navigator stamped it; the nominal's own time is the same sum of steps up
         // to rounding).
         let tolerance = 1e-6 * forward.imu_period_s;
-        let dvl = forward
-            .dvl_nis_times
-            .get(
-                forward
-                    .dvl_nis_times
-                    .partition_point(|&t| t < state.time - tolerance),
-            )
-            .copied()
-            .filter(|t| (t - state.time).abs() <= tolerance);
+        let dvl = time_in(&forward.dvl_nis_times, state.time, tolerance);
         let end = forward.final_solution.time;
-        let aiding = || {
-            let at = forward
-                .aiding_times
-                .partition_point(|&t| t < state.time - tolerance);
-            forward
-                .aiding_times
-                .get(at)
-                .is_some_and(|t| (t - state.time).abs() <= tolerance)
-        };
         // An epoch a mark ended with no measurement is not a solution of its own: it
         // gives the output epochs' solutions below.
         let kind = match dvl {
@@ -156,7 +147,9 @@ where
             None if k == last && (state.time - end).abs() <= tolerance => {
                 Some((SolutionKind::End, end))
             }
-            None if aiding() => Some((SolutionKind::Aiding, state.time)),
+            None if time_in(&forward.aiding_times, state.time, tolerance).is_some() => {
+                Some((SolutionKind::Aiding, state.time))
+            }
             None => None,
         };
         if let Some((kind, time)) = kind {
