@@ -37,7 +37,7 @@ pub use estim_nav::{
     SurveyWarning,
 };
 #[cfg(feature = "nav")]
-pub use estim_nav::{datasets, navigator};
+pub use estim_nav::{datasets, imu_spikes, navigator};
 
 /// The README's Rust code blocks, compiled and run as doc-tests (`cargo test` runs
 /// them; nothing of it is part of the API).

@@ -1027,3 +1027,55 @@ fn a_jump_in_the_references_positions_is_warned_about_naming_its_rows() {
         assert!(err.contains(message), "{err}");
     }
 }
+
+/// One wild IMU sample (a corrupted record) is integrated as logged: a velocity step
+/// the covariance does not hold. It is named in a warning, code `imu_spike`, with the
+/// file, its data row, the channel (body axes) and its size; a clean file has none.
+#[test]
+fn a_wild_imu_sample_is_warned_about_naming_its_row() {
+    let v = survey();
+    let d = v.dir.path();
+    // Data row 301 (line 302, t = 30.0 s): 5 m/s^2 on x (0.5 m/s in its 0.1 s) and,
+    // two rows on, 0.2 rad/s about z for two samples.
+    let text: String = imu("gz", 60, |_| 0.0)
+        .lines()
+        .enumerate()
+        .map(|(i, line)| {
+            let mut cells: Vec<String> = line.split(',').map(str::to_string).collect();
+            if i == 301 {
+                cells[1] = "5".into();
+            }
+            if i == 303 || i == 304 {
+                cells[6] = "0.2".into();
+            }
+            cells.join(",") + "\n"
+        })
+        .collect();
+    let spiked = write(d, "imu_spike.csv", &text);
+    let run = |imu: &Path| -> (Value, String) {
+        let out = navigate(imu, &v.dvl, &v.vehicle, &["--json"]);
+        assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+        let summary: Value = serde_json::from_slice(&out.stdout).expect("json");
+        (summary["warnings"].clone(), stderr(&out))
+    };
+    let (none, _) = run(&v.imu);
+    assert!(!none.to_string().contains("imu_spike"), "{none}");
+    let (found, err) = run(&spiked);
+    let spikes: Vec<&Value> = found
+        .as_array()
+        .expect("warnings")
+        .iter()
+        .filter(|w| w["code"] == "imu_spike")
+        .collect();
+    assert_eq!(spikes.len(), 1, "{found}");
+    let message = spikes[0]["message"].as_str().expect("message");
+    for part in [
+        "imu_spike.csv: 2 spike(s)",
+        "data row 301 acc x +5.0000 m/s^2",
+        "data rows 303-304 gyro z +0.2000 rad/s",
+    ] {
+        assert!(message.contains(part), "{part:?} not in {message}");
+    }
+    assert_eq!(spikes[0]["file"], s(&spiked));
+    assert!(err.contains(message), "{err}");
+}

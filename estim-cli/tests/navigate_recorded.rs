@@ -103,6 +103,8 @@ fn every_training_trajectory_navigates_on_its_recorded_imu() {
         );
         let s = json(&out);
         assert_eq!(s["status"], "ok", "trajectory {n}");
+        // Nothing to warn about: no spike in the IMU log, no jump in the reference.
+        assert_eq!(s["warnings"], serde_json::json!([]), "trajectory {n}");
         let e = &s["evaluation"];
         assert_eq!(e["scored_at"], "reference_epochs");
         // The reference's clock against the IMU's: one of the two groups the data

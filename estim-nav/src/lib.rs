@@ -12,12 +12,15 @@
 //!   depth, position fixes, ground truth) and the rules for finding the data on disk;
 //! - [`SurveyInputs::load`](navigator::SurveyInputs::load): a survey's files, read,
 //!   checked and merged in one call ([`SurveyFiles`]);
+//! - [`imu_spikes`]: isolated wild samples of an IMU log, warned about by
+//!   [`check_survey`];
 //! - [`truth`]: a reference trajectory on the navigator's clock and the evaluation of
 //!   a run against it; [`truth::read_vehicle`] reads a vehicle TOML.
 #![deny(missing_docs)]
 #![deny(rustdoc::broken_intra_doc_links, rustdoc::private_intra_doc_links)]
 
 pub mod datasets;
+pub mod imu_spikes;
 pub mod navigator;
 mod survey;
 mod survey_checks;

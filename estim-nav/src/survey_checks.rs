@@ -8,7 +8,9 @@
 //!   the INS (the run would be free inertial, not the run asked for), and is a
 //!   warning otherwise;
 //! - an `imu.rate_hz` more than 1 % from the IMU file's median sample rate is a
-//!   warning: the run then integrates each sample's own interval, as without the key.
+//!   warning: the run then integrates each sample's own interval, as without the key;
+//! - spikes of the IMU log ([`crate::imu_spikes`]) are a warning naming their data
+//!   rows: the run integrates them as logged.
 
 use std::path::{Path, PathBuf};
 
@@ -19,7 +21,7 @@ use crate::survey::{SurveyError, SurveyFiles};
 /// should know; the front ends print it and list it in their summary.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SurveyWarning {
-    /// A stable identifier: `dvl_no_lock` or `imu_rate_mismatch`.
+    /// A stable identifier: `dvl_no_lock`, `imu_rate_mismatch` or `imu_spike`.
     pub code: &'static str,
     /// The file concerned.
     pub file: PathBuf,
@@ -122,6 +124,7 @@ pub fn check_survey(
     check_spans(files, config, inputs, epoch)?;
     let mut warnings: Vec<SurveyWarning> = check_dvl_lock(files, inputs)?.into_iter().collect();
     warnings.extend(check_imu_rate(files, config, inputs));
+    warnings.extend(check_imu_spikes(files, inputs));
     Ok(warnings)
 }
 
@@ -243,6 +246,56 @@ fn check_imu_rate(
              {median:.6} s ({measured:.4} Hz on the navigator's clock); each sample's own \
              interval is integrated",
             files.imu.display()
+        ),
+    })
+}
+
+/// Spikes named in a warning, at most.
+const SPIKES_NAMED: usize = 5;
+
+/// The IMU log's spikes ([`crate::imu_spikes::imu_spikes`], on the body axes), the
+/// first [`SPIKES_NAMED`] named by data row (1 = the first sample), channel,
+/// departure and threshold.
+fn check_imu_spikes(files: &SurveyFiles, inputs: &SurveyInputs) -> Option<SurveyWarning> {
+    let mut spikes = crate::imu_spikes::imu_spikes(&inputs.imu);
+    if spikes.is_empty() {
+        return None;
+    }
+    spikes.sort_by_key(|s| (s.index, s.channel));
+    let named: Vec<String> = spikes
+        .iter()
+        .take(SPIKES_NAMED)
+        .map(|s| {
+            let rows = if s.samples == 1 {
+                format!("data row {}", s.index + 1)
+            } else {
+                format!("data rows {}-{}", s.index + 1, s.index + s.samples)
+            };
+            let unit = if s.channel < 3 { "m/s^2" } else { "rad/s" };
+            format!(
+                "{rows} {} {:+.4} {unit} (threshold {:.4})",
+                crate::imu_spikes::CHANNELS[s.channel],
+                s.departure,
+                s.threshold
+            )
+        })
+        .collect();
+    let more = spikes.len().saturating_sub(SPIKES_NAMED);
+    let rest = if more > 0 {
+        format!(" and {more} more")
+    } else {
+        String::new()
+    };
+    Some(SurveyWarning {
+        code: "imu_spike",
+        file: files.imu.clone(),
+        message: format!(
+            "{}: {} spike(s), samples that leave both neighbours far beyond the log's \
+             sample-to-sample change (body axes): {}{rest}; they are integrated as \
+             logged, each a velocity or attitude step the covariance does not hold",
+            files.imu.display(),
+            spikes.len(),
+            named.join("; ")
         ),
     })
 }
