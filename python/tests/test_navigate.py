@@ -213,7 +213,8 @@ def test_the_survey_checks_of_the_binary_hold_in_python(tmp_path):
     another clock (Unix seconds beside relative ones) or without lock and nothing else
     aiding raises; an `imu.rate_hz` that does not fit the IMU file (100 Hz declared,
     the file at 100 Hz is fine; 10 Hz declared is not) is a UserWarning and an entry of
-    `warnings`, and the run equals the one without the key."""
+    `warnings`, and the run equals the one without the key; a spike of the IMU log is
+    one too, naming its data row."""
     imu, dvl, vehicle = write_stationary(tmp_path, seconds=20.0)
     plain = estim.navigate(imu=imu, dvl=dvl, vehicle=vehicle)
     assert plain["warnings"] == []
@@ -240,3 +241,14 @@ def test_the_survey_checks_of_the_binary_hold_in_python(tmp_path):
     assert out["warnings"][0]["file"].endswith("imu.csv")
     for key in ("latitude_deg", "longitude_deg", "depth_m"):
         np.testing.assert_allclose(out[key], plain[key], rtol=0, atol=1e-9)
+    # One wild IMU sample (data row 1001, t = 1010 s): 5 m/s^2 on x, integrated as
+    # logged and named.
+    spiked = tmp_path / "spiked.csv"
+    rows = imu.read_text().splitlines()
+    cells = rows[1001].split(",")
+    cells[1] = "5"
+    rows[1001] = ",".join(cells)
+    spiked.write_text("\n".join(rows) + "\n")
+    with pytest.warns(UserWarning, match=r"spiked\.csv: 1 spike\(s\).*data row 1001 acc x \+5\.0000 m/s\^2"):
+        out = estim.navigate(imu=spiked, dvl=dvl, vehicle=vehicle)
+    assert [w["code"] for w in out["warnings"]] == ["imu_spike"]
