@@ -113,6 +113,10 @@ pub fn imu_spikes(imu: &[ImuSample]) -> Vec<ImuSpike> {
 /// largest signed departure from the neighbours' mean.
 fn spike_at(x: &[f64], k: usize, t: f64) -> Option<(usize, f64)> {
     let left = x[k - 1];
+    // Every run from k starts by leaving the left neighbour by more than t.
+    if (x[k] - left).abs() <= t {
+        return None;
+    }
     for j in 1..=MAX_SPIKE_SAMPLES {
         let &right = x.get(k + j)?;
         let run = &x[k..k + j];
