@@ -1071,8 +1071,8 @@ fn a_wild_imu_sample_is_warned_about_naming_its_row() {
     let message = spikes[0]["message"].as_str().expect("message");
     for part in [
         "imu_spike.csv: 2 spike(s)",
-        "data row 301 acc x +5.0000 m/s^2",
-        "data rows 303-304 gyro z +0.2000 rad/s",
+        "sample 301 acc x +5.0000 m/s^2",
+        "samples 303-304 gyro z +0.2000 rad/s",
     ] {
         assert!(message.contains(part), "{part:?} not in {message}");
     }

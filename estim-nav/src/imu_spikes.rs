@@ -36,7 +36,9 @@ pub const CHANNELS: [&str; 6] = ["acc x", "acc y", "acc z", "gyro x", "gyro y", 
 /// One spike of one channel.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ImuSpike {
-    /// Index of its first sample in the log (0-based; data row `index + 1`).
+    /// Index of its first sample in the log (0-based: data row `index + 1` of a file of
+    /// rates, `index + 2` of a file of increments, whose first row only starts the
+    /// clock).
     pub index: usize,
     /// Its number of samples (1 to [`MAX_SPIKE_SAMPLES`]).
     pub samples: usize,

@@ -254,8 +254,8 @@ fn check_imu_rate(
 const SPIKES_NAMED: usize = 5;
 
 /// The IMU log's spikes ([`crate::imu_spikes::imu_spikes`], on the body axes), the
-/// first [`SPIKES_NAMED`] named by data row (1 = the first sample), channel,
-/// departure and threshold.
+/// first [`SPIKES_NAMED`] named by sample (1 = the first; data row k of a file of
+/// rates, k + 1 of a file of increments), channel, departure and threshold.
 fn check_imu_spikes(files: &SurveyFiles, inputs: &SurveyInputs) -> Option<SurveyWarning> {
     let mut spikes = crate::imu_spikes::imu_spikes(&inputs.imu);
     if spikes.is_empty() {
@@ -267,9 +267,9 @@ fn check_imu_spikes(files: &SurveyFiles, inputs: &SurveyInputs) -> Option<Survey
         .take(SPIKES_NAMED)
         .map(|s| {
             let rows = if s.samples == 1 {
-                format!("data row {}", s.index + 1)
+                format!("sample {}", s.index + 1)
             } else {
-                format!("data rows {}-{}", s.index + 1, s.index + s.samples)
+                format!("samples {}-{}", s.index + 1, s.index + s.samples)
             };
             let unit = if s.channel < 3 { "m/s^2" } else { "rad/s" };
             format!(
@@ -291,8 +291,8 @@ fn check_imu_spikes(files: &SurveyFiles, inputs: &SurveyInputs) -> Option<Survey
         file: files.imu.clone(),
         message: format!(
             "{}: {} spike(s), samples that leave both neighbours far beyond the log's \
-             sample-to-sample change (body axes): {}{rest}; they are integrated as \
-             logged, each a velocity or attitude step the covariance does not hold",
+             sample-to-sample change (body axes): {}{rest} (sample k is data row k of a file \
+             of rates, k + 1 of a file of increments); they are integrated as logged, each a velocity or attitude step the covariance does not hold",
             files.imu.display(),
             spikes.len(),
             named.join("; ")

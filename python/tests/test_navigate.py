@@ -249,6 +249,6 @@ def test_the_survey_checks_of_the_binary_hold_in_python(tmp_path):
     cells[1] = "5"
     rows[1001] = ",".join(cells)
     spiked.write_text("\n".join(rows) + "\n")
-    with pytest.warns(UserWarning, match=r"spiked\.csv: 1 spike\(s\).*data row 1001 acc x \+5\.0000 m/s\^2"):
+    with pytest.warns(UserWarning, match=r"spiked\.csv: 1 spike\(s\).*sample 1001 acc x \+5\.0000 m/s\^2"):
         out = estim.navigate(imu=spiked, dvl=dvl, vehicle=vehicle)
     assert [w["code"] for w in out["warnings"]] == ["imu_spike"]
