@@ -171,13 +171,9 @@ mod tests {
             .collect()
     }
 
-    #[test]
-    fn a_clean_log_has_no_spike() {
-        for seed in 1..=4 {
-            assert!(imu_spikes(&log(seed, 120)).is_empty(), "seed {seed}");
-        }
-        // Noise-free and constant: no change, the floors hold.
-        let still: Vec<ImuSample> = (0..500)
+    /// A vehicle at rest, level, noise-free: 5 s at 100 Hz.
+    fn still() -> Vec<ImuSample> {
+        (0..500)
             .map(|k| {
                 ImuSample::new(
                     k as f64 * 0.01,
@@ -185,7 +181,16 @@ mod tests {
                     Vector3::zeros(),
                 )
             })
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn a_clean_log_has_no_spike() {
+        for seed in 1..=4 {
+            assert!(imu_spikes(&log(seed, 120)).is_empty(), "seed {seed}");
+        }
+        // Noise-free and constant: no change, the floors hold.
+        let still = still();
         assert!(imu_spikes(&still).is_empty());
     }
 
@@ -228,15 +233,7 @@ mod tests {
             assert_eq!(found[2].threshold, SPIKE_FLOOR_ANGULAR_RATE);
         }
         // On a noise-free constant channel the floor decides.
-        let mut still: Vec<ImuSample> = (0..500)
-            .map(|k| {
-                ImuSample::new(
-                    k as f64 * 0.01,
-                    Vector3::new(0.0, 0.0, -9.81),
-                    Vector3::zeros(),
-                )
-            })
-            .collect();
+        let mut still = still();
         still[250].specific_force.x = 1.5;
         still[300].specific_force.y = 0.5;
         let found = imu_spikes(&still);
